@@ -1,5 +1,135 @@
-"""fpgalink: host library for the FPGA motor-controller UART protocol."""
+"""fpgalink: host library for the FPGA motor-controller UART protocol.
 
-from fpgalink._framing import DEFAULT_FRAMING, FrameDecoder, Framing, encode_frame
+The core (framing, messages, catalogue, :class:`Connection`) is sans-I/O: bytes in, events
+out, time passed in. :func:`open_link` (in :mod:`fpgalink.aio`) puts asyncio on top.
+"""
 
-__all__ = ["DEFAULT_FRAMING", "FrameDecoder", "Framing", "encode_frame"]
+from fpgalink._counter import CounterTracker, Observation, SendCounter
+from fpgalink._framing import (
+    DEFAULT_FRAMING,
+    AbortReason,
+    FrameAborted,
+    FrameDecoder,
+    FrameTooLong,
+    Framing,
+    FramingError,
+    FramingStats,
+    NoiseDropped,
+    encode_frame,
+)
+from fpgalink._messages import (
+    Alive,
+    Binary,
+    CountedMessage,
+    DirectCommand,
+    Disable,
+    Enable,
+    Malformed,
+    MalformedReason,
+    Text,
+)
+from fpgalink.catalogue import (
+    ChannelTelemetry,
+    Message,
+    NackReason,
+    ParamAck,
+    ParamGet,
+    ParamNack,
+    ParamSet,
+    References,
+    Telemetry,
+    TelemetryFlags,
+    encode_message,
+    parse_content,
+)
+from fpgalink.connection import (
+    BoardFound,
+    BoardSilent,
+    Connection,
+    CounterDuplicate,
+    CounterGap,
+    CounterLate,
+    EventsDropped,
+    LinkStats,
+    RequestDone,
+    RequestFailed,
+    Role,
+)
+from fpgalink.errors import (
+    BoardLost,
+    FpgalinkError,
+    LinkClosed,
+    LocalProtocolError,
+    ParameterError,
+    ParameterRefused,
+    PortError,
+    RequestTimeout,
+    UnknownParameter,
+)
+from fpgalink.params import PARAMETERS, Param, ParamType, Scope, lookup, resolve
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "DEFAULT_FRAMING",
+    "PARAMETERS",
+    "AbortReason",
+    "Alive",
+    "Binary",
+    "BoardFound",
+    "BoardLost",
+    "BoardSilent",
+    "ChannelTelemetry",
+    "Connection",
+    "CountedMessage",
+    "CounterDuplicate",
+    "CounterGap",
+    "CounterLate",
+    "CounterTracker",
+    "DirectCommand",
+    "Disable",
+    "Enable",
+    "EventsDropped",
+    "FpgalinkError",
+    "FrameAborted",
+    "FrameDecoder",
+    "FrameTooLong",
+    "Framing",
+    "FramingError",
+    "FramingStats",
+    "LinkClosed",
+    "LinkStats",
+    "LocalProtocolError",
+    "Malformed",
+    "MalformedReason",
+    "Message",
+    "NackReason",
+    "NoiseDropped",
+    "Observation",
+    "Param",
+    "ParamAck",
+    "ParamGet",
+    "ParamNack",
+    "ParamSet",
+    "ParamType",
+    "ParameterError",
+    "ParameterRefused",
+    "PortError",
+    "References",
+    "RequestDone",
+    "RequestFailed",
+    "RequestTimeout",
+    "Role",
+    "Scope",
+    "SendCounter",
+    "Telemetry",
+    "TelemetryFlags",
+    "Text",
+    "UnknownParameter",
+    "__version__",
+    "encode_frame",
+    "encode_message",
+    "lookup",
+    "parse_content",
+    "resolve",
+]

@@ -15,8 +15,11 @@ import re
 from dataclasses import dataclass
 from enum import Enum
 
+from fpgalink.errors import LocalProtocolError
+
 __all__ = [
     "DEFAULT_FRAMING",
+    "AbortReason",
     "FrameAborted",
     "FrameDecoder",
     "FrameTooLong",
@@ -32,7 +35,7 @@ __all__ = [
 DEFAULT_MAX_CONTENT = 200
 
 
-class FrameTooLong(ValueError):
+class FrameTooLong(LocalProtocolError):
     """Raised by the encoder for content the receiving hardware would drop as an overflow."""
 
 
@@ -78,7 +81,8 @@ class _Encoder:
         self._framing = framing
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
-        self._special_re = re.compile(b"([" + b"".join(re.escape(bytes((b,))) for b in framing.specials) + b"])")
+        escaped = b"".join(re.escape(bytes((b,))) for b in framing.specials)
+        self._special_re = re.compile(b"([" + escaped + b"])")
 
     def encode(self, content: bytes) -> bytes:
         if len(content) > self._framing.max_content:
@@ -93,7 +97,9 @@ class _Encoder:
 _encoders: dict[Framing, _Encoder] = {}
 
 
-def encode_frame(content: bytes | bytearray | memoryview, framing: Framing = DEFAULT_FRAMING) -> bytes:
+def encode_frame(
+    content: bytes | bytearray | memoryview, framing: Framing = DEFAULT_FRAMING
+) -> bytes:
     """Wrap ``content`` in START/STOP, putting SKIP before every special byte (``uartsend``)."""
     encoder = _encoders.get(framing)
     if encoder is None:
