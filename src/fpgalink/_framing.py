@@ -75,7 +75,7 @@ def max_wire_length(content_length: int) -> int:
 
 
 class _Encoder:
-    __slots__ = ("_framing", "_head", "_special_re", "_tail")
+    __slots__ = ("_framing", "_head", "_special_re", "_tail", "_template")
 
     def __init__(self, framing: Framing) -> None:
         self._framing = framing
@@ -83,6 +83,8 @@ class _Encoder:
         self._tail = bytes((framing.stop,))
         escaped = b"".join(re.escape(bytes((b,))) for b in framing.specials)
         self._special_re = re.compile(b"([" + escaped + b"])")
+        # In a replacement template only the backslash needs escaping.
+        self._template = bytes((framing.skip,)).replace(b"\\", b"\\\\") + rb"\1"
 
     def encode(self, content: bytes) -> bytes:
         if len(content) > self._framing.max_content:
@@ -90,8 +92,7 @@ class _Encoder:
                 f"frame content is {len(content)} bytes; the receiver drops anything over "
                 f"{self._framing.max_content}"
             )
-        skip = bytes((self._framing.skip,))
-        return self._head + self._special_re.sub(re.escape(skip) + rb"\1", content) + self._tail
+        return self._head + self._special_re.sub(self._template, content) + self._tail
 
 
 _encoders: dict[Framing, _Encoder] = {}

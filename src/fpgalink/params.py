@@ -167,12 +167,25 @@ def channel_name(channel: int) -> str:
 
 def lookup(name_or_id: str | int) -> Param:
     """A parameter by id or by name, case-insensitive, with or without the A/B suffix."""
-    if isinstance(name_or_id, int) and not isinstance(name_or_id, bool):
+    return _find(name_or_id)[0]
+
+
+def _find(name: str | int) -> tuple[Param, int | None]:
+    """The parameter and the channel its name's suffix names, if any."""
+    if isinstance(name, int) and not isinstance(name, bool):
         try:
-            return _BY_ID[name_or_id]
+            return _BY_ID[name], None
         except KeyError:
-            raise UnknownParameter(f"no parameter has id {name_or_id}") from None
-    return resolve(str(name_or_id))[0]
+            raise UnknownParameter(f"no parameter has id {name}") from None
+    key = str(name).strip().lower()
+    if key in _BY_NAME:
+        return _BY_NAME[key], None
+    if key[-1:] in ("a", "b") and key[:-1] in _BY_NAME:
+        candidate = _BY_NAME[key[:-1]]
+        if candidate.scope is Scope.CHANNEL:
+            return candidate, CHANNEL_A if key[-1] == "a" else CHANNEL_B
+    known = ", ".join(p.name for p in PARAMETERS)
+    raise UnknownParameter(f"unknown parameter {name!r}; known: {known}")
 
 
 def resolve(name: str | int, channel: int | str | None = None) -> tuple[Param, int]:
@@ -180,25 +193,14 @@ def resolve(name: str | int, channel: int | str | None = None) -> tuple[Param, i
     the seed's suffixed form ``Kp_Wheel_PidA``. A channel parameter needs a channel; a board
     parameter takes none (or 0)."""
     code = channel_code(channel)
-    if isinstance(name, int) and not isinstance(name, bool):
-        param = lookup(name)
-    else:
-        key = str(name).strip().lower()
-        param_or_none = _BY_NAME.get(key)
-        if param_or_none is None and key[-1:] in ("a", "b") and key[:-1] in _BY_NAME:
-            candidate = _BY_NAME[key[:-1]]
-            if candidate.scope is Scope.CHANNEL:
-                suffix = CHANNEL_A if key[-1] == "a" else CHANNEL_B
-                if code is not None and code != suffix:
-                    raise ParameterError(
-                        f"{name}: the name says channel {key[-1].upper()} but channel "
-                        f"{channel_name(code) or code} was given"
-                    )
-                param_or_none, code = candidate, suffix
-        if param_or_none is None:
-            known = ", ".join(p.name for p in PARAMETERS)
-            raise UnknownParameter(f"unknown parameter {name!r}; known: {known}")
-        param = param_or_none
+    param, suffix = _find(name)
+    if suffix is not None:
+        if code is not None and code != suffix:
+            raise ParameterError(
+                f"{name}: the name says channel {channel_name(suffix)} but channel "
+                f"{channel_name(code) or code} was given"
+            )
+        code = suffix
     if param.scope is Scope.BOARD:
         if code not in (None, BOARD):
             raise ParameterError(f"{param.name} is board-wide; it takes no channel")
