@@ -285,14 +285,14 @@ def _setter(cls: type, field: str) -> Callable[[object, object], None]:
 
 
 _tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", "counter"))
-_make_channel = ChannelTelemetry._make
+_new_tuple = tuple.__new__
 
 
 def _build_tm(v: tuple[Any, ...], counter: int) -> Telemetry:
     tm = _new(Telemetry)
     _tm_t(tm, v[0])
-    _tm_a(tm, _make_channel(v[1:7]))
-    _tm_b(tm, _make_channel(v[7:13]))
+    _tm_a(tm, _new_tuple(ChannelTelemetry, v[1:7]))
+    _tm_b(tm, _new_tuple(ChannelTelemetry, v[7:13]))
     _tm_c(tm, counter)
     return tm
 
@@ -313,6 +313,8 @@ _BUILDERS: dict[bytes, tuple[struct.Struct, int, Callable[[tuple[Any, ...], int]
     b"RV": (_STRUCTS[b"RV"], _STRUCTS[b"RV"].size, lambda v, c: References(v[0], v[1], c)),
 }
 
+_OPENERS = {size: bytes((SECTION_OPEN, size)) for _, size, _ in _BUILDERS.values()}
+
 Parsed = Message | CountedMessage | DirectCommand | Malformed
 
 
@@ -325,8 +327,7 @@ def parse_content(content: bytes) -> Parsed:
         digits = content[2:7]
         if (
             len(content) == size + 10
-            and content[7] == SECTION_OPEN
-            and content[8] == size
+            and content[7:9] == _OPENERS[size]
             and content[-1] == SECTION_CLOSE
             and digits.isdigit()
         ):
