@@ -70,6 +70,19 @@ from fpgalink.params import PARAMETERS, Param, ParamType, Scope, lookup, resolve
 
 __version__ = "0.1.0"
 
+# The asyncio layer is imported on first use, so the sans-I/O core never pulls in asyncio.
+_AIO_NAMES = ("Link", "LinkEvent", "LinkEventKind", "LinkState", "SyncResult",
+              "TelemetrySubscription", "open_link")
+
+
+def __getattr__(name: str) -> object:
+    if name in _AIO_NAMES:
+        from fpgalink.aio import link
+
+        return getattr(link, name)
+    raise AttributeError(f"module 'fpgalink' has no attribute {name!r}")
+
+
 __all__ = [
     "DEFAULT_FRAMING",
     "PARAMETERS",
@@ -97,7 +110,11 @@ __all__ = [
     "Framing",
     "FramingError",
     "FramingStats",
+    "Link",
     "LinkClosed",
+    "LinkEvent",
+    "LinkEventKind",
+    "LinkState",
     "LinkStats",
     "LocalProtocolError",
     "Malformed",
@@ -122,14 +139,17 @@ __all__ = [
     "Role",
     "Scope",
     "SendCounter",
+    "SyncResult",
     "Telemetry",
     "TelemetryFlags",
+    "TelemetrySubscription",
     "Text",
     "UnknownParameter",
     "__version__",
     "encode_frame",
     "encode_message",
     "lookup",
+    "open_link",
     "parse_content",
     "resolve",
 ]

@@ -179,6 +179,9 @@ class LinkStats:
     heartbeats_sent: int = 0
     heartbeat_misses: int = 0  #: times the board went silent past the liveness timeout
     events_dropped: int = 0
+    subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
+    port_losses: int = 0
+    reconnects: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
 
     def snapshot(self) -> LinkStats:
@@ -353,6 +356,10 @@ class Connection:
         self.stats.frames_sent += 1
         self.stats.bytes_sent += len(wire)
         return wire
+
+    def reset_receiver(self) -> None:
+        """Drop any half-received frame (after a reconnect the stream starts afresh)."""
+        self._decoder.reset()
 
     def data_to_send(self) -> bytes:
         """Bytes the link produced on its own (heartbeats, request resends)."""
