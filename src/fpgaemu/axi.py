@@ -1,0 +1,167 @@
+"""What the MicroBlaze sees of the UART logic over AXI: interrupts, registers and the two
+block RAMs. The firmware (part 2) is written against this class only.
+
+Reads go through ``uartcommand.sync()`` first, so the processor sees exactly what the logic
+holds at the current cycle even though received bytes are processed lazily.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from fpgaemu.bram import BlockRam
+from fpgaemu.timeline import Timeline
+from fpgaemu.uartcommand import EnableChange, RxInterrupt, UartCommand
+from fpgaemu.uartsend import TxDone, UartSend
+from fpgalink._framing import Framing
+
+__all__ = ["AxiBus", "TxQueue", "TxQueueStats"]
+
+
+class AxiBus:
+    """The processor's port: ``on_rx_interrupt``, ``read_rx``/``ack_rx``, ``write_tx`` +
+    ``strobe_tx``, ``tx_busy``, ``on_tx_done``, ``global_enable``, ``set_framing``."""
+
+    def __init__(
+        self,
+        timeline: Timeline,
+        uartcommand: UartCommand,
+        uartsend: UartSend,
+        rx_bram: BlockRam,
+        tx_bram: BlockRam,
+    ) -> None:
+        self._timeline = timeline
+        self.uartcommand = uartcommand
+        self.uartsend = uartsend
+        self.rx_bram = rx_bram
+        self.tx_bram = tx_bram
+
+    @property
+    def now(self) -> int:
+        return self._timeline.now
+
+    def set_framing(self, framing: Framing) -> None:
+        """Start-up: program the framing bytes into both modules."""
+        self.uartcommand.set_framing(framing)
+        self.uartsend.set_framing(framing)
+
+    # --- receive --------------------------------------------------------------------------
+
+    def on_rx_interrupt(self, handler: Callable[[RxInterrupt], None]) -> None:
+        """``handler`` runs in the cycle a message frame's STOP completes."""
+        self.uartcommand.on_interrupt(handler)
+
+    @property
+    def rx_start_address(self) -> int:
+        self.uartcommand.sync()
+        return self.uartcommand.start_address
+
+    @property
+    def rx_length(self) -> int:
+        self.uartcommand.sync()
+        return self.uartcommand.length
+
+    def read_rx_word(self, index: int) -> int:
+        self.uartcommand.sync()
+        return self.rx_bram.read_word(index)
+
+    def read_rx(self, start_address: int, length: int) -> bytes:
+        """The content bytes of a frame, as the firmware gets them from word reads."""
+        self.uartcommand.sync()
+        return self.rx_bram.read_bytes(start_address, length)
+
+    def read_rx_frame(self) -> bytes:
+        """The frame the registers describe now (the last delivered)."""
+        cmd = self.uartcommand
+        cmd.sync()
+        return self.rx_bram.read_bytes(cmd.start_address, cmd.length)
+
+    def ack_rx(self, start_address: int | None = None) -> None:
+        """Write the read-done register for the frame at ``start_address`` (default: the one
+        the registers describe)."""
+        cmd = self.uartcommand
+        cmd.ack(cmd.start_address if start_address is None else start_address)
+
+    # --- transmit -------------------------------------------------------------------------
+
+    @property
+    def tx_busy(self) -> bool:
+        return self.uartsend.busy
+
+    def write_tx_word(self, index: int, value: int) -> None:
+        self.uartsend.note_ram_write()
+        self.tx_bram.write_word(index, value)
+
+    def write_tx(self, content: bytes | bytearray | memoryview) -> None:
+        """Store ``content`` in the TX RAM (word writes, little-endian) and set the length
+        register."""
+        self.uartsend.note_ram_write()
+        self.tx_bram.write_bytes(0, content)
+        self.uartsend.set_length(len(content))
+
+    def strobe_tx(self) -> bool:
+        """Pulse the send strobe; ``False`` if ``uartsend`` was busy and ignored it."""
+        return self.uartsend.strobe()
+
+    def on_tx_done(self, handler: Callable[[TxDone], None]) -> None:
+        self.uartsend.on_done(handler)
+
+    # --- enable ---------------------------------------------------------------------------
+
+    @property
+    def global_enable(self) -> bool:
+        self.uartcommand.sync()
+        return self.uartcommand.global_enable
+
+    def on_global_enable(self, handler: Callable[[EnableChange], None]) -> None:
+        self.uartcommand.on_enable_change(handler)
+
+
+@dataclass(slots=True)
+class TxQueueStats:
+    queued: int = 0
+    sent: int = 0
+    dropped: int = 0  #: messages refused because the queue was full
+    max_depth: int = 0
+
+
+class TxQueue:
+    """Firmware-side send queue: ``send(content)`` writes and strobes at once when
+    ``uartsend`` is idle, otherwise keeps the message (bounded) and sends it from the TX-done
+    interrupt — what the MicroBlaze software does around a module that ignores busy strobes."""
+
+    def __init__(self, axi: AxiBus, depth: int = 8) -> None:
+        self._axi = axi
+        self.depth = depth
+        self._queue: deque[bytes] = deque()
+        self.stats = TxQueueStats()
+        axi.on_tx_done(self._on_done)
+
+    def __len__(self) -> int:
+        return len(self._queue)
+
+    def send(self, content: bytes) -> bool:
+        """Send or queue ``content``; ``False`` if the queue was full and it was dropped."""
+        if not self._axi.tx_busy and not self._queue:
+            self._start(content)
+            return True
+        if len(self._queue) >= self.depth:
+            self.stats.dropped += 1
+            return False
+        self._queue.append(content)
+        self.stats.queued += 1
+        self.stats.max_depth = max(self.stats.max_depth, len(self._queue))
+        return True
+
+    def _start(self, content: bytes) -> None:
+        axi = self._axi
+        axi.write_tx(content)
+        accepted = axi.strobe_tx()
+        assert accepted, "uartsend refused a strobe while idle"
+        self.stats.sent += 1
+
+    def _on_done(self, event: TxDone) -> None:
+        if self._queue and not self._axi.tx_busy:
+            self._start(self._queue.popleft())

@@ -1,0 +1,131 @@
+"""The board: the seed's figures 3.1–3.2 wired on one timeline.
+
+    host ─RX pin─► uartread ─► uartcommand ─► blk_mem_gen (RX) ─┐
+                                  │ global_enable, interrupt     ├─ AxiBus ◄─ MicroBlaze
+    host ◄TX pin── uartwrite ◄─ uartsend ◄─ blk_mem_gen (TX) ◄───┘           (firmware)
+
+The host-facing API is what a serial port gives: ``host_write`` puts bytes on the RX pin at
+a cycle, ``read_host_bytes`` returns the TX bytes whose stop bit has ended. Further hardware
+(PWM, encoders, timer, the firmware, the plant) attaches with :meth:`Board.add_peripheral`.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from fpgaemu.axi import AxiBus
+from fpgaemu.bram import BRAM_BYTES, BlockRam
+from fpgaemu.timeline import Timeline, seconds_to_cycles
+from fpgaemu.uart import DEFAULT_BAUD, LineFaults, UartRead, UartWrite
+from fpgaemu.uartcommand import WATCHDOG_CYCLES, UartCommand
+from fpgaemu.uartsend import UartSend
+from fpgalink._framing import DEFAULT_FRAMING, Framing
+
+__all__ = ["Board", "BoardConfig", "Peripheral"]
+
+
+@dataclass
+class BoardConfig:
+    """Everything fixed at power-up. Mutable so a caller can fill it from options."""
+
+    baud: int = DEFAULT_BAUD
+    seed: int = 0
+    framing: Framing = DEFAULT_FRAMING
+    #: the plant's gearbox setting, used by the motor model (part 2)
+    gear: str = "high"
+    watchdog_cycles: int = WATCHDOG_CYCLES
+    #: host → board line faults (``uartread``)
+    rx_faults: LineFaults | None = None
+    #: board → host line faults (``uartwrite``)
+    tx_faults: LineFaults | None = None
+    #: free-form settings for peripherals (initial parameters, fault specs, …)
+    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
+
+
+class Peripheral(Protocol):
+    """Anything that attaches itself to the board's timeline and AXI bus."""
+
+    def attach(self, board: Board) -> None: ...
+
+
+class Board:
+    """One emulated CmodA7 board. Attributes are named after the seed's modules."""
+
+    def __init__(self, config: BoardConfig | None = None, **overrides: Any) -> None:
+        config = BoardConfig() if config is None else config
+        if overrides:
+            config = dataclasses.replace(config, **overrides)
+        self.config = config
+        self.timeline = Timeline(config.seed)
+        self.blk_mem_gen_rx = BlockRam(BRAM_BYTES, "blk_mem_gen_rx")
+        self.blk_mem_gen_tx = BlockRam(BRAM_BYTES, "blk_mem_gen_tx")
+        self.uartcommand = UartCommand(
+            self.timeline, self.blk_mem_gen_rx, config.framing, config.watchdog_cycles
+        )
+        self.uartread = UartRead(
+            self.timeline, self.uartcommand.receive, config.baud, config.rx_faults
+        )
+        self.uartwrite = UartWrite(self.timeline, config.baud, config.tx_faults)
+        self.uartsend = UartSend(
+            self.timeline, self.blk_mem_gen_tx, self.uartwrite, config.framing
+        )
+        self.axi = AxiBus(
+            self.timeline, self.uartcommand, self.uartsend, self.blk_mem_gen_rx,
+            self.blk_mem_gen_tx,
+        )
+        self.peripherals: dict[str, Peripheral] = {}
+
+    # --- composition ----------------------------------------------------------------------
+
+    def add_peripheral(self, name: str, peripheral: Peripheral) -> Peripheral:
+        """Register a module under ``name`` and let it wire itself (``attach``)."""
+        if name in self.peripherals:
+            raise ValueError(f"a peripheral named {name!r} is already attached")
+        self.peripherals[name] = peripheral
+        peripheral.attach(self)
+        return peripheral
+
+    # --- time -----------------------------------------------------------------------------
+
+    @property
+    def now(self) -> int:
+        return self.timeline.now
+
+    def run_until(self, cycle: int) -> None:
+        self.timeline.run_until(cycle)
+        self.uartcommand.sync()
+
+    def run_for(self, seconds: float) -> None:
+        self.run_until(self.timeline.now + seconds_to_cycles(seconds))
+
+    def run_cycles(self, cycles: int) -> None:
+        self.run_until(self.timeline.now + cycles)
+
+    def schedule(self, cycle: int, callback: Callable[[int], None]) -> None:
+        self.timeline.schedule(cycle, callback)
+
+    # --- the host's end of the cable ------------------------------------------------------
+
+    def host_write(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:
+        """The host starts sending ``data`` on the RX pin at ``cycle`` (default now), queued
+        behind bytes still on the line. Returns the cycle the last stop bit ends."""
+        return self.uartread.transmit(data, cycle)
+
+    def read_host_bytes(self) -> bytes:
+        """TX bytes whose stop bit has ended by now, not returned before."""
+        return self.uartwrite.read_completed()
+
+    def read_host_bytes_timed(self) -> list[tuple[int, int]]:
+        """As :meth:`read_host_bytes`, as ``(byte, completion cycle)`` pairs."""
+        return self.uartwrite.read_completed_timed()
+
+    @property
+    def global_enable(self) -> bool:
+        return self.axi.global_enable
+
+    @property
+    def cycles_per_byte(self) -> int:
+        return self.uartread.cycles_per_byte

@@ -1,0 +1,351 @@
+"""``uartread`` / ``uartwrite``: the 8N1 line in each direction, with optional fault injection.
+
+A byte on the wire is 10 bit times: a low start bit, eight data bits LSB first, a high stop
+bit; the receiver has the byte when the stop bit ends. At the default 1 MBd a bit is 100
+cycles and a byte 1,000. A burst is handled as a whole: the line computes every byte's
+completion cycle (a :class:`ByteRun`: data, first completion, spacing) and hands the run on
+in one call, so a busy line costs one Python call per burst, not per byte or bit.
+
+Bytes sent faster than line rate queue as on a real wire: each starts when the previous
+one's stop bit has ended. A line idle when a burst arrives starts it at once.
+
+Fault injection (:class:`LineFaults`, off by default) switches a burst to an exact bit-level
+model: the burst is laid out as bit slots, chosen bits are flipped (by byte and bit index or
+at a bit-error rate from the board's seeded generator), bytes can be lost or noise bytes
+inserted, and a receiver samples the slots: in idle, a low slot starts a byte, the next
+eight are data, the tenth must be high or the byte is a framing error (dropped, counted)
+and the receiver looks for the next start from the slot after. So a broken stop bit loses
+exactly that byte, and a flipped start bit makes the receiver slip into the data bits until
+it resynchronises, as real receivers do. Simplification: a byte whose bits run past the end
+of a burst is completed with idle (high) bits; a slip does not carry into the next burst.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from fpgaemu.timeline import CLOCK_HZ, Timeline
+
+__all__ = [
+    "BITS_PER_BYTE",
+    "BIT_START",
+    "BIT_STOP",
+    "DEFAULT_BAUD",
+    "ByteRun",
+    "LineFaults",
+    "LineStats",
+    "UartRead",
+    "UartWrite",
+    "cycles_per_bit",
+]
+
+DEFAULT_BAUD = 1_000_000
+#: 8N1: start + 8 data + stop.
+BITS_PER_BYTE = 10
+#: Bit indexes within a byte's 10 slots, for :class:`LineFaults` (data bit k is slot k + 1).
+BIT_START = 0
+BIT_STOP = 9
+
+
+def cycles_per_bit(baud: int) -> int:
+    """Clock cycles per bit: the UART's divider counts whole cycles."""
+    if baud <= 0:
+        raise ValueError(f"baud must be positive, got {baud}")
+    return round(CLOCK_HZ / baud)
+
+
+@dataclass(frozen=True, slots=True)
+class ByteRun:
+    """Bytes received back to back: byte ``i`` completed (stop bit ended) at cycle
+    ``first + i * step``."""
+
+    data: bytes
+    first: int
+    step: int
+
+    def cycle_of(self, index: int) -> int:
+        return self.first + index * self.step
+
+    @property
+    def last(self) -> int:
+        """Completion cycle of the last byte."""
+        return self.first + (len(self.data) - 1) * self.step
+
+    def completed_by(self, cycle: int) -> int:
+        """How many of the bytes have completed at ``cycle``."""
+        if cycle < self.first:
+            return 0
+        return min(len(self.data), (cycle - self.first) // self.step + 1)
+
+    def timed(self) -> list[tuple[int, int]]:
+        """``(byte, completion cycle)`` pairs."""
+        first, step = self.first, self.step
+        return [(b, first + i * step) for i, b in enumerate(self.data)]
+
+
+@dataclass
+class LineFaults:
+    """Faults on one line direction. Byte indexes count the bytes the sender put on this line
+    since power-up, from 0 (inserted noise not counted); bit indexes are slots 0..9 of a byte
+    (:data:`BIT_START`, data bit k at k + 1, :data:`BIT_STOP`)."""
+
+    #: ``(byte index, bit index)`` pairs to invert.
+    flip_bits: set[tuple[int, int]] = field(default_factory=set)
+    #: byte indexes whose stop bit reads low: a framing error, the byte is lost.
+    break_stop: set[int] = field(default_factory=set)
+    #: byte indexes that never reach the receiver (the line stays idle for their time).
+    drop: set[int] = field(default_factory=set)
+    #: bytes put on the wire just before the sender's byte of this index (they take line time).
+    noise: dict[int, bytes] = field(default_factory=dict)
+    #: probability that any one bit slot (noise included) is inverted.
+    bit_error_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        if not 0.0 <= self.bit_error_rate <= 1.0:
+            raise ValueError(f"bit_error_rate must be in [0, 1], got {self.bit_error_rate}")
+        for _, bit in self.flip_bits:
+            if not 0 <= bit < BITS_PER_BYTE:
+                raise ValueError(f"bit index {bit} is not a slot 0..9 of an 8N1 byte")
+
+    def touches(self, first: int, end: int) -> bool:
+        """Whether any fault applies to sender bytes ``first <= index < end``."""
+        if self.bit_error_rate > 0.0:
+            return True
+        for index in (*self.break_stop, *self.drop, *self.noise):
+            if first <= index < end:
+                return True
+        return any(first <= index < end for index, _ in self.flip_bits)
+
+
+@dataclass(slots=True)
+class LineStats:
+    bytes_sent: int = 0  #: bytes the sender put on the line (noise excluded)
+    bytes_received: int = 0  #: bytes the receiver delivered
+    framing_errors: int = 0  #: bytes the receiver dropped for a low stop bit
+    bits_flipped: int = 0
+    noise_bytes: int = 0
+    dropped_bytes: int = 0  #: sender bytes lost by ``LineFaults.drop``
+
+
+def _byte_slots(value: int) -> list[int]:
+    return [0, *((value >> k) & 1 for k in range(8)), 1]
+
+
+class _Line:
+    """The sender-to-receiver path of one direction: timing, queuing and faults."""
+
+    __slots__ = (
+        "_rng",
+        "_timeline",
+        "baud",
+        "cycles_per_bit",
+        "cycles_per_byte",
+        "faults",
+        "line_free_at",
+        "name",
+        "stats",
+    )
+
+    def __init__(
+        self, timeline: Timeline, name: str, baud: int, faults: LineFaults | None
+    ) -> None:
+        self._timeline = timeline
+        self.name = name
+        self.baud = baud
+        self.cycles_per_bit = cycles_per_bit(baud)
+        self.cycles_per_byte = BITS_PER_BYTE * self.cycles_per_bit
+        self.faults = faults
+        self.stats = LineStats()
+        #: cycle at which the last queued byte's stop bit ends; the line is idle from then.
+        self.line_free_at = 0
+        self._rng = timeline.rng(name)
+
+    @property
+    def busy(self) -> bool:
+        return self._timeline.now < self.line_free_at
+
+    def _send(self, data: bytes, cycle: int | None) -> list[ByteRun]:
+        """Put ``data`` on the line at ``cycle`` (default now), behind anything queued."""
+        now = self._timeline.now
+        at = now if cycle is None else cycle
+        if at < now:
+            raise ValueError(f"{self.name}: cannot send at cycle {at}, the present is {now}")
+        start = max(at, self.line_free_at)
+        stats = self.stats
+        index = stats.bytes_sent
+        stats.bytes_sent += len(data)
+        faults = self.faults
+        if faults is not None and faults.touches(index, index + len(data)):
+            return self._send_bitwise(data, start, index, faults)
+        self.line_free_at = start + len(data) * self.cycles_per_byte
+        stats.bytes_received += len(data)
+        return [ByteRun(data, start + self.cycles_per_byte, self.cycles_per_byte)]
+
+    def _send_bitwise(
+        self, data: bytes, start: int, index: int, faults: LineFaults
+    ) -> list[ByteRun]:
+        stats = self.stats
+        flips: dict[int, list[int]] = {}
+        for byte_index, bit in faults.flip_bits:
+            flips.setdefault(byte_index, []).append(bit)
+        for byte_index in faults.break_stop:
+            flips.setdefault(byte_index, []).append(BIT_STOP)
+        slots: list[int] = []
+        for k, value in enumerate(data):
+            i = index + k
+            noise = faults.noise.get(i)
+            if noise:
+                stats.noise_bytes += len(noise)
+                for n in noise:
+                    slots += _byte_slots(n)
+            if i in faults.drop:
+                stats.dropped_bytes += 1
+                slots += [1] * BITS_PER_BYTE
+                continue
+            bits = _byte_slots(value)
+            for bit in set(flips.get(i, ())):
+                bits[bit] ^= 1
+                stats.bits_flipped += 1
+            slots += bits
+        if faults.bit_error_rate > 0.0:
+            hits = self._rng.random(len(slots)) < faults.bit_error_rate
+            for slot in hits.nonzero()[0].tolist():
+                slots[slot] ^= 1
+                stats.bits_flipped += 1
+        self.line_free_at = start + len(slots) * self.cycles_per_bit
+        # The receiver: idle until a low slot, then 8 data slots and a stop slot.
+        received: list[tuple[int, int]] = []
+        n = len(slots)
+        pos = 0
+        while pos < n:
+            if slots[pos]:
+                pos += 1
+                continue
+            value = 0
+            for k in range(8):
+                slot = pos + 1 + k
+                if slot >= n or slots[slot]:
+                    value |= 1 << k
+            stop = pos + BITS_PER_BYTE - 1
+            if stop >= n or slots[stop]:
+                received.append((value, pos + BITS_PER_BYTE))
+            else:
+                stats.framing_errors += 1
+            pos += BITS_PER_BYTE
+        stats.bytes_received += len(received)
+        # Regroup into runs of evenly spaced bytes.
+        bit = self.cycles_per_bit
+        runs: list[ByteRun] = []
+        group = bytearray()
+        group_first = prev_end = -1
+        for value, end_slot in received:
+            if group and end_slot != prev_end + BITS_PER_BYTE:
+                runs.append(ByteRun(bytes(group), start + group_first * bit, self.cycles_per_byte))
+                group.clear()
+            if not group:
+                group_first = end_slot
+            group.append(value)
+            prev_end = end_slot
+        if group:
+            runs.append(ByteRun(bytes(group), start + group_first * bit, self.cycles_per_byte))
+        return runs
+
+
+class UartRead(_Line):
+    """Host → board: the host's bytes on the RX pin, delivered as :class:`ByteRun`\\ s to the
+    ``sink`` (``uartcommand``) when they are put on the line, with their completion cycles."""
+
+    __slots__ = ("sink",)
+
+    def __init__(
+        self,
+        timeline: Timeline,
+        sink: Callable[[ByteRun], None],
+        baud: int = DEFAULT_BAUD,
+        faults: LineFaults | None = None,
+    ) -> None:
+        super().__init__(timeline, "uartread", baud, faults)
+        self.sink = sink
+
+    def transmit(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:
+        """The host writes ``data`` starting at ``cycle`` (default now); returns the cycle the
+        last byte's stop bit ends."""
+        if not data:
+            return max(self._timeline.now, self.line_free_at)
+        for run in self._send(bytes(data), cycle):
+            self.sink(run)
+        return self.line_free_at
+
+
+class _Draining:
+    """A run on its way to the host and how many of its bytes have been handed out."""
+
+    __slots__ = ("run", "taken")
+
+    def __init__(self, run: ByteRun) -> None:
+        self.run = run
+        self.taken = 0
+
+
+class UartWrite(_Line):
+    """Board → host: bytes leave back to back at line rate; the host side drains those whose
+    stop bit has ended (:meth:`read_completed`). Listeners see each run when it is committed
+    to the wire, with its future completion cycles (a logic analyser, a budget meter)."""
+
+    __slots__ = ("_listeners", "_pending")
+
+    def __init__(
+        self, timeline: Timeline, baud: int = DEFAULT_BAUD, faults: LineFaults | None = None
+    ) -> None:
+        super().__init__(timeline, "uartwrite", baud, faults)
+        self._pending: deque[_Draining] = deque()
+        self._listeners: list[Callable[[ByteRun], None]] = []
+
+    def add_listener(self, listener: Callable[[ByteRun], None]) -> None:
+        self._listeners.append(listener)
+
+    def transmit(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:
+        """Serialise ``data`` from ``cycle`` (default now), behind anything still on the line;
+        returns the cycle the last stop bit ends."""
+        if not data:
+            return max(self._timeline.now, self.line_free_at)
+        for run in self._send(bytes(data), cycle):
+            self._pending.append(_Draining(run))
+            for listener in self._listeners:
+                listener(run)
+        return self.line_free_at
+
+    def read_completed(self, cycle: int | None = None) -> bytes:
+        """Drain the bytes whose stop bit has ended by ``cycle`` (default now)."""
+        at = self._timeline.now if cycle is None else cycle
+        out = bytearray()
+        pending = self._pending
+        while pending:
+            entry = pending[0]
+            run, taken = entry.run, entry.taken
+            done = run.completed_by(at)
+            if done > taken:
+                out += run.data[taken:done]
+            if done < len(run.data):
+                entry.taken = done
+                break
+            pending.popleft()
+        return bytes(out)
+
+    def read_completed_timed(self, cycle: int | None = None) -> list[tuple[int, int]]:
+        """As :meth:`read_completed`, as ``(byte, completion cycle)`` pairs."""
+        at = self._timeline.now if cycle is None else cycle
+        out: list[tuple[int, int]] = []
+        pending = self._pending
+        while pending:
+            entry = pending[0]
+            run, taken = entry.run, entry.taken
+            done = run.completed_by(at)
+            out += [(run.data[i], run.first + i * run.step) for i in range(taken, done)]
+            if done < len(run.data):
+                entry.taken = done
+                break
+            pending.popleft()
+        return out

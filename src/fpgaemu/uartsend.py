@@ -1,0 +1,141 @@
+"""``uartsend``: frames the message the processor left in the TX block RAM and feeds
+``uartwrite``.
+
+The processor writes the content into the TX RAM (words, little-endian), sets the length
+register and pulses the send strobe. The logic emits START, each content byte (SKIP first if
+it is START, STOP or SKIP), and STOP, back to back at line rate; the START's start bit goes
+out in the strobe's cycle (the logic's few cycles of latency are below a bit time and not
+modelled), so a frame of ``n`` wire bytes is busy for exactly ``n`` byte times.
+
+Decisions (see ``docs/emulator.md``):
+
+* One TX RAM, so a strobe while busy is **refused** (ignored and counted in
+  ``refused_strobes``), as simple logic with a busy flag would do; firmware polls ``busy``
+  or waits for the done interrupt — :class:`fpgaemu.axi.TxQueue` is that firmware helper.
+* The message is read from the RAM at the strobe; writing the TX RAM while busy would
+  corrupt the frame on real hardware, so it is counted (``writes_while_busy``) but the
+  frame already on the wire is kept as it was.
+* Lengths up to the whole RAM are sent; the receiver drops content past its limit.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from fpgaemu.bram import BlockRam
+from fpgaemu.timeline import Timeline
+from fpgaemu.uart import UartWrite
+from fpgalink._framing import DEFAULT_FRAMING, Framing
+
+__all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
+
+
+@dataclass(frozen=True, slots=True)
+class TxDone:
+    """The last stop bit of a frame has ended; the module is idle again."""
+
+    cycle: int
+    wire_bytes: int
+
+
+@dataclass(slots=True)
+class UartSendStats:
+    frames: int = 0
+    wire_bytes: int = 0
+    escapes: int = 0
+    refused_strobes: int = 0
+    writes_while_busy: int = 0
+
+
+def frame_bytes(content: bytes, framing: Framing) -> bytes:
+    """START + content with SKIP before every special + STOP (the module's byte order)."""
+    return _Escaper.get(framing).frame(content)
+
+
+class _Escaper:
+    __slots__ = ("_head", "_pattern", "_tail", "_template")
+    _cache: dict[Framing, _Escaper] = {}  # noqa: RUF012 - per-framing memo, class-wide
+
+    def __init__(self, framing: Framing) -> None:
+        specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
+        self._pattern = re.compile(b"[" + specials + b"]")
+        skip = bytes((framing.skip,))
+        self._template = skip.replace(b"\\", b"\\\\") + rb"\g<0>"
+        self._head = bytes((framing.start,))
+        self._tail = bytes((framing.stop,))
+
+    @classmethod
+    def get(cls, framing: Framing) -> _Escaper:
+        escaper = cls._cache.get(framing)
+        if escaper is None:
+            escaper = cls._cache[framing] = cls(framing)
+        return escaper
+
+    def frame(self, content: bytes) -> bytes:
+        return self._head + self._pattern.sub(self._template, content) + self._tail
+
+
+class UartSend:
+    """Registers: ``length`` (content bytes in the TX RAM), the send strobe (:meth:`strobe`),
+    ``busy``; the framing bytes (:meth:`set_framing`)."""
+
+    def __init__(
+        self,
+        timeline: Timeline,
+        bram: BlockRam,
+        uartwrite: UartWrite,
+        framing: Framing = DEFAULT_FRAMING,
+    ) -> None:
+        self._timeline = timeline
+        self.bram = bram
+        self.uartwrite = uartwrite
+        self.framing = framing
+        self.length = 0
+        self.stats = UartSendStats()
+        #: cycle the current frame's last stop bit ends; idle from then on
+        self.busy_until = 0
+        self._done_listeners: list[Callable[[TxDone], None]] = []
+
+    @property
+    def busy(self) -> bool:
+        # Computed from the cycle, not a flag cleared by an event, so every event of the
+        # completion cycle sees the module idle whatever their order.
+        return self._timeline.now < self.busy_until
+
+    def set_framing(self, framing: Framing) -> None:
+        self.framing = framing
+
+    def set_length(self, length: int) -> None:
+        if not 0 <= length <= self.bram.size:
+            raise ValueError(f"TX length {length} does not fit the {self.bram.size}-byte RAM")
+        self.length = length
+
+    def on_done(self, listener: Callable[[TxDone], None]) -> None:
+        self._done_listeners.append(listener)
+
+    def note_ram_write(self) -> None:
+        """The processor wrote the TX RAM (called by the AXI side)."""
+        if self.busy:
+            self.stats.writes_while_busy += 1
+
+    def strobe(self) -> bool:
+        """Pulse the send strobe; returns whether the module accepted it."""
+        if self.busy:
+            self.stats.refused_strobes += 1
+            return False
+        content = self.bram.read_bytes(0, self.length)
+        wire = frame_bytes(content, self.framing)
+        stats = self.stats
+        stats.frames += 1
+        stats.wire_bytes += len(wire)
+        stats.escapes += len(wire) - len(content) - 2
+        self.busy_until = end = self.uartwrite.transmit(wire)
+        self._timeline.schedule(end, lambda cycle: self._finish(cycle, len(wire)))
+        return True
+
+    def _finish(self, cycle: int, wire_bytes: int) -> None:
+        event = TxDone(cycle, wire_bytes)
+        for listener in self._done_listeners:
+            listener(event)
