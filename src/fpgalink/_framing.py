@@ -75,16 +75,17 @@ def max_wire_length(content_length: int) -> int:
 
 
 class _Encoder:
-    __slots__ = ("_framing", "_head", "_special_re", "_tail", "_template")
+    __slots__ = ("_escapes", "_framing", "_head", "_tail")
 
     def __init__(self, framing: Framing) -> None:
         self._framing = framing
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
-        escaped = b"".join(re.escape(bytes((b,))) for b in framing.specials)
-        self._special_re = re.compile(b"([" + escaped + b"])")
-        # In a replacement template only the backslash needs escaping.
-        self._template = bytes((framing.skip,)).replace(b"\\", b"\\\\") + rb"\1"
+        skip = bytes((framing.skip,))
+        # SKIP first, so the SKIPs put before START and STOP are not doubled again.
+        self._escapes = tuple(
+            (bytes((b,)), skip + bytes((b,))) for b in (framing.skip, framing.start, framing.stop)
+        )
 
     def encode(self, content: bytes) -> bytes:
         if len(content) > self._framing.max_content:
@@ -92,7 +93,8 @@ class _Encoder:
                 f"frame content is {len(content)} bytes; the receiver drops anything over "
                 f"{self._framing.max_content}"
             )
-        return self._head + self._special_re.sub(self._template, content) + self._tail
+        (k, kk), (s, ks), (p, kp) = self._escapes
+        return self._head + content.replace(k, kk).replace(s, ks).replace(p, kp) + self._tail
 
 
 _encoders: dict[Framing, _Encoder] = {}
@@ -166,11 +168,11 @@ class FrameDecoder:
 
     __slots__ = (
         "_aborted_len",
+        "_double_skip",
         "_frame_re",
         "_framing",
         "_pending",
         "_skip_b",
-        "_unescape_re",
         "stats",
     )
 
@@ -182,7 +184,7 @@ class FrameDecoder:
         self._frame_re = re.compile(
             s + b"(" + ordinary + b"*(?:" + k + b"." + ordinary + b"*)*)" + p, re.DOTALL
         )
-        self._unescape_re = re.compile(k + b"(.)", re.DOTALL)
+        self._double_skip = bytes((framing.skip, framing.skip))
         self._skip_b = bytes((framing.skip,))
         #: wire bytes of an unfinished frame, from its START; empty while hunting
         self._pending = b""
@@ -215,17 +217,18 @@ class FrameDecoder:
         if len(parts) > 1:
             contents = parts[1::2]
             tail = parts[-1]
-            if not any(parts[0:-1:2]) and max(map(len, contents)) <= self._framing.max_content:
-                # Clean stream: frames back to back, none can overflow (wire length bounds
-                # content length). The common case costs a few C calls per frame.
-                skip_b = self._skip_b
-                out: list[bytes | FramingError] = [
-                    c if skip_b not in c else self._unescape(c) for c in contents
-                ]
+            skip_b = self._skip_b
+            unescaped: list[bytes] = []
+            if not any(parts[0:-1:2]):
+                unescaped = [c if skip_b not in c else self._unescape(c) for c in contents]
+            if unescaped and max(map(len, unescaped)) <= self._framing.max_content:
+                # Clean stream: frames back to back, none over the limit. The common case
+                # costs a few C calls per frame.
                 wire = sum(map(len, contents))
-                plain = sum(map(len, out))  # type: ignore[arg-type]
-                stats.frames += len(out)
-                stats.frame_bytes += plain + 2 * len(out)
+                plain = sum(map(len, unescaped))
+                stats.frames += len(unescaped)
+                stats.frame_bytes += plain + 2 * len(unescaped)
+                out: list[bytes | FramingError] = unescaped  # type: ignore[assignment]
                 stats.escape_bytes += wire - plain
                 pos = len(buf) - len(tail)
             else:
@@ -242,11 +245,13 @@ class FrameDecoder:
         return out
 
     def _unescape(self, content: bytes) -> bytes:
+        # Split at escaped SKIPs: scanning from the left, a doubled SKIP always starts on an
+        # escape pair, so in each piece every SKIP is an escape prefix and can simply go.
         skip_b = self._skip_b
-        if skip_b + skip_b not in content:
-            # No escaped SKIP, so every SKIP is an escape prefix: dropping them all is exact.
+        if self._double_skip not in content:
             return content.replace(skip_b, b"")
-        return self._unescape_re.sub(rb"\1", content)
+        return skip_b.join([piece.replace(skip_b, b"") for piece in content.split(
+            self._double_skip)])
 
     def _general(self, buf: bytes, out: list[bytes | FramingError]) -> int:
         """Frames with noise, aborts or overflows between them; returns where the unmatched

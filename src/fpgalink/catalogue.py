@@ -18,7 +18,6 @@ import construct as cs
 
 from fpgalink._messages import (
     DIRECT_BY_CONTENT,
-    SECTION_CLOSE,
     SECTION_OPEN,
     Binary,
     CountedMessage,
@@ -288,32 +287,47 @@ _tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", 
 _new_tuple = tuple.__new__
 
 
-def _build_tm(v: tuple[Any, ...], counter: int) -> Telemetry:
+# Builders take the unpacked whole-message tuple: (counter digits, "{"+LEN, *fields, "}").
+
+
+def _build_tm(v: tuple[Any, ...]) -> Telemetry:
     tm = _new(Telemetry)
-    _tm_t(tm, v[0])
-    _tm_a(tm, _new_tuple(ChannelTelemetry, v[1:7]))
-    _tm_b(tm, _new_tuple(ChannelTelemetry, v[7:13]))
-    _tm_c(tm, counter)
+    _tm_t(tm, v[2])
+    _tm_a(tm, _new_tuple(ChannelTelemetry, v[3:9]))
+    _tm_b(tm, _new_tuple(ChannelTelemetry, v[9:15]))
+    _tm_c(tm, int(v[0]))
     return tm
 
 
-def _build_param(cls: type[ParamSet] | type[ParamAck]) -> Callable[[tuple[Any, ...], int], Any]:
-    def build(v: tuple[Any, ...], counter: int) -> ParamSet | ParamAck:
-        return cls(v[0], v[1], v[2], _unpack_value(v[2], v[3]), counter)
+def _build_param(cls: type[ParamSet] | type[ParamAck]) -> Callable[[tuple[Any, ...]], Any]:
+    def build(v: tuple[Any, ...]) -> ParamSet | ParamAck:
+        return cls(v[2], v[3], v[4], _unpack_value(v[4], v[5]), int(v[0]))
 
     return build
 
 
-_BUILDERS: dict[bytes, tuple[struct.Struct, int, Callable[[tuple[Any, ...], int], Any]]] = {
-    b"TM": (_STRUCTS[b"TM"], _STRUCTS[b"TM"].size, _build_tm),
-    b"PS": (_STRUCTS[b"PS"], _STRUCTS[b"PS"].size, _build_param(ParamSet)),
-    b"PA": (_STRUCTS[b"PA"], _STRUCTS[b"PA"].size, _build_param(ParamAck)),
-    b"PG": (_STRUCTS[b"PG"], _STRUCTS[b"PG"].size, lambda v, c: ParamGet(v[0], v[1], c)),
-    b"PN": (_STRUCTS[b"PN"], _STRUCTS[b"PN"].size, lambda v, c: ParamNack(v[0], v[1], v[2], c)),
-    b"RV": (_STRUCTS[b"RV"], _STRUCTS[b"RV"].size, lambda v, c: References(v[0], v[1], c)),
-}
+class _Entry(NamedTuple):
+    whole: struct.Struct  #: the entire content after the ID: counter, "{" LEN, body, "}"
+    size: int  #: the body section's LEN
+    opener: bytes
+    build: Callable[[tuple[Any, ...]], Any]
 
-_OPENERS = {size: bytes((SECTION_OPEN, size)) for _, size, _ in _BUILDERS.values()}
+
+def _entry(msg_id: bytes, build: Callable[[tuple[Any, ...]], Any]) -> _Entry:
+    body = _STRUCTS[msg_id]
+    whole = struct.Struct("<2x5s2s" + body.format[1:] + "c")
+    return _Entry(whole, body.size, bytes((SECTION_OPEN, body.size)), build)
+
+
+_BUILDERS: dict[bytes, _Entry] = {
+    b"TM": _entry(b"TM", _build_tm),
+    b"PS": _entry(b"PS", _build_param(ParamSet)),
+    b"PA": _entry(b"PA", _build_param(ParamAck)),
+    b"PG": _entry(b"PG", lambda v: ParamGet(v[2], v[3], int(v[0]))),
+    b"PN": _entry(b"PN", lambda v: ParamNack(v[2], v[3], v[4], int(v[0]))),
+    b"RV": _entry(b"RV", lambda v: References(v[2], v[3], int(v[0]))),
+}
+_CLOSE = b"}"
 
 Parsed = Message | CountedMessage | DirectCommand | Malformed
 
@@ -322,16 +336,10 @@ def parse_content(content: bytes) -> Parsed:
     """One frame's content as a typed message, a generic counted message, a direct command,
     or a :class:`Malformed` event. Never raises."""
     entry = _BUILDERS.get(content[:2])
-    if entry is not None:
-        layout, size, build = entry
-        digits = content[2:7]
-        if (
-            len(content) == size + 10
-            and content[7:9] == _OPENERS[size]
-            and content[-1] == SECTION_CLOSE
-            and digits.isdigit()
-        ):
-            return build(layout.unpack_from(content, 9), int(digits))  # type: ignore[no-any-return]
+    if entry is not None and len(content) == entry.whole.size:
+        v = entry.whole.unpack(content)
+        if v[1] == entry.opener and v[-1] == _CLOSE and v[0].isdigit():
+            return entry.build(v)  # type: ignore[no-any-return]
     direct = DIRECT_BY_CONTENT.get(content)
     if direct is not None:
         return direct
@@ -343,12 +351,11 @@ def parse_content(content: bytes) -> Parsed:
     if isinstance(items, Malformed):
         return items
     if entry is not None:
-        size = entry[1]
         lengths = [len(i.data) if isinstance(i, Binary) else f"text {len(i.data)}" for i in items]
         return Malformed(
             MalformedReason.BAD_LAYOUT,
             content,
-            f"{raw_id.decode()} needs one {size}-byte binary section, got {lengths}",
+            f"{raw_id.decode()} needs one {entry.size}-byte binary section, got {lengths}",
         )
     return CountedMessage(raw_id.decode(), items, counter)
 

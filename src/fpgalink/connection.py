@@ -264,37 +264,52 @@ class Connection:
         stats = self.stats
         stats.bytes_received += len(data)
         events = self._events
+        append = events.append
         tracker = self.counter_tracker
+        frames = telemetry = counted = 0
+        latest: Telemetry | None = None
         heard = False
         for item in self._decoder.feed(data):
-            if isinstance(item, bytes):
-                stats.frames_received += 1
-                msg = parse_content(item)
+            if type(item) is not bytes:
+                self._framing_event(item)  # type: ignore[arg-type]
+                continue
+            frames += 1
+            msg = parse_content(item)
+            kind = type(msg)
+            if kind is Telemetry:
+                # The 1 kHz path: no attribute lookups beyond the counter check.
+                telemetry += 1
+                latest = msg  # type: ignore[assignment]
+                counter = msg.counter  # type: ignore[union-attr]
+            elif kind is Malformed:
+                stats.malformed += 1
+                key = msg.reason.name  # type: ignore[union-attr]
+                stats.malformed_by_reason[key] = stats.malformed_by_reason.get(key, 0) + 1
+                append(msg)
+                continue
+            else:
+                heard = True
                 counter = getattr(msg, "counter", None)
-                if counter is not None:
-                    heard = True
-                    stats.messages_received += 1
-                    if tracker.expected == counter:
-                        tracker.expected = (counter + 1) % 100_000
-                        tracker.received += 1
-                    else:
-                        self._counter_event(tracker.observe(counter), counter)
-                    if type(msg) is Telemetry:
-                        stats.telemetry_received += 1
-                        self.latest_telemetry = msg
-                    elif type(msg) in (ParamAck, ParamNack):
-                        self._match_request(msg, now)  # type: ignore[arg-type]
-                elif isinstance(msg, Malformed):
-                    stats.malformed += 1
-                    key = msg.reason.name
-                    stats.malformed_by_reason[key] = stats.malformed_by_reason.get(key, 0) + 1
-                else:
-                    heard = True
+                if counter is None:  # a direct command
                     if msg is ALIVE:
                         stats.alive_received += 1
-                events.append(msg)
+                    append(msg)
+                    continue
+                if kind is ParamAck or kind is ParamNack:
+                    self._match_request(msg, now)  # type: ignore[arg-type]
+            counted += 1
+            if tracker.expected == counter:
+                tracker.expected = counter + 1 if counter != 99_999 else 0  # type: ignore[operator]
+                tracker.received += 1
             else:
-                self._framing_event(item)
+                self._counter_event(tracker.observe(counter), counter)  # type: ignore[arg-type]
+            append(msg)
+        stats.frames_received += frames
+        stats.messages_received += counted
+        if telemetry:
+            heard = True
+            stats.telemetry_received += telemetry
+            self.latest_telemetry = latest
         if heard and now is not None:
             self._heard(now)
         if len(events) > self._max_events:
