@@ -158,3 +158,14 @@ def test_custom_framing_bytes() -> None:
     wire = encode_frame(b"\x02\x03\x10S", framing)
     assert wire == b"\x02\x10\x02\x10\x03\x10\x10S\x03"
     assert FrameDecoder(framing).feed(wire) == [b"\x02\x03\x10S"]
+
+
+@pytest.mark.parametrize("missing", [None, 0xFE, 0x00, 0x7F])
+def test_unescape_with_escaped_skips_and_busy_byte_values(missing: int | None) -> None:
+    # Escaped SKIPs are unescaped via a stand-in byte the content lacks; content that uses
+    # (nearly) every byte value must still come back exact.
+    framing = Framing(max_content=600)
+    values = [b for b in range(256) if b != missing]
+    content = bytes(values) + b"\\\\" + bytes(reversed(values)) + b"\\S\\"
+    assert FrameDecoder(framing).feed(encode_frame(content, framing)) == [content]
+    assert NaiveFrameDecoder(framing).feed(encode_frame(content, framing)) == [content]

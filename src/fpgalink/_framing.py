@@ -171,6 +171,7 @@ class FrameDecoder:
         "_double_skip",
         "_frame_re",
         "_framing",
+        "_markers",
         "_pending",
         "_skip_b",
         "stats",
@@ -182,9 +183,13 @@ class FrameDecoder:
         ordinary = b"[^" + s + p + k + b"]"
         # The "unrolled loop" form keeps the common run of ordinary bytes in one fast repeat.
         self._frame_re = re.compile(
-            s + b"(" + ordinary + b"*(?:" + k + b"." + ordinary + b"*)*)" + p, re.DOTALL
+            s + b"(" + ordinary + b"*+(?:" + k + b"." + ordinary + b"*+)*+)" + p, re.DOTALL
         )
         self._double_skip = bytes((framing.skip, framing.skip))
+        # Candidates to stand in for an escaped SKIP while unescaping; rare bytes first.
+        self._markers = tuple(
+            bytes((b,)) for b in (0xFE, 0xFD, 0x01, 0xFB, *range(256)) if b != framing.skip
+        )
         self._skip_b = bytes((framing.skip,))
         #: wire bytes of an unfinished frame, from its START; empty while hunting
         self._pending = b""
@@ -245,13 +250,21 @@ class FrameDecoder:
         return out
 
     def _unescape(self, content: bytes) -> bytes:
-        # Split at escaped SKIPs: scanning from the left, a doubled SKIP always starts on an
-        # escape pair, so in each piece every SKIP is an escape prefix and can simply go.
         skip_b = self._skip_b
-        if self._double_skip not in content:
+        double = self._double_skip
+        if double not in content:
+            # No escaped SKIP, so every SKIP is an escape prefix and can simply go.
             return content.replace(skip_b, b"")
-        return skip_b.join([piece.replace(skip_b, b"") for piece in content.split(
-            self._double_skip)])
+        # Scanning from the left, a doubled SKIP always starts on an escape pair. Park each
+        # escaped SKIP as SKIP + a byte the content lacks, drop every SKIP (all prefixes
+        # now), then turn the parked bytes back into SKIPs: three C calls per frame.
+        for marker in self._markers:
+            if marker not in content:
+                return content.replace(double, skip_b + marker).replace(skip_b, b"").replace(
+                    marker, skip_b
+                )
+        # Content using every byte value (only possible with a limit over 255).
+        return skip_b.join([piece.replace(skip_b, b"") for piece in content.split(double)])
 
     def _general(self, buf: bytes, out: list[bytes | FramingError]) -> int:
         """Frames with noise, aborts or overflows between them; returns where the unmatched
