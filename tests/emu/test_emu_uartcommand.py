@@ -1,0 +1,239 @@
+"""uartcommand: the hardware decoder, RX RAM halves, interrupt timing, error counters, and
+agreement with fpgalink's FrameDecoder."""
+
+from __future__ import annotations
+
+from hypothesis import given
+from hypothesis import strategies as st
+from models import NaiveUartCommand, naive_line_timing
+
+from fpgaemu.board import Board
+from fpgaemu.uartcommand import RxInterrupt
+from fpgalink._framing import DEFAULT_FRAMING, FrameDecoder, Framing, encode_frame
+
+S, P, K = b"S", b"P", b"\\"
+
+
+class Recorder:
+    """A processor that reads (and optionally acknowledges) each frame in its interrupt."""
+
+    def __init__(self, board: Board, ack: bool = True) -> None:
+        self.board = board
+        self.ack = ack
+        self.frames: list[tuple[int, int, bytes]] = []
+        board.axi.on_rx_interrupt(self.on_rx)
+
+    def on_rx(self, irq: RxInterrupt) -> None:
+        assert irq.cycle == self.board.now
+        content = self.board.axi.read_rx(irq.start_address, irq.length)
+        self.frames.append((irq.cycle, irq.start_address, content))
+        if self.ack:
+            self.board.axi.ack_rx(irq.start_address)
+
+
+def test_frame_lands_byte_exact_and_interrupts_at_stop_completion() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"SabcdeP", 1_000)
+    board.run_for(0.001)
+    # START completes at 2,000; the STOP, the 7th byte, at 1,000 + 7 × 1,000.
+    assert cpu.frames == [(8_000, 0, b"abcde")]
+    assert board.axi.rx_start_address == 0 and board.axi.rx_length == 5
+    assert board.axi.read_rx_word(0) == int.from_bytes(b"abcd", "little")
+    assert board.blk_mem_gen_rx.read_bytes(4, 1) == b"e"
+
+
+def test_frames_alternate_between_the_halves() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"SoneP" + b"StwoP" + b"SthreeP")
+    board.run_for(0.001)
+    assert [(a, c) for _, a, c in cpu.frames] == [(0, b"one"), (200, b"two"), (0, b"three")]
+    assert board.uartcommand.stats.overruns == 0
+
+
+def test_a_second_frame_does_not_overwrite_an_unread_first() -> None:
+    board = Board()
+    cpu = Recorder(board, ack=False)
+    board.host_write(b"SfirstP" + b"SsecondP")
+    board.run_for(0.001)
+    assert board.axi.read_rx(0, 5) == b"first"
+    assert board.axi.read_rx(200, 6) == b"second"
+    assert board.uartcommand.stats.overruns == 0
+    assert len(cpu.frames) == 2
+
+
+def test_a_third_frame_before_the_first_is_acknowledged_is_an_overrun() -> None:
+    board = Board()
+    Recorder(board, ack=False)
+    board.host_write(b"SfirstP" + b"SsecondP" + b"SXP")
+    board.run_for(0.001)
+    assert board.axi.read_rx(0, 5) == b"Xirst"  # the logic overwrote the older half
+    assert board.uartcommand.stats.overruns == 1
+    assert board.uartcommand.stats.frames == 3
+
+
+def test_acknowledging_in_time_avoids_the_overrun() -> None:
+    board = Board()
+    irqs: list[RxInterrupt] = []
+    board.axi.on_rx_interrupt(irqs.append)
+    end = board.host_write(b"SfirstP" + b"SsecondP")
+    board.run_until(end)
+    board.axi.ack_rx(irqs[0].start_address)
+    board.host_write(b"SXP")
+    board.run_for(0.001)
+    assert board.uartcommand.stats.overruns == 0
+    assert not board.uartcommand.stats.overflows
+
+
+def test_overflow_at_the_201st_content_byte() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"S" + b"x" * 200 + b"P")
+    board.run_for(0.01)
+    assert cpu.frames[-1][2] == b"x" * 200
+    board.host_write(b"S" + b"y" * 201 + b"zP" + b"SokP")
+    board.run_for(0.01)
+    stats = board.uartcommand.stats
+    assert stats.overflows == 1
+    assert stats.noise_bytes == 2  # "zP" after the overflow: hunting again
+    assert [c for _, _, c in cpu.frames] == [b"x" * 200, b"ok"]
+
+
+def test_escaped_specials_are_content() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    content = b"a" + S + b"b" + P + b"c" + K + b"d"
+    wire = encode_frame(content)
+    assert wire == b"Sa\\Sb\\Pc\\\\dP"
+    board.host_write(wire)
+    board.run_for(0.001)
+    assert cpu.frames[0][2] == content
+
+
+def test_a_frame_interrupted_by_start_is_discarded_and_counted() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"SabcSdefP")
+    board.run_for(0.001)
+    assert [c for _, _, c in cpu.frames] == [b"def"]
+    assert board.uartcommand.stats.restarts == 1
+
+
+def test_noise_between_frames_is_dropped_and_counted() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"zz\\PSaP??\x00SbP!")
+    board.run_for(0.001)
+    assert [c for _, _, c in cpu.frames] == [b"a", b"b"]
+    assert board.uartcommand.stats.noise_bytes == 4 + 3 + 1
+
+
+def test_direct_commands_are_consumed_by_the_logic() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"SREP" + b"SmsgP" + b"SRDP" + b"SREXP")
+    board.run_for(0.001)
+    assert [(a, c) for _, a, c in cpu.frames] == [(0, b"msg"), (200, b"REX")]
+    assert board.uartcommand.stats.direct_commands == 2
+
+
+def test_empty_frames_are_delivered() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    board.host_write(b"SP")
+    board.run_for(0.001)
+    assert cpu.frames == [(2_000, 0, b"")]
+
+
+def test_the_processor_sees_a_partial_frame_at_the_exact_cycle() -> None:
+    board = Board()
+    board.host_write(b"Sabcdef", 0)
+    board.run_until(3_999)  # START at 1,000, 'a' at 2,000, 'b' at 3,000
+    assert board.blk_mem_gen_rx.read_bytes(0, 3) == b"ab\x00"
+    board.run_until(4_000)
+    assert board.blk_mem_gen_rx.read_bytes(0, 3) == b"abc"
+
+
+def test_custom_framing_bytes() -> None:
+    framing = Framing(start=0x02, stop=0x03, skip=0x10)
+    board = Board(framing=framing)
+    cpu = Recorder(board)
+    content = b"\x02S\x03P\x10\\"
+    board.host_write(encode_frame(content, framing) + b"SxP")
+    board.run_for(0.001)
+    assert [c for _, _, c in cpu.frames] == [content]
+
+
+def test_framing_set_by_the_processor_at_start_up() -> None:
+    board = Board()
+    cpu = Recorder(board)
+    framing = Framing(start=ord("<"), stop=ord(">"), skip=ord("~"))
+    board.axi.set_framing(framing)
+    board.host_write(b"SaP<b~>>")
+    board.run_for(0.001)
+    assert [c for _, _, c in cpu.frames] == [b"b>"]
+    board.axi.write_tx(b">")
+    board.axi.strobe_tx()
+    board.run_for(0.001)
+    assert board.read_host_bytes() == b"<~>>"
+
+
+garbage = st.binary(max_size=12).map(lambda b: b.replace(b"S", b"s"))
+special_heavy = st.lists(st.sampled_from([b"S", b"P", b"\\", b"x", b"RE", b"RD", b"\x00"]),
+                         max_size=30).map(b"".join)
+
+
+@st.composite
+def streams(draw: st.DrawFn) -> bytes:
+    parts: list[bytes] = []
+    for _ in range(draw(st.integers(0, 6))):
+        kind = draw(st.integers(0, 4))
+        if kind == 0:
+            parts.append(draw(garbage))
+        elif kind == 1:
+            parts.append(draw(special_heavy))
+        elif kind == 2:
+            parts.append(b"S" + b"q" * draw(st.integers(195, 205)) + b"P")
+        else:
+            parts.append(encode_frame(draw(st.binary(max_size=60))))
+    return b"".join(parts)
+
+
+@given(streams(), st.lists(st.integers(1, 40), min_size=1, max_size=8),
+       st.lists(st.integers(0, 3_000), min_size=1, max_size=8))
+def test_stored_frames_equal_fpgalink_decoder_frames(
+    stream: bytes, chunk_sizes: list[int], gaps: list[int]
+) -> None:
+    board = Board()
+    cpu = Recorder(board)
+    writes: list[tuple[int, bytes]] = []
+    pos, cycle, k = 0, 0, 0
+    while pos < len(stream):
+        size = chunk_sizes[k % len(chunk_sizes)]
+        cycle += gaps[k % len(gaps)]
+        chunk = stream[pos : pos + size]
+        board.host_write(chunk, cycle)
+        writes.append((cycle, chunk))
+        pos += size
+        k += 1
+        # Sometimes let time pass between writes, sometimes pile writes up in the future.
+        if k % 3 == 0:
+            board.run_until(max(board.now, cycle))
+    end = 0 if not writes else board.uartread.line_free_at
+    board.run_until(max(board.now, end))
+
+    decoder = FrameDecoder(DEFAULT_FRAMING)
+    expected = [f for f in decoder.feed(stream) if isinstance(f, bytes)]
+    expected = [f for f in expected if f not in (b"RE", b"RD")]
+    assert [c for _, _, c in cpu.frames] == expected
+
+    stats = board.uartcommand.stats
+    assert stats.restarts == decoder.stats.restarts
+    assert stats.overflows == decoder.stats.overflows
+    assert stats.noise_bytes == decoder.stats.noise_bytes
+
+    # Cycle by cycle: interrupt cycles, halves and enable edges match the per-byte model.
+    model = NaiveUartCommand()
+    model.feed(naive_line_timing(writes, board.cycles_per_byte))
+    assert cpu.frames == model.interrupts
