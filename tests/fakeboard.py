@@ -27,12 +27,17 @@ class FakeBoard:
     alive_period: float = 0.05
     values: dict[tuple[int, int], int | float] = field(default_factory=dict)
     received: list[object] = field(default_factory=list)
+    # Appended for the CLI tests: stream TM every tm_period while GetDataPeriodical (2) = 1,
+    # and a mute board that answers nothing at all (no PA, no PN, no E).
+    tm_period: float = 0.005
+    mute: bool = False
 
     def __post_init__(self) -> None:
         self.server: asyncio.Server | None = None
         self.writers: list[asyncio.StreamWriter] = []
         self.port = 0
         self.conn = Connection(role=Role.BOARD)
+        self._stream: asyncio.Task[None] | None = None
 
     async def start(self, port: int = 0) -> str:
         self.server = await asyncio.start_server(self._client, "127.0.0.1", port)
@@ -40,6 +45,9 @@ class FakeBoard:
         return f"socket://127.0.0.1:{self.port}"
 
     async def stop(self) -> None:
+        if self._stream is not None:
+            self._stream.cancel()
+            self._stream = None
         if self.server is not None:
             self.server.close()
             for w in self.writers:
@@ -71,6 +79,8 @@ class FakeBoard:
             alive.cancel()
 
     def _answer(self, event: object, writer: asyncio.StreamWriter) -> None:
+        if self.mute:
+            return
         if isinstance(event, ParamSet):
             if self.drop_first_ps > 0:
                 self.drop_first_ps -= 1
@@ -79,6 +89,8 @@ class FakeBoard:
                 writer.write(self.conn.send(ParamNack(event.param_id, event.channel, self.nack)))
                 return
             self.values[(event.param_id, event.channel)] = event.value
+            if (event.param_id, event.channel) == (2, 0):
+                self._set_streaming(event.value == 1)
             writer.write(self.conn.send(
                 ParamAck(event.param_id, event.channel, event.value_type, event.value)
             ))
@@ -87,8 +99,22 @@ class FakeBoard:
             kind = 2 if isinstance(value, float) else 1
             writer.write(self.conn.send(ParamAck(event.param_id, event.channel, kind, value)))
 
+    def _set_streaming(self, on: bool) -> None:
+        if on and self._stream is None:
+            self._stream = asyncio.ensure_future(self._telemetry())
+        elif not on and self._stream is not None:
+            self._stream.cancel()
+            self._stream = None
+
+    async def _telemetry(self) -> None:
+        t_us = 0
+        while True:
+            self.send_tm(t_us)
+            t_us += int(self.tm_period * 1e6)
+            await asyncio.sleep(self.tm_period)
+
     async def _alive(self, writer: asyncio.StreamWriter) -> None:
         while True:
-            if not self.silent:
+            if not self.silent and not self.mute:
                 writer.write(self.conn.send(Alive()))
             await asyncio.sleep(self.alive_period)

@@ -1,0 +1,195 @@
+"""``send``: one counted message (or a direct command), optionally waiting for a reply."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import fields
+from pathlib import Path
+from typing import Any
+
+import click
+
+from fpgalink import Binary, CountedMessage, Disable, Enable, Malformed, Text, encode_message
+from fpgalink._messages import BodyItem, DirectCommand
+from fpgalink.catalogue import Parsed, parse_content
+from fpgalink.cli._common import (
+    EXIT_CODES_HELP,
+    CliError,
+    ConnectionOptions,
+    ExitCode,
+    connection_options,
+    echo_out,
+    message_id,
+    run,
+)
+
+__all__ = ["describe", "send"]
+
+_ITEM_OPTIONS = ("text", "hex_items", "bin_files")
+_ORDER_KEY = "fpgalink.send.item_order"
+MAX_SECTION = 254  #: SPEC §4: LEN is one byte 0..254
+
+
+class _OrderedItems(click.Command):
+    """Remembers the order in which --text/--hex/--bin-file were given, so body items go on
+    the wire in command-line order (click groups repeated options by name)."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        try:
+            _, _, order = self.make_parser(ctx).parse_args(args=list(args))
+        except click.UsageError:
+            order = []  # the real parse below reports it
+        ctx.meta[_ORDER_KEY] = [p.name for p in order if p.name in _ITEM_OPTIONS]
+        return super().parse_args(ctx, args)
+
+
+def _parse_hex(text: str) -> bytes:
+    cleaned = text.replace(":", "").replace(" ", "").replace("_", "")
+    if cleaned.lower().startswith("0x"):
+        cleaned = cleaned[2:]
+    try:
+        return bytes.fromhex(cleaned)
+    except ValueError:
+        raise CliError(f"--hex {text!r}: not hexadecimal bytes (e.g. 0a1b or 0a:1b)",
+                       ExitCode.BAD_INPUT) from None
+
+
+def build_items(ctx: click.Context, texts: tuple[str, ...], hexes: tuple[str, ...],
+                files: tuple[Path, ...]) -> tuple[BodyItem, ...]:
+    queues: dict[str, list[Any]] = {
+        "text": list(texts), "hex_items": list(hexes), "bin_files": list(files)
+    }
+    order: list[str] = ctx.meta.get(_ORDER_KEY) or [
+        name for name in _ITEM_OPTIONS for _ in queues[name]
+    ]
+    items: list[BodyItem] = []
+    for name in order:
+        value = queues[name].pop(0)
+        if name == "text":
+            data = value.encode("utf-8")
+            if b"{" in data or b"}" in data:
+                raise CliError(f"--text {value!r}: text items cannot contain '{{' or '}}' "
+                               "(use --hex for binary)", ExitCode.BAD_INPUT)
+            items.append(Text(data))
+            continue
+        if name == "hex_items":
+            data, label = _parse_hex(value), f"--hex {value!r}"
+        else:
+            try:
+                data = Path(value).read_bytes()
+            except OSError as exc:
+                raise CliError(f"--bin-file {value}: {exc.strerror}", ExitCode.BAD_INPUT) from None
+            label = f"--bin-file {value}"
+        if len(data) > MAX_SECTION:
+            raise CliError(f"{label}: {len(data)} bytes; a binary section holds 0..{MAX_SECTION}",
+                           ExitCode.BAD_INPUT)
+        items.append(Binary(data))
+    return tuple(items)
+
+
+def describe(message: Parsed) -> str:
+    """One line for a received (or about-to-be-sent) message."""
+    if isinstance(message, DirectCommand):
+        return message.content.decode("ascii", "replace")
+    if isinstance(message, Malformed):
+        return f"malformed ({message.reason.value}): {message.content!r}"
+    counter = getattr(message, "counter", None)
+    head = f"{message_id(message)} #{counter:05d}" if counter is not None else message_id(message)
+    if isinstance(message, CountedMessage):
+        parts = [
+            f"text {item.data.decode('utf-8', 'backslashreplace')!r}" if isinstance(item, Text)
+            else f"bin[{len(item.data)}] {item.data.hex(' ')}"
+            for item in message.items
+        ]
+        return " ".join([head, *parts])
+    shown = [
+        f"{f.name}={getattr(message, f.name)!r}" for f in fields(message) if f.name != "counter"
+    ]
+    return " ".join([head, *shown])
+
+
+@click.command(cls=_OrderedItems, epilog=EXIT_CODES_HELP)
+@click.argument("msg_id", metavar="ID")
+@click.option("--text", multiple=True, metavar="T", help="A text body item (repeatable).")
+@click.option("--hex", "hex_items", multiple=True, metavar="HEX",
+              help="A binary section from hex bytes, e.g. 0a1b2c (repeatable).")
+@click.option("--bin-file", "bin_files", multiple=True, metavar="F",
+              type=click.Path(dir_okay=False, path_type=Path),
+              help="A binary section from a file's bytes (repeatable).")
+@click.option("--reply", "reply_id", metavar="ID2",
+              help="Wait for a message with this ID and print it.")
+@click.option("--wait", type=click.FloatRange(min=0, min_open=True), default=1.0,
+              show_default=True, help="How long to wait for --reply, s.")
+@click.option("--force", is_flag=True,
+              help="Send even when a catalogued ID's body does not match its layout.")
+@connection_options()
+@click.pass_context
+def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tuple[str, ...],
+         bin_files: tuple[Path, ...], reply_id: str | None, wait: float, force: bool,
+         conn: ConnectionOptions) -> int:
+    """Send one message with ID and print it; with --reply, wait for a reply and print it.
+
+    ID is a counted message (two characters A-Z0-9; body items from --text/--hex/--bin-file
+    in command-line order) or a direct command: RE (enable once) or RD (disable). A body that
+    fits a catalogued ID (PS, PG, RV …) is shown decoded.
+
+    \b
+    Examples:
+      fpgalink-cli send ZZ --text hello --hex 0102
+      fpgalink-cli send PG --hex 0201 --reply PA      # read GetDataPeriodical
+      fpgalink-cli send RD
+    """
+    msg_id = msg_id.strip().upper()
+    items = build_items(ctx, text, hex_items, bin_files)
+    message: CountedMessage | DirectCommand
+    if msg_id in ("RE", "RD"):
+        if items:
+            raise CliError(f"{msg_id} is a direct command: it carries no body", ExitCode.BAD_INPUT)
+        message = Enable() if msg_id == "RE" else Disable()
+        shown = msg_id
+    else:
+        message = CountedMessage(msg_id, items)
+        # Validate (ID, lengths) and see how the board will read it, before opening the port.
+        try:
+            content = encode_message(message, 0)
+        except Exception as exc:  # LocalProtocolError and friends: the text says why
+            raise CliError(f"cannot send {msg_id!r}: {exc}", ExitCode.BAD_INPUT) from None
+        parsed = parse_content(content)
+        if isinstance(parsed, Malformed) and not force:
+            raise CliError(f"{msg_id}: {parsed.detail or parsed.reason.value} "
+                           "(--force sends it anyway)", ExitCode.BAD_INPUT)
+        shown = describe(parsed)
+    reply = reply_id.strip().upper() if reply_id else None
+    return run(_send(conn, message, shown, reply, wait), conn.single.url)
+
+
+async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand, shown: str,
+                reply_id: str | None, wait: float) -> int:
+    endpoint = conn.single
+    link = conn.link(endpoint)
+    async with link:
+        loop = asyncio.get_running_loop()
+        replied: asyncio.Future[Parsed] = loop.create_future()
+
+        def on_message(received: Parsed) -> None:
+            if not replied.done() and message_id(received) == reply_id:
+                replied.set_result(received)
+
+        if reply_id is not None:
+            link.add_tap(on_message)  # before sending: a fast reply must not be missed
+        counter = link.connection.next_counter
+        wire = link.send(message)
+        if isinstance(message, CountedMessage):
+            shown = describe(parse_content(encode_message(message, counter)))
+        echo_out(f"sent {shown}  ({len(wire)} bytes on the wire)")
+        if conn.verbose:
+            echo_out(f"wire {wire.hex(' ')}")
+        if reply_id is None:
+            return ExitCode.OK
+        try:
+            received = await asyncio.wait_for(replied, wait)
+        except TimeoutError:
+            raise CliError(f"{endpoint.url}: board not answering: no {reply_id} reply within "
+                           f"{wait:g} s", ExitCode.NO_ANSWER) from None
+        echo_out(f"reply {describe(received)}")
+        return ExitCode.OK
