@@ -4,11 +4,19 @@ from __future__ import annotations
 
 from hypothesis import given
 from hypothesis import strategies as st
-from models import naive_line_timing
 
 from fpgaemu.board import Board
 from fpgaemu.timeline import Timeline
-from fpgaemu.uart import BIT_START, BIT_STOP, ByteRun, LineFaults, UartRead, UartWrite, cycles_per_bit
+from fpgaemu.uart import (
+    BIT_START,
+    BIT_STOP,
+    ByteRun,
+    LineFaults,
+    UartRead,
+    UartWrite,
+    cycles_per_bit,
+)
+from models import naive_line_timing
 
 
 def collect(faults: LineFaults | None = None, seed: int = 0) -> tuple[UartRead, list[ByteRun]]:

@@ -5,11 +5,11 @@ from __future__ import annotations
 
 from hypothesis import given
 from hypothesis import strategies as st
-from models import NaiveUartCommand, naive_line_timing
 
 from fpgaemu.board import Board
 from fpgaemu.uartcommand import RxInterrupt
 from fpgalink._framing import DEFAULT_FRAMING, FrameDecoder, Framing, encode_frame
+from models import NaiveUartCommand, naive_line_timing
 
 S, P, K = b"S", b"P", b"\\"
 
