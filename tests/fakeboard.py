@@ -77,6 +77,8 @@ class FakeBoard:
             pass
         finally:
             alive.cancel()
+            if writer in self.writers:  # a departed host gets no more telemetry
+                self.writers.remove(writer)
 
     def _answer(self, event: object, writer: asyncio.StreamWriter) -> None:
         if self.mute:

@@ -49,6 +49,7 @@ from fpgalink.params import lookup
 __all__ = ["CsvSink", "McapSink", "record"]
 
 STATS_PERIOD_S = 1.0
+CHUNK_BYTES = 64 * 1024
 
 PARAM_SCHEMA: dict[str, Any] = {
     "title": "fpgalink.ParameterChange", "type": "object",
@@ -93,7 +94,8 @@ class McapSink:
 
     def __init__(self, path: Path, boards: list[str], metadata: dict[str, str]) -> None:
         self._file: IO[bytes] = path.open("wb")
-        self._writer = Writer(self._file)
+        # Small chunks: a hard kill (no Ctrl-C) loses at most ~a second of telemetry.
+        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES)
         self._writer.start(profile="", library=f"fpgalink-cli {__version__}")
         schemas = {
             kind: self._writer.register_schema(

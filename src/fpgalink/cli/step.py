@@ -182,8 +182,10 @@ def _fmt_s(value: float | None) -> str:
 
 def _print_metrics(m: StepMetrics, channel: str, start: float, target: float,
                    samples: int) -> None:
-    table = Table(title=f"Step response, channel {channel}: {start:g} → {target:g} "
-                        f"({samples} samples)", title_justify="left")
+    console = table_console()
+    console.print(f"Step response, channel {channel}: {start:g} → {target:g} deg/s "
+                  f"({samples} samples after the step)")
+    table = Table()
     table.add_column("figure")
     table.add_column("value", justify="right")
     rows: list[tuple[str, Any]] = [
@@ -195,7 +197,7 @@ def _print_metrics(m: StepMetrics, channel: str, start: float, target: float,
     ]
     for name, value in rows:
         table.add_row(name, value)
-    table_console().print(table)
+    console.print(table)
 
 
 async def _step(conn: ConnectionOptions, channel: str, start: float, target: float,
