@@ -108,7 +108,7 @@ class NaiveUartCommand:
 
     def feed(self, timed: list[tuple[int, int]]) -> None:
         for b, cycle in timed:
-            if self._deadline is not None and cycle >= self._deadline:
+            if self._deadline is not None and cycle > self._deadline:
                 self._set(self._deadline, False)
                 self._deadline = None
             for content in self.decoder.feed(bytes([b])):

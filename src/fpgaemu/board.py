@@ -18,7 +18,7 @@ from typing import Any, Protocol
 
 from fpgaemu.axi import AxiBus
 from fpgaemu.bram import BRAM_BYTES, BlockRam
-from fpgaemu.timeline import Timeline, seconds_to_cycles
+from fpgaemu.timeline import EventHandle, Timeline, seconds_to_cycles
 from fpgaemu.uart import DEFAULT_BAUD, LineFaults, UartRead, UartWrite
 from fpgaemu.uartcommand import WATCHDOG_CYCLES, UartCommand
 from fpgaemu.uartsend import UartSend
@@ -104,8 +104,10 @@ class Board:
     def run_cycles(self, cycles: int) -> None:
         self.run_until(self.timeline.now + cycles)
 
-    def schedule(self, cycle: int, callback: Callable[[int], None]) -> None:
-        self.timeline.schedule(cycle, callback)
+    def schedule(
+        self, cycle: int, callback: Callable[[int], None], *, late: bool = False
+    ) -> EventHandle:
+        return self.timeline.schedule(cycle, callback, late=late)
 
     # --- the host's end of the cable ------------------------------------------------------
 

@@ -31,7 +31,8 @@ Decisions (see ``docs/emulator.md``):
   interrupt, the registers keep describing the last message frame.
 * ``global_enable`` rises at the STOP of ``RE`` and falls exactly ``watchdog_cycles``
   (30,000,000 = 300 ms) after the STOP of the last ``RE``, or at the STOP of ``RD``. The
-  watchdog is one timeline deadline, re-armed on each ``RE``.
+  watchdog is one timeline deadline, re-armed on each ``RE``; an ``RE`` completing in the
+  lapse cycle itself counts as in time (no zero-width low pulse).
 """
 
 from __future__ import annotations
@@ -360,7 +361,11 @@ class UartCommand:
         if self._watchdog is not None:
             self._watchdog.cancel()
         self.watchdog_deadline = cycle + self.watchdog_cycles
-        self._watchdog = self._timeline.schedule(self.watchdog_deadline, self._on_watchdog)
+        # Late phase: an RE whose STOP completes in the very cycle the count runs out is
+        # "the last RE" and re-arms first, so the outcome does not hang on event order.
+        self._watchdog = self._timeline.schedule(
+            self.watchdog_deadline, self._on_watchdog, late=True
+        )
 
     def _on_watchdog(self, cycle: int) -> None:
         self._watchdog = None
