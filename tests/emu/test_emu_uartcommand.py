@@ -7,6 +7,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fpgaemu.board import Board
+from fpgaemu.uart import ByteRun, LineFaults
 from fpgaemu.uartcommand import RxInterrupt
 from fpgalink._framing import DEFAULT_FRAMING, FrameDecoder, Framing, encode_frame
 from models import NaiveUartCommand, naive_line_timing
@@ -237,3 +238,33 @@ def test_stored_frames_equal_fpgalink_decoder_frames(
     model = NaiveUartCommand()
     model.feed(naive_line_timing(writes, board.cycles_per_byte))
     assert cpu.frames == model.interrupts
+
+
+@given(st.lists(st.binary(max_size=30), max_size=8), st.integers(0, 2**16),
+       st.sampled_from([0.0, 0.001, 0.01]))
+def test_uneven_runs_from_a_noisy_line_match_the_models(
+    contents: list[bytes], seed: int, ber: float
+) -> None:
+    board = Board(seed=seed, rx_faults=LineFaults(bit_error_rate=ber, break_stop={3, 40}))
+    cpu = Recorder(board)
+    runs: list[ByteRun] = []
+    deliver = board.uartread.sink
+
+    def tap(run: ByteRun) -> None:
+        runs.append(run)
+        deliver(run)
+
+    board.uartread.sink = tap
+    for k, content in enumerate(contents):
+        board.host_write(encode_frame(content), k * 7_000)
+        if k % 2:
+            board.run_until(k * 7_000 + 3_500)
+    board.run_until(max(board.now, board.uartread.line_free_at + 10_000))
+    timed = [pair for run in runs for pair in run.timed()]
+    model = NaiveUartCommand()
+    model.feed(timed)
+    assert cpu.frames == model.interrupts
+    decoder = FrameDecoder()
+    decoder.feed(bytes(b for b, _ in timed))
+    assert board.uartcommand.stats.noise_bytes == decoder.stats.noise_bytes
+    assert board.uartcommand.stats.restarts == decoder.stats.restarts
