@@ -1,15 +1,126 @@
-"""``budget``: the static timing-budget calculator (placeholder until fpgalink.budget lands)."""
+"""``budget``: the static timing-budget calculator — per direction, how much of each timer
+period the planned traffic takes on an 8N1 line, and whether it fits (SPEC §2, §7).
+
+The wire arithmetic lives in :mod:`fpgalink.budget` (shared with the emulator); this module
+only gathers the traffic plan from the command line and presents the result."""
 
 from __future__ import annotations
 
+import importlib
+from dataclasses import dataclass
+from types import ModuleType
+
 import click
+from rich.table import Table
 
-from fpgalink.cli._common import CliError, ExitCode
+from fpgalink.cli._common import (
+    EXIT_CODES_HELP,
+    CliError,
+    ExitCode,
+    echo_out,
+    table_console,
+)
 
-__all__ = ["budget"]
+__all__ = ["Flow", "budget", "parse_message"]
+
+TO_BOARD, TO_HOST = "host→board", "board→host"
+#: Catalogued IDs know their direction; anything else is assumed host → board.
+_DIRECTION = {"PS": TO_BOARD, "PG": TO_BOARD, "RV": TO_BOARD, "RE": TO_BOARD, "RD": TO_BOARD,
+              "PA": TO_HOST, "PN": TO_HOST, "TM": TO_HOST, "E": TO_HOST}
+_DIRECTION_WORDS = {"up": TO_BOARD, "to-board": TO_BOARD, "down": TO_HOST, "to-host": TO_HOST}
 
 
-@click.command()
-def budget() -> int:
-    """Static timing budget per direction (not available yet)."""
-    raise CliError("budget: fpgalink.budget is not available yet", ExitCode.FAILURE)
+@dataclass(frozen=True, slots=True)
+class Flow:
+    """``per_period`` frames of ``content`` bytes each, in one direction."""
+
+    name: str
+    content: int  #: frame content bytes (START/STOP and escapes are added by the arithmetic)
+    per_period: float
+    direction: str
+
+
+def parse_message(text: str) -> Flow:
+    """``NAME:BYTES:PER_PERIOD[:up|down]`` → a flow; BYTES is the frame content size."""
+    parts = text.split(":")
+    if len(parts) not in (3, 4):
+        raise CliError(f"--message {text!r}: expected NAME:BYTES:PER_PERIOD[:up|down]",
+                       ExitCode.BAD_INPUT)
+    name = parts[0].strip().upper()
+    try:
+        content, per_period = int(parts[1]), float(parts[2])
+    except ValueError:
+        raise CliError(f"--message {text!r}: BYTES must be an integer and PER_PERIOD a number",
+                       ExitCode.BAD_INPUT) from None
+    if not 1 <= content <= 200 or per_period < 0:
+        raise CliError(f"--message {text!r}: BYTES must be 1..200 (the frame content limit) "
+                       "and PER_PERIOD ≥ 0", ExitCode.BAD_INPUT)
+    if len(parts) == 4:
+        word = parts[3].strip().lower()
+        if word not in _DIRECTION_WORDS:
+            raise CliError(f"--message {text!r}: direction must be up or down",
+                           ExitCode.BAD_INPUT)
+        direction = _DIRECTION_WORDS[word]
+    else:
+        direction = _DIRECTION.get(name, TO_BOARD)
+    return Flow(name, content, per_period, direction)
+
+
+def _arithmetic() -> ModuleType:
+    try:
+        return importlib.import_module("fpgalink.budget")
+    except ImportError:
+        raise CliError("budget: the wire arithmetic (fpgalink.budget) is not in this build",
+                       ExitCode.FAILURE) from None
+
+
+@click.command(epilog=EXIT_CODES_HELP)
+@click.option("--baud", type=click.IntRange(min=1), default=1_000_000, show_default=True,
+              envvar="FPGALINK_BAUD", help="Line rate, 8N1.")
+@click.option("--period-ms", type=click.FloatRange(min=0, min_open=True), default=1.0,
+              show_default=True, help="Timer period (TsTimerPeriod), ms.")
+@click.option("--tm-bytes", type=click.IntRange(0, 200), default=52, show_default=True,
+              help="TM frame content bytes (52 in this protocol; 0: no telemetry).")
+@click.option("--message", "messages", multiple=True, metavar="NAME:BYTES:PER_PERIOD",
+              help="More traffic: frame content BYTES, PER_PERIOD frames each period; "
+                   "direction from the ID (PS/PG/RV up, PA/PN/TM down) or a 4th field "
+                   "up|down. Repeatable. The seed's case: --message BIG:200:1.")
+@click.option("--check", is_flag=True, help="Exit 1 when a direction does not fit.")
+def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...],
+           check: bool) -> int:
+    """Static timing budget: wire bytes per period and utilisation per direction.
+
+    One byte is 10 bit times on 8N1: at 1 MBd a 1 ms period holds 100 wire bytes per
+    direction. A 200-byte frame every 1 ms (the seed's claim) needs over 2 ms.
+    """
+    flows = [parse_message(m) for m in messages]
+    if tm_bytes:
+        flows.insert(0, Flow("TM", tm_bytes, 1.0, TO_HOST))
+    arithmetic = _arithmetic()
+    period_s = period_ms / 1000.0
+    capacity = arithmetic.bytes_per_second(baud) * period_s  # wire bytes per period
+    table = Table(title=f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
+                        f"({capacity:,.1f} wire bytes per direction per period)",
+                  title_justify="left")
+    for column in ("direction", "message", "content B", "wire B", "per period",
+                   "wire B/period", "share"):
+        table.add_column(column, justify="left" if column in ("direction", "message")
+                         else "right")
+    totals = {TO_BOARD: 0.0, TO_HOST: 0.0}
+    for flow in flows:
+        wire = arithmetic.frame_wire_bytes(flow.content)
+        load = wire * flow.per_period
+        totals[flow.direction] += load
+        table.add_row(flow.direction, flow.name, str(flow.content), str(wire),
+                      f"{flow.per_period:g}", f"{load:,.1f}", f"{load / capacity:.1%}")
+    console = table_console()
+    console.print(table)
+    fits_all = True
+    for direction, load in totals.items():
+        share = load / capacity
+        fits = load <= capacity
+        fits_all &= fits
+        verdict = "fits" if fits else "DOES NOT FIT"
+        echo_out(f"{direction}: {load:,.1f} of {capacity:,.1f} wire bytes per period "
+                 f"({share:.1%}) — {verdict}")
+    return ExitCode.FAILURE if check and not fits_all else ExitCode.OK
