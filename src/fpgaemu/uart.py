@@ -126,7 +126,7 @@ class LineStats:
     framing_errors: int = 0  #: bytes the receiver dropped for a low stop bit
     bits_flipped: int = 0
     noise_bytes: int = 0
-    dropped_bytes: int = 0  #: sender bytes lost by ``LineFaults.drop``
+    dropped_bytes: int = 0  #: sender bytes lost by ``LineFaults.drop`` or a frame filter
 
 
 def _byte_slots(value: int) -> list[int]:
@@ -166,8 +166,9 @@ class _Line:
     def busy(self) -> bool:
         return self._timeline.now < self.line_free_at
 
-    def _send(self, data: bytes, cycle: int | None) -> list[ByteRun]:
-        """Put ``data`` on the line at ``cycle`` (default now), behind anything queued."""
+    def _send(self, data: bytes, cycle: int | None, lost: bool = False) -> list[ByteRun]:
+        """Put ``data`` on the line at ``cycle`` (default now), behind anything queued;
+        ``lost`` bytes take their line time but never reach the receiver."""
         now = self._timeline.now
         at = now if cycle is None else cycle
         if at < now:
@@ -176,6 +177,10 @@ class _Line:
         stats = self.stats
         index = stats.bytes_sent
         stats.bytes_sent += len(data)
+        if lost:
+            self.line_free_at = start + len(data) * self.cycles_per_byte
+            stats.dropped_bytes += len(data)
+            return []
         faults = self.faults
         if faults is not None and faults.touches(index, index + len(data)):
             return self._send_bitwise(data, start, index, faults)
@@ -306,12 +311,16 @@ class UartWrite(_Line):
     def add_listener(self, listener: Callable[[ByteRun], None]) -> None:
         self._listeners.append(listener)
 
-    def transmit(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:
+    def transmit(
+        self, data: bytes | bytearray | memoryview, cycle: int | None = None, *,
+        lost: bool = False,
+    ) -> int:
         """Serialise ``data`` from ``cycle`` (default now), behind anything still on the line;
-        returns the cycle the last stop bit ends."""
+        returns the cycle the last stop bit ends. ``lost``: a fault hook's dropped frame —
+        it occupies the line but the host never sees it."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        for run in self._send(bytes(data), cycle):
+        for run in self._send(bytes(data), cycle, lost):
             self._pending.append(_Draining(run))
             for listener in self._listeners:
                 listener(run)

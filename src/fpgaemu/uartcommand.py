@@ -54,6 +54,7 @@ __all__ = [
     "WATCHDOG_CYCLES",
     "EnableCause",
     "EnableChange",
+    "FrameFilter",
     "RxInterrupt",
     "UartCommand",
     "UartCommandStats",
@@ -65,6 +66,9 @@ DIRECT_ENABLE = b"RE"
 DIRECT_DISABLE = b"RD"
 
 _HUNT, _FRAME, _ESCAPE = 0, 1, 2
+
+#: ``(content, cycle) -> keep?``: a fault-injection hook on complete frames.
+FrameFilter = Callable[[bytes, int], bool]
 
 
 class EnableCause(Enum):
@@ -100,6 +104,7 @@ class UartCommandStats:
     restarts: int = 0  #: frames discarded by an unescaped START
     overflows: int = 0  #: frames dropped at the first content byte past the limit
     overruns: int = 0  #: unacknowledged frames overwritten
+    filtered: int = 0  #: complete frames a fault hook (``frame_filter``) made disappear
 
     @property
     def errors(self) -> int:
@@ -136,6 +141,9 @@ class UartCommand:
         self.length = 0
         self.global_enable = False
         self.watchdog_deadline: int | None = None
+        #: Fault hook: called with (content, cycle) at each complete frame, direct commands
+        #: included; returning False loses the frame as if its STOP had never arrived.
+        self.frame_filter: FrameFilter | None = None
         self._stats = UartCommandStats()
         # state machine
         self._state = _HUNT
@@ -331,6 +339,12 @@ class UartCommand:
     def _complete(self, length: int, cycle: int) -> None:
         half = self._write_half
         base = half * self.half_size
+        frame_filter = self.frame_filter
+        if frame_filter is not None and not frame_filter(
+            self.bram.read_bytes(base, length), cycle
+        ):
+            self._stats.filtered += 1
+            return
         if length == 2:
             content = self.bram.read_bytes(base, 2)
             if content == DIRECT_ENABLE:

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
 from fpgaemu.uart import UartWrite
+from fpgaemu.uartcommand import FrameFilter
 from fpgalink._framing import DEFAULT_FRAMING, Framing
 
 __all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
@@ -47,6 +48,7 @@ class UartSendStats:
     escapes: int = 0
     refused_strobes: int = 0
     writes_while_busy: int = 0
+    filtered: int = 0  #: frames a fault hook lost on the wire
 
 
 def frame_bytes(content: bytes, framing: Framing) -> bytes:
@@ -96,6 +98,9 @@ class UartSend:
         self.stats = UartSendStats()
         #: cycle the current frame's last stop bit ends; idle from then on
         self.busy_until = 0
+        #: Fault hook: called with (content, cycle) at each accepted strobe; returning False
+        #: loses the frame on the wire (it still takes its line time).
+        self.frame_filter: FrameFilter | None = None
         self._done_listeners: list[Callable[[TxDone], None]] = []
 
     @property
@@ -131,7 +136,11 @@ class UartSend:
         stats.frames += 1
         stats.wire_bytes += len(wire)
         stats.escapes += len(wire) - len(content) - 2
-        self.busy_until = end = self.uartwrite.transmit(wire)
+        frame_filter = self.frame_filter
+        lost = frame_filter is not None and not frame_filter(content, self._timeline.now)
+        if lost:
+            stats.filtered += 1
+        self.busy_until = end = self.uartwrite.transmit(wire, lost=lost)
         self._timeline.schedule(end, lambda cycle: self._finish(cycle, len(wire)))
         return True
 

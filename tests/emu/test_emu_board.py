@@ -114,3 +114,42 @@ def test_one_ms_telemetry_runs_well_faster_than_real_time() -> None:
     # The target is ≥ 20× real time with the full firmware; this part alone must leave
     # ample room (generous bound against a loaded CI machine).
     assert elapsed < emulated_s / 10, f"{elapsed:.3f} s for {emulated_s} s emulated"
+
+
+class DropNth:
+    """Frame filter losing the ``n``-th frame (from 0) whose content starts with ``prefix``."""
+
+    def __init__(self, prefix: bytes, n: int) -> None:
+        self.prefix, self.n, self.seen = prefix, n, 0
+
+    def __call__(self, content: bytes, cycle: int) -> bool:
+        if not content.startswith(self.prefix):
+            return True
+        self.seen += 1
+        return self.seen - 1 != self.n
+
+
+def test_frame_filters_drop_the_nth_frame_each_way() -> None:
+    board = Board()
+    board.add_peripheral("firmware", EchoFirmware())
+    board.uartcommand.frame_filter = DropNth(b"PS", 1)
+    board.uartsend.frame_filter = DropNth(b"3", 0)  # replies are reversed
+    for k in range(4):
+        board.host_write(encode_frame(b"PS%d" % k))
+    board.run_for(0.01)
+    frames = FrameDecoder().feed(board.read_host_bytes())
+    assert frames == [b"0SP", b"2SP"]  # PS1 lost on the way in, 3SP on the way out
+    assert board.uartcommand.stats.filtered == 1
+    assert board.uartsend.stats.filtered == 1
+    assert board.uartwrite.stats.dropped_bytes == len(encode_frame(b"3SP"))
+
+
+def test_dropping_re_lets_the_watchdog_lapse() -> None:
+    board = Board()
+    board.uartcommand.frame_filter = DropNth(b"RE", 1)
+    first = board.host_write(b"SREP", 0)
+    board.host_write(b"SREP", 20_000_000)
+    board.run_for(0.5)
+    assert not board.global_enable
+    assert board.uartcommand.stats.direct_commands == 1
+    assert first == 4_000
