@@ -1,0 +1,92 @@
+"""Quadrature decoder and position counter per channel (seed: ``positioncounter``).
+
+Counts per wheel turn = 10 × IncSenzRes (the seed's FPGA multiplies the sensor's pulse count
+by 10); the counting direction is IncSenzCountDirection (±1). The count is
+``floor(angle × counts_per_turn / 360)`` times the direction.
+
+Edges are not simulated one event each: when the wheel is advanced over an interval, the
+counter works out how many edges it crossed and the exact cycle of the last one, with the
+angle taken as linear in time within the interval (the board advances the wheel at least
+every millisecond, so at 90 deg/s the interpolation error is far below one count).
+
+Speed is measured by the time-and-count (M/T) method, as the seed's ``positioncounter`` does:
+at each sample, M = edges between the last edge of the previous window and the last edge of
+this one, T = the cycles between those two edges on the 100 MHz clock, speed = M / T. When
+no edge arrived since the last sample, the speed can be at most one count over the time
+since the last edge, so the reading decays towards 0 instead of holding a stale value.
+"""
+
+from __future__ import annotations
+
+import math
+
+from fpgaemu.timeline import CLOCK_HZ
+
+__all__ = ["QuadratureEncoder"]
+
+
+class QuadratureEncoder:
+    def __init__(self, pulses_per_turn: int = 500, direction: int = 1) -> None:
+        self.counts_per_turn = 10 * pulses_per_turn
+        self.direction = direction
+        self.end_stop = False  #: the end-stop switch input
+        self._count = 0  #: physical count (before the direction setting)
+        self._angle_offset = 0.0
+        self._last_edge_cycle = 0
+        self._window_count = 0
+        self._window_cycle = 0
+        self._speed_dps = 0.0
+        self.edges = 0  #: every edge seen (unsigned)
+
+    def configure(self, pulses_per_turn: int, direction: int, angle_deg: float) -> None:
+        """New resolution or direction: the count restarts from the present angle."""
+        self.counts_per_turn = 10 * pulses_per_turn
+        self.direction = direction
+        self._angle_offset = angle_deg
+        self._count = 0
+        self._window_count = 0
+        self._speed_dps = 0.0
+
+    def _index(self, angle_deg: float) -> int:
+        return math.floor((angle_deg - self._angle_offset) * self.counts_per_turn / 360.0)
+
+    def follow(self, cycle0: int, angle0: float, cycle1: int, angle1: float) -> None:
+        """The wheel went from ``angle0`` at ``cycle0`` to ``angle1`` at ``cycle1``."""
+        if self.counts_per_turn <= 0:
+            return
+        n0, n1 = self._index(angle0), self._index(angle1)
+        if n0 == n1:
+            return
+        self.edges += abs(n1 - n0)
+        # The last boundary crossed: moving up it is where the count became n1, moving down
+        # where it left n1 + 1.
+        boundary_index = n1 if n1 > n0 else n1 + 1
+        boundary = self._angle_offset + boundary_index * 360.0 / self.counts_per_turn
+        fraction = (boundary - angle0) / (angle1 - angle0)
+        self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * (cycle1 - cycle0))
+        self._count = n1
+
+    @property
+    def position(self) -> int:
+        """The counter register, as a signed 32-bit value."""
+        value = (self._count * self.direction) & 0xFFFF_FFFF
+        return value - (1 << 32) if value & 0x8000_0000 else value
+
+    def sample_speed(self, now: int) -> float:
+        """The M/T speed reading at ``now`` (deg/s, in the counting direction)."""
+        if self.counts_per_turn <= 0:
+            return 0.0
+        deg_per_count = 360.0 / self.counts_per_turn
+        edges = self._count - self._window_count
+        if edges != 0 and self._last_edge_cycle > self._window_cycle:
+            elapsed = self._last_edge_cycle - self._window_cycle
+            self._speed_dps = edges * deg_per_count * CLOCK_HZ / elapsed
+            self._window_count = self._count
+            self._window_cycle = self._last_edge_cycle
+        else:
+            since = now - self._last_edge_cycle
+            if since > 0:
+                bound = deg_per_count * CLOCK_HZ / since
+                if abs(self._speed_dps) > bound:
+                    self._speed_dps = math.copysign(bound, self._speed_dps)
+        return self._speed_dps * self.direction

@@ -1,0 +1,173 @@
+"""Motor and wheel plant per channel, from the seed's identified transfer functions (SPEC §6).
+
+The seed identified wheel speed against PWM at Ts = 0.05 s:
+
+    high gear  H(z) = (−0.07017 z⁻² − 0.053 z⁻¹) / (1 − 1.393 z⁻¹ + 0.7321 z⁻² − 0.2117 z⁻³)
+    low gear   H(z) = (−0.0291 z⁻² − 0.009263 z⁻¹) / (1 − 1.394 z⁻¹ + 0.7058 z⁻² − 0.198 z⁻³)
+
+We take H(z) apart into first-order modes, H(z) = Σ rᵢ z⁻¹ / (1 − pᵢ z⁻¹), and give each mode
+the continuous-time equivalent whose zero-order-hold discretisation at Ts is exactly that
+mode: sᵢ = ln(pᵢ)/Ts, input gain bᵢ = sᵢ/(pᵢ − 1). (All poles have positive real part or
+are complex, so the logarithm is well defined.) The zeros are kept implicitly by the
+residues rᵢ. The modal form then steps *any* interval exactly for a constant input, so the
+board can advance the wheel to the exact cycle a PWM value changes, and the wheel angle is
+the exact integral of the speed. The model reproduces the seed's step response at its own
+Ts sample for sample (tested).
+
+Scaling: the identification's negative sign is the encoder's counting direction; physical
+speed is positive for positive duty. Full duty (32760) gives 90 deg/s in high gear; low
+gear keeps the identified ratio of DC gains (0.349), so about 31 deg/s at full duty.
+
+Current: a DC motor behind the 1:70 gearbox, i = (V·duty − k_e·ω_motor)/R, plus the current
+that carries a load torque. A load torque acts as an input disturbance in the same units;
+a stalled wheel holds speed 0 and draws the stall current.
+"""
+
+from __future__ import annotations
+
+import cmath
+from dataclasses import dataclass
+
+__all__ = ["GEARS", "MotorConstants", "WheelPlant", "identified_response"]
+
+SEED_TS = 0.05
+#: numerator (z⁻¹, z⁻²) and denominator (z⁻¹, z⁻², z⁻³) coefficients
+GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
+    "high": ((-0.053, -0.07017), (-1.393, 0.7321, -0.2117)),
+    "low": ((-0.009263, -0.0291), (-1.394, 0.7058, -0.198)),
+}
+MAX_DUTY = 32760
+MAX_SPEED_HIGH_DPS = 90.0
+GEAR_RATIO = 70.0
+
+
+@dataclass(frozen=True, slots=True)
+class MotorConstants:
+    """A plausible 24 V geared DC motor (the seed gives only the gearbox and wheel speed)."""
+
+    supply_v: float = 24.0
+    resistance_ohm: float = 1.0
+    #: back-EMF constant; 90 % of the supply at full wheel speed leaves 2.4 A of friction
+    #: current at full duty
+    ke_v_s_per_rad: float = 0.9 * 24.0 / (GEAR_RATIO * MAX_SPEED_HIGH_DPS * cmath.pi / 180)
+
+    @property
+    def stall_torque_wheel_nm(self) -> float:
+        """Wheel torque at full duty and zero speed (k_t = k_e in SI units)."""
+        return self.ke_v_s_per_rad * self.supply_v / self.resistance_ohm * GEAR_RATIO
+
+
+def _roots_cubic(a1: float, a2: float, a3: float) -> list[complex]:
+    import numpy as np
+
+    return [complex(r) for r in np.roots([1.0, a1, a2, a3])]
+
+
+def _modes(gear: str) -> tuple[list[complex], list[complex], list[complex], float]:
+    """Poles pᵢ, residues rᵢ, continuous poles sᵢ and the DC gain H(1)."""
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    poles = _roots_cubic(a1, a2, a3)
+    residues = []
+    for i, p in enumerate(poles):
+        # H(z) = (b1 z² + b2 z) / Π (z − pⱼ) = Σ rᵢ / (z − pᵢ), so
+        # rᵢ = (b1 pᵢ² + b2 pᵢ) / Π_{j≠i} (pᵢ − pⱼ)
+        denominator = complex(1.0)
+        for j, q in enumerate(poles):
+            if j != i:
+                denominator *= p - q
+        residues.append((b1 * p * p + b2 * p) / denominator)
+    s_poles = [cmath.log(p) / SEED_TS for p in poles]
+    dc_gain = (b1 + b2) / (1 + a1 + a2 + a3)
+    return poles, residues, s_poles, dc_gain
+
+
+def identified_response(gear: str, inputs: list[float]) -> list[float]:
+    """The seed's difference equation itself, for checking the modal model."""
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    y = [0.0, 0.0, 0.0]
+    u = [0.0, 0.0]
+    out = []
+    for value in inputs:
+        new = b1 * u[0] + b2 * u[1] - a1 * y[0] - a2 * y[1] - a3 * y[2]
+        out.append(new)
+        y = [new, y[0], y[1]]
+        u = [value, u[0]]
+    return out
+
+
+class WheelPlant:
+    """One wheel: ``advance(seconds)`` with the duty held, then read ``speed_dps``,
+    ``angle_deg`` and ``current_a``."""
+
+    def __init__(self, gear: str = "high", motor: MotorConstants | None = None) -> None:
+        if gear not in GEARS:
+            raise ValueError(f"gear must be one of {sorted(GEARS)}, got {gear!r}")
+        self.gear = gear
+        self.motor = motor or MotorConstants()
+        _, residues, s_poles, dc_gain = _modes(gear)
+        _, _, _, high_dc = _modes("high")
+        # Output in deg/s per unit input, sign flipped to physical; input is duty/32760.
+        scale = MAX_SPEED_HIGH_DPS / high_dc
+        self._s = s_poles
+        self._b = [s / (cmath.exp(s * SEED_TS) - 1) for s in s_poles]
+        self._c = [r * scale for r in residues]
+        self._x = [0j, 0j, 0j]
+        self.max_speed_dps = MAX_SPEED_HIGH_DPS * dc_gain / high_dc
+        self.duty = 0
+        self.load_torque_nm = 0.0  #: at the wheel; positive opposes positive speed
+        self.stalled = False
+        self.angle_deg = 0.0
+        self._cache: dict[float, list[tuple[complex, complex, complex, complex]]] = {}
+
+    @property
+    def speed_dps(self) -> float:
+        if self.stalled:
+            return 0.0
+        return sum((c * x).real for c, x in zip(self._c, self._x, strict=True))
+
+    @property
+    def current_a(self) -> float:
+        m = self.motor
+        volts = m.supply_v * self.duty / MAX_DUTY
+        omega_motor = self.speed_dps * cmath.pi / 180 * GEAR_RATIO
+        return (volts - m.ke_v_s_per_rad * omega_motor) / m.resistance_ohm
+
+    def _input(self) -> float:
+        # A load torque is the duty it would take to hold it at stall.
+        return self.duty / MAX_DUTY - self.load_torque_nm / self.motor.stall_torque_wheel_nm
+
+    def _coefficients(self, dt: float) -> list[tuple[complex, complex, complex, complex]]:
+        coefficients = self._cache.get(dt)
+        if coefficients is None:
+            coefficients = []
+            for s, b in zip(self._s, self._b, strict=True):
+                e = cmath.exp(s * dt)
+                phi = (e - 1) / s  # ∫ e^{sτ} dτ over the step
+                coefficients.append((e, phi * b, phi, (phi - dt) / s * b))
+            if len(self._cache) < 64:
+                self._cache[dt] = coefficients
+        return coefficients
+
+    def advance(self, dt: float) -> tuple[float, float]:
+        """Hold the duty for ``dt`` seconds; returns (angle at start, speed at start) so a
+        caller can interpolate within the step."""
+        angle0, speed0 = self.angle_deg, self.speed_dps
+        if dt <= 0:
+            return angle0, speed0
+        if self.stalled:
+            return angle0, 0.0
+        u = self._input()
+        x = self._x
+        angle_gain = 0.0
+        for i, (e, gain, phi, integral_gain) in enumerate(self._coefficients(dt)):
+            xi = x[i]
+            angle_gain += (self._c[i] * (phi * xi + integral_gain * u)).real
+            x[i] = e * xi + gain * u
+        self.angle_deg += angle_gain
+        return angle0, speed0
+
+    def stall(self, stalled: bool = True) -> None:
+        """Block the wheel (or free it): a blocked wheel's dynamics restart from rest."""
+        self.stalled = stalled
+        if stalled:
+            self._x = [0j, 0j, 0j]

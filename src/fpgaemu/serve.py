@@ -1,0 +1,371 @@
+"""Serving emulated boards as devices: a pseudo-terminal or a TCP port per board, or an
+in-process asyncio transport for ``emu://``, all paced to the wall clock.
+
+A pty does not enforce a baud rate, so the pacing is ours: the board's cycle count follows
+real time, host bytes enter ``uartread`` at the cycle they arrived (queuing at line rate
+behind earlier ones, as on a wire), and TX bytes are handed out when their stop bit has
+ended in emulated time. If the process is starved of CPU the board falls behind real time;
+it then catches up in bounded slices, loses nothing, and the lag is reported.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import time
+import tty
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from fpgaemu.board import Board, BoardConfig
+from fpgaemu.timeline import CLOCK_HZ
+from fpgaemu.uart import LineFaults
+from fpgalink.errors import PortError
+
+__all__ = [
+    "BoardFaults",
+    "LagReport",
+    "PacedBoard",
+    "PtyEndpoint",
+    "TcpEndpoint",
+    "board_from_settings",
+    "open_emulated_transport",
+    "parse_faults",
+]
+
+#: How often the serving loop advances the boards. 1 ms keeps TX bursts near line rate
+#: (100 bytes per tick at 1 MBd) without costing much when idle.
+TICK_S = 0.001
+#: Longest slice of emulated time run in one go while catching up, so I/O stays served.
+CATCH_UP_SLICE_S = 0.05
+#: Behind real time by more than this counts as lag.
+LAG_THRESHOLD_S = 0.005
+
+
+@dataclass(slots=True)
+class LagReport:
+    """How far the board fell behind the wall clock."""
+
+    lag_events: int = 0
+    worst_lag_s: float = 0.0
+    current_lag_s: float = 0.0
+
+
+@dataclass
+class PacedBoard:
+    """A board whose emulated time follows a monotonic clock."""
+
+    board: Board
+    clock: Callable[[], float] = time.monotonic
+    lag: LagReport = field(default_factory=LagReport)
+
+    def __post_init__(self) -> None:
+        self._origin = self.clock() - self.board.now / CLOCK_HZ
+        self._lagging = False
+
+    def target_cycle(self, now: float | None = None) -> int:
+        now = self.clock() if now is None else now
+        return int((now - self._origin) * CLOCK_HZ)
+
+    def host_write(self, data: bytes, now: float | None = None) -> None:
+        """Bytes the host wrote at wall time ``now`` enter the RX pin then (or as soon as
+        the board has caught up to that moment — never earlier than its present)."""
+        if data:
+            self.board.host_write(data, max(self.board.now, self.target_cycle(now)))
+
+    def advance(self, now: float | None = None) -> bytes:
+        """Run the board up to ``now`` (in slices while catching up) and return the TX bytes
+        whose stop bit ended by then."""
+        target = self.target_cycle(now)
+        slice_cycles = int(CATCH_UP_SLICE_S * CLOCK_HZ)
+        behind = (target - self.board.now) / CLOCK_HZ
+        self.lag.current_lag_s = max(0.0, behind - TICK_S)
+        if self.lag.current_lag_s > LAG_THRESHOLD_S:
+            if not self._lagging:
+                self.lag.lag_events += 1
+                self._lagging = True
+            self.lag.worst_lag_s = max(self.lag.worst_lag_s, self.lag.current_lag_s)
+        else:
+            self._lagging = False
+        step_to = min(target, self.board.now + slice_cycles)
+        if step_to > self.board.now:
+            self.board.run_until(step_to)
+        return self.board.read_host_bytes()
+
+
+class _Ticker:
+    """Calls ``tick()`` every TICK_S on the running loop until stopped."""
+
+    def __init__(self, tick: Callable[[], None]) -> None:
+        self._tick = tick
+        self._task: asyncio.Task[None] | None = None
+
+    def start(self) -> None:
+        self._task = asyncio.ensure_future(self._run())
+
+    async def _run(self) -> None:
+        while True:
+            self._tick()
+            await asyncio.sleep(TICK_S)
+
+    async def stop(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await self._task
+            self._task = None
+
+
+# --- pty --------------------------------------------------------------------------------------
+
+
+class PtyEndpoint:
+    """One board behind a pseudo-terminal. We keep the slave side open ourselves, so a host
+    that closes and reopens the path finds the same board still running."""
+
+    def __init__(self, paced: PacedBoard) -> None:
+        self.paced = paced
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
+        self._ticker = _Ticker(self._tick)
+        self._pending_out = bytearray()
+        #: TX bytes lost because nobody read the pty and its buffer filled
+        self.dropped_tx = 0
+
+    def start(self) -> None:
+        asyncio.get_running_loop().add_reader(self._master, self._readable)
+        self._ticker.start()
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self._master, 65536)
+        except BlockingIOError:
+            return
+        except OSError:
+            return  # no reader on the slave side right now; the board keeps running
+        self.paced.host_write(data)
+
+    def _tick(self) -> None:
+        out = self.paced.advance()
+        if out:
+            self._pending_out += out
+        if self._pending_out:
+            try:
+                written = os.write(self._master, self._pending_out)
+            except (BlockingIOError, OSError):
+                # The pty buffer is full (nobody reading): like a wire with no listener,
+                # the bytes are gone. Count them rather than block the board.
+                self.dropped_tx += len(self._pending_out)
+                self._pending_out.clear()
+                return
+            del self._pending_out[:written]
+
+    async def close(self) -> None:
+        await self._ticker.stop()
+        with contextlib.suppress(Exception):
+            asyncio.get_running_loop().remove_reader(self._master)
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+
+# --- TCP --------------------------------------------------------------------------------------
+
+
+class TcpEndpoint:
+    """One board on a TCP port; one host at a time (a new connection replaces the old, as
+    plugging a new cable would)."""
+
+    def __init__(self, paced: PacedBoard, host: str, port: int) -> None:
+        self.paced = paced
+        self.host = host
+        self.port = port
+        self._server: asyncio.Server | None = None
+        self._writer: asyncio.StreamWriter | None = None
+        self._ticker = _Ticker(self._tick)
+        self.connections = 0
+
+    @property
+    def url(self) -> str:
+        return f"socket://{self.host}:{self.port}"
+
+    async def start(self) -> None:
+        self._server = await asyncio.start_server(self._client, self.host, self.port)
+        self.port = self._server.sockets[0].getsockname()[1]
+        self._ticker.start()
+
+    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self._writer is not None:
+            self._writer.close()
+        self._writer = writer
+        self.connections += 1
+        try:
+            while data := await reader.read(65536):
+                self.paced.host_write(data)
+        except (ConnectionError, OSError, asyncio.CancelledError):
+            pass
+        finally:
+            if self._writer is writer:
+                self._writer = None
+            writer.close()
+
+    def _tick(self) -> None:
+        out = self.paced.advance()
+        if out and self._writer is not None and not self._writer.is_closing():
+            self._writer.write(out)
+
+    async def close(self) -> None:
+        await self._ticker.stop()
+        if self._writer is not None:
+            self._writer.close()
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+
+
+# --- emu:// in-process ------------------------------------------------------------------------
+
+
+class EmulatedTransport(asyncio.Transport):
+    """An asyncio transport whose far end is a board in this process."""
+
+    def __init__(self, paced: PacedBoard, protocol: asyncio.Protocol) -> None:
+        super().__init__()
+        self.paced = paced
+        self._protocol = protocol
+        self._closing = False
+        self._ticker = _Ticker(self._tick)
+        self._ticker.start()
+
+    def _tick(self) -> None:
+        out = self.paced.advance()
+        if out and not self._closing:
+            self._protocol.data_received(out)
+
+    def write(self, data: bytes | bytearray | memoryview) -> None:
+        if not self._closing:
+            self.paced.host_write(bytes(data))
+
+    def is_closing(self) -> bool:
+        return self._closing
+
+    def close(self) -> None:
+        if self._closing:
+            return
+        self._closing = True
+        loop = asyncio.get_running_loop()
+        self._stopping = loop.create_task(self._ticker.stop())
+        loop.call_soon(self._protocol.connection_lost, None)
+
+    def get_extra_info(self, name: str, default: Any = None) -> Any:
+        if name == "board":
+            return self.paced.board
+        return default
+
+
+def parse_faults(specs: list[str]) -> tuple[BoardFaults, BoardConfig]:
+    """``--fault`` specs → frame-level faults and a config holding the line faults.
+
+    ``drop-frames=ID:N``  lose the first N host→board frames whose message ID is ID
+    ``rx-ber=RATE``       bit-error rate on the host→board line
+    ``tx-ber=RATE``       bit-error rate on the board→host line
+    """
+    faults = BoardFaults()
+    config = BoardConfig()
+    for spec in specs:
+        key, _, value = spec.partition("=")
+        try:
+            if key == "drop-frames":
+                msg_id, _, count = value.partition(":")
+                if len(msg_id) not in (1, 2) or not count.isdigit():
+                    raise ValueError
+                faults.drop_frames[msg_id.encode()] = int(count)
+            elif key in ("rx-ber", "tx-ber"):
+                rate = float(value)
+                line = LineFaults(bit_error_rate=rate)
+                if key == "rx-ber":
+                    config.rx_faults = line
+                else:
+                    config.tx_faults = line
+            else:
+                raise ValueError
+        except ValueError:
+            raise ValueError(
+                f"bad fault spec {spec!r}: use drop-frames=ID:N, rx-ber=RATE or tx-ber=RATE"
+            ) from None
+    return faults, config
+
+
+@dataclass
+class BoardFaults:
+    """Frame-level faults applied at ``uartcommand`` (as if the line had eaten the frame)."""
+
+    drop_frames: dict[bytes, int] = field(default_factory=dict)
+    dropped: int = 0
+
+    def attach(self, board: Board) -> None:
+        if self.drop_frames:
+            board.uartcommand.frame_filter = self._keep
+
+    def _keep(self, content: bytes, cycle: int) -> bool:
+        for msg_id, left in self.drop_frames.items():
+            if left > 0 and content.startswith(msg_id):
+                self.drop_frames[msg_id] = left - 1
+                self.dropped += 1
+                return False
+        return True
+
+
+def board_from_settings(
+    *,
+    baud: int = 1_000_000,
+    seed: int = 0,
+    gear: str = "high",
+    settings: dict[str, Any] | None = None,
+    faults: list[str] | None = None,
+) -> Board:
+    """A complete board (communication path, firmware, motors) as ``fpgaemu serve`` and
+    ``emu://`` build it. ``settings`` are initial parameter values by name
+    (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``."""
+    from fpgaemu.firmware import attach_firmware
+
+    frame_faults, config = parse_faults(faults or [])
+    config.baud, config.seed, config.gear = baud, seed, gear
+    if gear not in ("high", "low"):
+        raise ValueError(f"gear must be 'high' or 'low', got {gear!r}")
+    board = Board(config)
+    attach_firmware(board, settings or {})
+    board.add_peripheral("faults", frame_faults)
+    return board
+
+
+def _options_to_board(options: dict[str, str], baud: int) -> Board:
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1`` query options → a board."""
+    known = {"seed", "gear", "fault"}
+    unknown = set(options) - known
+    if unknown:
+        raise ValueError(f"unknown emu:// option(s) {sorted(unknown)}; known: {sorted(known)}")
+    return board_from_settings(
+        baud=baud,
+        seed=int(options.get("seed", 0)),
+        gear=options.get("gear", "high"),
+        faults=[options["fault"]] if "fault" in options else [],
+    )
+
+
+async def open_emulated_transport(
+    protocol_factory: Callable[[], asyncio.Protocol], *, baud: int, options: dict[str, str]
+) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
+    try:
+        board = _options_to_board(options, baud)
+    except ValueError as exc:
+        raise PortError(f"emu://: {exc}") from None
+    paced = PacedBoard(board)
+    protocol = protocol_factory()
+    transport = EmulatedTransport(paced, protocol)
+    protocol.connection_made(transport)
+    return transport, protocol
