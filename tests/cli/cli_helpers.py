@@ -61,6 +61,8 @@ class Board:
     url: str
     fake: FakeBoard | None = None  #: the scripted board, to inspect what it received
     has_dynamics: bool = False  #: a real plant behind it (the emulator)
+    #: the board outlives one CLI command (emu:// boots a fresh board in each process)
+    persistent: bool = True
     cleanup: list[Callable[[], None]] = field(default_factory=list)
 
 

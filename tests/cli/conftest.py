@@ -19,7 +19,7 @@ def board(request: pytest.FixtureRequest) -> Iterator[Board]:
         thread.close()
     elif kind == "emu":
         emulator_available()
-        yield Board("emu", "emu://", has_dynamics=True)
+        yield Board("emu", "emu://", has_dynamics=True, persistent=False)
     else:
         emulator_available()
         proc, path = serve_pty()

@@ -315,10 +315,9 @@ def format_value(value: int | float, kind: ParamType | None = None) -> str:
         text = f"{stored:.{digits}g}"
         if float32(float(text)) == stored:
             break
-    # Keep it a float to the eye (and to TOML): 7 → 7.0
-    if not any(c in text for c in ".eEn"):
-        text += ".0"
-    return text
+    # repr() of the same decimal gives fixed notation where Python would (520.0, not
+    # 5.2e+02) and keeps it a float to the eye and to TOML (7 → 7.0).
+    return repr(float(text))
 
 
 async def gather_all(*aws: Awaitable[T]) -> list[T]:
