@@ -19,12 +19,20 @@ test: $(STAMP)
 	@$(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
+# The main job on the built-in emulator, no hardware: connect, enable, show the parameters,
+# then a 0 -> 45 deg/s step on channel A with its metrics and a plot in step.png.
+demo: $(STAMP)
+	$(VENV)/bin/fpgalink-cli param list
+	$(VENV)/bin/fpgalink-cli step --channel A --to 45 --hold 2 --plot step.png
+
 lint: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks
 	$(PY) -m mypy
 
 bench: $(STAMP)
 	$(PY) benchmarks/codec.py
+	$(PY) benchmarks/emulator.py
+	$(PY) benchmarks/link.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist
