@@ -2,7 +2,9 @@
 
 Counts per wheel turn = 10 × IncSenzRes (the seed's FPGA multiplies the sensor's pulse count
 by 10); the counting direction is IncSenzCountDirection (±1). The count is
-``floor(angle × counts_per_turn / 360)`` times the direction.
+``floor((angle − offset) × counts_per_turn / 360)`` times the direction, where the offset
+puts the angle at power-up (or at ``configure``) in the middle of count 0: a wheel at rest
+sits inside a count, not on an edge, so the first hair of movement either way is no edge.
 
 Edges are not simulated one event each: when the wheel is advanced over an interval, the
 counter works out how many edges it crossed and the exact cycle of the last one, with the
@@ -14,6 +16,14 @@ at each sample, M = edges between the last edge of the previous window and the l
 this one, T = the cycles between those two edges on the 100 MHz clock, speed = M / T. When
 no edge arrived since the last sample, the speed can be at most one count over the time
 since the last edge, so the reading decays towards 0 instead of holding a stale value.
+
+A measurement needs two edges: the first edge after power-up, after ``configure`` or after
+more than ``SPEED_TIMEOUT_CYCLES`` without an edge only becomes the reference, and the
+reading stays 0 until the next one. (Timing it from anything else would be arbitrary: a
+wheel resting exactly on a count boundary gives its first edge after a hair of movement,
+which would read as a burst of speed.) The timeout is also why a wheel at rest reads exactly
+0 rather than a 1/t tail: it is 1 s, so the slowest speed measured is one count per second
+(0.072 deg/s at the default 5000 counts per turn).
 """
 
 from __future__ import annotations
@@ -22,7 +32,10 @@ import math
 
 from fpgaemu.timeline import CLOCK_HZ
 
-__all__ = ["QuadratureEncoder"]
+__all__ = ["SPEED_TIMEOUT_CYCLES", "QuadratureEncoder"]
+
+#: An edge older than this is no reference for a speed measurement (1 s at 100 MHz).
+SPEED_TIMEOUT_CYCLES = CLOCK_HZ
 
 
 class QuadratureEncoder:
@@ -31,10 +44,10 @@ class QuadratureEncoder:
         self.direction = direction
         self.end_stop = False  #: the end-stop switch input
         self._count = 0  #: physical count (before the direction setting)
-        self._angle_offset = 0.0
-        self._last_edge_cycle = 0
+        self._angle_offset = self._half_count()
+        self._last_edge_cycle: int | None = None
         self._window_count = 0
-        self._window_cycle = 0
+        self._window_cycle: int | None = None  #: the reference edge; None: none yet
         self._speed_dps = 0.0
         self.edges = 0  #: every edge seen (unsigned)
 
@@ -42,10 +55,16 @@ class QuadratureEncoder:
         """New resolution or direction: the count restarts from the present angle."""
         self.counts_per_turn = 10 * pulses_per_turn
         self.direction = direction
-        self._angle_offset = angle_deg
+        self._angle_offset = angle_deg + self._half_count()
         self._count = 0
         self._window_count = 0
+        self._window_cycle = None
+        self._last_edge_cycle = None
         self._speed_dps = 0.0
+
+    def _half_count(self) -> float:
+        """Minus half a count in degrees (0 without an encoder)."""
+        return -180.0 / self.counts_per_turn if self.counts_per_turn > 0 else 0.0
 
     def _index(self, angle_deg: float) -> int:
         return math.floor((angle_deg - self._angle_offset) * self.counts_per_turn / 360.0)
@@ -77,15 +96,24 @@ class QuadratureEncoder:
         if self.counts_per_turn <= 0:
             return 0.0
         deg_per_count = 360.0 / self.counts_per_turn
-        edges = self._count - self._window_count
-        if edges != 0 and self._last_edge_cycle > self._window_cycle:
-            elapsed = self._last_edge_cycle - self._window_cycle
-            self._speed_dps = edges * deg_per_count * CLOCK_HZ / elapsed
+        last = self._last_edge_cycle
+        if last is None:
+            self._speed_dps = 0.0
+        elif self._window_cycle is None or last > self._window_cycle:
+            # Edges since the reference: M/T over them, or just a new reference.
+            reference = self._window_cycle
+            if reference is not None and last - reference <= SPEED_TIMEOUT_CYCLES:
+                edges = self._count - self._window_count
+                self._speed_dps = edges * deg_per_count * CLOCK_HZ / (last - reference)
+            else:
+                self._speed_dps = 0.0
             self._window_count = self._count
-            self._window_cycle = self._last_edge_cycle
+            self._window_cycle = last
         else:
-            since = now - self._last_edge_cycle
-            if since > 0:
+            since = now - last
+            if since > SPEED_TIMEOUT_CYCLES:
+                self._speed_dps = 0.0
+            elif since > 0:
                 bound = deg_per_count * CLOCK_HZ / since
                 if abs(self._speed_dps) > bound:
                     self._speed_dps = math.copysign(bound, self._speed_dps)
