@@ -18,12 +18,11 @@ no edge arrived since the last sample, the speed can be at most one count over t
 since the last edge, so the reading decays towards 0 instead of holding a stale value.
 
 A measurement needs two edges: the first edge after power-up, after ``configure`` or after
-more than ``SPEED_TIMEOUT_CYCLES`` without an edge only becomes the reference, and the
-reading stays 0 until the next one. (Timing it from anything else would be arbitrary: a
-wheel resting exactly on a count boundary gives its first edge after a hair of movement,
-which would read as a burst of speed.) The timeout is also why a wheel at rest reads exactly
-0 rather than a 1/t tail: it is 1 s, so the slowest speed measured is one count per second
-(0.072 deg/s at the default 5000 counts per turn).
+more than ``SPEED_TIMEOUT_CYCLES`` without an edge only becomes the reference (wherever in
+the window it falls), and the reading stays 0 until an edge after it: timing it from
+anything else (power-up, the previous sample) would be arbitrary. The timeout is also why a
+wheel at rest reads exactly 0 rather than a 1/t tail: it is 1 s, so the slowest speed
+measured is one count per second (0.072 deg/s at the default 5000 counts per turn).
 """
 
 from __future__ import annotations
@@ -77,12 +76,24 @@ class QuadratureEncoder:
         if n0 == n1:
             return
         self.edges += abs(n1 - n0)
+        step = 360.0 / self.counts_per_turn
+        span = cycle1 - cycle0
+
+        def crossing(index: int) -> int:
+            fraction = (self._angle_offset + index * step - angle0) / (angle1 - angle0)
+            return cycle0 + round(min(1.0, max(0.0, fraction)) * span)
+
+        up = n1 > n0
+        previous = self._last_edge_cycle
+        first = crossing(n0 + 1 if up else n0)
+        if (self._window_cycle is None or previous is None
+                or first - previous > SPEED_TIMEOUT_CYCLES):
+            # No usable reference edge: the first edge of this stretch becomes it.
+            self._window_cycle = first
+            self._window_count = n0 + 1 if up else n0 - 1
         # The last boundary crossed: moving up it is where the count became n1, moving down
         # where it left n1 + 1.
-        boundary_index = n1 if n1 > n0 else n1 + 1
-        boundary = self._angle_offset + boundary_index * 360.0 / self.counts_per_turn
-        fraction = (boundary - angle0) / (angle1 - angle0)
-        self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * (cycle1 - cycle0))
+        self._last_edge_cycle = crossing(n1 if up else n1 + 1)
         self._count = n1
 
     @property
@@ -97,16 +108,12 @@ class QuadratureEncoder:
             return 0.0
         deg_per_count = 360.0 / self.counts_per_turn
         last = self._last_edge_cycle
-        if last is None:
+        reference = self._window_cycle
+        if last is None or reference is None:
             self._speed_dps = 0.0
-        elif self._window_cycle is None or last > self._window_cycle:
-            # Edges since the reference: M/T over them, or just a new reference.
-            reference = self._window_cycle
-            if reference is not None and last - reference <= SPEED_TIMEOUT_CYCLES:
-                edges = self._count - self._window_count
-                self._speed_dps = edges * deg_per_count * CLOCK_HZ / (last - reference)
-            else:
-                self._speed_dps = 0.0
+        elif last > reference:
+            edges = self._count - self._window_count
+            self._speed_dps = edges * deg_per_count * CLOCK_HZ / (last - reference)
             self._window_count = self._count
             self._window_cycle = last
         else:
