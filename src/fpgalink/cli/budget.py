@@ -98,29 +98,28 @@ def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...]
         flows.insert(0, Flow("TM", tm_bytes, 1.0, TO_HOST))
     arithmetic = _arithmetic()
     period_s = period_ms / 1000.0
-    capacity = arithmetic.bytes_per_second(baud) * period_s  # wire bytes per period
+    report = arithmetic.plan(baud, period_s, [
+        arithmetic.Flow(f.name, f.content, f.per_period, to_board=f.direction == TO_BOARD)
+        for f in flows
+    ])
+    capacity = report.to_host.capacity
     table = Table(title=f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
                         f"({capacity:,.1f} wire bytes per direction per period)",
                   title_justify="left")
-    for column in ("direction", "message", "content B", "wire B", "per period",
-                   "wire B/period", "share"):
+    for column in ("direction", "message", "content B", "wire B", "worst-case B",
+                   "per period", "wire B/period", "share"):
         table.add_column(column, justify="left" if column in ("direction", "message")
                          else "right")
-    totals = {TO_BOARD: 0.0, TO_HOST: 0.0}
-    for flow in flows:
-        wire = arithmetic.frame_wire_bytes(flow.content)
-        load = wire * flow.per_period
-        totals[flow.direction] += load
-        table.add_row(flow.direction, flow.name, str(flow.content), str(wire),
-                      f"{flow.per_period:g}", f"{load:,.1f}", f"{load / capacity:.1%}")
+    for load in (report.to_board, report.to_host):
+        for flow in load.flows:
+            per_period = flow.typical_wire * flow.per_period
+            table.add_row(load.name, flow.name, str(flow.content_length),
+                          str(flow.typical_wire), str(flow.worst_wire),
+                          f"{flow.per_period:g}", f"{per_period:,.1f}",
+                          f"{per_period / capacity:.1%}")
     console = table_console()
     console.print(table)
-    fits_all = True
-    for direction, load in totals.items():
-        share = load / capacity
-        fits = load <= capacity
-        fits_all &= fits
-        verdict = "fits" if fits else "DOES NOT FIT"
-        echo_out(f"{direction}: {load:,.1f} of {capacity:,.1f} wire bytes per period "
-                 f"({share:.1%}) — {verdict}")
+    for line in report.explain():
+        echo_out(line)
+    fits_all = report.fits
     return ExitCode.FAILURE if check and not fits_all else ExitCode.OK
