@@ -12,7 +12,7 @@ import asyncio
 import contextlib
 import math
 from collections import deque
-from collections.abc import AsyncIterator, Iterable, Mapping
+from collections.abc import AsyncIterator, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
@@ -197,6 +197,7 @@ class Link:
         self._futures: dict[int, asyncio.Future[int | float]] = {}
         self._telemetry_subs: set[TelemetrySubscription] = set()
         self._event_subs: set[_EventSubscription] = set()
+        self._listeners: list[Callable[[Any], None]] = []
         self._reconnect_task: asyncio.Task[None] | None = None
         self.reconnects = 0
         self.port_losses = 0
@@ -368,6 +369,19 @@ class Link:
             self._event_subs.add(sub)
         return sub
 
+    def add_listener(self, listener: Callable[[Any], None]) -> Callable[[], None]:
+        """Call ``listener(event)`` with everything the protocol core reports, in order:
+        every received message (catalogued, generic, direct commands), ``Malformed``, framing
+        errors, counter gaps… Returns a function that removes the listener. Listeners run
+        inside the receive path: keep them quick and do not raise."""
+        self._listeners.append(listener)
+
+        def remove() -> None:
+            if listener in self._listeners:
+                self._listeners.remove(listener)
+
+        return remove
+
     @property
     def latest(self) -> Telemetry | None:
         """The newest telemetry sample, or ``None`` before the first."""
@@ -439,7 +453,10 @@ class Link:
 
     def _process(self) -> None:
         stats = self._conn.stats
+        listeners = self._listeners
         for event in self._conn.events():
+            for listener in listeners:
+                listener(event)
             kind = type(event)
             if kind is Telemetry:
                 for sub in self._telemetry_subs:

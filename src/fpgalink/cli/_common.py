@@ -17,9 +17,17 @@ from typing import Any, TypeVar
 import click
 from rich.console import Console
 
-from fpgalink import FrameDecoder, parse_content
+from fpgalink._messages import CountedMessage, DirectCommand, Malformed
 from fpgalink.aio.link import Link
-from fpgalink.catalogue import Parsed
+from fpgalink.catalogue import (
+    ParamAck,
+    ParamGet,
+    ParamNack,
+    ParamSet,
+    Parsed,
+    References,
+    Telemetry,
+)
 from fpgalink.errors import (
     BoardLost,
     FpgalinkError,
@@ -252,36 +260,29 @@ Tap = Callable[[Parsed], None]
 
 
 class TappedLink(Link):
-    """A :class:`Link` that also hands every received message to observers.
-
-    The link dispatches only telemetry, request results and liveness; ``send --reply`` and
-    ``record`` need everything (``PA`` echoes, unknown IDs, ``E``). Rather than reach into the
-    core's event queue, this decodes the received bytes a second time with the public codec —
-    cheap, and it cannot disturb the link. A public ``Link.messages()`` subscription would
-    replace it (requested upstream)."""
+    """A :class:`Link` that also hands every received message to observers (``send --reply``
+    and ``record`` need ``PA`` echoes, unknown IDs and ``E``, not only telemetry), through
+    the link's public listener hook."""
 
     def __init__(self, url: str, **options: Any) -> None:
         super().__init__(url, **options)
-        self._tap_decoder = FrameDecoder(self._conn.framing)
         self._taps: list[Tap] = []
+        self.add_listener(self._tap)
 
     def add_tap(self, tap: Tap) -> None:
-        if not self._taps:
-            self._tap_decoder.reset()
         self._taps.append(tap)
 
     def remove_tap(self, tap: Tap) -> None:
         self._taps.remove(tap)
 
-    def _on_data(self, data: bytes) -> None:
-        super()._on_data(data)
-        if not self._taps:
-            return
-        for item in self._tap_decoder.feed(data):
-            if isinstance(item, bytes):
-                message = parse_content(item)
-                for tap in list(self._taps):
-                    tap(message)
+    def _tap(self, event: Any) -> None:
+        if self._taps and isinstance(event, _RECEIVED_MESSAGES):
+            for tap in list(self._taps):
+                tap(event)
+
+
+_RECEIVED_MESSAGES = (ParamSet, ParamGet, ParamAck, ParamNack, References, Telemetry,
+                      CountedMessage, DirectCommand, Malformed)
 
 
 def message_id(message: Parsed) -> str:
