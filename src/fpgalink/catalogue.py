@@ -155,10 +155,9 @@ class _Catalogued:
 
 
 @dataclass(frozen=True, slots=True)
-class ParamSet(_Catalogued):
-    """``PS`` host → board: set a parameter."""
+class _ParamValue(_Catalogued):
+    """The ``PS``/``PA`` body: which parameter, and a value of the given type."""
 
-    msg_id: ClassVar[bytes] = b"PS"
     param_id: int
     channel: int
     value_type: int  #: a :class:`~fpgalink.params.ParamType` code
@@ -171,19 +170,17 @@ class ParamSet(_Catalogued):
 
 
 @dataclass(frozen=True, slots=True)
-class ParamAck(_Catalogued):
+class ParamSet(_ParamValue):
+    """``PS`` host → board: set a parameter."""
+
+    msg_id: ClassVar[bytes] = b"PS"
+
+
+@dataclass(frozen=True, slots=True)
+class ParamAck(_ParamValue):
     """``PA`` board → host: the value now in force (answers ``PS`` and ``PG``)."""
 
     msg_id: ClassVar[bytes] = b"PA"
-    param_id: int
-    channel: int
-    value_type: int
-    value: int | float
-    counter: int | None = None
-
-    def _body_values(self) -> tuple[Any, ...]:
-        return (self.param_id, self.channel, self.value_type,
-                _pack_value(self.value_type, self.value))
 
 
 @dataclass(frozen=True, slots=True)
