@@ -54,7 +54,12 @@ def cli() -> None:
 @click.option("--set", "assignments", multiple=True, metavar="NAME=VALUE",
               help="Initial parameter value, e.g. --set Kp_Wheel_PidA=9 (repeatable).")
 @click.option("--fault", "faults", multiple=True, metavar="SPEC",
-              help="Fault injection, e.g. drop-frames=PS:1 (see docs/emulator.md).")
+              help="Fault injection, repeatable. Per line (rx- host->board, tx- "
+                   "board->host): rx-ber=RATE, rx-drop=RATE, rx-dup=RATE, rx-noise=RATE:LEN, "
+                   "rx-stuck=START_S:DURATION_S (held low), rx-cut=START_S:DURATION_S, and "
+                   "the tx- forms; both lines: stuck=, disconnect=START_S:DURATION_S; host: "
+                   "stall=START_S:DURATION_S, babble=START_S:DURATION_S (random bytes at "
+                   "line rate); drop-frames=ID:N. See docs/reliability.md.")
 def serve(use_pty: bool, tcp: str | None, boards: int, baud: int, seed: int, gear: str,
           config_path: Path | None, assignments: tuple[str, ...], faults: tuple[str, ...]) -> None:
     """Serve emulated boards until SIGINT/SIGTERM. Prints `ready <board> <path-or-url>` per

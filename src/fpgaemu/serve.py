@@ -20,8 +20,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fpgaemu.board import Board, BoardConfig
+from fpgaemu.faults import Babbler, FaultSet, parse_fault_spec
 from fpgaemu.timeline import CLOCK_HZ
-from fpgaemu.uart import LineFaults
 from fpgalink.errors import PortError
 
 __all__ = [
@@ -268,48 +268,32 @@ class EmulatedTransport(asyncio.Transport):
 
 
 def parse_faults(specs: list[str]) -> tuple[BoardFaults, BoardConfig]:
-    """``--fault`` specs → frame-level faults and a config holding the line faults.
-
-    ``drop-frames=ID:N``  lose the first N host→board frames whose message ID is ID
-    ``rx-ber=RATE``       bit-error rate on the host→board line
-    ``tx-ber=RATE``       bit-error rate on the board→host line
-    """
-    faults = BoardFaults()
-    config = BoardConfig()
+    """``--fault`` specs → board-level faults (frame drops, babble) and a config holding the
+    line faults. The grammar is :data:`fpgaemu.faults.FAULT_HELP` (docs/reliability.md)."""
+    wanted = FaultSet()
     for spec in specs:
-        key, _, value = spec.partition("=")
-        try:
-            if key == "drop-frames":
-                msg_id, _, count = value.partition(":")
-                if len(msg_id) not in (1, 2) or not count.isdigit():
-                    raise ValueError
-                faults.drop_frames[msg_id.encode()] = int(count)
-            elif key in ("rx-ber", "tx-ber"):
-                rate = float(value)
-                line = LineFaults(bit_error_rate=rate)
-                if key == "rx-ber":
-                    config.rx_faults = line
-                else:
-                    config.tx_faults = line
-            else:
-                raise ValueError
-        except ValueError:
-            raise ValueError(
-                f"bad fault spec {spec!r}: use drop-frames=ID:N, rx-ber=RATE or tx-ber=RATE"
-            ) from None
+        parse_fault_spec(spec, wanted)
+    config = BoardConfig(rx_faults=wanted.line("rx"), tx_faults=wanted.line("tx"))
+    faults = BoardFaults(drop_frames=wanted.drop_frames, babble=wanted.babble)
     return faults, config
 
 
 @dataclass
 class BoardFaults:
-    """Frame-level faults applied at ``uartcommand`` (as if the line had eaten the frame)."""
+    """Faults that are not a property of one line: frame drops applied at ``uartcommand``
+    (as if the line had eaten the frame) and a babbling host (``(start, end)`` cycles)."""
 
     drop_frames: dict[bytes, int] = field(default_factory=dict)
     dropped: int = 0
+    babble: list[tuple[int, int]] = field(default_factory=list)
+    babbler: Babbler | None = None
 
     def attach(self, board: Board) -> None:
         if self.drop_frames:
             board.uartcommand.frame_filter = self._keep
+        if self.babble:
+            self.babbler = Babbler(self.babble)
+            self.babbler.attach(board)
 
     def _keep(self, content: bytes, cycle: int) -> bool:
         for msg_id, left in self.drop_frames.items():

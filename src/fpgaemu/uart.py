@@ -11,13 +11,21 @@ one's stop bit has ended. A line idle when a burst arrives starts it at once.
 
 Fault injection (:class:`LineFaults`, off by default) switches a burst to an exact bit-level
 model: the burst is laid out as bit slots, chosen bits are flipped (by byte and bit index or
-at a bit-error rate from the board's seeded generator), bytes can be lost or noise bytes
-inserted, and a receiver samples the slots: in idle, a low slot starts a byte, the next
-eight are data, the tenth must be high or the byte is a framing error (dropped, counted)
-and the receiver looks for the next start from the slot after. So a broken stop bit loses
-exactly that byte, and a flipped start bit makes the receiver slip into the data bits until
-it resynchronises, as real receivers do. Simplification: a byte whose bits run past the end
-of a burst is completed with idle (high) bits; a slip does not carry into the next burst.
+at a bit-error rate from the board's seeded generator), bytes can be lost, duplicated or
+noise bytes inserted (by index or at a rate), the line can be held low (a break) or cut
+(held idle) for windows of time, and a receiver samples the slots: in idle, a low slot
+starts a byte, the next eight are data, the tenth must be high or the byte is a framing
+error (dropped, counted) and the receiver looks for the next start from the slot after. So a
+broken stop bit loses exactly that byte, and a flipped start bit makes the receiver slip
+into the data bits until it resynchronises, as real receivers do. Simplification: a byte
+whose bits run past the end of a burst is completed with idle (high) bits; a slip does not
+carry into the next burst; a break or cut only acts on bytes sent during it (an idle line
+held low produces no bytes here, where a real UART would report one break condition).
+
+Rate-based faults are decided per burst before any bit is laid out, so a burst nothing hits
+still takes the fast path: at a bit-error rate of 1e-4 about 95 % of 55-byte frames do. Each
+kind of random fault draws from its own generator (``Timeline.rng(line + "." + kind)``), so
+switching one fault on never changes where another one strikes.
 """
 
 from __future__ import annotations
@@ -25,6 +33,8 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
+
+import numpy as np
 
 from fpgaemu.timeline import CLOCK_HZ, Timeline
 
@@ -101,22 +111,50 @@ class LineFaults:
     noise: dict[int, bytes] = field(default_factory=dict)
     #: probability that any one bit slot (noise included) is inverted.
     bit_error_rate: float = 0.0
+    #: probability that each sender byte is lost (the line stays idle for its time).
+    drop_rate: float = 0.0
+    #: probability that each sender byte goes on the wire twice (the copy takes line time).
+    dup_rate: float = 0.0
+    #: probability that a burst of ``noise_len`` random bytes precedes each sender byte.
+    noise_rate: float = 0.0
+    noise_len: int = 1
+    #: ``[start, end)`` cycle windows in which the line is held low (a break): every slot
+    #: sent then reads 0, so the receiver sees zero bytes with framing errors.
+    stuck: list[tuple[int, int]] = field(default_factory=list)
+    #: ``[start, end)`` cycle windows in which the line is cut (reads idle high): bytes sent
+    #: then never arrive — an unplugged cable, or a stalled peer as the receiver sees it.
+    cut: list[tuple[int, int]] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if not 0.0 <= self.bit_error_rate <= 1.0:
-            raise ValueError(f"bit_error_rate must be in [0, 1], got {self.bit_error_rate}")
+        for name in ("bit_error_rate", "drop_rate", "dup_rate", "noise_rate"):
+            rate = getattr(self, name)
+            if not 0.0 <= rate <= 1.0:
+                raise ValueError(f"{name} must be in [0, 1], got {rate}")
+        if self.noise_len < 1:
+            raise ValueError(f"noise_len must be at least 1, got {self.noise_len}")
         for _, bit in self.flip_bits:
             if not 0 <= bit < BITS_PER_BYTE:
                 raise ValueError(f"bit index {bit} is not a slot 0..9 of an 8N1 byte")
+        for start, end in (*self.stuck, *self.cut):
+            if not 0 <= start <= end:
+                raise ValueError(f"fault window [{start}, {end}) is not a cycle range")
 
     def touches(self, first: int, end: int) -> bool:
-        """Whether any fault applies to sender bytes ``first <= index < end``."""
-        if self.bit_error_rate > 0.0:
-            return True
+        """Whether an index-based fault applies to sender bytes ``first <= index < end``
+        (rate and window faults are decided per burst by the line)."""
         for index in (*self.break_stop, *self.drop, *self.noise):
             if first <= index < end:
                 return True
         return any(first <= index < end for index, _ in self.flip_bits)
+
+    def windows_overlap(self, start: int, end: int) -> bool:
+        """Whether a stuck or cut window overlaps cycles ``[start, end)``."""
+        return any(a < end and start < b for a, b in (*self.stuck, *self.cut))
+
+    @property
+    def random(self) -> bool:
+        return (self.bit_error_rate > 0.0 or self.drop_rate > 0.0 or self.dup_rate > 0.0
+                or self.noise_rate > 0.0)
 
 
 @dataclass(slots=True)
@@ -127,10 +165,34 @@ class LineStats:
     bits_flipped: int = 0
     noise_bytes: int = 0
     dropped_bytes: int = 0  #: sender bytes lost by ``LineFaults.drop`` or a frame filter
+    duplicated_bytes: int = 0  #: extra copies put on the wire by ``LineFaults.dup_rate``
+    stuck_slots: int = 0  #: bit slots forced low by a stuck-line window
+    cut_slots: int = 0  #: bit slots forced idle by a cut-line window
 
 
 def _byte_slots(value: int) -> list[int]:
     return [0, *((value >> k) & 1 for k in range(8)), 1]
+
+
+def _indexes(rng: np.random.Generator, count: int, rate: float) -> list[int]:
+    """Indexes ``0 <= i < count`` hit at ``rate``; draws nothing when the rate is 0, so a
+    fault that is off leaves every generator's stream where it was."""
+    if rate <= 0.0:
+        return []
+    hits: list[int] = (rng.random(count) < rate).nonzero()[0].tolist()
+    return hits
+
+
+@dataclass(slots=True)
+class _Plan:
+    """Random byte-level decisions for one burst (offsets into the burst)."""
+
+    drop: set[int]
+    dup: set[int]
+    noise: dict[int, bytes]
+
+    def __bool__(self) -> bool:
+        return bool(self.drop or self.dup or self.noise)
 
 
 class _Line:
@@ -138,6 +200,9 @@ class _Line:
 
     __slots__ = (
         "_rng",
+        "_rng_drop",
+        "_rng_dup",
+        "_rng_noise",
         "_timeline",
         "baud",
         "cycles_per_bit",
@@ -161,6 +226,9 @@ class _Line:
         #: cycle at which the last queued byte's stop bit ends; the line is idle from then.
         self.line_free_at = 0
         self._rng = timeline.rng(name)
+        self._rng_drop = timeline.rng(name + ".drop")
+        self._rng_dup = timeline.rng(name + ".dup")
+        self._rng_noise = timeline.rng(name + ".noise")
 
     @property
     def busy(self) -> bool:
@@ -182,14 +250,34 @@ class _Line:
             stats.dropped_bytes += len(data)
             return []
         faults = self.faults
-        if faults is not None and faults.touches(index, index + len(data)):
-            return self._send_bitwise(data, start, index, faults)
+        if faults is not None:
+            n = len(data)
+            plan = _Plan(
+                set(_indexes(self._rng_drop, n, faults.drop_rate)),
+                set(_indexes(self._rng_dup, n, faults.dup_rate)),
+                {
+                    k: self._rng_noise.integers(0, 256, faults.noise_len, np.uint8).tobytes()
+                    for k in _indexes(self._rng_noise, n, faults.noise_rate)
+                },
+            )
+            if plan or faults.touches(index, index + n):
+                return self._send_bitwise(data, start, index, faults, plan, None)
+            hits = None
+            if faults.bit_error_rate > 0.0:
+                # Same draw the bit-level path would make for this burst, made first so a
+                # burst with no hit stays on the fast path.
+                hits = self._rng.random(n * BITS_PER_BYTE) < faults.bit_error_rate
+                if hits.any():
+                    return self._send_bitwise(data, start, index, faults, plan, hits)
+            if faults.windows_overlap(start, start + n * self.cycles_per_byte):
+                return self._send_bitwise(data, start, index, faults, plan, hits)
         self.line_free_at = start + len(data) * self.cycles_per_byte
         stats.bytes_received += len(data)
         return [ByteRun(data, start + self.cycles_per_byte, self.cycles_per_byte)]
 
     def _send_bitwise(
-        self, data: bytes, start: int, index: int, faults: LineFaults
+        self, data: bytes, start: int, index: int, faults: LineFaults, plan: _Plan,
+        hits: np.ndarray[tuple[int], np.dtype[np.bool_]] | None,
     ) -> list[ByteRun]:
         stats = self.stats
         flips: dict[int, list[int]] = {}
@@ -200,12 +288,12 @@ class _Line:
         slots: list[int] = []
         for k, value in enumerate(data):
             i = index + k
-            noise = faults.noise.get(i)
+            noise = faults.noise.get(i, b"") + plan.noise.get(k, b"")
             if noise:
                 stats.noise_bytes += len(noise)
                 for n in noise:
                     slots += _byte_slots(n)
-            if i in faults.drop:
+            if i in faults.drop or k in plan.drop:
                 stats.dropped_bytes += 1
                 slots += [1] * BITS_PER_BYTE
                 continue
@@ -214,11 +302,16 @@ class _Line:
                 bits[bit] ^= 1
                 stats.bits_flipped += 1
             slots += bits
+            if k in plan.dup:
+                stats.duplicated_bytes += 1
+                slots += _byte_slots(value)
         if faults.bit_error_rate > 0.0:
-            hits = self._rng.random(len(slots)) < faults.bit_error_rate
+            if hits is None or len(hits) != len(slots):
+                hits = self._rng.random(len(slots)) < faults.bit_error_rate
             for slot in hits.nonzero()[0].tolist():
                 slots[slot] ^= 1
                 stats.bits_flipped += 1
+        self._apply_windows(slots, start, faults)
         self.line_free_at = start + len(slots) * self.cycles_per_bit
         # The receiver: idle until a low slot, then 8 data slots and a stop slot.
         received: list[tuple[int, int]] = []
@@ -256,6 +349,23 @@ class _Line:
         if group:
             runs.append(ByteRun(bytes(group), start + group_first * bit, self.cycles_per_byte))
         return runs
+
+    def _apply_windows(self, slots: list[int], start: int, faults: LineFaults) -> None:
+        """Force the slots sent inside stuck windows low and inside cut windows high. A
+        slot counts as inside when its bit period begins in the window."""
+        bit = self.cycles_per_bit
+        n = len(slots)
+        for windows, level in ((faults.cut, 1), (faults.stuck, 0)):
+            for a, b in windows:
+                first = max(0, -(-(a - start) // bit))
+                end = min(n, -(-(b - start) // bit))
+                if first >= end:
+                    continue
+                slots[first:end] = [level] * (end - first)
+                if level:
+                    self.stats.cut_slots += end - first
+                else:
+                    self.stats.stuck_slots += end - first
 
 
 class UartRead(_Line):

@@ -1,0 +1,164 @@
+"""Fault injection beyond single bit flips: the ``--fault`` grammar, and a babbling host.
+
+Line faults (bit errors, dropped, duplicated and noise bytes, stuck and cut windows) live in
+:class:`~fpgaemu.uart.LineFaults`, one per direction. This module adds what is not a property
+of one line: a host that babbles random bytes at full line rate (:class:`Babbler`, a board
+peripheral), and the parser that turns ``--fault SPEC`` strings into a :class:`FaultSet`.
+
+Everything random draws from ``Timeline.rng(name)``, so a seed fixes every fault exactly.
+Times in specs are seconds of emulated time from power-up (for ``fpgaemu serve``, from when
+the board started serving).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from fpgaemu.timeline import seconds_to_cycles
+from fpgaemu.uart import LineFaults
+
+if TYPE_CHECKING:
+    from fpgaemu.board import Board
+
+__all__ = ["FAULT_HELP", "Babbler", "FaultSet", "parse_fault_spec"]
+
+#: The grammar, for ``--help`` and error messages (docs/reliability.md has the long form).
+FAULT_HELP = """\
+rx-* = host->board line, tx-* = board->host line; RATE is a probability in [0, 1],
+START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
+  rx-ber=RATE / tx-ber=RATE        each bit slot inverted with probability RATE
+  rx-drop=RATE / tx-drop=RATE      each byte lost with probability RATE
+  rx-dup=RATE / tx-dup=RATE        each byte sent twice with probability RATE
+  rx-noise=RATE:LEN / tx-noise=..  LEN random bytes inserted before a byte, probability RATE
+  rx-stuck=START_S:DURATION_S      line held low (break): bytes become framing errors
+  tx-stuck=..., stuck=...          (stuck = both lines)
+  rx-cut=START_S:DURATION_S        line cut: nothing sent in the window arrives
+  tx-cut=..., disconnect=...       (disconnect = both lines)
+  stall=START_S:DURATION_S         the host stalls: the board hears nothing (= rx-cut)
+  babble=START_S:DURATION_S        the host sends random bytes at full line rate
+  drop-frames=ID:N                 lose the first N host->board frames with message ID"""
+
+#: The babbler refills the line this often; short enough that the line never goes idle
+#: between refills for longer than a few bytes, long enough to cost one call per refill.
+BABBLE_CHUNK_S = 0.001
+
+
+@dataclass
+class FaultSet:
+    """Everything a list of ``--fault`` specs asks for."""
+
+    rx: LineFaults = field(default_factory=LineFaults)
+    tx: LineFaults = field(default_factory=LineFaults)
+    drop_frames: dict[bytes, int] = field(default_factory=dict)
+    #: ``(start, end)`` cycle windows of host babble
+    babble: list[tuple[int, int]] = field(default_factory=list)
+
+    def line(self, which: str) -> LineFaults | None:
+        """The line faults for ``"rx"`` or ``"tx"``, or ``None`` when that line is clean
+        (keeps the board on its fast path and its generators untouched)."""
+        faults = self.rx if which == "rx" else self.tx
+        return faults if faults != LineFaults() else None
+
+
+def _rate(text: str) -> float:
+    rate = float(text)
+    if not 0.0 <= rate <= 1.0:
+        raise ValueError
+    return rate
+
+
+def _window(text: str) -> tuple[int, int]:
+    start_s, sep, duration_s = text.partition(":")
+    if not sep:
+        raise ValueError
+    start, duration = float(start_s), float(duration_s)
+    if start < 0 or duration < 0:
+        raise ValueError
+    first = seconds_to_cycles(start)
+    return first, first + seconds_to_cycles(duration)
+
+
+def parse_fault_spec(spec: str, into: FaultSet) -> None:
+    """Add one ``KEY=VALUE`` spec to ``into``; ``ValueError`` naming the grammar if bad."""
+    key, _, value = spec.partition("=")
+    try:
+        direction, _, kind = key.partition("-")
+        lines = {"rx": [into.rx], "tx": [into.tx]}.get(direction)
+        if key == "drop-frames":
+            msg_id, _, count = value.partition(":")
+            if len(msg_id) not in (1, 2) or not count.isdigit():
+                raise ValueError
+            into.drop_frames[msg_id.encode()] = int(count)
+        elif key in ("stuck", "disconnect", "stall"):
+            window = _window(value)
+            targets = [into.rx] if key == "stall" else [into.rx, into.tx]
+            for line in targets:
+                (line.stuck if key == "stuck" else line.cut).append(window)
+        elif key == "babble":
+            start, end = _window(value)
+            into.babble.append((start, end))
+        elif lines is not None and kind == "ber":
+            for line in lines:
+                line.bit_error_rate = _rate(value)
+        elif lines is not None and kind == "drop":
+            for line in lines:
+                line.drop_rate = _rate(value)
+        elif lines is not None and kind == "dup":
+            for line in lines:
+                line.dup_rate = _rate(value)
+        elif lines is not None and kind == "noise":
+            rate, _, length = value.partition(":")
+            for line in lines:
+                line.noise_rate = _rate(rate)
+                line.noise_len = int(length) if length else 1
+                if line.noise_len < 1:
+                    raise ValueError
+        elif lines is not None and kind in ("stuck", "cut"):
+            for line in lines:
+                (line.stuck if kind == "stuck" else line.cut).append(_window(value))
+        else:
+            raise ValueError
+    except ValueError:
+        raise ValueError(f"bad fault spec {spec!r}; the grammar is:\n{FAULT_HELP}") from None
+
+
+class Babbler:
+    """A babbling host: from each window's start to its end, random bytes fill every idle
+    moment of the host→board line (full line rate). The host's real bytes still get onto
+    the line, queued between refills, as they would from a host whose driver interleaves
+    its writes with a runaway writer. Windows are ``(start, end)`` cycles."""
+
+    def __init__(self, windows: list[tuple[int, int]]) -> None:
+        self.windows = sorted(windows)
+        self.bytes_sent = 0
+        self._board: Board | None = None
+
+    def attach(self, board: Board) -> None:
+        self._board = board
+        self._rng = board.timeline.rng("babble")
+        self._chunk = seconds_to_cycles(BABBLE_CHUNK_S)
+        for start, end in self.windows:
+            if end > start:
+                self._schedule(max(start, board.now), end)
+
+    def _schedule(self, cycle: int, end: int) -> None:
+        assert self._board is not None
+        self._board.schedule(cycle, lambda at: self._refill(at, end))
+
+    def _refill(self, cycle: int, end: int) -> None:
+        board = self._board
+        assert board is not None
+        line = board.uartread
+        until = min(end, cycle + self._chunk)
+        # Fill the line from where it next goes idle up to the next refill, no further,
+        # so the babble never builds a backlog ahead of the host's own bytes.
+        count = (until - max(cycle, line.line_free_at)) // line.cycles_per_byte
+        if count > 0:
+            data = self._rng.integers(0, 256, count, np.uint8).tobytes()
+            line.transmit(data, cycle)
+            self.bytes_sent += count
+        if until < end:
+            self._schedule(until, end)
