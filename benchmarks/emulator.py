@@ -1,0 +1,279 @@
+"""Speed of the board emulator (``fpgaemu``) on the SPEC §7 scenario: emulated seconds per
+wall-clock second.
+
+The scenario: one complete board (``board_from_settings``: UART logic, firmware, PWM,
+encoders, timer, both plants) at 1 MBd with TsTimerPeriod = 1 ms and GetDataPeriodical = 1,
+so a ``TM`` leaves every millisecond, while the host sends ``RV`` every 1 ms (references
+45 and −30 deg/s, so both wheels move and both speed loops work) and ``RE`` every 100 ms.
+The host's bytes are put on the RX pin ahead of time at exact cycles, ``BATCH_MS`` at a
+time, and the board runs that slice; what the board sent is read back after each slice.
+
+Cases:
+
+* ``board``: the board alone; the host only collects the TX bytes (the emulator's cost);
+* ``board+host``: the same, with the host decoding every frame through
+  ``fpgalink.Connection`` (what ``fpgaemu serve`` plus a host in the same process cost);
+* ``board.tm_only``: no ``RV`` stream (references set once): the timer, controllers and
+  ``TM`` alone, to show what the 1 kHz ``RV`` traffic adds.
+
+Reported per case: ``x_real_time`` (emulated s / wall s), ``events_per_s`` (timeline events
+per wall second: every event the board's ``Timeline`` scheduled, read from its sequence
+counter, so counting costs nothing; the ~10/s cancelled watchdog re-arms are included) and
+the wall time. Target: the ``board`` case at ≥ 20× real time (reported, not asserted).
+Every run is checked: 10,000 periods, no missed ``TM``, both wheels at their references.
+
+Run ``python benchmarks/emulator.py``; ``--quick`` is one repetition of 1 s emulated.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from _common import (
+    Summary,
+    machine_info,
+    package_versions,
+    print_table,
+    python_info,
+    summarize,
+    time_once,
+    timestamp,
+    write_results,
+)
+from fpgaemu.firmware import Firmware
+from fpgaemu.serve import board_from_settings
+from fpgaemu.timeline import CLOCK_HZ
+from fpgalink import Connection, Enable, References
+
+NAME = "emulator"
+MS = CLOCK_HZ // 1000
+BATCH_MS = 10
+REFS = (45.0, -30.0)
+DEFAULT_SECONDS = 10.0
+QUICK_SECONDS = 1.0
+DEFAULT_REPS = 5
+TARGET_X_REAL_TIME = 20.0  #: the board case, emulated seconds per wall second
+
+
+@dataclass
+class Outcome:
+    """What one run did, for the checks and the event count."""
+
+    emulated_s: float
+    events: int
+    periods: int
+    missed: int
+    tm_wire_bytes: int
+    speed_a: float
+    speed_b: float
+    frames_decoded: int = 0
+
+
+def scenario(seconds: float, *, decode: bool, rv_stream: bool) -> Callable[[], Outcome]:
+    """A fresh board, built outside the timed call; the returned call runs ``seconds``."""
+    board = board_from_settings(settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
+    firmware = board.peripherals["firmware"]
+    assert isinstance(firmware, Firmware)
+    host = Connection()
+    enable = host.send(Enable())
+    if not rv_stream:
+        board.host_write(host.send(References(*REFS)), MS // 2)
+    end_ms = round(seconds * 1000)
+
+    def run() -> Outcome:
+        timeline = board.timeline
+        seq0 = timeline._seq  # the timeline's schedule counter: one per event
+        frames = 0
+        for first in range(0, end_ms, BATCH_MS):
+            last = min(first + BATCH_MS, end_ms)
+            for ms in range(first, last):
+                at = ms * MS + MS // 2  # between two timer ticks
+                if ms % 100 == 0:
+                    board.host_write(enable, at)
+                if rv_stream:
+                    board.host_write(host.send(References(*REFS)), at)
+            board.run_until(last * MS)
+            data = board.read_host_bytes()
+            if decode:
+                host.receive_data(data)
+                for _ in host.events():
+                    frames += 1
+        return Outcome(
+            emulated_s=end_ms / 1000,
+            events=timeline._seq - seq0,
+            periods=firmware.timing.periods,
+            missed=len(firmware.timing.missed),
+            tm_wire_bytes=firmware.timing.tx_wire_bytes,
+            speed_a=firmware.channels[1].speed,
+            speed_b=firmware.channels[2].speed,
+            frames_decoded=frames,
+        )
+
+    return run
+
+
+@dataclass
+class Case:
+    key: str
+    description: str
+    decode: bool
+    rv_stream: bool
+    seconds: list[float] = field(default_factory=list)
+    outcomes: list[Outcome] = field(default_factory=list)
+
+    def check(self, outcome: Outcome) -> None:
+        expected = round(outcome.emulated_s * 1000)
+        problems = []
+        if outcome.periods != expected:
+            problems.append(f"{outcome.periods} periods, not {expected}")
+        if outcome.missed:
+            problems.append(f"{outcome.missed} periods missed their TM")
+        if outcome.emulated_s >= 1.0 and not (
+            abs(outcome.speed_a - REFS[0]) < 0.05 * abs(REFS[0])
+            and abs(outcome.speed_b - REFS[1]) < 0.05 * abs(REFS[1])
+        ):
+            problems.append(f"wheels at {outcome.speed_a:.2f}, {outcome.speed_b:.2f} deg/s")
+        if self.decode and outcome.frames_decoded < expected - 1:
+            problems.append(f"host decoded {outcome.frames_decoded} frames")
+        if problems:
+            raise AssertionError(f"{self.key}: " + "; ".join(problems))
+
+    def rates(self) -> dict[str, list[float]]:
+        return {
+            "x_real_time": [o.emulated_s / s for o, s in zip(self.outcomes, self.seconds,
+                                                              strict=True)],
+            "events_per_s": [o.events / s for o, s in zip(self.outcomes, self.seconds,
+                                                          strict=True)],
+            "seconds": list(self.seconds),
+        }
+
+    def summary(self) -> dict[str, Summary]:
+        return {name: summarize(values) for name, values in self.rates().items()}
+
+    def result(self) -> dict[str, Any]:
+        first = self.outcomes[0]
+        return {
+            "description": self.description,
+            "emulated_s": first.emulated_s,
+            "events": first.events,
+            "periods": first.periods,
+            "missed": first.missed,
+            "tm_wire_bytes_per_period": first.tm_wire_bytes / max(1, first.periods),
+            "repetitions": [
+                {"seconds": s, "x_real_time": o.emulated_s / s, "events_per_s": o.events / s}
+                for o, s in zip(self.outcomes, self.seconds, strict=True)
+            ],
+            "summary": self.summary(),
+        }
+
+
+CASES = (
+    ("board", "board alone, RV every 1 ms + RE every 100 ms, TM every 1 ms", False, True),
+    ("board+host", "as board, every frame decoded by fpgalink.Connection", True, True),
+    ("board.tm_only", "as board without the RV stream (references set once)", False, False),
+)
+
+
+def _targets(cases: dict[str, Case]) -> list[dict[str, Any]]:
+    measured = cases["board"].summary()["x_real_time"]["median"]
+    return [{
+        "case": "board",
+        "metric": "x_real_time (median)",
+        "threshold": TARGET_X_REAL_TIME,
+        "measured": measured,
+        "pass": measured >= TARGET_X_REAL_TIME,
+        "required": True,
+    }]
+
+
+def _print_report(cases: list[Case], targets: list[dict[str, Any]], reps: int) -> None:
+    rows = []
+    for case in cases:
+        summary = case.summary()
+        x = summary["x_real_time"]
+        rows.append([
+            case.key,
+            f"{case.outcomes[0].emulated_s:g}",
+            f"{summary['seconds']['median']:.3f}",
+            f"{x['median']:.1f}×",
+            f"{x['min']:.1f}–{x['max']:.1f}",
+            f"{summary['events_per_s']['median']:,.0f}",
+        ])
+    print(f"emulator speed, median of {reps} repetition(s)")
+    print_table(["case", "emulated s", "wall s", "× real time", "range", "events/s"], rows)
+    print()
+    for t in targets:
+        verdict = "PASS" if t["pass"] else "FAIL"
+        print(f"target {t['case']}: {t['metric']} ≥ {t['threshold']:g}: "
+              f"{t['measured']:.1f} — {verdict}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--reps", type=int, default=None,
+                        help=f"repetitions (default {DEFAULT_REPS})")
+    parser.add_argument("--seconds", type=float, default=None,
+                        help=f"emulated seconds per run (default {DEFAULT_SECONDS:g})")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"1 repetition of {QUICK_SECONDS:g} s emulated (smoke test)")
+    parser.add_argument("--output", type=Path, default=None,
+                        help="JSON path (default benchmarks/results/emulator.json)")
+    args = parser.parse_args(argv)
+    reps = args.reps if args.reps is not None else (1 if args.quick else DEFAULT_REPS)
+    seconds = args.seconds if args.seconds is not None else (
+        QUICK_SECONDS if args.quick else DEFAULT_SECONDS)
+    if reps < 1 or seconds < 0.01:
+        parser.error("--reps must be ≥ 1 and --seconds ≥ 0.01")
+
+    started = time.perf_counter()
+    cases = [Case(key, text, decode, rv) for key, text, decode, rv in CASES]
+    # Reps interleave the cases, so a slow spell on the machine spreads over all of them.
+    for rep in range(reps):
+        for case in cases:
+            run = scenario(seconds, decode=case.decode, rv_stream=case.rv_stream)
+            wall, outcome = time_once(run)
+            assert isinstance(outcome, Outcome)
+            case.check(outcome)
+            case.seconds.append(wall)
+            case.outcomes.append(outcome)
+        print(f"repetition {rep + 1}/{reps} done", file=sys.stderr)
+
+    by_key = {c.key: c for c in cases}
+    targets = _targets(by_key)
+    elapsed = time.perf_counter() - started
+    payload: dict[str, Any] = {
+        "benchmark": NAME,
+        "created": timestamp(),
+        "machine": machine_info(),
+        "python": python_info(),
+        "packages": package_versions(["fpgalink", "numpy", "construct"]),
+        "config": {
+            "emulated_s": seconds,
+            "reps": reps,
+            "quick": args.quick,
+            "baud": 1_000_000,
+            "ts_timer_period_ms": 1,
+            "references_dps": list(REFS),
+            "rv_every_ms": 1,
+            "re_every_ms": 100,
+            "batch_ms": BATCH_MS,
+            "argv": sys.argv[1:] if argv is None else list(argv),
+        },
+        "cases": {c.key: c.result() for c in cases},
+        "targets": targets,
+        "timing": {"total_s": elapsed},
+    }
+    path = write_results(NAME, payload, args.output)
+    _print_report(cases, targets, reps)
+    print(f"\n{len(cases)} cases × {reps} rep(s) in {elapsed:.1f} s; results in {path}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

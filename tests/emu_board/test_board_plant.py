@@ -1,0 +1,160 @@
+"""The plant against the seed's identification (SPEC §6): the modal model sampled at Ts =
+0.05 s against H(z), full duty, the low gear's ratio, a stalled wheel, a load torque; on its
+own and inside the board."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from board_helpers import Host
+
+from fpgaemu.plant import GEARS, MAX_DUTY, WheelPlant, identified_response
+from fpgalink import ParamAck
+
+TS = 0.05
+
+
+def dc_gain(gear: str) -> float:
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    return (b1 + b2) / (1 + a1 + a2 + a3)
+
+
+#: H(z) in the seed's units → deg/s per unit of duty/32760 (sign: physical direction)
+SCALE = 90.0 / dc_gain("high")
+
+
+def sampled(plant: WheelPlant, duties: list[int]) -> list[float]:
+    """Speed at k·Ts with duty[j] held over [j·Ts, (j+1)·Ts): what H(z) predicts for out[k]."""
+    out = []
+    for duty in duties:
+        out.append(plant.speed_dps)
+        plant.duty = duty
+        plant.advance(TS)
+    return out
+
+
+# Fit tolerance of the minimum-phase continuous model (plant.py docstring): 0.03 % (high)
+# and 0.8 % (low) of the final value on the step; a little more on arbitrary inputs.
+TOLERANCE = {"high": 0.002, "low": 0.012}
+
+
+@pytest.mark.parametrize("gear", ["high", "low"])
+def test_modal_model_reproduces_the_identified_step_sample_for_sample(gear: str) -> None:
+    n = 100
+    model = sampled(WheelPlant(gear), [MAX_DUTY] * n)
+    seed = [SCALE * y for y in identified_response(gear, [1.0] * n)]
+    final = abs(seed[-1])
+    assert model[0] == seed[0] == 0.0
+    for k in range(n):
+        assert abs(model[k] - seed[k]) <= TOLERANCE[gear] * final, k
+
+
+@pytest.mark.parametrize("gear", ["high", "low"])
+def test_modal_model_follows_h_of_z_on_a_random_held_input(gear: str) -> None:
+    rng = np.random.default_rng(7)
+    duties = [int(d) for d in rng.integers(-MAX_DUTY, MAX_DUTY + 1, 200)]
+    model = sampled(WheelPlant(gear), duties)
+    seed = [SCALE * y for y in identified_response(gear, [d / MAX_DUTY for d in duties])]
+    top = WheelPlant(gear).max_speed_dps  # full-duty speed: 90 (high), 31.4 (low) deg/s
+    errors = [abs(a - b) for a, b in zip(model, seed, strict=True)]
+    # measured: 0.065 % (high), 1.6 % (low) of full speed on white ±100 % duty
+    assert max(errors) <= {"high": 0.002, "low": 0.02}[gear] * top
+    # and it is the same signal, not merely a small one
+    assert np.corrcoef(model, seed)[0, 1] > 0.999
+
+
+def test_split_steps_give_the_same_wheel() -> None:
+    one, many = WheelPlant(), WheelPlant()
+    one.duty = many.duty = 20000
+    one.advance(TS)
+    for _ in range(50):
+        many.advance(TS / 50)
+    assert many.speed_dps == pytest.approx(one.speed_dps, rel=1e-9)
+    assert many.angle_deg == pytest.approx(one.angle_deg, rel=1e-9)
+
+
+def test_full_duty_gives_90_dps_in_high_gear_and_the_ratio_in_low() -> None:
+    high, low = WheelPlant("high"), WheelPlant("low")
+    for plant in (high, low):
+        plant.duty = MAX_DUTY
+        plant.advance(4.0)
+    assert high.speed_dps == pytest.approx(90.0, rel=1e-4)
+    ratio = dc_gain("low") / dc_gain("high")
+    assert ratio == pytest.approx(0.3487, abs=1e-4)
+    assert low.speed_dps == pytest.approx(90.0 * ratio, rel=1e-4)
+    reverse = WheelPlant("high")
+    reverse.duty = -MAX_DUTY
+    reverse.advance(4.0)
+    assert reverse.speed_dps == pytest.approx(-90.0, rel=1e-4)
+
+
+@pytest.mark.parametrize(("gear", "top"), [("high", 90.0), ("low", 31.38)])
+def test_board_at_full_duty_reports_top_speed_in_tm(gear: str, top: float) -> None:
+    # A reference beyond reach saturates the loop at full duty: TM shows the top speed.
+    host = Host.make(gear=gear)
+    assert isinstance(host.set(2, 0, 1, 1), ParamAck)
+    host.start_enabled()
+    host.references(200.0, -200.0)
+    host.run(3.0)
+    last = host.telemetry[-1]
+    assert last.a.pwm == MAX_DUTY and last.b.pwm == -MAX_DUTY
+    assert last.a.saturated and last.b.saturated
+    assert last.a.speed == pytest.approx(top, rel=0.002)
+    assert last.b.speed == pytest.approx(-top, rel=0.002)
+
+
+def test_stalled_wheel_reads_speed_0_and_draws_the_stall_current() -> None:
+    plant = WheelPlant()
+    plant.duty = MAX_DUTY
+    plant.advance(1.0)
+    plant.stall()
+    plant.advance(1.0)
+    assert plant.speed_dps == 0.0
+    stall_current = plant.motor.supply_v / plant.motor.resistance_ohm
+    assert plant.current_a == pytest.approx(stall_current)
+    assert stall_current == 24.0
+    plant.duty = MAX_DUTY // 2
+    assert plant.current_a == pytest.approx(stall_current * (MAX_DUTY // 2) / MAX_DUTY)
+
+
+def test_board_with_a_stalled_wheel_winds_up_to_full_duty_and_stall_current() -> None:
+    host = Host.make()
+    assert isinstance(host.set(2, 0, 1, 1), ParamAck)
+    host.start_enabled()
+    host.references(45.0, 45.0)
+    host.run(1.0)
+    host.firmware.channels[1].plant.stall()
+    host.run(2.0)
+    last = host.telemetry[-1]
+    assert last.a.speed == 0.0  # no edge for over the M/T timeout
+    assert last.a.pwm == MAX_DUTY and last.a.saturated
+    assert last.a.current == pytest.approx(24.0, rel=1e-6)
+    assert last.b.speed == pytest.approx(45.0, rel=0.01)  # the other wheel carries on
+
+
+@pytest.mark.parametrize("fraction", [0.1, 0.25, 0.5])
+def test_load_torque_reduces_speed_in_proportion(fraction: float) -> None:
+    plant = WheelPlant()
+    plant.duty = MAX_DUTY
+    plant.load_torque_nm = fraction * plant.motor.stall_torque_wheel_nm
+    plant.advance(4.0)
+    assert plant.speed_dps == pytest.approx(90.0 * (1 - fraction), rel=1e-4)
+
+
+def test_board_loop_rejects_a_load_torque_with_more_duty() -> None:
+    host = Host.make()
+    assert isinstance(host.set(2, 0, 1, 1), ParamAck)
+    host.start_enabled()
+    host.references(45.0, 45.0)
+    host.run(1.5)
+    duty_free = host.telemetry[-1].a.pwm
+    plant = host.firmware.channels[1].plant
+    plant.load_torque_nm = 0.25 * plant.motor.stall_torque_wheel_nm
+    mark = len(host.telemetry)
+    host.run(2.5)
+    dip = min(tm.a.speed for tm in host.telemetry[mark:])
+    last = host.telemetry[-1]
+    assert dip < 45.0 * 0.95  # the load slows the wheel at first
+    assert last.a.speed == pytest.approx(45.0, rel=0.01)  # then the integrator recovers it
+    assert last.a.pwm - duty_free == pytest.approx(0.25 * MAX_DUTY, rel=0.02)
+    assert last.a.current > host.telemetry[mark - 1].a.current
