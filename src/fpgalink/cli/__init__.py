@@ -1,7 +1,7 @@
 """``fpgalink-cli``: talk to a board (or the built-in emulator) from the shell.
 
 Commands: ``send``, ``param get|set|list|load|dump``, ``monitor``, ``record``, ``step``,
-``budget``. Every failure is one line on stderr and a documented exit code
+``budget``, ``bench``. Every failure is one line on stderr and a documented exit code
 (:class:`~fpgalink.cli._common.ExitCode`); see ``docs/cli.md``.
 """
 
@@ -33,10 +33,10 @@ def cli() -> None:
 
 def _register() -> None:
     # Imported here so `fpgalink-cli --help` stays quick and each module owns its command.
-    from fpgalink.cli import budget, monitor, param, record, send, step
+    from fpgalink.cli import bench, budget, monitor, param, record, send, step
 
     for command in (send.send, param.param, monitor.monitor, record.record, step.step,
-                    budget.budget):
+                    budget.budget, bench.bench):
         cli.add_command(command)
 
 
