@@ -187,7 +187,10 @@ class WheelPlant:
     def speed_dps(self) -> float:
         if self.stalled:
             return 0.0
-        return sum((c * x).real for c, x in zip(self._c, self._x, strict=True))
+        total = 0.0
+        for c, x in zip(self._c, self._x, strict=True):
+            total += (c * x).real
+        return total
 
     @property
     def current_a(self) -> float:
@@ -204,10 +207,11 @@ class WheelPlant:
         coefficients = self._cache.get(dt)
         if coefficients is None:
             coefficients = []
-            for s, b in zip(self._s, self._b, strict=True):
+            for s, b, c in zip(self._s, self._b, self._c, strict=True):
                 e = cmath.exp(s * dt)
                 phi = (e - 1) / s  # ∫ e^{sτ} dτ over the step
-                coefficients.append((e, phi * b, phi, (phi - dt) / s * b))
+                # state update (e, input gain) and the angle it adds (from state, from input)
+                coefficients.append((e, phi * b, c * phi, c * (phi - dt) / s * b))
             if len(self._cache) < 64:
                 self._cache[dt] = coefficients
         return coefficients
@@ -223,9 +227,11 @@ class WheelPlant:
         u = self._input()
         x = self._x
         angle_gain = 0.0
-        for i, (e, gain, phi, integral_gain) in enumerate(self._coefficients(dt)):
+        for i, (e, gain, angle_from_state, angle_from_input) in enumerate(
+            self._coefficients(dt)
+        ):
             xi = x[i]
-            angle_gain += (self._c[i] * (phi * xi + integral_gain * u)).real
+            angle_gain += (angle_from_state * xi + angle_from_input * u).real
             x[i] = e * xi + gain * u
         self.angle_deg += angle_gain
         return angle0, speed0
