@@ -52,3 +52,35 @@ def test_counts_are_exact(start: int, script: list[tuple[str, bool]]) -> None:
     assert tracker.lost == confirmed_drops
     assert tracker.duplicates == duplicated
     assert tracker.received == delivered + duplicated
+
+
+def test_one_corrupted_counter_does_not_wreck_the_sequence() -> None:
+    t = CounterTracker()
+    for c in range(100):
+        t.observe(c)
+    # Message 100 arrives with a damaged counter (no checksum protects it).
+    assert t.observe(47_100) is Observation.SUSPECT
+    assert t.observe(101) is Observation.CORRUPT
+    for c in range(102, 200):
+        assert t.observe(c) is Observation.IN_ORDER
+    assert (t.lost, t.duplicates, t.corrupted) == (0, 0, 1)
+
+
+def test_a_real_long_outage_is_believed_on_the_next_counter() -> None:
+    t = CounterTracker()
+    t.observe(10)
+    assert t.observe(5_011) is Observation.SUSPECT
+    assert t.observe(5_012) is Observation.GAP
+    assert t.lost == 5_000 and t.corrupted == 0
+    assert t.observe(5_013) is Observation.IN_ORDER
+    # A damaged counter that lands in the past is a duplicate, then the sequence goes on.
+    assert t.observe(3) is Observation.DUPLICATE
+    assert t.observe(5_014) is Observation.IN_ORDER
+
+
+def test_suspect_then_a_small_gap_counts_the_gap_and_the_corruption() -> None:
+    t = CounterTracker()
+    t.observe(0)
+    assert t.observe(60_000 - 10_000) is Observation.SUSPECT
+    assert t.observe(4) is Observation.GAP  # 1, 2, 3 lost
+    assert (t.lost, t.corrupted) == (3, 1)

@@ -15,6 +15,10 @@ __all__ = ["CounterTracker", "Observation", "SendCounter"]
 _HALF = COUNTER_MODULUS // 2
 #: How many missing counters are remembered, so a late arrival is recognised as reordered.
 _MISSING_WINDOW = 4096
+#: A jump ahead by more than this is only believed once the next counter follows it: a
+#: single corrupted counter (there is no checksum) must not make every later message look
+#: old. At 1 kHz this is a one-second outage.
+_TRUSTED_JUMP = 1000
 
 
 class SendCounter:
@@ -37,6 +41,8 @@ class Observation(Enum):
     GAP = "gap"  #: counters were skipped: that many messages lost (so far)
     LATE = "late"  #: a counter earlier reported missing arrived after all (reordered)
     DUPLICATE = "duplicate"
+    SUSPECT = "suspect"  #: a jump too large to believe yet; the next counter decides
+    CORRUPT = "corrupt"  #: the last suspect was a damaged counter, not a jump
 
 
 @dataclass(slots=True)
@@ -50,7 +56,10 @@ class CounterTracker:
     skipped: int = 0  #: counters jumped over (each counted once, when the jump is seen)
     late: int = 0  #: skipped counters that arrived afterwards (reordering)
     duplicates: int = 0
+    corrupted: int = 0  #: counters judged damaged (a big jump the next counter denied)
     last_gap: int = 0
+    suspect: int | None = None
+    _held: int = 0  #: the expected counter while a suspect is pending
     _missing: dict[int, None] = field(default_factory=dict, repr=False)
 
     @property
@@ -67,15 +76,36 @@ class CounterTracker:
         if expected is None:
             self.expected = (counter + 1) % COUNTER_MODULUS
             return Observation.FIRST
+        suspect = self.suspect
+        if suspect is not None:
+            expected = self._held
+            self.suspect = None
+            if 0 < (counter - suspect) % COUNTER_MODULUS <= _TRUSTED_JUMP:
+                # The jump is real (an outage, a board restart): count it from the suspect.
+                self._gap(expected, (suspect - expected) % COUNTER_MODULUS)
+                self._gap((suspect + 1) % COUNTER_MODULUS,
+                          (counter - suspect - 1) % COUNTER_MODULUS)
+                self.last_gap = (counter - expected) % COUNTER_MODULUS - 1
+                self.expected = (counter + 1) % COUNTER_MODULUS
+                return Observation.GAP
+            self.corrupted += 1
+            ahead = (counter - expected) % COUNTER_MODULUS
+            if ahead <= 1:
+                # Back on the expected sequence: the suspect was the expected message with a
+                # damaged counter (ahead 1), or a damaged extra (ahead 0). Nothing was lost.
+                self.expected = (counter + 1) % COUNTER_MODULUS
+                return Observation.CORRUPT
+            self.expected = expected
         ahead = (counter - expected) % COUNTER_MODULUS
+        if _TRUSTED_JUMP < ahead < _HALF:
+            self.suspect = counter
+            self._held = expected
+            # Until the next counter decides, nothing may match as "in order".
+            self.expected = -1
+            return Observation.SUSPECT
         if ahead < _HALF:
-            self.skipped += ahead
+            self._gap(expected, ahead)
             self.last_gap = ahead
-            missing = self._missing
-            for k in range(max(0, ahead - _MISSING_WINDOW), ahead):
-                missing[(expected + k) % COUNTER_MODULUS] = None
-            while len(missing) > _MISSING_WINDOW:
-                del missing[next(iter(missing))]
             self.expected = (counter + 1) % COUNTER_MODULUS
             return Observation.GAP
         if counter in self._missing:
@@ -85,7 +115,18 @@ class CounterTracker:
         self.duplicates += 1
         return Observation.DUPLICATE
 
+    def _gap(self, first: int, count: int) -> None:
+        """``count`` counters from ``first`` on were skipped."""
+        self.skipped += count
+        missing = self._missing
+        for k in range(max(0, count - _MISSING_WINDOW), count):
+            missing[(first + k) % COUNTER_MODULUS] = None
+        while len(missing) > _MISSING_WINDOW:
+            del missing[next(iter(missing))]
+
     def reset(self) -> None:
         """Forget the sequence (e.g. after a reconnect, when the board may have restarted)."""
         self.expected = None
+        self.suspect = None
+        self._held = 0
         self._missing.clear()

@@ -175,6 +175,8 @@ class LinkStats:
     lost: int = 0  #: counter gaps net of late arrivals
     duplicates: int = 0
     reordered: int = 0
+    #: counters judged damaged: a jump the next counter did not confirm (no checksum)
+    corrupt_counters: int = 0
     retries: int = 0  #: parameter requests resent
     heartbeats_sent: int = 0
     heartbeat_misses: int = 0  #: times the board went silent past the liveness timeout
@@ -225,7 +227,7 @@ class Connection:
         heartbeat_interval: float = 0.1,
         liveness_timeout: float = 0.7,
         request_timeout: float = 0.05,
-        request_tries: int = 5,
+        request_tries: int = 8,
         max_events: int = 65536,
     ) -> None:
         if not 0 < heartbeat_interval < 0.3:
@@ -340,6 +342,8 @@ class Connection:
         elif observation is Observation.LATE:
             self.stats.reordered += 1
             self._events.append(CounterLate(counter))
+        elif observation is Observation.CORRUPT:
+            self.stats.corrupt_counters += 1
         self.stats.lost = tracker.lost
 
     def next_event(self) -> Event | None:

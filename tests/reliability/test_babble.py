@@ -44,9 +44,11 @@ def test_babbling_host_never_breaks_the_board() -> None:
           f"{cmd.errors} decoder errors, {cmd.overruns} overruns; worst TM slack "
           f"{fw.timing.worst_slack} cycles; memory {early / 1e3:.0f} kB → {late / 1e3:.0f} kB "
           f"(peak {peak / 1e3:.0f} kB, {growth_per_s:.0f} B/s)")
-    # Bounded: the only growth is the firmware's per-period timing record (one int per
-    # TM, ~36 B), reported in docs/reliability.md; anything beyond that is a leak.
-    assert growth_per_s < 1000 * 100
+    # Bounded. The timing record is a histogram now, so what still grows is the host's
+    # heartbeat queued behind babble that already fills 100 % of the line (the host offers
+    # more than the wire carries; each queued write is ~70 B, 10 a second) and this test's
+    # own log of writes: about 1.2 kB/s. A per-period leak would be ≥ 36 kB/s.
+    assert growth_per_s < 5_000
 
 
 def test_garbage_into_the_host_decoder_at_line_rate() -> None:

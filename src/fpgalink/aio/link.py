@@ -172,7 +172,7 @@ class Link:
         heartbeat_interval: float = 0.1,
         liveness_timeout: float = 0.7,
         request_timeout: float = 0.05,
-        request_tries: int = 5,
+        request_tries: int = 8,
         reconnect: bool = True,
         reconnect_backoff: tuple[float, float] = (0.05, 2.0),
         name: str | None = None,

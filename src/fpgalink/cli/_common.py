@@ -200,7 +200,7 @@ def connection_options(*, multi: bool = False) -> Callable[[Callable[..., T]], C
                          help="Line rate (env FPGALINK_BAUD)."),
             click.option("--timeout", type=click.FloatRange(min=0, min_open=True), default=0.05,
                          show_default=True, help="Per-try request timeout, s."),
-            click.option("--retries", type=click.IntRange(1, 1000), default=5,
+            click.option("--retries", type=click.IntRange(1, 1000), default=8,
                          show_default=True, help="Tries per request (resends included)."),
             click.option("-v", "--verbose", count=True, help="More detail (wire bytes)."),
         ]
