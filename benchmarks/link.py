@@ -1,0 +1,264 @@
+"""The asyncio link against a real ``fpgaemu serve --pty`` board paced at 1 MBd.
+
+Two measurements, both through the public ``open_link`` API and a pseudo-terminal served by
+a separate process (so the board's CPU is not the host's):
+
+* ``set_param`` round trip: ``N`` sets of ``Kp_Wheel_PidA`` (alternating values, so each one
+  changes something), each timed from the call to the confirmed ``PA`` (p50, p99, max);
+* sustained telemetry: ``TsTimerPeriod`` = 1 ms, ``GetDataPeriodical`` = 1 and the heartbeat
+  running, for ``S`` seconds. Reported: ``TM`` received and lost (counter gaps, which must be
+  0), inter-arrival time p50/p99 as the host's receive path sees it (stamped in a link
+  listener), and the host process's CPU time per received ``TM`` (``time.process_time()``
+  over the window divided by the count; target ≤ 20 µs).
+
+Run ``python benchmarks/link.py``; ``--quick`` is 100 sets and 3 s of telemetry. Results go to
+``benchmarks/results/link.json`` (or ``--output``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import itertools
+import statistics
+import subprocess
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from _common import (
+    machine_info,
+    package_versions,
+    print_table,
+    python_info,
+    timestamp,
+    write_results,
+)
+from fpgalink import Telemetry
+from fpgalink.aio import open_link
+
+NAME = "link"
+BAUD = 1_000_000
+DEFAULT_SETS, QUICK_SETS = 1000, 100
+DEFAULT_SECONDS, QUICK_SECONDS = 30.0, 3.0
+CPU_TARGET_US = 20.0
+COUNTER_MODULUS = 100_000
+READY_TIMEOUT = 10.0
+
+
+def percentile(values: Sequence[float], q: float) -> float:
+    """The ``q``-th percentile (0..100), linear between closest ranks."""
+    if not values:
+        raise ValueError("no values")
+    ordered = sorted(values)
+    if len(ordered) == 1:
+        return ordered[0]
+    rank = (len(ordered) - 1) * q / 100
+    low = int(rank)
+    high = min(low + 1, len(ordered) - 1)
+    return ordered[low] + (ordered[high] - ordered[low]) * (rank - low)
+
+
+def start_serve(baud: int) -> tuple[subprocess.Popen[str], str]:
+    """``fpgaemu serve --pty`` in its own process; returns it and the pty path."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fpgaemu", "serve", "--pty", "--baud", str(baud)],
+        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    assert proc.stdout is not None
+    deadline = time.monotonic() + READY_TIMEOUT
+    line = proc.stdout.readline()  # serve prints this within a second; EOF if it failed
+    if not line.startswith("ready ") or time.monotonic() > deadline:
+        proc.kill()
+        _, err = proc.communicate()
+        raise SystemExit(f"fpgaemu serve did not start: {line!r} {err}")
+    return proc, line.split()[2]
+
+
+def stop_serve(proc: subprocess.Popen[str]) -> str:
+    """SIGTERM, wait, and return what it said on stderr (its lag report)."""
+    proc.terminate()
+    try:
+        _, err = proc.communicate(timeout=5)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        _, err = proc.communicate()
+    return err.strip()
+
+
+async def measure(path: str, baud: int, sets: int, seconds: float) -> dict[str, Any]:
+    async with open_link(path, baud=baud, request_timeout=0.05, request_tries=5) as link:
+        # --- set_param round trip (telemetry off, so only the request and its echo move).
+        assert await link.set_param("GetDataPeriodical", 0) == 0
+        latencies: list[float] = []
+        retries_before = link.stats.retries
+        for i in range(sets):
+            value = 1.5 if i % 2 else 2.5
+            start = time.perf_counter()
+            confirmed = await link.set_param("Kp_Wheel_PidA", value)
+            latencies.append(time.perf_counter() - start)
+            if confirmed != value:
+                raise AssertionError(f"set {value} confirmed {confirmed}")
+        set_retries = link.stats.retries - retries_before
+
+        # --- sustained telemetry at 1 kHz with the heartbeat running.
+        await link.enable()
+        assert await link.set_param("TsTimerPeriod", 1) == 1
+        assert await link.set_param("GetDataPeriodical", 1) == 1
+        arrivals: list[float] = []
+        counters: list[int] = []
+        recording = False
+        perf = time.perf_counter
+
+        def on_event(event: object) -> None:
+            if recording and isinstance(event, Telemetry):
+                arrivals.append(perf())
+                counters.append(event.counter or 0)
+
+        remove = link.add_listener(on_event)
+        sub = link.telemetry(maxsize=4096)
+        await asyncio.wait_for(sub.__anext__(), 2.0)  # streaming has begun
+        loop = asyncio.get_running_loop()
+        lost_before = link.stats.lost
+        received_before = link.stats.telemetry_received
+        recording = True
+        cpu0, wall0 = time.process_time(), perf()
+        end = loop.time() + seconds
+        consumed = 0
+
+        async def consume() -> None:
+            nonlocal consumed
+            async for _ in sub:
+                consumed += 1
+                if loop.time() >= end:
+                    return
+
+        await asyncio.wait_for(consume(), seconds + 5.0)
+        recording = False
+        cpu1, wall1 = time.process_time(), perf()
+        remove()
+        sub.close()
+        received = link.stats.telemetry_received - received_before
+        gaps = sum(
+            1 for a, b in itertools.pairwise(counters)
+            if (b - a) % COUNTER_MODULUS != 1
+        )
+        missing = sum(
+            (b - a - 1) % COUNTER_MODULUS for a, b in itertools.pairwise(counters)
+        )
+        lost = link.stats.lost - lost_before
+        deltas_ms = [(b - a) * 1e3 for a, b in itertools.pairwise(arrivals)]
+        jitter_ms = [abs(d - 1.0) for d in deltas_ms]
+        await link.set_param("GetDataPeriodical", 0)
+        await link.disable()
+        lat_us = [x * 1e6 for x in latencies]
+        return {
+            "set_param": {
+                "count": sets,
+                "retries": set_retries,
+                "p50_us": percentile(lat_us, 50),
+                "p99_us": percentile(lat_us, 99),
+                "max_us": max(lat_us),
+                "mean_us": statistics.fmean(lat_us),
+            },
+            "telemetry": {
+                "seconds": wall1 - wall0,
+                "received": received,
+                "expected_approx": round((wall1 - wall0) * 1000),
+                "lost": lost,  #: link.stats.lost over the window
+                "counter_gaps": gaps,  #: in the TM counters the listener saw
+                "missing_counters": missing,
+                "subscriber_drops": sub.dropped,
+                "decode_errors": link.stats.decode_errors,
+                "interarrival_p50_ms": percentile(deltas_ms, 50),
+                "interarrival_p99_ms": percentile(deltas_ms, 99),
+                "interarrival_max_ms": max(deltas_ms),
+                "jitter_p50_ms": percentile(jitter_ms, 50),
+                "jitter_p99_ms": percentile(jitter_ms, 99),
+                "host_cpu_s": cpu1 - cpu0,
+                "cpu_us_per_tm": (cpu1 - cpu0) / received * 1e6 if received else None,
+                "host_cpu_share": (cpu1 - cpu0) / (wall1 - wall0),
+            },
+        }
+
+
+def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
+    tm = results["telemetry"]
+    cpu = tm["cpu_us_per_tm"]
+    return [
+        {"name": "tm.lost", "measured": tm["lost"], "threshold": 0, "unit": "messages",
+         "required": True,
+         "pass": tm["lost"] == 0 and tm["counter_gaps"] == 0 and tm["subscriber_drops"] == 0},
+        {"name": "tm.cpu_us_per_tm", "measured": cpu, "threshold": CPU_TARGET_US, "unit": "µs",
+         "required": False, "pass": cpu is not None and cpu <= CPU_TARGET_US},
+    ]
+
+
+def print_report(results: dict[str, Any], goals: list[dict[str, Any]]) -> None:
+    sp, tm = results["set_param"], results["telemetry"]
+    rows = [
+        ["set_param round trip p50", f"{sp['p50_us']:.0f} µs", f"{sp['count']} sets"],
+        ["set_param round trip p99", f"{sp['p99_us']:.0f} µs", f"max {sp['max_us']:.0f} µs"],
+        ["set_param retries", str(sp["retries"]), ""],
+        ["TM received", str(tm["received"]), f"in {tm['seconds']:.1f} s"],
+        ["TM lost", str(tm["lost"]), f"{tm['counter_gaps']} counter gaps"],
+        ["TM inter-arrival p50", f"{tm['interarrival_p50_ms']:.3f} ms", "period 1 ms"],
+        ["TM inter-arrival p99", f"{tm['interarrival_p99_ms']:.3f} ms",
+         f"max {tm['interarrival_max_ms']:.3f} ms"],
+        ["TM jitter |Δt−1 ms| p50", f"{tm['jitter_p50_ms']:.3f} ms", ""],
+        ["TM jitter |Δt−1 ms| p99", f"{tm['jitter_p99_ms']:.3f} ms", ""],
+        ["host CPU per TM", f"{tm['cpu_us_per_tm']:.1f} µs",
+         f"target ≤ {CPU_TARGET_US:g} µs; {tm['host_cpu_share'] * 100:.1f} % of a core"],
+    ]
+    print_table(["link over fpgaemu serve --pty, 1 MBd", "value", "note"], rows,
+                align="<><")
+    for goal in goals:
+        verdict = "pass" if goal["pass"] else "FAIL"
+        kind = "required" if goal["required"] else "target"
+        print(f"{kind} {goal['name']}: {goal['measured']} vs {goal['threshold']} "
+              f"{goal['unit']}: {verdict}")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser.add_argument("--quick", action="store_true",
+                        help=f"{QUICK_SETS} sets and {QUICK_SECONDS:g} s of telemetry")
+    parser.add_argument("--sets", type=int, default=None, help="set_param round trips")
+    parser.add_argument("--seconds", type=float, default=None, help="telemetry window")
+    parser.add_argument("--baud", type=int, default=BAUD)
+    parser.add_argument("--output", type=Path, default=None,
+                        help="JSON path (default benchmarks/results/link.json)")
+    args = parser.parse_args(argv)
+    sets = args.sets or (QUICK_SETS if args.quick else DEFAULT_SETS)
+    seconds = args.seconds or (QUICK_SECONDS if args.quick else DEFAULT_SECONDS)
+
+    proc, path = start_serve(args.baud)
+    try:
+        results = asyncio.run(measure(path, args.baud, sets, seconds))
+    finally:
+        serve_stderr = stop_serve(proc)
+    goals = targets(results)
+    payload = {
+        "benchmark": NAME,
+        "timestamp": timestamp(),
+        "machine": machine_info(),
+        "python": python_info(),
+        "packages": package_versions(["fpgalink", "pyserial", "pyserial-asyncio"]),
+        "config": {"quick": args.quick, "sets": sets, "seconds": seconds, "baud": args.baud,
+                   "transport": "pty", "period_ms": 1},
+        **results,
+        "serve": {"exit_code": proc.returncode, "stderr": serve_stderr},
+        "targets": goals,
+    }
+    out = write_results(NAME, payload, args.output)
+    print_report(results, goals)
+    if serve_stderr:
+        print(f"serve: {serve_stderr}")
+    print(f"results: {out}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

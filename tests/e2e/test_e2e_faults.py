@@ -1,0 +1,303 @@
+"""End to end under trouble: the watchdog lapsing, parameter frames lost or refused, the
+serving process killed (the cable pulled) and restarted, a client vanishing mid-session."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+from typing import Any
+
+import pytest
+from e2e_helpers import (
+    T_US_MODULUS,
+    next_event,
+    serve,
+    start_serve,
+    stream,
+    wait_for_sample,
+    wait_until,
+)
+
+from fpgalink import (
+    BoardLost,
+    Connection,
+    Disable,
+    Enable,
+    ParameterRefused,
+    ParamGet,
+    ParamNack,
+    ParamSet,
+    ParamType,
+    Telemetry,
+)
+from fpgalink.aio import LinkEventKind, LinkState, open_link
+
+pytestmark = pytest.mark.timeout(30)
+
+#: Telemetry on from power-up, 1 ms period, so no request is needed to see the board.
+STREAMING = ("--set", "TsTimerPeriod=1", "--set", "GetDataPeriodical=1")
+WATCHDOG_US = 300_000
+PERIOD_US = 1_000
+
+
+def board_delta(later: Telemetry, earlier: Telemetry) -> int:
+    """Board microseconds from ``earlier`` to ``later`` (``t_us`` wraps at 2³²)."""
+    return (later.t_us - earlier.t_us) % T_US_MODULUS
+
+
+def both_enabled(sample: Telemetry) -> bool:
+    return sample.a.enabled and sample.b.enabled
+
+
+def both_disabled(sample: Telemetry) -> bool:
+    return not sample.a.enabled and not sample.b.enabled
+
+
+# --- watchdog --------------------------------------------------------------------------------
+
+
+async def test_watchdog_lapses_300ms_after_the_last_re_and_re_enables() -> None:
+    async with serve("--pty", *STREAMING) as server, open_link(server.url) as link:
+        loop = asyncio.get_running_loop()
+        samples = link.telemetry(maxsize=8192)
+        first = await wait_for_sample(samples, lambda s: True, 2.0, "any flags")
+        assert both_disabled(first) and first.a.pwm == first.b.pwm == 0
+        # One RE and no heartbeat after it: link.send() writes exactly the frame given.
+        assert link.send(Enable()) == b"SREP"
+        sent_at = loop.time()
+        await link.set_references(40.0, -40.0)
+        # Walk the stream: the last disabled sample before RE, the first enabled one, the
+        # first disabled one after it.
+        before = first
+        high: Telemetry | None = None
+        moving = 0
+
+        async def until_lapse() -> Telemetry:
+            nonlocal before, high, moving
+            async for sample in samples:
+                if high is None:
+                    if both_enabled(sample):
+                        high = sample
+                    else:
+                        before = sample
+                    continue
+                if not both_disabled(sample):
+                    assert both_enabled(sample), "A and B share one global_enable"
+                    moving += sample.a.pwm != 0 and sample.b.pwm != 0
+                    continue
+                return sample
+            raise AssertionError("stream ended")
+
+        low = await asyncio.wait_for(until_lapse(), 2.0)
+        arrived = loop.time()
+        assert high is not None
+        assert moving > 0, "the controllers never drove the PWM while enabled"
+        # The RE's STOP came after `before`'s tick and by `high`'s tick; the watchdog fires
+        # 300 ms after it and the next tick reports it.
+        assert board_delta(low, before) > WATCHDOG_US
+        assert board_delta(low, high) <= WATCHDOG_US + PERIOD_US
+        # Host side: the disabled sample was here within 300 ms + one period of writing RE
+        # (plus the delivery path: 1 ms serving tick, pty).
+        assert arrived - sent_at <= 0.300 + 0.001 + 0.050, arrived - sent_at
+        for channel in (low.a, low.b):
+            assert channel.pwm == 0 and channel.reference == 0.0
+        # Resume: RE again and enable comes back, with the stale references cleared.
+        link.send(Enable())
+        again = await wait_for_sample(samples, both_enabled, 0.1, "enable back")
+        assert again.a.reference == again.b.reference == 0.0
+        link.send(Disable())
+        off = await wait_for_sample(samples, both_disabled, 0.1, "RD taking effect")
+        assert off.a.pwm == off.b.pwm == 0
+        assert link.stats.lost == 0
+
+
+# --- parameter retry and refusal -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("where", ["tcp", "emu"])
+async def test_dropped_ps_succeeds_on_the_second_try(where: str) -> None:
+    async with serve("--tcp", "127.0.0.1:0", "--fault", "drop-frames=PS:1") as server:
+        url = server.url if where == "tcp" else "emu://?fault=drop-frames=PS:1"
+        async with open_link(url, request_timeout=0.05) as link:
+            assert await link.set_param("MaxControlSignalB", 1000) == 1000
+            assert link.stats.retries == 1
+            assert await link.get_param("MaxControlSignalB") == 1000
+            assert await link.set_param("MaxControlSignalB", 2000) == 2000
+            assert link.stats.retries == 1  # only the first PS was lost
+
+
+async def test_refusals_name_the_reason() -> None:
+    async with serve("--tcp", "127.0.0.1:0") as server, open_link(server.url) as link:
+        # Valid on the host (0..3) but not run by this board: PN 3, final, no resend.
+        with pytest.raises(ParameterRefused,
+                           match=r"ActiveControllerA on channel A: value out of range "
+                                 r"\(PN error 3\)") as info:
+            await link.set_param("ActiveControllerA", 2)
+        assert info.value.code == 3 and info.value.reason == "value out of range"
+        assert link.stats.retries == 0
+        # Past the host's validation, straight onto the wire.
+        nacks: list[ParamNack] = []
+        remove = link.add_listener(lambda e: nacks.append(e) if type(e) is ParamNack else None)
+        INT, FLOAT = int(ParamType.INT), int(ParamType.FLOAT)
+        cases: list[tuple[ParamSet | ParamGet, int, str]] = [
+            (ParamSet(5, 1, INT, 40_000), 3, "value out of range"),
+            (ParamSet(1, 1, INT, 5), 2, "bad channel"),
+            (ParamGet(3, 0), 2, "bad channel"),
+            (ParamSet(42, 0, INT, 0), 1, "unknown parameter id"),
+            (ParamSet(1, 0, FLOAT, 5.0), 4, "wrong value type"),
+        ]
+        for count, (message, code, reason) in enumerate(cases, 1):
+            link.send(message)
+            await wait_until(lambda n=count: len(nacks) == n,  # type: ignore[misc]
+                             1.0, f"PN for {message}")
+            nack = nacks[-1]
+            assert (nack.error, nack.reason) == (code, reason), message
+            assert nack.param_id == message.param_id and nack.channel == message.channel
+        remove()
+        # Nothing refused was applied.
+        assert await link.get_param("MaxControlSignalA") == 32760
+        assert await link.get_param("TsTimerPeriod") == 1
+
+
+# --- unplug ----------------------------------------------------------------------------------
+
+
+async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
+    loop = asyncio.get_running_loop()
+    # The first board never answers PS, so a request is pending when the cable goes.
+    server = await start_serve("--tcp", "127.0.0.1:0", "--fault", "drop-frames=PS:1000",
+                               *STREAMING)
+    url = server.url
+    port = url.rsplit(":", 1)[1]
+    restarted = None
+    try:
+        async with open_link(url, request_timeout=2.0, request_tries=5,
+                             reconnect_backoff=(0.05, 0.2)) as link:
+            events = link.watch()
+            await link.enable()
+            samples = link.telemetry(maxsize=8192)
+            await wait_for_sample(samples, both_enabled, 2.0, "enable")
+            pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
+            await wait_until(lambda: link.connection.pending_requests == 1, 1.0, "the PS")
+
+            server.proc.kill()
+            killed_at = loop.time()
+            lost = await next_event(events, {LinkEventKind.PORT_LOST,
+                                             LinkEventKind.BOARD_LOST}, 1.0)
+            assert lost.at - killed_at <= 1.0
+            with pytest.raises(BoardLost):
+                await asyncio.wait_for(pending, 1.0)
+            assert loop.time() - killed_at <= 1.0
+            assert link.state is LinkState.RECONNECTING
+            with pytest.raises(BoardLost, match="disconnected"):
+                await link.get_param("TsTimerPeriod")
+            assert await server.wait(5.0) != 0
+
+            restarted = await start_serve("--tcp", f"127.0.0.1:{port}", *STREAMING)
+            assert restarted.url == url
+            await next_event(events, {LinkEventKind.PORT_RESTORED}, 5.0)
+            assert link.state is LinkState.CONNECTED  # type: ignore[comparison-overlap]
+            samples.close()
+            # Telemetry flows again, and the heartbeat (resumed by the link) enabled the
+            # new board.
+            result = await stream(link, 0.5)
+            assert len(result.samples) >= 400
+            assert result.counter_gaps() == [] and result.period_gaps(PERIOD_US) == []
+            assert all(both_enabled(s) for s in result.samples[-100:])
+            assert await link.set_param("TsTimerPeriod", 1) == 1
+            assert link.stats.reconnects == 1 and link.stats.port_losses == 1
+    finally:
+        await server.stop()
+        if restarted is not None:
+            await restarted.stop()
+
+
+async def test_pty_vanishing_is_reported_and_retried() -> None:
+    loop = asyncio.get_running_loop()
+    # Everything the loop's exception handler receives: nothing may escape the link.
+    loop_errors: list[dict[str, Any]] = []
+    previous_handler = loop.get_exception_handler()
+    loop.set_exception_handler(lambda _loop, context: loop_errors.append(context))
+    try:
+        await _pty_vanishing(loop)
+    finally:
+        loop.set_exception_handler(previous_handler)
+    # pyserial-asyncio reports the failed read/write on the vanished pty through the handler
+    # before closing the transport; that one is expected, anything else is not.
+    unexpected = [c for c in loop_errors if "serial transport" not in str(c.get("message"))]
+    assert unexpected == [], unexpected
+
+
+async def _pty_vanishing(loop: asyncio.AbstractEventLoop) -> None:
+    async with serve("--pty", "--fault", "drop-frames=PS:1000", *STREAMING) as server:
+        path = server.url
+        async with open_link(path, request_timeout=2.0,
+                             reconnect_backoff=(0.02, 0.05)) as link:
+            events = link.watch()
+            await link.enable()
+            samples = link.telemetry(maxsize=8192)
+            await wait_for_sample(samples, both_enabled, 2.0, "enable")
+            pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
+            await wait_until(lambda: link.connection.pending_requests == 1, 1.0, "the PS")
+
+            server.proc.kill()
+            killed_at = loop.time()
+            lost = await next_event(events, {LinkEventKind.PORT_LOST}, 1.0)
+            assert lost.at - killed_at <= 1.0
+            with pytest.raises(BoardLost):
+                await asyncio.wait_for(pending, 1.0)
+            await wait_until(lambda: not os.path.exists(path), 1.0, f"{path} to vanish")
+            # Several reconnect attempts (backoff 20 → 50 ms) fail on the missing device;
+            # the link keeps trying and stays usable.
+            observe_until = loop.time() + 0.4
+            await wait_until(lambda: loop.time() >= observe_until, 1.0, "the retry window")
+            assert link.state is LinkState.RECONNECTING
+            assert link.stats.reconnects == 0 and link.stats.port_losses == 1
+            with pytest.raises(BoardLost):
+                await link.set_param("TsTimerPeriod", 1)
+        assert link.state is LinkState.CLOSED  # type: ignore[comparison-overlap]
+
+
+# --- a client goes away, another comes ---------------------------------------------------------
+
+
+async def test_reconnect_to_the_running_board_finds_it_disabled_after_a_lapse() -> None:
+    async with serve("--tcp", "127.0.0.1:0", *STREAMING) as server:
+        host, port = server.url.removeprefix("socket://").rsplit(":", 1)
+        # A first session: enabled with heartbeat, sets a parameter, closes (sends RD).
+        async with open_link(server.url) as link:
+            await link.enable()
+            assert await link.set_param("Kp_Wheel_PidA", 4.25) == 4.25
+            first_session = await wait_for_sample(link.telemetry(), both_enabled, 1.0,
+                                                  "enable")
+        # A raw client: one RE, then it vanishes without RD.
+        reader, writer = await asyncio.open_connection(host, int(port))
+        writer.write(b"SREP")
+        await writer.drain()
+        decoder = Connection()
+
+        async def enabled_sample() -> Telemetry:
+            while data := await reader.read(4096):
+                decoder.receive_data(data)
+                for event in decoder.events():
+                    if type(event) is Telemetry and both_enabled(event):
+                        return event
+            raise AssertionError("connection closed")
+
+        raw_high = await asyncio.wait_for(enabled_sample(), 1.0)
+        writer.close()
+        await writer.wait_closed()
+        # A new session on the same running board.
+        async with open_link(server.url) as link:
+            samples = link.telemetry(maxsize=8192)
+            seen = await wait_for_sample(samples, lambda s: True, 1.0, "any sample")
+            # Still running: board time went on, parameters kept.
+            assert 0 < board_delta(seen, first_session) < 60 * 1_000_000
+            assert 0 < board_delta(seen, raw_high) < 60 * 1_000_000
+            assert await link.get_param("Kp_Wheel_PidA") == 4.25
+            # The raw client's heartbeat lapsed: enable low by 300 ms + a period after it.
+            low = seen if both_disabled(seen) else await wait_for_sample(
+                samples, both_disabled, 1.0, "enable low")
+            assert board_delta(low, raw_high) <= WATCHDOG_US + PERIOD_US
+            assert low.a.pwm == low.b.pwm == 0
+            assert link.stats.lost == 0
