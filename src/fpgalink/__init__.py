@@ -4,6 +4,8 @@ The core (framing, messages, catalogue, :class:`Connection`) is sans-I/O: bytes 
 out, time passed in. :func:`open_link` (in :mod:`fpgalink.aio`) puts asyncio on top.
 """
 
+from typing import TYPE_CHECKING
+
 from fpgalink._counter import CounterTracker, Observation, SendCounter
 from fpgalink._framing import (
     DEFAULT_FRAMING,
@@ -70,7 +72,19 @@ from fpgalink.params import PARAMETERS, Param, ParamType, Scope, lookup, resolve
 
 __version__ = "0.1.0"
 
-# The asyncio layer is imported on first use, so the sans-I/O core never pulls in asyncio.
+# The asyncio layer is imported on first use, so the sans-I/O core never pulls in asyncio;
+# type checkers see the real names.
+if TYPE_CHECKING:
+    from fpgalink.aio.link import (
+        Link,
+        LinkEvent,
+        LinkEventKind,
+        LinkState,
+        SyncResult,
+        TelemetrySubscription,
+        open_link,
+    )
+
 _AIO_NAMES = ("Link", "LinkEvent", "LinkEventKind", "LinkState", "SyncResult",
               "TelemetrySubscription", "open_link")
 

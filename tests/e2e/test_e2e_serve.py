@@ -64,3 +64,15 @@ async def test_tcp_serve_raw_alive_frames_and_clean_exit(sig: int) -> None:
         with pytest.raises(OSError):
             _, writer = await asyncio.open_connection(host, int(port))
             writer.close()
+
+
+
+async def test_closing_a_link_releases_the_serial_port_at_once() -> None:
+    """Close right after an RD was queued: the port must be free for the next open (the
+    transport flushes first; close waits for it). Reopening used to fail with "could not
+    exclusively lock port"."""
+    async with serve("--pty") as srv:
+        for _ in range(3):
+            async with open_link(srv.url) as link:
+                await link.enable()
+                assert await link.get_param("TsTimerPeriod") == 1

@@ -199,6 +199,7 @@ class Link:
         self._event_subs: set[_EventSubscription] = set()
         self._listeners: list[Callable[[Any], None]] = []
         self._reconnect_task: asyncio.Task[None] | None = None
+        self._port_released = asyncio.Event()
         self.reconnects = 0
         self.port_losses = 0
 
@@ -244,9 +245,17 @@ class Link:
             esub._close()
         transport, self._transport = self._transport, None
         if transport is not None:
+            # Wait until the transport says it is gone (it may first flush the RD just
+            # written): only then is the port released and can be opened again.
+            self._port_released.clear()
             transport.close()
-            # Let the transport's close callbacks run so the port is really released.
-            await asyncio.sleep(0)
+            try:
+                await asyncio.wait_for(self._port_released.wait(), 1.0)
+            except TimeoutError:
+                abort = getattr(transport, "abort", None)
+                if abort is not None:
+                    abort()
+                await asyncio.sleep(0)
 
     async def __aenter__(self) -> Link:
         return await self.open()
@@ -430,14 +439,18 @@ class Link:
         if self._loop is None or self.state is LinkState.CLOSED:
             return
         deadline = self._conn.get_timer()
-        if deadline == self._timer_at:
+        if deadline is None:
+            return
+        # Every message heard pushes the liveness deadline later; re-arming on each read
+        # would churn the loop's timer heap at 1 kHz. A timer already due no later than the
+        # new deadline stays: when it fires early, handle_timer finds nothing to do and we
+        # arm again for the real deadline.
+        if self._timer is not None and self._timer_at is not None and self._timer_at <= deadline:
             return
         if self._timer is not None:
             self._timer.cancel()
-            self._timer = None
         self._timer_at = deadline
-        if deadline is not None:
-            self._timer = self._loop.call_at(deadline, self._on_timer)
+        self._timer = self._loop.call_at(deadline, self._on_timer)
 
     def _on_timer(self) -> None:
         self._timer = None
@@ -477,6 +490,7 @@ class Link:
 
     def _on_port_lost(self, exc: Exception | None) -> None:
         if self.state is LinkState.CLOSED:
+            self._port_released.set()
             return
         self._transport = None
         self.port_losses += 1
