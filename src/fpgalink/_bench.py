@@ -415,6 +415,10 @@ class _MemoryTransport(asyncio.Transport):
         super().__init__()
         self.written = 0
         self._closing = False
+        self._protocol: asyncio.BaseProtocol | None = None
+
+    def set_protocol(self, protocol: asyncio.BaseProtocol) -> None:
+        self._protocol = protocol
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
         self.written += len(data)
@@ -423,6 +427,9 @@ class _MemoryTransport(asyncio.Transport):
         return self._closing
 
     def close(self) -> None:
+        # As every asyncio transport does: the protocol hears connection_lost soon after.
+        if not self._closing and self._protocol is not None:
+            asyncio.get_running_loop().call_soon(self._protocol.connection_lost, None)
         self._closing = True
 
 
@@ -435,6 +442,7 @@ class _FedLink(Link):
     async def _connect(self) -> None:
         transport = _MemoryTransport()
         self.protocol = _LinkProtocol(self)
+        transport.set_protocol(self.protocol)
         self.protocol.connection_made(transport)
         self._transport = transport
         self.state = LinkState.CONNECTED

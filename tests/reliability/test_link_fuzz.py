@@ -25,6 +25,7 @@ class FakeTransport(asyncio.Transport):
         super().__init__()
         self.written = bytearray()
         self.closed = False
+        self.protocol: Any = None
 
     def write(self, data: bytes | bytearray | memoryview) -> None:
         self.written += data
@@ -33,6 +34,9 @@ class FakeTransport(asyncio.Transport):
         return self.closed
 
     def close(self) -> None:
+        # As every asyncio transport does: the protocol hears connection_lost soon after.
+        if not self.closed and self.protocol is not None:
+            asyncio.get_running_loop().call_soon(self.protocol.connection_lost, None)
         self.closed = True
 
 
@@ -54,6 +58,7 @@ def run_link(chunks: list[bytes]) -> None:
         async def fake_connect(url: str, baud: int, factory: Any) -> Any:
             protocol = factory()
             protocols.append(protocol)
+            transport.protocol = protocol
             return transport, protocol
 
         original = link_module.connect
