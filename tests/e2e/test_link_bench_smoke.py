@@ -46,6 +46,7 @@ def test_link_benchmark_quick(tmp_path: Path) -> None:
                 "jitter_p99_ms", "cpu_us_per_tm", "host_cpu_s"):
         assert tm[key] >= 0, key
 
-    assert {t["name"] for t in report["targets"]} == {"tm.lost", "tm.cpu_us_per_tm"}
+    assert {t["name"] for t in report["targets"]} == {
+        "tm.lost", "tm.cpu_us_per_tm", "tm.cpu_us_per_tm_above_idle"}
     for target in report["targets"]:
         assert isinstance(target["pass"], bool) and isinstance(target["required"], bool)
