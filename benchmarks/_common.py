@@ -10,16 +10,15 @@ from __future__ import annotations
 
 import datetime as _dt
 import gc
-import importlib.metadata
 import json
-import os
-import platform
 import statistics
 import sys
 import time
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+from fpgalink import _bench
 
 __all__ = [
     "RESULTS_DIR",
@@ -40,52 +39,10 @@ RESULTS_DIR = Path(__file__).resolve().parent / "results"
 Summary = dict[str, float]
 
 
-def _cpu_model() -> str:
-    # platform.processor() is empty on most Linux builds; /proc/cpuinfo names the part.
-    try:
-        with open("/proc/cpuinfo", encoding="utf-8") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or platform.machine()
-
-
-def machine_info() -> dict[str, Any]:
-    """The hardware and OS the numbers came from."""
-    affinity = os.sched_getaffinity(0) if hasattr(os, "sched_getaffinity") else None
-    return {
-        "hostname": platform.node(),
-        "system": platform.system(),
-        "release": platform.release(),
-        "machine": platform.machine(),
-        "cpu_model": _cpu_model(),
-        "cpu_count": os.cpu_count(),
-        # A container may see all host CPUs but be allowed only a few of them.
-        "cpus_usable": len(affinity) if affinity is not None else None,
-    }
-
-
-def python_info() -> dict[str, Any]:
-    return {
-        "version": platform.python_version(),
-        "implementation": platform.python_implementation(),
-        "compiler": platform.python_compiler(),
-        "build": list(platform.python_build()),
-        "executable": sys.executable,
-    }
-
-
-def package_versions(names: Iterable[str]) -> dict[str, str | None]:
-    """Installed versions by distribution name; ``None`` for one that is not installed."""
-    versions: dict[str, str | None] = {}
-    for name in names:
-        try:
-            versions[name] = importlib.metadata.version(name)
-        except importlib.metadata.PackageNotFoundError:
-            versions[name] = None
-    return versions
+# Where the numbers came from: one implementation, shared with ``fpgalink-cli bench``.
+machine_info = _bench.machine_info
+python_info = _bench.python_info
+package_versions = _bench.package_versions
 
 
 def timestamp() -> str:
