@@ -206,6 +206,26 @@ class Firmware:
         board.schedule(self.timer.start(now), self._on_tick)
         board.schedule(now + ALIVE_PERIOD_CYCLES, self._on_alive)
 
+    def budget_report(self) -> dict[str, Any]:
+        """SPEC §7 from this run: line utilisation per direction since power-up, slack per
+        period (cycles from a TM's last stop bit to the next tick) and the missed periods."""
+        assert self._board is not None
+        board = self._board
+        elapsed = board.now - self.timing.started_cycle
+        capacity = elapsed / board.cycles_per_byte if elapsed > 0 else 0.0
+        timing = self.timing
+        return {
+            "periods": timing.periods,
+            "board_to_host_utilisation": timing.tx_wire_bytes / capacity if capacity else 0.0,
+            "host_to_board_utilisation": (
+                board.uartread.stats.bytes_received / capacity if capacity else 0.0
+            ),
+            "median_slack_cycles": timing.median_slack,
+            "worst_slack_cycles": timing.worst_slack,
+            "missed_periods": timing.missed_count,
+            "missed": list(timing.missed),
+        }
+
     def channel(self, code: int) -> Channel:
         return self.channels[code]
 

@@ -119,6 +119,13 @@ def test_reported_utilisation_matches_the_budget_arithmetic(one_ms: Scenario) ->
     # host → board: what the board's receiver counted against the same arithmetic
     received = one_ms.host.board.uartread.stats.bytes_received / timing.periods
     assert received / capacity == pytest.approx(report.to_board.utilisation, abs=0.01)
+    # The board's own report says the same.
+    summary = one_ms.host.firmware.budget_report()
+    assert summary["board_to_host_utilisation"] == pytest.approx(utilisation, abs=0.002)
+    assert summary["host_to_board_utilisation"] == pytest.approx(received / capacity, abs=0.002)
+    assert summary["missed_periods"] == 0 and summary["missed"] == []
+    assert summary["median_slack_cycles"] == timing.median_slack
+    assert summary["worst_slack_cycles"] == timing.worst_slack
     # slack: a TM leaves at its tick when the line is idle, so the median slack is the
     # period minus the TM's wire time
     median_tm = statistics.median(one_ms.tm_wire)
