@@ -28,7 +28,6 @@ __all__ = [
     "FramingStats",
     "NoiseDropped",
     "encode_frame",
-    "max_wire_length",
 ]
 
 #: Content longer than this is garbage (SPEC §3); the RX block RAM holds two such halves.
@@ -67,11 +66,6 @@ class Framing:
 
 
 DEFAULT_FRAMING = Framing()
-
-
-def max_wire_length(content_length: int) -> int:
-    """Wire bytes of a frame whose every content byte needs escaping (worst case)."""
-    return 2 * content_length + 2
 
 
 class _Encoder:

@@ -64,7 +64,7 @@ from fpgalink.errors import (
     ParameterRefused,
     RequestTimeout,
 )
-from fpgalink.params import Param, ParamType, float32, lookup
+from fpgalink.params import Param, ParamType, float32
 
 __all__ = [
     "BoardFound",
@@ -540,7 +540,3 @@ class Connection:
     @property
     def pending_requests(self) -> int:
         return len(self._requests)
-
-
-def param_by_id(param_id: int) -> Param:
-    return lookup(param_id)

@@ -32,7 +32,7 @@ from fpgalink.connection import (
     RequestFailed,
 )
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.params import Param, channel_name, resolve
+from fpgalink.params import Param, resolve
 
 __all__ = [
     "Link",
@@ -534,7 +534,3 @@ def open_link(url: str = "emu://", baud: int = 1_000_000, **options: Any) -> Lin
     ``socket://host:port``, or ``emu://`` for an emulated board in this process. Options are
     :class:`Link`'s keyword arguments (timeouts, tries, heartbeat, reconnect, name)."""
     return Link(url, baud=baud, **options)
-
-
-def channel_label(channel: int) -> str:
-    return channel_name(channel) or "board"
