@@ -205,22 +205,11 @@ def _escaped_stream(n: int, rng: np.random.Generator) -> Stream:
 # --- what is timed ----------------------------------------------------------------------------
 
 
-def _decode_framing(chunks: list[bytes]) -> Run:
-    def run() -> int:
-        feed = FrameDecoder().feed
-        n = 0
-        for chunk in chunks:
-            n += len(feed(chunk))
-        return n
-
-    return run
-
-
-def _decode_naive(chunks: list[bytes]) -> Run:
-    naive = _naive_decoder_type()
+def _decode_frames(chunks: list[bytes], make_decoder: Callable[[], Any]) -> Run:
+    """Framing only, with the fast decoder or the naive reference: the same loop times both."""
 
     def run() -> int:
-        feed = naive().feed
+        feed = make_decoder().feed
         n = 0
         for chunk in chunks:
             n += len(feed(chunk))
@@ -327,9 +316,9 @@ def _cases(streams: list[Stream]) -> list[Case]:
                 st: Stream = st) -> None:
             cases.append(Case(f"{st.key}.{op}.{name}", st, op, path, frames, nbytes, run))
 
-        add("decode", "framing", "FrameDecoder.feed", _decode_framing(st.chunks))
+        add("decode", "framing", "FrameDecoder.feed", _decode_frames(st.chunks, FrameDecoder))
         add("decode", "naive", "NaiveFrameDecoder.feed (byte loop)",
-            _decode_naive(st.naive_chunks), st.naive_frames, st.naive_wire)
+            _decode_frames(st.naive_chunks, _naive_decoder_type()), st.naive_frames, st.naive_wire)
         if st.messages is not None:
             add("decode", "typed", "feed + parse_content", _decode_typed(st.chunks))
             add("decode", "connection", "Connection.receive_data + next_event",

@@ -5,11 +5,13 @@ from __future__ import annotations
 
 import asyncio
 import os
+from collections.abc import AsyncIterator
 from typing import Any
 
 import pytest
 from e2e_helpers import (
     T_US_MODULUS,
+    Serve,
     next_event,
     serve,
     start_serve,
@@ -30,7 +32,14 @@ from fpgalink import (
     ParamType,
     Telemetry,
 )
-from fpgalink.aio import LinkEventKind, LinkState, open_link
+from fpgalink.aio import (
+    Link,
+    LinkEvent,
+    LinkEventKind,
+    LinkState,
+    TelemetrySubscription,
+    open_link,
+)
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -162,6 +171,28 @@ async def test_refusals_name_the_reason() -> None:
 # --- unplug ----------------------------------------------------------------------------------
 
 
+async def _unplug_with_a_request_pending(
+    link: Link, server: Serve, loop: asyncio.AbstractEventLoop, kinds: set[LinkEventKind]
+) -> tuple[AsyncIterator[LinkEvent], TelemetrySubscription]:
+    """Stream enabled with a PS pending (the board never answers it), kill the serve
+    process, and check the link reports one of ``kinds`` and fails the request, each within
+    1 s. Returns the event watch and the telemetry subscription."""
+    events = link.watch()
+    await link.enable()
+    samples = link.telemetry(maxsize=8192)
+    await wait_for_sample(samples, both_enabled, 2.0, "enable")
+    pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
+    await wait_until(lambda: link.connection.pending_requests == 1, 1.0, "the PS")
+    server.proc.kill()
+    killed_at = loop.time()
+    lost = await next_event(events, kinds, 1.0)
+    assert lost.at - killed_at <= 1.0
+    with pytest.raises(BoardLost):
+        await asyncio.wait_for(pending, 1.0)
+    assert loop.time() - killed_at <= 1.0
+    return events, samples
+
+
 async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
     loop = asyncio.get_running_loop()
     # The first board never answers PS, so a request is pending when the cable goes.
@@ -173,21 +204,8 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
     try:
         async with open_link(url, request_timeout=2.0, request_tries=5,
                              reconnect_backoff=(0.05, 0.2)) as link:
-            events = link.watch()
-            await link.enable()
-            samples = link.telemetry(maxsize=8192)
-            await wait_for_sample(samples, both_enabled, 2.0, "enable")
-            pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
-            await wait_until(lambda: link.connection.pending_requests == 1, 1.0, "the PS")
-
-            server.proc.kill()
-            killed_at = loop.time()
-            lost = await next_event(events, {LinkEventKind.PORT_LOST,
-                                             LinkEventKind.BOARD_LOST}, 1.0)
-            assert lost.at - killed_at <= 1.0
-            with pytest.raises(BoardLost):
-                await asyncio.wait_for(pending, 1.0)
-            assert loop.time() - killed_at <= 1.0
+            events, samples = await _unplug_with_a_request_pending(
+                link, server, loop, {LinkEventKind.PORT_LOST, LinkEventKind.BOARD_LOST})
             assert link.state is LinkState.RECONNECTING
             with pytest.raises(BoardLost, match="disconnected"):
                 await link.get_param("TsTimerPeriod")
@@ -233,19 +251,8 @@ async def _pty_vanishing(loop: asyncio.AbstractEventLoop) -> None:
         path = server.url
         async with open_link(path, request_timeout=2.0,
                              reconnect_backoff=(0.02, 0.05)) as link:
-            events = link.watch()
-            await link.enable()
-            samples = link.telemetry(maxsize=8192)
-            await wait_for_sample(samples, both_enabled, 2.0, "enable")
-            pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
-            await wait_until(lambda: link.connection.pending_requests == 1, 1.0, "the PS")
-
-            server.proc.kill()
-            killed_at = loop.time()
-            lost = await next_event(events, {LinkEventKind.PORT_LOST}, 1.0)
-            assert lost.at - killed_at <= 1.0
-            with pytest.raises(BoardLost):
-                await asyncio.wait_for(pending, 1.0)
+            _events, _samples = await _unplug_with_a_request_pending(
+                link, server, loop, {LinkEventKind.PORT_LOST})
             await wait_until(lambda: not os.path.exists(path), 1.0, f"{path} to vanish")
             # Several reconnect attempts (backoff 20 → 50 ms) fail on the missing device;
             # the link keeps trying and stays usable.
