@@ -29,10 +29,13 @@ lint: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks
 	$(PY) -m mypy
 
+# As modules from the repository root, so they import benchmarks._common and the tests'
+# reference models by their package names.
 bench: $(STAMP)
-	$(PY) benchmarks/codec.py
-	$(PY) benchmarks/emulator.py
-	$(PY) benchmarks/link.py
+	$(PY) -m benchmarks.codec
+	$(PY) -m benchmarks.emulator
+	$(PY) -m benchmarks.link
+	$(PY) -m benchmarks.throughput
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist

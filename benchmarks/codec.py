@@ -10,51 +10,54 @@ serial read returns under load, and chunk edges fall mid-frame as they do on the
 * ``escaped190``: 190 content bytes drawn only from START/STOP/SKIP, so every content byte is
   escaped and the wire doubles: the decoder's worst case.
 
-The byte-at-a-time reference decoder (``tests/models.py``) runs in the same process on a
-prefix of each stream as the baseline, so speed-ups are measured in one run on one machine.
-It is slow, so it sees fewer frames; every rate is per frame or per byte, so they compare.
+The byte-at-a-time reference models (``tests/support/reference.py``: ``NaiveFrameDecoder``
+and ``naive_encode``) run in the same process on a prefix of each stream as the baselines, so
+speed-ups are measured in one run on one machine. They are slow, so they see fewer frames;
+every rate is per frame or per byte, so they compare.
+
+Encoding is measured as a user of the library encodes: ``Connection.send(message, now)`` then
+``Connection.data_to_send()`` per message (a board-side connection with ``baud=None``, so no
+reference pacing applies), beside ``encode_frame`` of ready-made contents (framing alone).
 
 Rates are reported as frames/s, MB/s of wire bytes, and as a multiple of the 1 MBd line rate
-(10 bits a byte on the UART: 100,000 B/s). Run ``python benchmarks/codec.py``; ``--quick``
-is one repetition of 10,000 frames (the smoke test uses it).
+(10 bits a byte on the UART: 100,000 B/s). Run ``python -m benchmarks.codec`` from the
+repository root; ``--quick`` is one repetition of 10,000 frames (the smoke test uses it).
 """
 
 from __future__ import annotations
 
-import argparse
 import sys
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from _common import (
+from benchmarks._common import (
     Summary,
-    machine_info,
-    package_versions,
+    chunked,
+    common_parser,
+    environment_line,
     print_table,
-    python_info,
+    report_header,
     summarize,
     time_once,
-    timestamp,
     write_results,
 )
-from fpgalink import (
+from fpgalink import Connection, Role
+from fpgalink.protocol import (
     DEFAULT_FRAMING,
     Binary,
     ChannelTelemetry,
-    Connection,
     CountedMessage,
     FrameDecoder,
-    Role,
     Telemetry,
     encode_frame,
     encode_message,
     parse_content,
 )
+from tests.support.reference import NaiveFrameDecoder, naive_encode
 
 NAME = "codec"
 CHUNK = 4096
@@ -75,18 +78,8 @@ TARGET_FRAMING_TM = 1_000_000  #: frames/s, FrameDecoder.feed on the TM stream
 TARGET_TYPED_TM = 500_000  #: typed TM events/s
 TARGET_WORST_VS_NAIVE = 2.0  #: all-escaped stream, fast decoder vs the naive one
 
+#: A timed call: returns how many frames it handled, which must be all of them.
 Run = Callable[[], int]
-
-
-def _naive_decoder_type() -> Any:
-    """``tests/models.NaiveFrameDecoder``: the tests' reference model doubles as the
-    baseline, so the baseline is the code the fast decoder is proven equal to."""
-    tests_dir = str(Path(__file__).resolve().parents[1] / "tests")
-    if tests_dir not in sys.path:
-        sys.path.insert(0, tests_dir)
-    from models import NaiveFrameDecoder
-
-    return NaiveFrameDecoder
 
 
 # --- the streams ------------------------------------------------------------------------------
@@ -109,13 +102,13 @@ class Stream:
     def __post_init__(self) -> None:
         frames = [encode_frame(c) for c in self.contents]
         self.wire = b"".join(frames)
-        self.chunks = _chunked(self.wire)
+        self.chunks = chunked(self.wire, CHUNK)
 
     def take_naive(self, frames: int) -> None:
         self.naive_frames = min(frames, len(self.contents))
         naive_wire = b"".join(encode_frame(c) for c in self.contents[: self.naive_frames])
         self.naive_wire = len(naive_wire)
-        self.naive_chunks = _chunked(naive_wire)
+        self.naive_chunks = chunked(naive_wire, CHUNK)
 
     def info(self) -> dict[str, Any]:
         n = len(self.contents)
@@ -140,11 +133,6 @@ class Stream:
             "naive_frames": self.naive_frames,
             "naive_wire_bytes": self.naive_wire,
         }
-
-
-def _chunked(wire: bytes) -> list[bytes]:
-    # Sliced up front, so the timed loops measure the codec and not the slicing.
-    return [wire[i : i + CHUNK] for i in range(0, len(wire), CHUNK)]
 
 
 def _tm_stream(n: int, rng: np.random.Generator) -> Stream:
@@ -247,14 +235,23 @@ def _decode_connection(chunks: list[bytes]) -> Run:
             now += dt
             while next_event() is not None:
                 pass
-        return conn.stats.messages_received
+        stats = conn.stats
+        # Counted after the clock stops mattering (one look at the end): a fast path that
+        # dropped or mangled frames would otherwise pass for a fast one.
+        if stats.lost or stats.decode_errors or stats.noise_bytes:
+            raise AssertionError(f"Connection saw lost={stats.lost}, "
+                                 f"decode_errors={stats.decode_errors}, "
+                                 f"noise={stats.noise_bytes} on a clean stream")
+        return stats.messages_received
 
     return run
 
 
-def _encode_framing(contents: list[bytes]) -> Run:
+def _encode_frames(contents: list[bytes], encode: Callable[[bytes], bytes]) -> Run:
+    """Framing only, with ``encode_frame`` or the naive reference: one loop times both."""
+
     def run() -> int:
-        enc = encode_frame
+        enc = encode
         return len([enc(c) for c in contents])
 
     return run
@@ -262,8 +259,16 @@ def _encode_framing(contents: list[bytes]) -> Run:
 
 def _encode_connection(messages: Sequence[Telemetry | CountedMessage]) -> Run:
     def run() -> int:
-        send = Connection(role=Role.BOARD).send
-        return len([send(m) for m in messages])
+        # baud=None: a board's connection does no reference pacing, so every message leaves
+        # at once, as from firmware that sends whenever its timer says.
+        conn = Connection(role=Role.BOARD, baud=None)
+        send, take = conn.send, conn.data_to_send
+        n = 0
+        for m in messages:
+            send(m, 0.0)
+            if take():
+                n += 1
+        return n
 
     return run
 
@@ -278,6 +283,8 @@ class Case:
     wire_bytes: int
     run: Run
     seconds: list[float] = field(default_factory=list)
+    #: frames each repetition handled (checked equal to ``frames``)
+    counts: list[int] = field(default_factory=list)
 
     def rates(self) -> dict[str, list[float]]:
         return {
@@ -300,7 +307,8 @@ class Case:
             "frames": self.frames,
             "wire_bytes": self.wire_bytes,
             "repetitions": [
-                {"seconds": s, **{name: values[i] for name, values in rates.items()}}
+                {"seconds": s, "frames_handled": self.counts[i],
+                 **{name: values[i] for name, values in rates.items()}}
                 for i, s in enumerate(self.seconds)
             ],
             "summary": self.summary(),
@@ -318,14 +326,18 @@ def _cases(streams: list[Stream]) -> list[Case]:
 
         add("decode", "framing", "FrameDecoder.feed", _decode_frames(st.chunks, FrameDecoder))
         add("decode", "naive", "NaiveFrameDecoder.feed (byte loop)",
-            _decode_frames(st.naive_chunks, _naive_decoder_type()), st.naive_frames, st.naive_wire)
+            _decode_frames(st.naive_chunks, NaiveFrameDecoder), st.naive_frames, st.naive_wire)
         if st.messages is not None:
             add("decode", "typed", "feed + parse_content", _decode_typed(st.chunks))
             add("decode", "connection", "Connection.receive_data + next_event",
                 _decode_connection(st.chunks))
-        add("encode", "framing", "encode_frame", _encode_framing(st.contents))
+        add("encode", "framing", "encode_frame", _encode_frames(st.contents, encode_frame))
+        add("encode", "naive", "naive_encode (byte loop)",
+            _encode_frames(st.contents[: st.naive_frames], naive_encode), st.naive_frames,
+            st.naive_wire)
         if st.messages is not None:
-            add("encode", "connection", "Connection(BOARD).send", _encode_connection(st.messages))
+            add("encode", "connection", "Connection.send + data_to_send",
+                _encode_connection(st.messages))
     return cases
 
 
@@ -333,22 +345,24 @@ def _cases(streams: list[Stream]) -> list[Case]:
 
 
 def _verify(streams: list[Stream]) -> None:
-    """Both decoders and ``Connection.send`` against the known contents, on the prefix the
-    naive decoder sees (the timed runs then check every frame is accounted for)."""
-    naive = _naive_decoder_type()
+    """Both decoders, both framers and ``Connection.send`` against the known contents, on the
+    prefix the naive models see (the timed runs then check every frame is accounted for)."""
     for st in streams:
         expected = st.contents[: st.naive_frames]
         decoder = FrameDecoder()
         if [item for chunk in st.naive_chunks for item in decoder.feed(chunk)] != expected:
             raise AssertionError(f"{st.key}: FrameDecoder does not return the contents")
-        ref = naive()
+        ref = NaiveFrameDecoder()
         if [item for chunk in st.naive_chunks for item in ref.feed(chunk)] != expected:
             raise AssertionError(f"{st.key}: naive decoder does not return the contents")
+        if b"".join(map(naive_encode, expected)) != b"".join(st.naive_chunks):
+            raise AssertionError(f"{st.key}: naive_encode does not give the stream")
         if st.messages is None:
             continue
-        board = Connection(role=Role.BOARD)
-        sent = b"".join(board.send(m) for m in st.messages[: st.naive_frames])
-        if sent != b"".join(st.naive_chunks):
+        board = Connection(role=Role.BOARD, baud=None)
+        for m in st.messages[: st.naive_frames]:
+            board.send(m, 0.0)
+        if board.data_to_send() != b"".join(st.naive_chunks):
             raise AssertionError(f"{st.key}: Connection.send does not give the stream")
         # Decoding gives back what was sent (TM floats come back rounded to float32, so
         # compare by re-encoding).
@@ -371,16 +385,17 @@ def _si(x: float) -> str:
 
 
 def _ratios(cases: dict[str, Case], streams: list[Stream]) -> dict[str, dict[str, Any]]:
-    """Each decode path against the naive decoder on the same stream, per frame."""
+    """Each path against the naive model of its operation on the same stream, per frame."""
     out: dict[str, dict[str, Any]] = {}
     for st in streams:
-        naive = cases[f"{st.key}.decode.naive"].summary()["frames_per_s"]
         for case in cases.values():
-            if case.stream is not st or case.operation != "decode" or case.key.endswith("naive"):
+            if case.stream is not st or case.key.endswith(".naive"):
                 continue
+            baseline = f"{st.key}.{case.operation}.naive"
+            naive = cases[baseline].summary()["frames_per_s"]
             fast = case.summary()["frames_per_s"]
             out[case.key] = {
-                "baseline": f"{st.key}.decode.naive",
+                "baseline": baseline,
                 "median": fast["median"] / naive["median"],
                 # The most pessimistic pairing of repetitions, for a claim that must hold.
                 "worst": fast["min"] / naive["max"],
@@ -414,10 +429,12 @@ def _targets(cases: dict[str, Case], ratios: dict[str, dict[str, Any]]) -> list[
     ]
 
 
-def _print_report(cases: list[Case], streams: list[Stream], ratios: dict[str, dict[str, Any]],
-                  targets: list[dict[str, Any]], reps: int) -> None:
+def _print_report(report: dict[str, Any], cases: list[Case], streams: list[Stream],
+                  ratios: dict[str, dict[str, Any]], targets: list[dict[str, Any]],
+                  reps: int) -> None:
     print(f"\ncodec throughput, median of {reps} repetition(s), {CHUNK}-byte chunks; "
           f"line rate 1 MBd = {LINE_RATE:,} B/s")
+    print(environment_line(report))
     # The escape share decides which decoder paths run, so it belongs beside the rates.
     for st in streams:
         info = st.info()
@@ -443,6 +460,10 @@ def _print_report(cases: list[Case], streams: list[Stream], ratios: dict[str, di
         ["stream", "path", "frames", "frames/s", "min–max", "MB/s", "× line", "× naive"],
         rows, align="<<>>>>>>",
     )
+    print("× naive: frames/s over the byte-loop model of the same operation on the same "
+          "stream, this run.\nencode Connection.send + data_to_send: what a library user "
+          "does, one message at a time\n(a board-side Connection, baud=None: no reference "
+          "pacing); encode_frame: framing of ready contents.")
     print()
     print_table(
         ["target", "measured", "threshold", "result"],
@@ -460,15 +481,12 @@ def _print_report(cases: list[Case], streams: list[Stream], ratios: dict[str, di
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
+    parser = common_parser(__doc__, NAME,
+                           f"1 repetition of {QUICK_FRAMES:,} frames (the smoke test)")
     parser.add_argument("--reps", type=int, default=None, help="repetitions (default 5)")
     parser.add_argument("--frames", type=int, default=None,
                         help=f"frames per stream (default {DEFAULT_FRAMES:,})")
-    parser.add_argument("--quick", action="store_true",
-                        help=f"1 repetition of {QUICK_FRAMES:,} frames (smoke test)")
     parser.add_argument("--seed", type=int, default=SEED)
-    parser.add_argument("--output", type=Path, default=None,
-                        help="JSON path (default benchmarks/results/codec.json)")
     args = parser.parse_args(argv)
     reps = args.reps if args.reps is not None else (1 if args.quick else 5)
     frames = args.frames if args.frames is not None else (
@@ -499,6 +517,7 @@ def main(argv: Sequence[str] | None = None) -> int:
             if count != case.frames:
                 raise AssertionError(f"{case.key}: processed {count} frames, not {case.frames}")
             case.seconds.append(seconds)
+            case.counts.append(count)
         print(f"repetition {rep + 1}/{reps} done", file=sys.stderr)
 
     by_key = {c.key: c for c in cases}
@@ -506,11 +525,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     targets = _targets(by_key, ratios)
     elapsed = time.perf_counter() - started
     payload: dict[str, Any] = {
-        "benchmark": NAME,
-        "created": timestamp(),
-        "machine": machine_info(),
-        "python": python_info(),
-        "packages": package_versions(["fpgalink", "numpy", "construct"]),
+        **report_header(NAME, ["numpy", "construct"]),
         "config": {
             "frames": frames,
             "worst_case_frames": len(streams[2].contents),
@@ -529,7 +544,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "timing": {"setup_s": setup_s, "total_s": elapsed},
     }
     path = write_results(NAME, payload, args.output)
-    _print_report(cases, streams, ratios, targets, reps)
+    _print_report(payload, cases, streams, ratios, targets, reps)
     print(f"\n{len(cases)} cases × {reps} rep(s) in {elapsed:.1f} s "
           f"(setup {setup_s:.1f} s); results in {path}")
     return 0

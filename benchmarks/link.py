@@ -6,90 +6,59 @@ a separate process (so the board's CPU is not the host's):
 * ``set_param`` round trip: ``N`` sets of ``Kp_Wheel_PidA`` (alternating values, so each one
   changes something), each timed from the call to the confirmed ``PA`` (p50, p99, max);
 * sustained telemetry: ``TsTimerPeriod`` = 1 ms, ``GetDataPeriodical`` = 1 and the heartbeat
-  running, for ``S`` seconds. Reported: ``TM`` received and lost (counter gaps, which must be
-  0), inter-arrival time p50/p99 as the host's receive path sees it (stamped in a link
-  listener), and the host process's CPU time per received ``TM`` (``time.process_time()``
-  over the window divided by the count; target ≤ 20 µs).
+  running, for ``S`` seconds. Reported: ``TM`` received and lost (counter gaps, which should
+  be 0; the counters seen plus those missing account for the whole counter span),
+  inter-arrival time p50/p99 as the host's receive path sees it (stamped in a link listener),
+  and the host process's CPU time per received ``TM`` (``time.process_time()`` over the
+  window divided by the count; target ≤ 20 µs).
 
-Run ``python benchmarks/link.py``; ``--quick`` is 100 sets and 3 s of telemetry. Results go to
-``benchmarks/results/link.json`` (or ``--output``).
+Run ``python -m benchmarks.link`` from the repository root; ``--quick`` is 100 sets and 3 s
+of telemetry. Results go to ``benchmarks/results/link.json`` (or ``--output``).
 """
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import itertools
 import statistics
-import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from pathlib import Path
 from typing import Any
 
-from _common import (
-    machine_info,
-    package_versions,
+from benchmarks._common import (
+    common_parser,
+    environment_line,
+    percentile,
     print_table,
-    python_info,
-    timestamp,
+    report_header,
+    start_emulator,
+    stop_emulator,
     write_results,
 )
-from fpgalink import Telemetry
-from fpgalink.aio import open_link
+from fpgalink import Telemetry, open_link
+from fpgalink.protocol import COUNTER_MODULUS
 
 NAME = "link"
 BAUD = 1_000_000
 DEFAULT_SETS, QUICK_SETS = 1000, 100
 DEFAULT_SECONDS, QUICK_SECONDS = 30.0, 3.0
 CPU_TARGET_US = 20.0
-COUNTER_MODULUS = 100_000
-READY_TIMEOUT = 10.0
 
 
-def percentile(values: Sequence[float], q: float) -> float:
-    """The ``q``-th percentile (0..100), linear between closest ranks."""
-    if not values:
-        raise ValueError("no values")
-    ordered = sorted(values)
-    if len(ordered) == 1:
-        return ordered[0]
-    rank = (len(ordered) - 1) * q / 100
-    low = int(rank)
-    high = min(low + 1, len(ordered) - 1)
-    return ordered[low] + (ordered[high] - ordered[low]) * (rank - low)
-
-
-def start_serve(baud: int) -> tuple[subprocess.Popen[str], str]:
-    """``fpgaemu serve --pty`` in its own process; returns it and the pty path."""
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "fpgaemu", "serve", "--pty", "--baud", str(baud)],
-        stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-    )
-    assert proc.stdout is not None
-    deadline = time.monotonic() + READY_TIMEOUT
-    line = proc.stdout.readline()  # serve prints this within a second; EOF if it failed
-    if not line.startswith("ready ") or time.monotonic() > deadline:
-        proc.kill()
-        _, err = proc.communicate()
-        raise SystemExit(f"fpgaemu serve did not start: {line!r} {err}")
-    return proc, line.split()[2]
-
-
-def stop_serve(proc: subprocess.Popen[str]) -> str:
-    """SIGTERM, wait, and return what it said on stderr (its lag report)."""
-    proc.terminate()
+async def run(baud: int, sets: int, seconds: float) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Start the emulator, measure, stop it: the results and what the emulator did."""
+    proc, ready = await start_emulator(1, baud)
     try:
-        _, err = proc.communicate(timeout=5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        _, err = proc.communicate()
-    return err.strip()
+        results = await measure(ready[0][1], baud, sets, seconds)
+    finally:
+        exit_code, said = await stop_emulator(proc)
+    return results, {"exit_code": exit_code, "stderr": said}
 
 
 async def measure(path: str, baud: int, sets: int, seconds: float) -> dict[str, Any]:
-    async with open_link(path, baud=baud, request_timeout=0.05, request_tries=5) as link:
+    async with open_link(path, baud, request_timeout=0.05, request_tries=5,
+                         reconnect=False) as link:
         # --- set_param round trip (telemetry off, so only the request and its echo move).
         assert await link.set_param("GetDataPeriodical", 0) == 0
         latencies: list[float] = []
@@ -104,7 +73,7 @@ async def measure(path: str, baud: int, sets: int, seconds: float) -> dict[str, 
         set_retries = link.stats.retries - retries_before
 
         # --- sustained telemetry at 1 kHz with the heartbeat running.
-        await link.enable()
+        link.enable()
         assert await link.set_param("TsTimerPeriod", 1) == 1
         assert await link.set_param("GetDataPeriodical", 1) == 1
         arrivals: list[float] = []
@@ -148,11 +117,14 @@ async def measure(path: str, baud: int, sets: int, seconds: float) -> dict[str, 
         missing = sum(
             (b - a - 1) % COUNTER_MODULUS for a, b in itertools.pairwise(counters)
         )
+        # Every counter from the first seen to the last is either seen or missing; with
+        # duplicates or reordering (neither happens on a pty) the sum would not match.
+        span = (counters[-1] - counters[0]) % COUNTER_MODULUS + 1 if counters else 0
         lost = link.stats.lost - lost_before
         deltas_ms = [(b - a) * 1e3 for a, b in itertools.pairwise(arrivals)]
         jitter_ms = [abs(d - 1.0) for d in deltas_ms]
         await link.set_param("GetDataPeriodical", 0)
-        await link.disable()
+        link.disable()
         floor_us = await idle_wakeup_cpu_us(received)
         lat_us = [x * 1e6 for x in latencies]
         return {
@@ -167,6 +139,8 @@ async def measure(path: str, baud: int, sets: int, seconds: float) -> dict[str, 
             "telemetry": {
                 "seconds": wall1 - wall0,
                 "received": received,
+                "listener_received": len(counters),
+                "counter_span": span,
                 "expected_approx": round((wall1 - wall0) * 1000),
                 "lost": lost,  #: link.stats.lost over the window
                 "counter_gaps": gaps,  #: in the TM counters the listener saw
@@ -217,14 +191,15 @@ def targets(results: dict[str, Any]) -> list[dict[str, Any]]:
     ]
 
 
-def print_report(results: dict[str, Any], goals: list[dict[str, Any]]) -> None:
-    sp, tm = results["set_param"], results["telemetry"]
+def print_report(report: dict[str, Any], goals: list[dict[str, Any]]) -> None:
+    sp, tm = report["set_param"], report["telemetry"]
     rows = [
         ["set_param round trip p50", f"{sp['p50_us']:.0f} µs", f"{sp['count']} sets"],
         ["set_param round trip p99", f"{sp['p99_us']:.0f} µs", f"max {sp['max_us']:.0f} µs"],
         ["set_param retries", str(sp["retries"]), ""],
         ["TM received", str(tm["received"]), f"in {tm['seconds']:.1f} s"],
-        ["TM lost", str(tm["lost"]), f"{tm['counter_gaps']} counter gaps"],
+        ["TM lost", str(tm["lost"]),
+         f"{tm['counter_gaps']} counter gaps, {tm['missing_counters']} counters missing"],
         ["TM inter-arrival p50", f"{tm['interarrival_p50_ms']:.3f} ms", "period 1 ms"],
         ["TM inter-arrival p99", f"{tm['interarrival_p99_ms']:.3f} ms",
          f"max {tm['interarrival_max_ms']:.3f} ms"],
@@ -237,50 +212,46 @@ def print_report(results: dict[str, Any], goals: list[dict[str, Any]]) -> None:
         ["host CPU per TM above that", f"{tm['cpu_us_per_tm_above_idle']:.1f} µs",
          "the link's own work per message"],
     ]
-    print_table(["link over fpgaemu serve --pty, 1 MBd", "value", "note"], rows,
-                align="<><")
+    print(environment_line(report))
+    print_table([f"link over fpgaemu serve --pty, {report['config']['baud']:,} Bd", "value",
+                 "note"], rows, align="<><")
     for goal in goals:
         verdict = "pass" if goal["pass"] else "FAIL"
         kind = "required" if goal["required"] else "target"
-        print(f"{kind} {goal['name']}: {goal['measured']} vs {goal['threshold']} "
-              f"{goal['unit']}: {verdict}")
+        measured = goal["measured"]
+        shown = "n/a" if measured is None else f"{measured:.3g}"
+        print(f"{kind} {goal['name']}: {shown} vs {goal['threshold']:g} {goal['unit']}: "
+              f"{verdict}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    parser.add_argument("--quick", action="store_true",
-                        help=f"{QUICK_SETS} sets and {QUICK_SECONDS:g} s of telemetry")
+    parser = common_parser(__doc__, NAME,
+                           f"{QUICK_SETS} sets and {QUICK_SECONDS:g} s of telemetry "
+                           "(the smoke test)")
     parser.add_argument("--sets", type=int, default=None, help="set_param round trips")
     parser.add_argument("--seconds", type=float, default=None, help="telemetry window")
     parser.add_argument("--baud", type=int, default=BAUD)
-    parser.add_argument("--output", type=Path, default=None,
-                        help="JSON path (default benchmarks/results/link.json)")
     args = parser.parse_args(argv)
     sets = args.sets or (QUICK_SETS if args.quick else DEFAULT_SETS)
     seconds = args.seconds or (QUICK_SECONDS if args.quick else DEFAULT_SECONDS)
 
-    proc, path = start_serve(args.baud)
-    try:
-        results = asyncio.run(measure(path, args.baud, sets, seconds))
-    finally:
-        serve_stderr = stop_serve(proc)
+    started = time.perf_counter()
+    results, serve = asyncio.run(run(args.baud, sets, seconds))
     goals = targets(results)
-    payload = {
-        "benchmark": NAME,
-        "timestamp": timestamp(),
-        "machine": machine_info(),
-        "python": python_info(),
-        "packages": package_versions(["fpgalink", "pyserial", "pyserial-asyncio"]),
+    payload: dict[str, Any] = {
+        **report_header(NAME, ["pyserial", "pyserial-asyncio"]),
         "config": {"quick": args.quick, "sets": sets, "seconds": seconds, "baud": args.baud,
-                   "transport": "pty", "period_ms": 1},
+                   "transport": "pty", "period_ms": 1,
+                   "argv": sys.argv[1:] if argv is None else list(argv)},
         **results,
-        "serve": {"exit_code": proc.returncode, "stderr": serve_stderr},
+        "serve": serve,
         "targets": goals,
+        "timing": {"total_s": time.perf_counter() - started},
     }
     out = write_results(NAME, payload, args.output)
-    print_report(results, goals)
-    if serve_stderr:
-        print(f"serve: {serve_stderr}")
+    print_report(payload, goals)
+    if serve["stderr"]:
+        print(f"serve: {serve['stderr']}")
     print(f"results: {out}")
     return 0
 

@@ -1,11 +1,6 @@
 import os
-import sys
-from pathlib import Path
 
 from hypothesis import HealthCheck, settings
-
-# Reference models live beside the tests.
-sys.path.insert(0, str(Path(__file__).parent))
 
 # Bounded examples keep CI fast; `HYPOTHESIS_PROFILE=long` digs deeper locally.
 settings.register_profile("ci", max_examples=150, deadline=None,

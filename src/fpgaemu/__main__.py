@@ -11,7 +11,8 @@ from typing import Any
 
 import click
 
-from fpgaemu.serve import PacedBoard, PtyEndpoint, TcpEndpoint, board_from_settings
+from fpgaemu.build import build_board
+from fpgaemu.serve import PacedBoard, PtyEndpoint, TcpEndpoint
 
 #: The robot has two boards, one per side; the seed calls them L and R.
 BOARD_NAMES = ("L", "R")
@@ -97,7 +98,7 @@ async def _serve(use_pty: bool, host: str, port: int, count: int, baud: int, see
     endpoints: list[PtyEndpoint | TcpEndpoint] = []
     try:
         for index, name in enumerate(board_names(count)):
-            board = board_from_settings(baud=baud, seed=seed + index, gear=gear,
+            board = build_board(baud=baud, seed=seed + index, gear=gear,
                                         settings=settings, faults=faults)
             paced = PacedBoard(board)
             if use_pty:

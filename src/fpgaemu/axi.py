@@ -15,7 +15,7 @@ from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
 from fpgaemu.uartcommand import EnableChange, RxInterrupt, UartCommand
 from fpgaemu.uartsend import TxDone, UartSend
-from fpgalink._framing import Framing
+from fpgalink.protocol import Framing
 
 __all__ = ["AxiBus", "TxQueue", "TxQueueStats"]
 

@@ -3,10 +3,15 @@
     host ─RX pin─► uartread ─► uartcommand ─► blk_mem_gen (RX) ─┐
                                   │ global_enable, interrupt     ├─ AxiBus ◄─ MicroBlaze
     host ◄TX pin── uartwrite ◄─ uartsend ◄─ blk_mem_gen (TX) ◄───┘           (firmware)
+                                  │ global_enable                              │
+                       timer ─────┼──────────── interrupt ─────────────────────┤
+    channel A, B:  pwm ◄──────────┴─── duty ───────────────────────────────────┤
+                   encoder, current sensor ── position, speed, current ────────┘
 
 The host-facing API is what a serial port gives: ``host_write`` puts bytes on the RX pin at
-a cycle, ``read_host_bytes`` returns the TX bytes whose stop bit has ended. Further hardware
-(PWM, encoders, timer, the firmware, the plant) attaches with :meth:`Board.add_peripheral`.
+a cycle, ``read_host_bytes`` returns the TX bytes whose stop bit has ended. The software
+(:mod:`fpgaemu.firmware`) and the physical world (:mod:`fpgaemu.motor`) attach with
+:meth:`Board.add_peripheral`; :func:`fpgaemu.build.build_board` puts a whole board together.
 """
 
 from __future__ import annotations
@@ -18,13 +23,27 @@ from typing import Any, Protocol
 
 from fpgaemu.axi import AxiBus
 from fpgaemu.bram import BRAM_BYTES, BlockRam
+from fpgaemu.encoder import QuadratureEncoder
+from fpgaemu.pwm import Pwm
 from fpgaemu.timeline import EventHandle, Timeline, seconds_to_cycles
+from fpgaemu.timer import Timer
 from fpgaemu.uart import DEFAULT_BAUD, LineFaults, UartRead, UartWrite
-from fpgaemu.uartcommand import WATCHDOG_CYCLES, UartCommand
+from fpgaemu.uartcommand import WATCHDOG_CYCLES, EnableChange, UartCommand
 from fpgaemu.uartsend import UartSend
-from fpgalink._framing import DEFAULT_FRAMING, Framing
+from fpgalink.protocol import DEFAULT_FRAMING, Framing
+from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
 
-__all__ = ["Board", "BoardConfig", "Peripheral"]
+__all__ = ["Board", "BoardConfig", "ChannelIo", "Peripheral"]
+
+
+@dataclass
+class ChannelIo:
+    """One motor channel's I/O blocks, as the processor sees them."""
+
+    pwm: Pwm
+    encoder: QuadratureEncoder
+    #: the Hall current sensor's reading, A (the motor model keeps it current)
+    current_a: float = 0.0
 
 
 @dataclass
@@ -34,15 +53,11 @@ class BoardConfig:
     baud: int = DEFAULT_BAUD
     seed: int = 0
     framing: Framing = DEFAULT_FRAMING
-    #: the plant's gearbox setting, used by the motor model (part 2)
-    gear: str = "high"
     watchdog_cycles: int = WATCHDOG_CYCLES
     #: host → board line faults (``uartread``)
     rx_faults: LineFaults | None = None
     #: board → host line faults (``uartwrite``)
     tx_faults: LineFaults | None = None
-    #: free-form settings for peripherals (initial parameters, fault specs, …)
-    extra: dict[str, Any] = dataclasses.field(default_factory=dict)
 
 
 class Peripheral(Protocol):
@@ -76,7 +91,19 @@ class Board:
             self.timeline, self.uartcommand, self.uartsend, self.blk_mem_gen_rx,
             self.blk_mem_gen_tx,
         )
+        self.timer = Timer(self.timeline)
+        self.channels = {
+            CHANNEL_A: ChannelIo(Pwm(), QuadratureEncoder()),
+            CHANNEL_B: ChannelIo(Pwm(), QuadratureEncoder()),
+        }
+        # The PWM outputs are gated by global_enable in logic, before any software sees it.
+        self.uartcommand.on_enable_change(self._gate_pwm)
         self.peripherals: dict[str, Peripheral] = {}
+        self._settlers: list[Callable[[int], None]] = []
+
+    def _gate_pwm(self, change: EnableChange) -> None:
+        for io in self.channels.values():
+            io.pwm.set_global_enable(change.enabled, change.cycle)
 
     # --- composition ----------------------------------------------------------------------
 
@@ -87,6 +114,16 @@ class Board:
         self.peripherals[name] = peripheral
         peripheral.attach(self)
         return peripheral
+
+    def on_settle(self, settler: Callable[[int], None]) -> None:
+        """``settler(cycle)`` brings a lazily integrated model (the wheels) up to ``cycle``
+        whenever the processor samples its inputs."""
+        self._settlers.append(settler)
+
+    def settle(self, cycle: int) -> None:
+        """Bring every lazily integrated model up to ``cycle`` before inputs are sampled."""
+        for settler in self._settlers:
+            settler(cycle)
 
     # --- time -----------------------------------------------------------------------------
 

@@ -48,13 +48,15 @@ class QuadratureEncoder:
         self._window_count = 0
         self._window_cycle: int | None = None  #: the reference edge; None: none yet
         self._speed_dps = 0.0
+        self._angle = 0.0  #: the wheel angle last followed, deg
         self.edges = 0  #: every edge seen (unsigned)
 
-    def configure(self, pulses_per_turn: int, direction: int, angle_deg: float) -> None:
-        """New resolution or direction: the count restarts from the present angle."""
+    def configure(self, pulses_per_turn: int, direction: int) -> None:
+        """New resolution or direction: the count restarts from the wheel's present angle
+        (as last followed: bring the wheel up to date first)."""
         self.counts_per_turn = 10 * pulses_per_turn
         self.direction = direction
-        self._angle_offset = angle_deg + self._half_count()
+        self._angle_offset = self._angle + self._half_count()
         self._count = 0
         self._window_count = 0
         self._window_cycle = None
@@ -70,6 +72,7 @@ class QuadratureEncoder:
 
     def follow(self, cycle0: int, angle0: float, cycle1: int, angle1: float) -> None:
         """The wheel went from ``angle0`` at ``cycle0`` to ``angle1`` at ``cycle1``."""
+        self._angle = angle1
         if self.counts_per_turn <= 0:
             return
         n0, n1 = self._index(angle0), self._index(angle1)

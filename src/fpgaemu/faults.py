@@ -15,15 +15,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from fpgaemu.timeline import seconds_to_cycles
 from fpgaemu.uart import LineFaults
 
 if TYPE_CHECKING:
     from fpgaemu.board import Board
 
-__all__ = ["FAULT_HELP", "Babbler", "FaultSet", "parse_fault_spec"]
+__all__ = ["FAULT_HELP", "Babbler", "BoardFaults", "FaultSet", "parse_fault_spec", "parse_faults"]
 
 #: The grammar, for ``--help`` and error messages (docs/reliability.md has the long form).
 FAULT_HELP = """\
@@ -61,6 +59,45 @@ class FaultSet:
         (keeps the board on its fast path and its generators untouched)."""
         faults = self.rx if which == "rx" else self.tx
         return faults if faults != LineFaults() else None
+
+    def board_faults(self) -> BoardFaults:
+        """The faults that attach to a board rather than to one line."""
+        return BoardFaults(drop_frames=dict(self.drop_frames), babble=list(self.babble))
+
+
+def parse_faults(specs: list[str]) -> FaultSet:
+    """``--fault`` specs → everything they ask for; ``ValueError`` naming the grammar."""
+    wanted = FaultSet()
+    for spec in specs:
+        parse_fault_spec(spec, wanted)
+    return wanted
+
+
+@dataclass
+class BoardFaults:
+    """Faults that are not a property of one line: frame drops applied at ``uartcommand``
+    (as if the line had eaten the frame) and a babbling host (``(start, end)`` cycles).
+    A board peripheral."""
+
+    drop_frames: dict[bytes, int] = field(default_factory=dict)
+    dropped: int = 0
+    babble: list[tuple[int, int]] = field(default_factory=list)
+    babbler: Babbler | None = None
+
+    def attach(self, board: Board) -> None:
+        if self.drop_frames:
+            board.uartcommand.frame_filter = self._keep
+        if self.babble:
+            self.babbler = Babbler(self.babble)
+            self.babbler.attach(board)
+
+    def _keep(self, content: bytes, cycle: int) -> bool:
+        for msg_id, left in self.drop_frames.items():
+            if left > 0 and content.startswith(msg_id):
+                self.drop_frames[msg_id] = left - 1
+                self.dropped += 1
+                return False
+        return True
 
 
 def _rate(text: str) -> float:
@@ -157,7 +194,7 @@ class Babbler:
         # so the babble never builds a backlog ahead of the host's own bytes.
         count = (until - max(cycle, line.line_free_at)) // line.cycles_per_byte
         if count > 0:
-            data = self._rng.integers(0, 256, count, np.uint8).tobytes()
+            data = self._rng.integers(0, 256, count, "uint8").tobytes()
             line.transmit(data, cycle)
             self.bytes_sent += count
         if until < end:

@@ -1,4 +1,5 @@
-"""The MicroBlaze software (seed §3.2–3.3), written against the AXI port only.
+"""The MicroBlaze software (seed §3.2–3.3), written against the board's registers only: the
+AXI port to the UART logic, the timer, and each channel's PWM, encoder and current sensor.
 
 * RX interrupt: read the frame from the RX block RAM, acknowledge the half, handle it:
   ``PS`` (validate, apply, recompute, echo ``PA`` or answer ``PN``), ``PG`` (``PA``),
@@ -12,85 +13,60 @@ Controller modes (parameter 4): 0 (software speed PID) and 1 (hardware speed PID
 control law, computed by the FPGA module at the timer tick) are modelled; 2 and 3 (current
 PID) are refused with ``PN`` 3, since current control is not modelled.
 
-The motors live here too, as the plant the PWM drives (``WheelPlant``), advanced to every
-cycle where its input changes (timer ticks, enable edges) and at least every millisecond.
+Power-up values come from the parameter table's ``default`` column.
 """
 
 from __future__ import annotations
 
 import math
-from collections import Counter, deque
-from dataclasses import dataclass, field
+from collections import deque
+from dataclasses import dataclass
 from typing import Any
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
-from fpgaemu.encoder import QuadratureEncoder
-from fpgaemu.pid import DEFAULT_GAINS, PidGains, SpeedPid
-from fpgaemu.plant import WheelPlant
-from fpgaemu.pwm import Pwm
-from fpgaemu.timeline import CLOCK_HZ
-from fpgaemu.timer import Timer
+from fpgaemu.pid import PidGains, SpeedPid
+from fpgaemu.timeline import CLOCK_HZ, ms, us
+from fpgaemu.timing import TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgaemu.uartsend import TxDone
-from fpgalink._counter import CounterTracker, SendCounter
-from fpgalink._messages import Malformed
-from fpgalink.catalogue import (
+from fpgalink.protocol import (
+    PARAMETERS,
     ChannelTelemetry,
+    CounterTracker,
+    Malformed,
     NackReason,
+    Param,
     ParamAck,
     ParamGet,
     ParamNack,
     ParamSet,
+    ParamType,
     References,
+    Scope,
+    SendCounter,
     Telemetry,
     TelemetryFlags,
     encode_message,
-    parse_content,
-)
-from fpgalink.params import (
-    BOARD,
-    CHANNEL_A,
-    CHANNEL_B,
-    PARAMETERS,
-    Param,
-    ParamType,
-    Scope,
     float32,
+    parse_content,
     resolve,
 )
+from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
 
-__all__ = ["DEFAULTS", "Firmware", "FirmwareStats", "TimingReport", "attach_firmware"]
+__all__ = ["Firmware", "FirmwareStats", "attach_firmware"]
 
-ALIVE_PERIOD_CYCLES = 300 * CLOCK_HZ // 1000
-#: The plant is advanced at least this often, so encoder edges follow the wheel closely.
-PLANT_STEP_CYCLES = CLOCK_HZ // 1000
+ALIVE_PERIOD_CYCLES = ms(300)
 #: controller modes the emulated firmware runs
 SUPPORTED_CONTROLLERS = (0, 1)
 
-#: Power-up values, chosen so the board works out of the box (docs/emulator.md).
-DEFAULTS: dict[str, int | float] = {
-    "TsTimerPeriod": 1,
-    "GetDataPeriodical": 0,
-    "TorqueCoef": 0.2,
-    "ActiveController": 0,
-    "MaxControlSignal": 32760,
-    "IncSenzRes": 500,
-    "IncSenzCountDirection": 1,
-    "Kp_Wheel_Pid": DEFAULT_GAINS.kp,
-    "Ti_Wheel_Pid": DEFAULT_GAINS.ti,
-    "Td_Wheel_Pid": DEFAULT_GAINS.td,
-}
-
 
 class Channel:
-    """One motor channel: its PWM stage, encoder, plant and controller."""
+    """The software's state for one motor channel: its controller, reference and the
+    latest samples of its inputs."""
 
-    def __init__(self, gear: str) -> None:
-        self.pwm = Pwm()
-        self.encoder = QuadratureEncoder()
-        self.plant = WheelPlant(gear)
-        self.pid = SpeedPid()
+    def __init__(self, gains: PidGains) -> None:
+        self.pid = SpeedPid(gains)
         self.reference = 0.0
         self.speed = 0.0
         self.current = 0.0
@@ -111,69 +87,13 @@ class FirmwareStats:
     alive_sent: int = 0
 
 
-#: Missed periods listed individually (later ones are only counted), so a long run under
-#: overload keeps bounded memory.
-MISSED_LISTED = 10_000
-
-
-@dataclass(slots=True)
-class TimingReport:
-    """How the board's output fitted its periods (SPEC §7). Slack is kept as a histogram of
-    exact values (a handful of distinct values in practice), so memory stays flat however
-    long the board runs."""
-
-    periods: int = 0
-    tm_finished: int = 0
-    slack_histogram: Counter[int] = field(default_factory=Counter)
-    #: (tick cycle, cycle the TM's last byte ended or None if it was never sent), first
-    #: ``MISSED_LISTED`` of them
-    missed: list[tuple[int, int | None]] = field(default_factory=list)
-    missed_count: int = 0
-    tx_wire_bytes: int = 0
-    started_cycle: int = 0
-
-    def record_slack(self, tick: int, done: int, slack: int) -> None:
-        self.tm_finished += 1
-        self.slack_histogram[slack] += 1
-        if slack < 0:
-            self.record_miss(tick, done)
-
-    def record_miss(self, tick: int, done: int | None) -> None:
-        self.missed_count += 1
-        if len(self.missed) < MISSED_LISTED:
-            self.missed.append((tick, done))
-
-    @property
-    def median_slack(self) -> float | None:
-        if not self.tm_finished:
-            return None
-        values = sorted(self.slack_histogram.items())
-        middle = (self.tm_finished - 1) / 2
-        low = high = None
-        seen = 0
-        for value, count in values:
-            if low is None and seen + count > int(middle):
-                low = value
-            if seen + count > math.ceil(middle):
-                high = value
-                break
-            seen += count
-        assert low is not None and high is not None
-        return (low + high) / 2
-
-    @property
-    def worst_slack(self) -> int | None:
-        return min(self.slack_histogram) if self.slack_histogram else None
-
-
 class Firmware:
-    def __init__(self, settings: dict[str, Any] | None = None, gear: str = "high") -> None:
-        self.channels = {CHANNEL_A: Channel(gear), CHANNEL_B: Channel(gear)}
+    def __init__(self, settings: dict[str, Any] | None = None) -> None:
         self.values: dict[tuple[int, int], int | float] = {}
         for param in PARAMETERS:
             for channel in _channels_of(param):
-                self.values[(param.id, channel)] = _stored(param, DEFAULTS[param.name])
-        self.timer = Timer(int(self.values[(1, BOARD)]))
+                self.values[(param.id, channel)] = _stored(param, param.default)
+        self.channels = {code: Channel(self._gains(code)) for code in (CHANNEL_A, CHANNEL_B)}
         self.stats = FirmwareStats()
         self.timing = TimingReport()
         self.host_counter = CounterTracker()
@@ -181,9 +101,17 @@ class Firmware:
         self._pending_settings = dict(settings or {})
         self._in_flight: deque[tuple[str, int]] = deque()
         self._board: Board | None = None
-        self._plant_cycle = 0
         self._enabled = False
-        self._next_alive = 0
+
+    def _gains(self, code: int) -> PidGains:
+        values = self.values
+        return PidGains(float(values[(8, code)]), float(values[(9, code)]),
+                        float(values[(10, code)]))
+
+    @property
+    def board(self) -> Board:
+        assert self._board is not None, "the firmware is not attached to a board"
+        return self._board
 
     # --- wiring ---------------------------------------------------------------------------
 
@@ -195,36 +123,23 @@ class Firmware:
         axi.on_tx_done(self._on_tx_done)
         self.tx = TxQueue(axi, depth=8)
         now = board.now
-        self._plant_cycle = now
         self.timing.started_cycle = now
+        for param in PARAMETERS:
+            for channel in _channels_of(param):
+                self._apply(param, channel, self.values[(param.id, channel)])
         for name, value in self._pending_settings.items():
             param, channel = resolve(name)
             error = self._check(param, channel, int(param.type), value)
             if error is not None:
                 raise ValueError(f"initial {name} = {value!r}: {NackReason(error).text}")
             self._apply(param, channel, _stored(param, value))
-        board.schedule(self.timer.start(now), self._on_tick)
+        board.timer.on_interrupt(self._on_tick)
+        board.timer.start(now)
         board.schedule(now + ALIVE_PERIOD_CYCLES, self._on_alive)
 
     def budget_report(self) -> dict[str, Any]:
-        """SPEC §7 from this run: line utilisation per direction since power-up, slack per
-        period (cycles from a TM's last stop bit to the next tick) and the missed periods."""
-        assert self._board is not None
-        board = self._board
-        elapsed = board.now - self.timing.started_cycle
-        capacity = elapsed / board.cycles_per_byte if elapsed > 0 else 0.0
-        timing = self.timing
-        return {
-            "periods": timing.periods,
-            "board_to_host_utilisation": timing.tx_wire_bytes / capacity if capacity else 0.0,
-            "host_to_board_utilisation": (
-                board.uartread.stats.bytes_received / capacity if capacity else 0.0
-            ),
-            "median_slack_cycles": timing.median_slack,
-            "worst_slack_cycles": timing.worst_slack,
-            "missed_periods": timing.missed_count,
-            "missed": list(timing.missed),
-        }
+        """SPEC §7 from this run (see :meth:`fpgaemu.timing.TimingReport.summary`)."""
+        return self.timing.summary(self.board)
 
     def channel(self, code: int) -> Channel:
         return self.channels[code]
@@ -248,7 +163,7 @@ class Firmware:
             return
         kind, tick = self._in_flight.popleft()
         if kind == "TM":
-            deadline = tick + self.timer.period_cycles
+            deadline = tick + self.board.timer.period_cycles
             self.timing.record_slack(tick, done.cycle, deadline - done.cycle)
 
     def _on_alive(self, cycle: int) -> None:
@@ -336,74 +251,53 @@ class Firmware:
     def _apply(self, param: Param, channel: int, value: int | float) -> None:
         """Store and recompute whatever depends on the parameter."""
         self.values[(param.id, channel)] = value
+        if self._board is None:
+            return  # applied to the hardware at attach
         if param.id == 1:
-            self.timer.set_period_ms(int(value))
+            self.board.timer.set_period_ms(int(value))
         elif param.scope is Scope.CHANNEL:
             ch = self.channels[channel]
             if param.id == 5:
                 ch.pid.limit = int(value)
             elif param.id in (6, 7):
-                self._advance_plants(self._board.now if self._board else 0)
-                ch.encoder.configure(
-                    int(self.values[(6, channel)]), int(self.values[(7, channel)]),
-                    ch.plant.angle_deg,
+                board = self.board
+                board.settle(board.now)  # the count restarts from the wheel's angle now
+                board.channels[channel].encoder.configure(
+                    int(self.values[(6, channel)]), int(self.values[(7, channel)])
                 )
             elif param.id in (8, 9, 10):
-                ch.pid.gains = PidGains(
-                    float(self.values[(8, channel)]),
-                    float(self.values[(9, channel)]),
-                    float(self.values[(10, channel)]),
-                )
+                ch.pid.gains = self._gains(channel)
 
     # --- the control loop -----------------------------------------------------------------
 
-    def _advance_plants(self, cycle: int) -> None:
-        start = self._plant_cycle
-        if cycle <= start:
-            return
-        for ch in self.channels.values():
-            ch.plant.duty = ch.pwm.applied_duty
-            c0 = start
-            while c0 < cycle:
-                c1 = min(cycle, c0 + PLANT_STEP_CYCLES)
-                angle0, _ = ch.plant.advance((c1 - c0) / CLOCK_HZ)
-                ch.encoder.follow(c0, angle0, c1, ch.plant.angle_deg)
-                c0 = c1
-        self._plant_cycle = cycle
-
     def _on_enable(self, change: EnableChange) -> None:
-        self._advance_plants(change.cycle)
         self._enabled = change.enabled
-        for ch in self.channels.values():
-            ch.pwm.set_global_enable(change.enabled)
-            if not change.enabled:
+        if not change.enabled:
+            for code, ch in self.channels.items():
                 ch.pid.reset()
                 ch.reference = 0.0
-                ch.pwm.write_duty(0)
+                self.board.channels[code].pwm.write_duty(0, change.cycle)
 
     def _on_tick(self, cycle: int) -> None:
-        assert self._board is not None
-        self._advance_plants(cycle)
-        dt = self.timer.period_cycles / CLOCK_HZ
-        mode_ok = True
+        board = self.board
+        board.settle(cycle)
+        dt = board.timer.period_cycles / CLOCK_HZ
         saturated = {}
         for code, ch in self.channels.items():
-            ch.speed = ch.encoder.sample_speed(cycle)
-            ch.position = ch.encoder.position
-            ch.current = ch.plant.current_a
-            mode_ok = self.values[(4, code)] in SUPPORTED_CONTROLLERS
-            if self._enabled and mode_ok:
-                ch.pwm.write_duty(ch.pid.update(ch.reference, ch.speed, dt))
+            io = board.channels[code]
+            ch.speed = io.encoder.sample_speed(cycle)
+            ch.position = io.encoder.position
+            ch.current = io.current_a
+            if self._enabled and self.values[(4, code)] in SUPPORTED_CONTROLLERS:
+                io.pwm.write_duty(ch.pid.update(ch.reference, ch.speed, dt), cycle)
             else:
                 ch.pid.reset()
-                ch.pwm.write_duty(0)
+                io.pwm.write_duty(0, cycle)
             saturated[code] = ch.pid.saturated
-            ch.plant.duty = ch.pwm.applied_duty
-        next_tick = self.timer.tick(cycle)
         self.timing.periods += 1
         if self.values[(2, BOARD)] == 1:
             sample = Telemetry(
-                (cycle // (CLOCK_HZ // 1_000_000)) & 0xFFFF_FFFF,
+                (cycle // us(1)) & 0xFFFF_FFFF,
                 self._channel_sample(CHANNEL_A, saturated[CHANNEL_A]),
                 self._channel_sample(CHANNEL_B, saturated[CHANNEL_B]),
             )
@@ -412,20 +306,20 @@ class Firmware:
             else:
                 self.stats.telemetry_dropped += 1
                 self.timing.record_miss(cycle, None)
-        self._board.schedule(next_tick, self._on_tick)
 
     def _channel_sample(self, code: int, saturated: bool) -> ChannelTelemetry:
         ch = self.channels[code]
+        io = self.board.channels[code]
         flags = 0
-        if ch.pwm.global_enable:
+        if io.pwm.global_enable:
             flags |= TelemetryFlags.ENABLE
-        if ch.encoder.end_stop:
+        if io.encoder.end_stop:
             flags |= TelemetryFlags.END_STOP
         if saturated:
             flags |= TelemetryFlags.SATURATED
         # Floats are rounded to float32 when the message is packed.
         return ChannelTelemetry(
-            ch.position, ch.speed, ch.current, ch.pwm.applied_duty, ch.reference, flags,
+            ch.position, ch.speed, ch.current, io.pwm.applied_duty, ch.reference, flags,
         )
 
 
@@ -442,6 +336,6 @@ def _stored(param: Param, value: int | float) -> int | float:
 
 
 def attach_firmware(board: Board, settings: dict[str, Any] | None = None) -> Firmware:
-    firmware = Firmware(settings, gear=board.config.gear)
+    firmware = Firmware(settings)
     board.add_peripheral("firmware", firmware)
     return firmware

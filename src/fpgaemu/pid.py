@@ -14,7 +14,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-__all__ = ["DEFAULT_GAINS", "PidGains", "SpeedPid"]
+__all__ = ["PidGains", "SpeedPid"]
 
 DERIVATIVE_FILTER_N = 10.0
 
@@ -26,15 +26,8 @@ class PidGains:
     td: float  #: s
 
 
-#: Tuned on the emulated high-gear plant at TsTimerPeriod = 1 ms: the integral time cancels
-#: the dominant 0.24 s pole and Kp puts the crossover near 6 rad/s, well below the fast
-#: complex pair (ωn ≈ 23 rad/s). A 0 → 45 deg/s step then settles (2 %) in about 0.7 s with
-#: under 2 % overshoot; see tests/emu_models/test_closed_loop.py for the measured figures.
-DEFAULT_GAINS = PidGains(kp=520.0, ti=0.24, td=0.0)
-
-
 class SpeedPid:
-    def __init__(self, gains: PidGains = DEFAULT_GAINS, limit: int = 32760) -> None:
+    def __init__(self, gains: PidGains, limit: int = 32760) -> None:
         self.gains = gains
         self.limit = limit
         self.integral = 0.0

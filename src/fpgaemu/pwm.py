@@ -3,9 +3,15 @@
 
 Simplification: the switching waveform itself is not modelled; the motor sees the average
 (duty), which is what the identified plant was measured against.
+
+Whatever the output drives is told *before* the output changes (``on_change``), with the
+cycle of the change, so a motor model can integrate up to that exact cycle with the old
+duty.
 """
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 __all__ = ["MAX_DUTY", "Pwm"]
 
@@ -13,16 +19,30 @@ MAX_DUTY = 32760
 
 
 class Pwm:
+    __slots__ = ("_listeners", "duty_register", "global_enable")
+
     def __init__(self) -> None:
         self.duty_register = 0  #: what the processor last wrote
         self.global_enable = False
+        self._listeners: list[Callable[[int], None]] = []
 
-    def write_duty(self, duty: int) -> None:
+    def on_change(self, listener: Callable[[int], None]) -> None:
+        """``listener(cycle)`` runs just before the applied duty may change at ``cycle``."""
+        self._listeners.append(listener)
+
+    def write_duty(self, duty: int, cycle: int) -> None:
         """Processor write. The register is 16 bits but the stage saturates at ±32760."""
-        self.duty_register = max(-MAX_DUTY, min(MAX_DUTY, int(duty)))
+        value = max(-MAX_DUTY, min(MAX_DUTY, int(duty)))
+        if value != self.duty_register:
+            for listener in self._listeners:
+                listener(cycle)
+            self.duty_register = value
 
-    def set_global_enable(self, enabled: bool) -> None:
-        self.global_enable = enabled
+    def set_global_enable(self, enabled: bool, cycle: int) -> None:
+        if enabled != self.global_enable:
+            for listener in self._listeners:
+                listener(cycle)
+            self.global_enable = enabled
 
     @property
     def applied_duty(self) -> int:

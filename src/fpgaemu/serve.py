@@ -19,20 +19,17 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
-from fpgaemu.board import Board, BoardConfig
-from fpgaemu.faults import Babbler, FaultSet, parse_fault_spec
+from fpgaemu.board import Board
+from fpgaemu.build import board_from_url
 from fpgaemu.timeline import CLOCK_HZ
-from fpgalink.errors import PortError
 
 __all__ = [
-    "BoardFaults",
+    "EmulatedTransport",
     "LagReport",
     "PacedBoard",
     "PtyEndpoint",
     "TcpEndpoint",
-    "board_from_settings",
     "open_emulated_transport",
-    "parse_faults",
 ]
 
 #: How often the serving loop advances the boards. 1 ms keeps TX bursts near line rate
@@ -267,87 +264,13 @@ class EmulatedTransport(asyncio.Transport):
         return default
 
 
-def parse_faults(specs: list[str]) -> tuple[BoardFaults, BoardConfig]:
-    """``--fault`` specs → board-level faults (frame drops, babble) and a config holding the
-    line faults. The grammar is :data:`fpgaemu.faults.FAULT_HELP` (docs/reliability.md)."""
-    wanted = FaultSet()
-    for spec in specs:
-        parse_fault_spec(spec, wanted)
-    config = BoardConfig(rx_faults=wanted.line("rx"), tx_faults=wanted.line("tx"))
-    faults = BoardFaults(drop_frames=wanted.drop_frames, babble=wanted.babble)
-    return faults, config
-
-
-@dataclass
-class BoardFaults:
-    """Faults that are not a property of one line: frame drops applied at ``uartcommand``
-    (as if the line had eaten the frame) and a babbling host (``(start, end)`` cycles)."""
-
-    drop_frames: dict[bytes, int] = field(default_factory=dict)
-    dropped: int = 0
-    babble: list[tuple[int, int]] = field(default_factory=list)
-    babbler: Babbler | None = None
-
-    def attach(self, board: Board) -> None:
-        if self.drop_frames:
-            board.uartcommand.frame_filter = self._keep
-        if self.babble:
-            self.babbler = Babbler(self.babble)
-            self.babbler.attach(board)
-
-    def _keep(self, content: bytes, cycle: int) -> bool:
-        for msg_id, left in self.drop_frames.items():
-            if left > 0 and content.startswith(msg_id):
-                self.drop_frames[msg_id] = left - 1
-                self.dropped += 1
-                return False
-        return True
-
-
-def board_from_settings(
-    *,
-    baud: int = 1_000_000,
-    seed: int = 0,
-    gear: str = "high",
-    settings: dict[str, Any] | None = None,
-    faults: list[str] | None = None,
-) -> Board:
-    """A complete board (communication path, firmware, motors) as ``fpgaemu serve`` and
-    ``emu://`` build it. ``settings`` are initial parameter values by name
-    (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``."""
-    from fpgaemu.firmware import attach_firmware
-
-    frame_faults, config = parse_faults(faults or [])
-    config.baud, config.seed, config.gear = baud, seed, gear
-    if gear not in ("high", "low"):
-        raise ValueError(f"gear must be 'high' or 'low', got {gear!r}")
-    board = Board(config)
-    attach_firmware(board, settings or {})
-    board.add_peripheral("faults", frame_faults)
-    return board
-
-
-def _options_to_board(options: dict[str, str], baud: int) -> Board:
-    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1`` query options → a board."""
-    known = {"seed", "gear", "fault"}
-    unknown = set(options) - known
-    if unknown:
-        raise ValueError(f"unknown emu:// option(s) {sorted(unknown)}; known: {sorted(known)}")
-    return board_from_settings(
-        baud=baud,
-        seed=int(options.get("seed", 0)),
-        gear=options.get("gear", "high"),
-        faults=[options["fault"]] if "fault" in options else [],
-    )
-
-
 async def open_emulated_transport(
-    protocol_factory: Callable[[], asyncio.Protocol], *, baud: int, options: dict[str, str]
+    url: str, baud: int, protocol_factory: Callable[[], asyncio.Protocol]
 ) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
-    try:
-        board = _options_to_board(options, baud)
-    except ValueError as exc:
-        raise PortError(f"emu://: {exc}") from None
+    """The ``emu://`` opener ``fpgalink`` finds through the ``fpgalink.transports`` entry
+    point: a board built from the URL's options, paced to the wall clock in this process.
+    ``ValueError`` for an option the emulator does not understand."""
+    board = board_from_url(url, baud)
     paced = PacedBoard(board)
     protocol = protocol_factory()
     transport = EmulatedTransport(paced, protocol)

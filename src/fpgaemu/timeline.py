@@ -16,8 +16,10 @@ from __future__ import annotations
 import heapq
 import zlib
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
-import numpy as np
+if TYPE_CHECKING:  # numpy loads only when a consumer asks for randomness
+    import numpy as np
 
 __all__ = [
     "CLOCK_HZ",
@@ -25,11 +27,29 @@ __all__ = [
     "EventHandle",
     "Timeline",
     "cycles_to_seconds",
+    "ms",
     "seconds_to_cycles",
+    "us",
 ]
 
 #: The CmodA7 oscillator the whole design is clocked from.
 CLOCK_HZ = 100_000_000
+_CYCLES_PER_MS = CLOCK_HZ // 1000
+_CYCLES_PER_US = CLOCK_HZ // 1_000_000
+
+
+def ms(milliseconds: int | float) -> int:
+    """Cycles in ``milliseconds`` (exact for whole numbers: 1 ms is 100,000 cycles)."""
+    if isinstance(milliseconds, int):
+        return milliseconds * _CYCLES_PER_MS
+    return round(milliseconds * _CYCLES_PER_MS)
+
+
+def us(microseconds: int | float) -> int:
+    """Cycles in ``microseconds`` (1 µs is 100 cycles)."""
+    if isinstance(microseconds, int):
+        return microseconds * _CYCLES_PER_US
+    return round(microseconds * _CYCLES_PER_US)
 
 #: An event callback receives the cycle it runs at.
 Callback = Callable[[int], None]
@@ -138,4 +158,6 @@ class Timeline:
     def rng(self, consumer: str) -> np.random.Generator:
         """An independent generator for one consumer, fixed by the board's seed and the
         consumer's name: two boards with one seed draw identical streams."""
+        import numpy as np
+
         return np.random.default_rng([self.seed & 0xFFFF_FFFF, zlib.crc32(consumer.encode())])

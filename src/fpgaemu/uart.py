@@ -33,10 +33,12 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-
-import numpy as np
+from typing import TYPE_CHECKING, Any
 
 from fpgaemu.timeline import CLOCK_HZ, Timeline
+
+if TYPE_CHECKING:  # numpy loads only for a line with faults
+    import numpy as np
 
 __all__ = [
     "BITS_PER_BYTE",
@@ -225,10 +227,11 @@ class _Line:
         self.stats = LineStats()
         #: cycle at which the last queued byte's stop bit ends; the line is idle from then.
         self.line_free_at = 0
-        self._rng = timeline.rng(name)
-        self._rng_drop = timeline.rng(name + ".drop")
-        self._rng_dup = timeline.rng(name + ".dup")
-        self._rng_noise = timeline.rng(name + ".noise")
+        rng: Any = timeline.rng if faults is not None else (lambda _name: None)
+        self._rng = rng(name)
+        self._rng_drop = rng(name + ".drop")
+        self._rng_dup = rng(name + ".dup")
+        self._rng_noise = rng(name + ".noise")
 
     @property
     def busy(self) -> bool:
@@ -256,7 +259,7 @@ class _Line:
                 set(_indexes(self._rng_drop, n, faults.drop_rate)),
                 set(_indexes(self._rng_dup, n, faults.dup_rate)),
                 {
-                    k: self._rng_noise.integers(0, 256, faults.noise_len, np.uint8).tobytes()
+                    k: self._rng_noise.integers(0, 256, faults.noise_len, "uint8").tobytes()
                     for k in _indexes(self._rng_noise, n, faults.noise_rate)
                 },
             )

@@ -1,7 +1,7 @@
 """``uartcommand``: the SPEC §3 frame decoder in FPGA logic, the RX block RAM writer, the
 receive interrupt, the direct commands ``RE``/``RD`` and the ``global_enable`` watchdog.
 
-The state machine is written here independently of :mod:`fpgalink._framing` so the two
+The state machine is written here independently of :mod:`fpgalink.protocol.framing` so the two
 check each other. It steps byte by byte as the logic does, except that a run of ordinary
 content bytes is copied into the block RAM in one write (same result, one call).
 
@@ -46,7 +46,7 @@ from enum import Enum
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, Timeline
 from fpgaemu.uart import ByteRun
-from fpgalink._framing import DEFAULT_FRAMING, Framing
+from fpgalink.protocol import DEFAULT_FRAMING, Framing
 
 __all__ = [
     "DIRECT_DISABLE",

@@ -28,7 +28,7 @@ from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
 from fpgaemu.uart import UartWrite
 from fpgaemu.uartcommand import FrameFilter
-from fpgalink._framing import DEFAULT_FRAMING, Framing
+from fpgalink.protocol import DEFAULT_FRAMING, Framing
 
 __all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
 

@@ -1,62 +1,20 @@
 """fpgalink: host library for the FPGA motor-controller UART protocol.
 
-The core (framing, messages, catalogue, :class:`Connection`) is sans-I/O: bytes in, events
-out, time passed in. :func:`open_link` (in :mod:`fpgalink.aio`) puts asyncio on top.
+Layers, each importing only the ones below it:
+
+* :mod:`fpgalink.protocol` — the wire (framing, messages, parameters, counters, budgets);
+* :class:`Connection` — the sans-I/O link: bytes in, :mod:`events <fpgalink.events>` out,
+  time passed in;
+* :func:`open_link` / :class:`Link` (:mod:`fpgalink.aio`) — asyncio on top: heartbeat,
+  retries, reconnects, telemetry subscriptions;
+* the robot, the CLI and the ROS 2 node above that.
+
+Importing ``fpgalink`` does not import asyncio: the asyncio names load on first use.
 """
 
 from typing import TYPE_CHECKING
 
-from fpgalink._counter import CounterTracker, Observation, SendCounter
-from fpgalink._framing import (
-    DEFAULT_FRAMING,
-    AbortReason,
-    FrameAborted,
-    FrameDecoder,
-    FrameTooLong,
-    Framing,
-    FramingError,
-    FramingStats,
-    NoiseDropped,
-    encode_frame,
-)
-from fpgalink._messages import (
-    Alive,
-    Binary,
-    CountedMessage,
-    DirectCommand,
-    Disable,
-    Enable,
-    Malformed,
-    MalformedReason,
-    Text,
-)
-from fpgalink.catalogue import (
-    ChannelTelemetry,
-    Message,
-    NackReason,
-    ParamAck,
-    ParamGet,
-    ParamNack,
-    ParamSet,
-    References,
-    Telemetry,
-    TelemetryFlags,
-    encode_message,
-    parse_content,
-)
-from fpgalink.connection import (
-    BoardFound,
-    BoardSilent,
-    Connection,
-    CounterDuplicate,
-    CounterGap,
-    CounterLate,
-    EventsDropped,
-    LinkStats,
-    RequestDone,
-    RequestFailed,
-    Role,
-)
+from fpgalink.connection import Connection, LinkStats
 from fpgalink.errors import (
     BoardLost,
     FpgalinkError,
@@ -67,26 +25,16 @@ from fpgalink.errors import (
     PortError,
     RequestTimeout,
     UnknownParameter,
+    ValueMismatch,
 )
-from fpgalink.params import PARAMETERS, Param, ParamType, Scope, lookup, resolve
+from fpgalink.protocol import Role, Telemetry
 
-__version__ = "0.1.0"
+__version__ = "0.2.0"
 
-# The asyncio layer is imported on first use, so the sans-I/O core never pulls in asyncio;
-# type checkers see the real names.
 if TYPE_CHECKING:
-    from fpgalink.aio.link import (
-        Link,
-        LinkEvent,
-        LinkEventKind,
-        LinkState,
-        SyncResult,
-        TelemetrySubscription,
-        open_link,
-    )
+    from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, open_link
 
-_AIO_NAMES = ("Link", "LinkEvent", "LinkEventKind", "LinkState", "SyncResult",
-              "TelemetrySubscription", "open_link")
+_AIO_NAMES = ("Link", "LinkEvent", "LinkEventKind", "open_link")
 
 
 def __getattr__(name: str) -> object:
@@ -98,72 +46,23 @@ def __getattr__(name: str) -> object:
 
 
 __all__ = [
-    "DEFAULT_FRAMING",
-    "PARAMETERS",
-    "AbortReason",
-    "Alive",
-    "Binary",
-    "BoardFound",
     "BoardLost",
-    "BoardSilent",
-    "ChannelTelemetry",
     "Connection",
-    "CountedMessage",
-    "CounterDuplicate",
-    "CounterGap",
-    "CounterLate",
-    "CounterTracker",
-    "DirectCommand",
-    "Disable",
-    "Enable",
-    "EventsDropped",
     "FpgalinkError",
-    "FrameAborted",
-    "FrameDecoder",
-    "FrameTooLong",
-    "Framing",
-    "FramingError",
-    "FramingStats",
     "Link",
     "LinkClosed",
     "LinkEvent",
     "LinkEventKind",
-    "LinkState",
     "LinkStats",
     "LocalProtocolError",
-    "Malformed",
-    "MalformedReason",
-    "Message",
-    "NackReason",
-    "NoiseDropped",
-    "Observation",
-    "Param",
-    "ParamAck",
-    "ParamGet",
-    "ParamNack",
-    "ParamSet",
-    "ParamType",
     "ParameterError",
     "ParameterRefused",
     "PortError",
-    "References",
-    "RequestDone",
-    "RequestFailed",
     "RequestTimeout",
     "Role",
-    "Scope",
-    "SendCounter",
-    "SyncResult",
     "Telemetry",
-    "TelemetryFlags",
-    "TelemetrySubscription",
-    "Text",
     "UnknownParameter",
+    "ValueMismatch",
     "__version__",
-    "encode_frame",
-    "encode_message",
-    "lookup",
     "open_link",
-    "parse_content",
-    "resolve",
 ]

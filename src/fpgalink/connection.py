@@ -1,16 +1,18 @@
 """The sans-I/O link: bytes in, events out; requests in, bytes out; time passed in.
 
-Modelled on h11 and aioquic. Nothing here reads a clock, opens a port or imports asyncio:
-the caller passes ``now`` (seconds, any monotonic origin) and drives
+Modelled on h11 and aioquic. Nothing here reads a clock, opens a port or imports asyncio;
+the caller passes ``now`` (seconds, any monotonic origin) wherever time matters and drives
 
-* ``receive_data(data, now)`` then ``next_event()`` until it returns ``None``;
-* ``send(message)`` → bytes to write, and ``data_to_send()`` for bytes the link itself
-  produced (heartbeats, resends);
-* ``get_timer()`` → when to call ``handle_timer(now)`` next.
+* ``receive_data(data, now)``, then ``next_event()`` until it returns ``None``;
+* ``send(message, now)``, ``enable(now)``, ``set_param(…, now)`` …, then ``data_to_send()``:
+  the one way out for bytes, whoever produced them (the caller's messages, heartbeats,
+  resends);
+* ``get_timer()`` → when to call ``handle_timer(now)`` next;
+* ``port_lost(now, reason)`` and ``reconnected(now)`` when the transport goes and comes back.
 
-Bad input from the board never raises: it is an event (:class:`Malformed`,
-:class:`NoiseDropped`, :class:`FrameAborted`, :class:`CounterGap` …) and a counter in
-:attr:`Connection.stats`.
+Bad input from the board never raises: it is an :class:`~fpgalink.protocol.Event`
+(:class:`~fpgalink.protocol.Malformed`, :class:`~fpgalink.protocol.NoiseDropped`,
+:class:`~fpgalink.events.CounterGap` …) and a counter in :attr:`Connection.stats`.
 """
 
 from __future__ import annotations
@@ -22,40 +24,6 @@ from dataclasses import dataclass, field, fields
 from enum import Enum
 from typing import Any
 
-from fpgalink._counter import CounterTracker, Observation, SendCounter
-from fpgalink._framing import (
-    DEFAULT_FRAMING,
-    AbortReason,
-    FrameAborted,
-    FrameDecoder,
-    Framing,
-    FramingError,
-    NoiseDropped,
-    encode_frame,
-)
-from fpgalink._messages import (
-    ALIVE,
-    DISABLE,
-    ENABLE,
-    Alive,
-    CountedMessage,
-    DirectCommand,
-    Disable,
-    Enable,
-    Malformed,
-)
-from fpgalink._state import EnableState, Liveness, LivenessInput, next_liveness
-from fpgalink.catalogue import (
-    Message,
-    ParamAck,
-    ParamGet,
-    ParamNack,
-    ParamSet,
-    References,
-    Telemetry,
-    encode_message,
-    parse_content,
-)
 from fpgalink.errors import (
     BoardLost,
     FpgalinkError,
@@ -63,103 +31,147 @@ from fpgalink.errors import (
     LocalProtocolError,
     ParameterRefused,
     RequestTimeout,
+    ValueMismatch,
 )
-from fpgalink.params import Param, ParamType, float32
+from fpgalink.events import (
+    BoardFound,
+    BoardSilent,
+    CounterDuplicate,
+    CounterGap,
+    CounterLate,
+    EventsDropped,
+    RequestDone,
+    RequestFailed,
+)
+from fpgalink.protocol import (
+    DEFAULT_FRAMING,
+    AbortReason,
+    Alive,
+    CountedMessage,
+    CounterTracker,
+    DirectCommand,
+    Disable,
+    Enable,
+    Event,
+    FrameAborted,
+    FrameDecoder,
+    Framing,
+    FramingError,
+    Malformed,
+    Message,
+    MessageId,
+    NoiseDropped,
+    Observation,
+    Param,
+    ParamAck,
+    ParamGet,
+    ParamNack,
+    ParamSet,
+    ParamType,
+    References,
+    Role,
+    SendCounter,
+    Telemetry,
+    encode_frame,
+    encode_message,
+    float32,
+    parse_content,
+)
+from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, byte_time_s
 
 __all__ = [
-    "BoardFound",
-    "BoardSilent",
+    "REQUEST_TABLE",
+    "Answer",
     "Connection",
-    "CounterDuplicate",
-    "CounterGap",
-    "CounterLate",
-    "EventsDropped",
     "LinkStats",
-    "RequestDone",
-    "RequestFailed",
-    "Role",
+    "Liveness",
+    "Outcome",
 ]
 
+_ENABLE, _DISABLE = Enable(), Disable()
+#: Bytes decoded between two checks of the event cap, so one huge read cannot fill memory.
+_RECEIVE_SLICE = 1 << 16
+#: Events that are never dropped when the queue overflows: they settle requests or liveness.
+_KEEP_ON_OVERFLOW = (RequestDone, RequestFailed, BoardFound, BoardSilent)
 
-class Role(Enum):
-    HOST = "host"
-    BOARD = "board"
+
+class Liveness(Enum):
+    UNKNOWN = "unknown"  #: nothing heard since the port (re)opened
+    ALIVE = "alive"
+    LOST = "lost"  #: silent for longer than the liveness timeout, or the port is gone
 
 
-_SENT_BY = {
-    Role.HOST: (ParamSet, ParamGet, References, Enable, Disable, CountedMessage),
-    Role.BOARD: (ParamAck, ParamNack, Telemetry, Alive, CountedMessage),
+# --- the request lifecycle --------------------------------------------------------------------
+
+
+class Answer(Enum):
+    """What the board did about a pending parameter request: the table's input."""
+
+    ECHO = "a PA with the same id, channel, type code and value (any value for a get)"
+    OTHER_VALUE = "a PA for the same parameter with another value or type code"
+    REFUSED = "a PN for the same parameter"
+    NO_ANSWER = "the try's timeout passed without either"
+    LINK_DOWN = "the board was lost, the port vanished or the link closed"
+
+
+class Outcome(Enum):
+    DONE = "confirmed: the value is in force"
+    RESEND = "send the request again (the next try)"
+    FAIL_REFUSED = "failed: the board refused (final)"
+    FAIL_MISMATCH = "failed: the board answered with another value"
+    FAIL_TIMEOUT = "failed: no answer"
+    FAIL_LINK = "failed: the link went down"
+
+
+#: (answer, another try allowed?) → what happens to the request. Every pending request is
+#: settled by this table and nothing else.
+REQUEST_TABLE: dict[tuple[Answer, bool], Outcome] = {
+    (Answer.ECHO, True): Outcome.DONE,
+    (Answer.ECHO, False): Outcome.DONE,
+    (Answer.OTHER_VALUE, True): Outcome.RESEND,
+    (Answer.OTHER_VALUE, False): Outcome.FAIL_MISMATCH,
+    (Answer.REFUSED, True): Outcome.FAIL_REFUSED,
+    (Answer.REFUSED, False): Outcome.FAIL_REFUSED,
+    (Answer.NO_ANSWER, True): Outcome.RESEND,
+    (Answer.NO_ANSWER, False): Outcome.FAIL_TIMEOUT,
+    (Answer.LINK_DOWN, True): Outcome.FAIL_LINK,
+    (Answer.LINK_DOWN, False): Outcome.FAIL_LINK,
 }
 
 
-# --- events beyond the messages themselves ----------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class CounterGap:
-    """Counters were skipped before ``counter``: ``lost`` messages never arrived (so far)."""
-
-    lost: int
-    counter: int
-
-
-@dataclass(frozen=True, slots=True)
-class CounterDuplicate:
-    counter: int
-
-
-@dataclass(frozen=True, slots=True)
-class CounterLate:
-    """A message reported missing arrived after all (reordered on the way)."""
-
-    counter: int
-
-
-@dataclass(frozen=True, slots=True)
-class BoardSilent:
-    """Nothing well-formed heard for longer than the liveness timeout: the board is lost."""
-
-    silent_for: float
-
-
-@dataclass(frozen=True, slots=True)
-class BoardFound:
-    """The board is heard again after being lost (or for the first time)."""
-
-
-@dataclass(frozen=True, slots=True)
-class EventsDropped:
-    """The caller did not drain events and the queue hit its cap; the oldest were dropped."""
-
-    count: int
-
-
-@dataclass(frozen=True, slots=True)
-class RequestDone:
-    """A parameter request was confirmed: ``value`` is what the board says is in force."""
-
+@dataclass(slots=True)
+class _Request:
     request_id: int
     param: Param
     channel: int
-    value: int | float
+    value: int | float | None  #: None for a get
+    deadline: float
     tries: int
+    message: ParamSet | ParamGet
+    last_answer: ParamAck | None = None  #: the last PA that did not match
 
+    @property
+    def what(self) -> str:
+        verb = "set" if self.value is not None else "get"
+        return f"{verb} {self.param.full_name(self.channel)}"
 
-@dataclass(frozen=True, slots=True)
-class RequestFailed:
-    request_id: int
-    param: Param
-    channel: int
-    error: FpgalinkError
-    tries: int
-
-
-Event = Any  # messages, framing errors and the dataclasses above; see docs/protocol.md
+    def answer_to(self, ack: ParamAck) -> Answer:
+        """Whether ``ack`` confirms this request: same type code, and for a set exactly the
+        value sent (float32-exact for floats; never raises on any value the board sends)."""
+        if ack.value_type != self.param.type:
+            return Answer.OTHER_VALUE
+        if self.value is None:
+            return Answer.ECHO
+        if self.param.type is ParamType.FLOAT:
+            same = float32(float(self.value)) == ack.value
+        else:
+            same = isinstance(ack.value, int) and ack.value == self.value
+        return Answer.ECHO if same else Answer.OTHER_VALUE
 
 
 @dataclass(slots=True)
 class LinkStats:
-    """Everything the link counted. Plain integers, cheap to read; ``snapshot()`` copies."""
+    """Everything the link counted, each count kept here only. ``snapshot()`` copies."""
 
     bytes_received: int = 0
     bytes_sent: int = 0
@@ -178,8 +190,11 @@ class LinkStats:
     #: counters judged damaged: a jump the next counter did not confirm (no checksum)
     corrupt_counters: int = 0
     retries: int = 0  #: parameter requests resent
+    echo_mismatches: int = 0  #: PA echoes with another value than the pending request's
     heartbeats_sent: int = 0
     heartbeat_misses: int = 0  #: times the board went silent past the liveness timeout
+    #: references replaced by a newer one before the line had room to send them
+    references_superseded: int = 0
     events_dropped: int = 0
     subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
     port_losses: int = 0
@@ -199,35 +214,26 @@ class LinkStats:
         return self.aborted_frames + self.overflows + self.malformed
 
 
-@dataclass(slots=True)
-class _Request:
-    request_id: int
-    param: Param
-    channel: int
-    value: int | float | None  #: None for a get
-    deadline: float
-    tries: int
-    message: ParamSet | ParamGet
-
-
-def _same_value(param: Param, a: float, b: float) -> bool:
-    if param.type is ParamType.FLOAT:
-        return float32(a) == float32(b) or (math.isnan(a) and math.isnan(b))
-    return int(a) == int(b)
-
-
 class Connection:
-    """One link to one board (or, with ``role=Role.BOARD``, the board's side of it)."""
+    """One link to one board (or, with ``role=Role.BOARD``, the board's side of it).
+
+    ``baud`` lets the connection know how fast the line drains, so references never queue
+    behind more than ``max_reference_delay`` of earlier bytes: a newer ``RV`` replaces one
+    still waiting (only the newest reference matters) and the replacement is counted in
+    :attr:`LinkStats.references_superseded`. ``None`` sends every ``RV`` at once.
+    """
 
     def __init__(
         self,
         role: Role = Role.HOST,
         *,
         framing: Framing = DEFAULT_FRAMING,
+        baud: int | None = 1_000_000,
         heartbeat_interval: float = 0.1,
         liveness_timeout: float = 0.7,
         request_timeout: float = 0.05,
         request_tries: int = 8,
+        max_reference_delay: float = 0.005,
         max_events: int = 65536,
     ) -> None:
         if not 0 < heartbeat_interval < 0.3:
@@ -235,91 +241,127 @@ class Connection:
                 f"heartbeat_interval must be below the board's 300 ms watchdog, got "
                 f"{heartbeat_interval!r} s"
             )
-        if request_tries < 1 or request_timeout <= 0 or liveness_timeout <= 0:
-            raise ValueError("request_tries ≥ 1 and positive timeouts are required")
+        for name, value in (("request_timeout", request_timeout),
+                            ("liveness_timeout", liveness_timeout),
+                            ("max_reference_delay", max_reference_delay)):
+            if not (math.isfinite(value) and value > 0):
+                raise ValueError(f"{name} must be a positive finite number of seconds, "
+                                 f"got {value!r}")
+        if request_tries < 1 or max_events < 1:
+            raise ValueError("request_tries and max_events must be at least 1")
+        if baud is not None and not (isinstance(baud, int) and MIN_BAUD <= baud <= MAX_BAUD):
+            raise ValueError(f"baud must be a whole number from {MIN_BAUD:,} to {MAX_BAUD:,}, "
+                             f"got {baud!r}")
         self.role = role
         self.framing = framing
         self.heartbeat_interval = heartbeat_interval
         self.liveness_timeout = liveness_timeout
         self.request_timeout = request_timeout
         self.request_tries = request_tries
+        self.max_reference_delay = max_reference_delay
         self.stats = LinkStats()
         self.counter_tracker = CounterTracker()
+        self.latest_telemetry: Telemetry | None = None
+        self.liveness = Liveness.UNKNOWN
+        self.enabled = False  #: we send ``RE`` every heartbeat interval
+        self._byte_time = byte_time_s(baud) if baud is not None else 0.0
         self._decoder = FrameDecoder(framing)
         self._send_counter = SendCounter()
         self._events: deque[Event] = deque()
         self._max_events = max_events
         self._outbox = bytearray()
-        self.liveness = Liveness.UNKNOWN
-        self.enable_state = EnableState.DISABLED
+        self._port_up = True
         self._last_heard: float | None = None
         self._liveness_origin: float | None = None
         self._next_heartbeat: float | None = None
+        self._line_free_at = 0.0  #: when the bytes handed out so far have left the line
+        self._held_reference: References | None = None
         self._requests: dict[int, _Request] = {}
         self._next_request_id = 1
-        self.latest_telemetry: Telemetry | None = None
 
     # --- receiving ------------------------------------------------------------------------
 
-    def receive_data(self, data: bytes | bytearray | memoryview, now: float | None = None) -> None:
-        """Feed bytes from the wire. ``now`` (if given) dates the arrival for liveness."""
+    def receive_data(self, data: bytes | bytearray | memoryview, now: float) -> None:
+        """Feed bytes from the wire that arrived at ``now``."""
+        self.stats.bytes_received += len(data)
+        if len(data) <= _RECEIVE_SLICE:
+            self._receive(data, now)
+            return
+        view = memoryview(data)
+        for start in range(0, len(view), _RECEIVE_SLICE):
+            self._receive(view[start : start + _RECEIVE_SLICE], now)
+
+    def _receive(self, data: bytes | bytearray | memoryview, now: float) -> None:
         stats = self.stats
-        stats.bytes_received += len(data)
         events = self._events
         append = events.append
         tracker = self.counter_tracker
         frames = telemetry = counted = 0
         latest: Telemetry | None = None
-        heard = False
+        found = self.liveness is Liveness.ALIVE
         for item in self._decoder.feed(data):
             if type(item) is not bytes:
-                self._framing_event(item)  # type: ignore[arg-type]
+                assert isinstance(item, FramingError)
+                self._framing_event(item)
                 continue
             frames += 1
             msg = parse_content(item)
-            kind = type(msg)
-            if kind is Telemetry:
-                # The 1 kHz path: no attribute lookups beyond the counter check.
-                telemetry += 1
-                latest = msg  # type: ignore[assignment]
-                counter = msg.counter  # type: ignore[union-attr]
-            elif kind is Malformed:
+            if isinstance(msg, Malformed):
                 stats.malformed += 1
-                key = msg.reason.name  # type: ignore[union-attr]
+                key = msg.reason.name
                 stats.malformed_by_reason[key] = stats.malformed_by_reason.get(key, 0) + 1
                 append(msg)
                 continue
+            if not found:
+                # The board is known to be there before the message that shows it.
+                self._found(now)
+                found = True
+            if type(msg) is Telemetry:
+                # The 1 kHz path: no attribute lookups beyond the counter check.
+                telemetry += 1
+                latest = msg
+                counter = msg.counter
+            elif isinstance(msg, DirectCommand):
+                if type(msg) is Alive:
+                    stats.alive_received += 1
+                append(msg)
+                continue
             else:
-                heard = True
-                counter = getattr(msg, "counter", None)
-                if counter is None:  # a direct command
-                    if msg is ALIVE:
-                        stats.alive_received += 1
-                    append(msg)
-                    continue
-                if kind is ParamAck or kind is ParamNack:
-                    self._match_request(msg, now)  # type: ignore[arg-type]
+                counter = msg.counter
+                if type(msg) is ParamAck or type(msg) is ParamNack:
+                    self._answer(msg, now)
             counted += 1
+            assert counter is not None
             if tracker.expected == counter:
-                tracker.expected = counter + 1 if counter != 99_999 else 0  # type: ignore[operator]
+                tracker.expected = counter + 1 if counter != 99_999 else 0
                 tracker.received += 1
             else:
-                self._counter_event(tracker.observe(counter), counter)  # type: ignore[arg-type]
+                self._counter_event(tracker.observe(counter), counter)
             append(msg)
         stats.frames_received += frames
         stats.messages_received += counted
         if telemetry:
-            heard = True
             stats.telemetry_received += telemetry
             self.latest_telemetry = latest
-        if heard and now is not None:
-            self._heard(now)
+        if found:
+            self._last_heard = now
         if len(events) > self._max_events:
-            excess = len(events) - self._max_events
-            for _ in range(excess):
-                events.popleft()
-            stats.events_dropped += excess
-            events.append(EventsDropped(excess))
+            self._trim_events()
+
+    def _trim_events(self) -> None:
+        events = self._events
+        excess = len(events) - self._max_events
+        kept: list[Event] = []
+        dropped = 0
+        while dropped < excess and events:
+            event = events.popleft()
+            if isinstance(event, _KEEP_ON_OVERFLOW):
+                kept.append(event)
+            else:
+                dropped += 1
+        events.extendleft(reversed(kept))
+        self.stats.events_dropped += dropped
+        events.append(EventsDropped(dropped))
 
     def _framing_event(self, item: FramingError) -> None:
         stats = self.stats
@@ -327,9 +369,9 @@ class Connection:
             stats.noise_bytes += item.dropped
         elif isinstance(item, FrameAborted):
             if item.reason is AbortReason.OVERFLOW:
-                stats.overflows += 1
+                stats.overflows += item.count
             else:
-                stats.aborted_frames += 1
+                stats.aborted_frames += item.count
         self._events.append(item)
 
     def _counter_event(self, observation: Observation, counter: int) -> None:
@@ -361,75 +403,87 @@ class Connection:
 
     # --- sending --------------------------------------------------------------------------
 
-    def send(self, message: Message | CountedMessage | DirectCommand) -> bytes:
-        """Wire bytes for ``message``; a counted message takes the next counter value."""
-        if not isinstance(message, _SENT_BY[self.role]):
-            raise LocalProtocolError(
-                f"a {self.role.value} does not send {type(message).__name__}"
-            )
+    def send(self, message: Message | CountedMessage | DirectCommand, now: float) -> None:
+        """Queue ``message`` for :meth:`data_to_send`; a counted message takes the next
+        counter value when it goes out. A reference may wait for line room (see the class)."""
+        sender = getattr(message, "msg_id", None)
+        if not isinstance(message, CountedMessage) and (
+            not isinstance(sender, bytes) or _sender_of(sender) is not self.role
+        ):
+            raise LocalProtocolError(f"a {self.role.value} does not send {type(message).__name__}")
+        if type(message) is References:
+            if not (math.isfinite(message.ref_a) and math.isfinite(message.ref_b)):
+                raise LocalProtocolError(
+                    f"references must be finite numbers, got ({message.ref_a!r}, "
+                    f"{message.ref_b!r})"
+                )
+            if self._byte_time and self._line_free_at - now > self.max_reference_delay:
+                if self._held_reference is not None:
+                    self.stats.references_superseded += 1
+                self._held_reference = message
+                return
+        self._queue(message, now)
+
+    def data_to_send(self) -> bytes:
+        """Every byte to write to the port now, in order."""
+        out = bytes(self._outbox)
+        self._outbox.clear()
+        return out
+
+    def _queue(self, message: Message | CountedMessage | DirectCommand, now: float) -> None:
         if isinstance(message, DirectCommand):
             content = message.content
         else:
             content = encode_message(message, self._send_counter.take())
         wire = encode_frame(content, self.framing)
+        self._outbox += wire
         self.stats.frames_sent += 1
         self.stats.bytes_sent += len(wire)
-        return wire
-
-    def reset_receiver(self) -> None:
-        """Drop any half-received frame (after a reconnect the stream starts afresh)."""
-        self._decoder.reset()
-
-    def data_to_send(self) -> bytes:
-        """Bytes the link produced on its own (heartbeats, request resends)."""
-        out = bytes(self._outbox)
-        self._outbox.clear()
-        return out
-
-    def _queue(self, message: Message | DirectCommand) -> None:
-        self._outbox += self.send(message)
+        self._line_free_at = max(now, self._line_free_at) + len(wire) * self._byte_time
 
     @property
     def next_counter(self) -> int:
+        """The counter value the next counted message will carry."""
         return self._send_counter.value
 
     # --- heartbeat and liveness -----------------------------------------------------------
 
+    def start(self, now: float) -> None:
+        """Begin expecting the board: silence from ``now`` on counts."""
+        self._liveness_origin = now
+
     def enable(self, now: float) -> None:
         """Send ``RE`` now and every ``heartbeat_interval`` until :meth:`disable`."""
-        self.enable_state = EnableState.ENABLED
+        self.enabled = True
         self._heartbeat(now)
 
     def disable(self, now: float) -> None:
         """Stop the heartbeat and send ``RD`` (the board drops enable at once)."""
-        self.enable_state = EnableState.DISABLED
+        self.enabled = False
         self._next_heartbeat = None
-        self._queue(DISABLE)
+        if self._port_up:
+            self._queue(_DISABLE, now)
 
     def _heartbeat(self, now: float) -> None:
-        self._queue(ENABLE)
-        self.stats.heartbeats_sent += 1
+        if self._port_up:
+            self._queue(_ENABLE, now)
+            self.stats.heartbeats_sent += 1
         self._next_heartbeat = now + self.heartbeat_interval
 
-    def start_liveness(self, now: float) -> None:
-        """Begin expecting the board: silence from ``now`` on counts."""
-        self._liveness_origin = now
-
-    def _heard(self, now: float) -> None:
-        self._last_heard = now
-        before = self.liveness
-        self.liveness = next_liveness(before, LivenessInput.HEARD)
-        if before is not Liveness.ALIVE:
-            self._events.append(BoardFound())
+    def _found(self, now: float) -> None:
+        self.liveness = Liveness.ALIVE
+        self._events.append(BoardFound())
 
     def get_timer(self) -> float | None:
         """The next time :meth:`handle_timer` has work to do, or ``None``."""
         deadlines = [r.deadline for r in self._requests.values()]
-        if self._next_heartbeat is not None:
+        if self._next_heartbeat is not None and self._port_up:
             deadlines.append(self._next_heartbeat)
         silence = self._silence_deadline()
         if silence is not None:
             deadlines.append(silence)
+        if self._held_reference is not None:
+            deadlines.append(self._line_free_at - self.max_reference_delay)
         return min(deadlines) if deadlines else None
 
     def _silence_deadline(self) -> float | None:
@@ -441,32 +495,57 @@ class Connection:
     def handle_timer(self, now: float) -> None:
         if self._next_heartbeat is not None and now >= self._next_heartbeat:
             self._heartbeat(now)
+        held = self._held_reference
+        if held is not None and self._line_free_at - now <= self.max_reference_delay:
+            self._held_reference = None
+            self._queue(held, now)
         silence = self._silence_deadline()
         if silence is not None and now >= silence:
             origin = self._last_heard if self._last_heard is not None else self._liveness_origin
             assert origin is not None
-            self.liveness = next_liveness(self.liveness, LivenessInput.SILENT)
+            self.liveness = Liveness.LOST
             self.stats.heartbeat_misses += 1
             self._events.append(BoardSilent(now - origin))
-            self.fail_requests(BoardLost(f"board silent for {now - origin:.3f} s"))
+            self._settle_all(BoardLost(f"board silent for {now - origin:.3f} s"))
         for request in list(self._requests.values()):
             if now >= request.deadline:
-                if request.tries >= self.request_tries:
-                    del self._requests[request.request_id]
-                    what = (
-                        f"set {request.param.full_name(request.channel)}"
-                        if request.value is not None
-                        else f"get {request.param.full_name(request.channel)}"
-                    )
-                    self._events.append(
-                        RequestFailed(
-                            request.request_id, request.param, request.channel,
-                            RequestTimeout(what, request.tries, self.request_timeout),
-                            request.tries,
-                        )
-                    )
-                else:
-                    self._resend(request, now)
+                self._settle(request, Answer.NO_ANSWER, now)
+
+    # --- the port -------------------------------------------------------------------------
+
+    def port_lost(self, now: float, reason: str) -> None:
+        """The transport went away: pending requests fail, nothing is sent until
+        :meth:`reconnected`."""
+        self.stats.port_losses += 1
+        self._port_up = False
+        self.liveness = Liveness.LOST
+        self._outbox.clear()
+        self._held_reference = None
+        self._settle_all(BoardLost(reason))
+
+    def reconnected(self, now: float) -> None:
+        """A new transport to the board: the stream starts afresh (the board may have
+        restarted, so its counter need not continue ours), liveness is judged anew from
+        ``now``, and an enabled link sends ``RE`` at once."""
+        self.stats.reconnects += 1
+        self._port_up = True
+        self.counter_tracker.reset()
+        self._decoder.reset()
+        self.liveness = Liveness.UNKNOWN
+        self._last_heard = None
+        self._liveness_origin = now
+        self._line_free_at = now
+        if self.enabled:
+            self._heartbeat(now)
+
+    def close(self, now: float) -> None:
+        """Stop the heartbeat (queueing ``RD`` if enabled) and fail pending requests with
+        :class:`~fpgalink.errors.LinkClosed`."""
+        if self.enabled:
+            self.disable(now)
+        self._next_heartbeat = None
+        self._held_reference = None
+        self._settle_all(LinkClosed("link closed while the request was pending"))
 
     # --- parameter requests ---------------------------------------------------------------
 
@@ -488,55 +567,75 @@ class Connection:
         request = _Request(request_id, param, channel, value, now + self.request_timeout, 1,
                            message)
         self._requests[request_id] = request
-        self._queue(message)
+        self._queue(message, now)
         return request_id
 
-    def _resend(self, request: _Request, now: float) -> None:
-        request.tries += 1
-        request.deadline = now + self.request_timeout
-        self.stats.retries += 1
-        self._queue(request.message)
-
-    def _match_request(self, msg: ParamAck | ParamNack, now: float | None) -> None:
-        for request in self._requests.values():
-            if request.param.id != msg.param_id or request.channel != msg.channel:
-                continue
-            if isinstance(msg, ParamNack):
-                del self._requests[request.request_id]
-                error = ParameterRefused(
-                    request.param.full_name(request.channel), msg.channel, msg.reason, msg.error
-                )
-                self._events.append(
-                    RequestFailed(request.request_id, request.param, request.channel, error,
-                                  request.tries)
-                )
-                return
-            if request.value is None or _same_value(request.param, request.value, msg.value):
-                del self._requests[request.request_id]
-                self._events.append(
-                    RequestDone(request.request_id, request.param, request.channel, msg.value,
-                                request.tries)
-                )
-                return
-            # An echo with another value (an older request's, or a lost PS): try again now.
-            if request.tries < self.request_tries:
-                self._resend(request, now if now is not None else request.deadline)
+    def _answer(self, msg: ParamAck | ParamNack, now: float) -> None:
+        """Settle the pending requests for the parameter ``msg`` is about."""
+        waiting = [r for r in self._requests.values()
+                   if r.param.id == msg.param_id and r.channel == msg.channel]
+        if not waiting:
             return
+        if isinstance(msg, ParamNack):
+            for request in waiting:
+                self._settle(request, Answer.REFUSED, now, msg)
+            return
+        # The first request this echo confirms takes it; for every other, it is another value.
+        for request in waiting:
+            if request.answer_to(msg) is Answer.ECHO:
+                self._settle(request, Answer.ECHO, now, msg)
+                return
+        for request in waiting:
+            self.stats.echo_mismatches += 1
+            request.last_answer = msg
+            self._settle(request, Answer.OTHER_VALUE, now, msg)
 
-    def fail_requests(self, error: FpgalinkError) -> None:
-        """Fail every pending request with ``error`` (board lost, link closed)."""
+    def _settle(self, request: _Request, answer: Answer, now: float,
+                msg: ParamAck | ParamNack | None = None,
+                error: FpgalinkError | None = None) -> None:
+        outcome = REQUEST_TABLE[(answer, request.tries < self.request_tries)]
+        if outcome is Outcome.RESEND:
+            request.tries += 1
+            request.deadline = now + self.request_timeout
+            self.stats.retries += 1
+            self._queue(request.message, now)
+            return
+        del self._requests[request.request_id]
+        if outcome is Outcome.DONE:
+            assert isinstance(msg, ParamAck)
+            self._events.append(RequestDone(request.request_id, request.param, request.channel,
+                                            msg.value, request.tries))
+            return
+        if outcome is Outcome.FAIL_REFUSED:
+            assert isinstance(msg, ParamNack)
+            error = ParameterRefused(request.param.full_name(request.channel), msg.channel,
+                                     msg.reason, msg.error)
+        elif outcome is Outcome.FAIL_MISMATCH:
+            assert isinstance(msg, ParamAck)
+            error = ValueMismatch(request.what, request.tries, request.value, msg.value,
+                                  msg.value_type)
+        elif outcome is Outcome.FAIL_TIMEOUT:
+            if request.last_answer is not None:
+                last = request.last_answer
+                error = ValueMismatch(request.what, request.tries, request.value, last.value,
+                                      last.value_type)
+            else:
+                error = RequestTimeout(request.what, request.tries, self.request_timeout)
+        assert error is not None
+        self._events.append(RequestFailed(request.request_id, request.param, request.channel,
+                                          error, request.tries))
+
+    def _settle_all(self, error: FpgalinkError) -> None:
         for request in list(self._requests.values()):
-            self._events.append(
-                RequestFailed(request.request_id, request.param, request.channel, error,
-                              request.tries)
-            )
-        self._requests.clear()
-
-    def close(self) -> None:
-        self._next_heartbeat = None
-        self.enable_state = EnableState.DISABLED
-        self.fail_requests(LinkClosed("link closed while the request was pending"))
+            self._settle(request, Answer.LINK_DOWN, 0.0, error=error)
 
     @property
     def pending_requests(self) -> int:
         return len(self._requests)
+
+
+def _sender_of(msg_id: bytes) -> Role | None:
+    try:
+        return MessageId(msg_id).sender
+    except ValueError:
+        return None

@@ -1,7 +1,14 @@
 """Exception types. Bad input *from the peer* never raises: it becomes a counted event
-(see :mod:`fpgalink.connection`). These are for what the caller asked for and did not get."""
+(see :mod:`fpgalink.events`). These are for what the caller asked for and did not get."""
 
 from __future__ import annotations
+
+from fpgalink.protocol.errors import (
+    FpgalinkError,
+    LocalProtocolError,
+    ParameterError,
+    UnknownParameter,
+)
 
 __all__ = [
     "BoardLost",
@@ -13,26 +20,12 @@ __all__ = [
     "PortError",
     "RequestTimeout",
     "UnknownParameter",
+    "ValueMismatch",
 ]
 
 
-class FpgalinkError(Exception):
-    """Base of every error this package raises."""
-
-
-class LocalProtocolError(FpgalinkError, ValueError):
-    """We were asked to send something the protocol cannot carry (too long, bad ID, ...)."""
-
-
-class ParameterError(FpgalinkError, ValueError):
-    """A parameter name, channel, type or value rejected on the host before anything is sent."""
-
-
-class UnknownParameter(ParameterError, KeyError):
-    """No parameter has this name or id."""
-
-    def __str__(self) -> str:  # KeyError would quote the message
-        return str(self.args[0]) if self.args else ""
+def _channel_label(channel: int) -> str:
+    return {1: "A", 2: "B"}.get(channel, str(channel))
 
 
 class ParameterRefused(FpgalinkError):
@@ -43,19 +36,37 @@ class ParameterRefused(FpgalinkError):
         self.channel = channel
         self.reason = reason
         self.code = code
-        label = {1: "A", 2: "B"}.get(channel, str(channel))
-        where = "" if channel == 0 else f" on channel {label}"
+        where = "" if channel == 0 else f" on channel {_channel_label(channel)}"
         super().__init__(f"board refused {name}{where}: {reason} (PN error {code})")
 
 
 class RequestTimeout(FpgalinkError, TimeoutError):
-    """No matching answer after every allowed try."""
+    """No answer at all after every allowed try."""
 
     def __init__(self, what: str, tries: int, timeout_s: float) -> None:
         self.what = what
         self.tries = tries
         self.timeout_s = timeout_s
         super().__init__(f"{what}: no answer after {tries} tries ({timeout_s:g} s each)")
+
+
+class ValueMismatch(FpgalinkError):
+    """The board kept answering, but with another value (or value type) than the one sent:
+    nothing was confirmed. ``answered`` is the last value it reported in force."""
+
+    def __init__(self, what: str, tries: int, asked: int | float | None,
+                 answered: int | float, answered_type: int) -> None:
+        self.what = what
+        self.tries = tries
+        self.asked = asked  #: ``None`` for a get (the answer had the wrong type code)
+        self.answered = answered
+        self.answered_type = answered_type
+        kind = {1: "integer", 2: "float"}.get(answered_type, f"type code {answered_type}")
+        wanted = f"asked {asked!r}, " if asked is not None else ""
+        super().__init__(
+            f"{what}: the board answered with another value after {tries} tries: "
+            f"{wanted}the board reports {answered!r} ({kind})"
+        )
 
 
 class LinkClosed(FpgalinkError, ConnectionError):

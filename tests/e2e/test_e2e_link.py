@@ -7,10 +7,10 @@ import asyncio
 from collections.abc import AsyncIterator
 
 import pytest
-from e2e_helpers import serve, stream, valid_value
 
 from fpgalink.aio import Link, open_link
-from fpgalink.params import ParamType, float32, iter_addresses
+from fpgalink.protocol.params import ParamType, float32, iter_addresses
+from tests.support.served import serve, stream, valid_value
 
 STREAM_SECONDS = 5.0
 #: The board is paced to the wall clock, so 5 s give 5,000 periods; allow for the board
@@ -63,7 +63,7 @@ async def stream_at_1ms_and_check(link: Link, seconds: float = STREAM_SECONDS) -
 @pytest.mark.timeout(40)
 async def test_every_parameter_then_1khz_telemetry(board_url: str) -> None:
     async with open_link(board_url) as link:
-        await link.enable()
+        link.enable()
         await set_and_read_every_parameter(link)
         await stream_at_1ms_and_check(link)
         assert link.stats.retries == 0
@@ -77,8 +77,8 @@ async def test_two_boards_left_and_right_in_one_program() -> None:
         assert server.ready["L"] != server.ready["R"]
         async with open_link(server.ready["L"], name="L") as left, \
                 open_link(server.ready["R"], name="R") as right:
-            await left.enable()
-            await right.enable()
+            left.enable()
+            right.enable()
             # Each board keeps its own values.
             assert await left.set_param("Kp_Wheel_PidA", 1.5) == 1.5
             assert await right.set_param("Kp_Wheel_PidA", 2.5) == 2.5

@@ -9,9 +9,9 @@ import time
 
 import pytest
 import serial
-from e2e_helpers import serve, wait_until
 
 from fpgalink.aio import open_link
+from tests.support.served import serve, wait_until
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -74,5 +74,5 @@ async def test_closing_a_link_releases_the_serial_port_at_once() -> None:
     async with serve("--pty") as srv:
         for _ in range(3):
             async with open_link(srv.url) as link:
-                await link.enable()
+                link.enable()
                 assert await link.get_param("TsTimerPeriod") == 1

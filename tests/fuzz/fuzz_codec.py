@@ -1,8 +1,8 @@
 """Coverage-guided fuzzing of the frame decoder and the message parser with atheris.
 
-Run longer than CI does:
+Run longer than CI does, from the repository root:
 
-    .venv/bin/python tests/fuzz/fuzz_codec.py -atheris_runs=0 -max_total_time=600 \
+    .venv/bin/python -m tests.fuzz.fuzz_codec -atheris_runs=0 -max_total_time=600 \
         tests/fuzz/corpus
 
 Each input is split in two: the first byte picks framing bytes and chunk sizes, the rest is
@@ -15,15 +15,13 @@ Any crash found becomes a file in tests/fuzz/regressions/, replayed by test_fuzz
 from __future__ import annotations
 
 import sys
-from pathlib import Path
 
 import atheris
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-
 with atheris.instrument_imports():
-    from fpgalink import Connection, FrameDecoder, Framing, parse_content
-    from models import NaiveFrameDecoder
+    from fpgalink import Connection
+    from fpgalink.protocol import FrameDecoder, Framing, parse_content
+    from tests.support.reference import NaiveFrameDecoder
 
 
 def check(data: bytes) -> None:

@@ -19,10 +19,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from reliability_harness import STREAMING, body_of, content_of, make_rig, scale
 
 from fpgalink import Telemetry
-from fpgalink.connection import CounterDuplicate, CounterGap, CounterLate
+from fpgalink.events import CounterDuplicate, CounterGap, CounterLate
+from tests.support.rig import STREAMING, body_of, content_of, make_rig, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -86,6 +86,7 @@ def run_accounting(faults: list[str], seconds: float, seed: int) -> Accounting:
     intact = wrong_values = wrong_counter = 0
     for message in delivered:
         content = content_of(message)
+        assert message.counter is not None
         if sent.get(message.counter) == content:
             intact += 1
         elif body_of(content) in by_body:

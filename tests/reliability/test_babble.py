@@ -7,10 +7,10 @@ import random
 import tracemalloc
 
 import pytest
-from reliability_harness import STREAMING, make_rig, scale
 
 from fpgaemu.faults import Babbler
 from fpgalink import Connection
+from tests.support.rig import STREAMING, make_rig, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -55,7 +55,7 @@ def test_garbage_into_the_host_decoder_at_line_rate() -> None:
     seconds = scale(20, 60)
     rnd = random.Random(5)
     conn = Connection()
-    conn.start_liveness(0.0)
+    conn.start(0.0)
     tracemalloc.start()
     early = 0
     for ms in range(seconds * 1000):

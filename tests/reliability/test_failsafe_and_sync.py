@@ -7,15 +7,16 @@ import random
 from typing import Any
 
 import pytest
-from reliability_harness import make_rig, scale
 
-from fpgaemu.firmware import Firmware
+from fpgaemu.board import Board
 from fpgaemu.timeline import CLOCK_HZ, seconds_to_cycles
 from fpgaemu.uartcommand import EnableChange
-from fpgalink import References, RequestTimeout
-from fpgalink.catalogue import Telemetry
-from fpgalink.connection import Connection, RequestDone, RequestFailed
-from fpgalink.params import PARAMETERS, ParamType, Scope, float32
+from fpgalink import Connection, RequestTimeout
+from fpgalink.events import RequestDone, RequestFailed
+from fpgalink.protocol import References
+from fpgalink.protocol.catalogue import Telemetry
+from fpgalink.protocol.params import PARAMETERS, ParamType, Scope, float32
+from tests.support.rig import make_rig, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -33,22 +34,22 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
         rig.step_s = rnd.uniform(0.0005, 0.003)
         falls: list[EnableChange] = []
         duties: list[tuple[int, int]] = []
-        firmware: Firmware = rig.firmware
 
-        def on_enable(change: EnableChange, fw: Firmware = firmware,
+        def on_enable(change: EnableChange, board: Board = rig.board,
                       out: list[EnableChange] = falls,
                       duty: list[tuple[int, int]] = duties) -> None:
             if not change.enabled:
                 out.append(change)
-                duty.append((fw.channels[1].pwm.applied_duty, fw.channels[2].pwm.applied_duty))
+                duty.append((board.channels[1].pwm.applied_duty,
+                             board.channels[2].pwm.applied_duty))
 
         rig.board.axi.on_global_enable(on_enable)
         rig.conn.enable(rig.now)
         rig.write(rig.conn.data_to_send())
-        rig.write(rig.conn.send(References(60.0, -60.0)))
+        rig.send(References(60.0, -60.0))
         rig.run(rnd.uniform(0.8, 1.6))
         assert rig.board.global_enable and not falls
-        speed_before = abs(firmware.channels[1].plant.speed_dps)
+        speed_before = abs(rig.wheel(1).speed_dps)
         assert speed_before > 30.0
         stall_s = rnd.choice([rnd.uniform(0.05, 0.18), rnd.uniform(0.35, 2.0), float("inf")])
         rig.host_alive = False
@@ -62,7 +63,7 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
             assert duties[0] == (0, 0)
             if stall_s > 1.5:
                 # The wheels coast down once the PWM is off (plant time constant ≈ 0.24 s).
-                assert abs(firmware.channels[1].plant.speed_dps) < 0.05 * speed_before
+                assert abs(rig.wheel(1).speed_dps) < 0.05 * speed_before
         else:
             # Shorter than the watchdog minus a heartbeat: the board never notices.
             rig.run(stall_s)

@@ -8,10 +8,11 @@ import os
 import tracemalloc
 
 import pytest
-from reliability_harness import scale
 
-from fpgaemu.serve import PacedBoard, TcpEndpoint, board_from_settings
+from fpgaemu.build import build_board
+from fpgaemu.serve import PacedBoard, TcpEndpoint
 from fpgalink import LinkEventKind, open_link
+from tests.support.rig import scale
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -31,14 +32,14 @@ async def until(predicate, timeout: float = 5.0) -> None:  # type: ignore[no-unt
 
 async def test_unplug_replug_cycles_leak_nothing() -> None:
     cycles = scale(20, 20)
-    board = board_from_settings(settings={"TsTimerPeriod": 10, "GetDataPeriodical": 1})
+    board = build_board(settings={"TsTimerPeriod": 10, "GetDataPeriodical": 1})
     endpoint = TcpEndpoint(PacedBoard(board), "127.0.0.1", 0)
     await endpoint.start()
     link = open_link(endpoint.url, reconnect_backoff=(0.005, 0.02))
     await link.open()
     events = link.watch()
     samples = link.telemetry(maxsize=64)
-    await link.enable()
+    link.enable()
     await asyncio.wait_for(samples.__anext__(), 2.0)
 
     async def next_port_event(kind: LinkEventKind) -> None:
@@ -85,7 +86,7 @@ async def test_unplug_replug_cycles_leak_nothing() -> None:
     print(f"\nreconnect x{cycles}: recovery {fastest:.0f}..{slowest:.0f} ms (unplug → sample), "
           f"tasks {tasks0} → {tasks1}, fds {fds0} → {fds1}, "
           f"traced memory {mem0 / 1e3:.0f} kB → {mem1 / 1e3:.0f} kB")
-    assert link.reconnects == cycles + 1
+    assert link.stats.reconnects == cycles + 1
     assert tasks1 <= tasks0 and fds1 <= fds0
     assert mem1 - mem0 < 256_000
     await link.close()

@@ -1,21 +1,25 @@
-"""asyncio layer: :func:`open_link` and :class:`Link` over serial, TCP or ``emu://``."""
+"""asyncio layer: :func:`open_link` and :class:`Link` over serial, TCP or any registered
+scheme (``emu://`` comes from the emulator package)."""
 
 from fpgalink.aio.link import (
     Link,
     LinkEvent,
     LinkEventKind,
     LinkState,
+    Subscription,
     SyncResult,
-    TelemetrySubscription,
     open_link,
 )
+from fpgalink.aio.transport import open_transport, register_scheme
 
 __all__ = [
     "Link",
     "LinkEvent",
     "LinkEventKind",
     "LinkState",
+    "Subscription",
     "SyncResult",
-    "TelemetrySubscription",
     "open_link",
+    "open_transport",
+    "register_scheme",
 ]

@@ -1,48 +1,56 @@
 """The asyncio link: a thin layer over the sans-I/O :class:`~fpgalink.Connection`.
 
-It owns a transport (serial, TCP or an in-process emulator), feeds received bytes to the
-connection, writes what the connection produces, arms one loop timer at
-``Connection.get_timer()``, and turns events into futures (one per pending request),
-telemetry subscriptions and link events. All protocol decisions live in the core.
+Shaped like aioquic's protocol: a :class:`Link` is handed its connection and a transport.
+It feeds received bytes to the connection, writes what the connection produces, arms one
+loop timer at ``Connection.get_timer()``, and turns events into futures (one per pending
+request), telemetry subscriptions and link events. Every protocol decision and every count
+lives in the connection; the link only moves bytes and wakes waiters.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 from collections import deque
-from collections.abc import AsyncIterator, Callable, Iterable, Mapping
+from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
-from typing import Any
+from typing import Generic, TypeVar
 
-from fpgalink._framing import DEFAULT_FRAMING, Framing
-from fpgalink._messages import CountedMessage, DirectCommand
-from fpgalink._state import EnableState, Liveness
-from fpgalink.aio.transport import connect
-from fpgalink.catalogue import Message, References, Telemetry
-from fpgalink.connection import (
-    BoardFound,
-    BoardSilent,
-    Connection,
-    LinkStats,
-    RequestDone,
-    RequestFailed,
-)
+from fpgalink.aio.transport import ProtocolFactory, open_transport
+from fpgalink.connection import Connection, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.params import Param, resolve
+from fpgalink.events import BoardFound, BoardSilent, RequestDone, RequestFailed
+from fpgalink.protocol import (
+    DEFAULT_FRAMING,
+    CountedMessage,
+    DirectCommand,
+    Event,
+    Framing,
+    Message,
+    Param,
+    References,
+    Telemetry,
+    resolve,
+)
+from fpgalink.protocol.params import iter_addresses
 
 __all__ = [
     "Link",
     "LinkEvent",
     "LinkEventKind",
     "LinkState",
+    "Reopen",
+    "Subscription",
     "SyncResult",
-    "TelemetrySubscription",
     "open_link",
 ]
+
+T = TypeVar("T")
+
+#: Opens a transport to the board (again, after the port vanished), given the protocol.
+Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
 
 
 class LinkState(Enum):
@@ -57,6 +65,7 @@ class LinkEventKind(Enum):
     BOARD_FOUND = "board_found"
     PORT_LOST = "port_lost"  #: the device or socket went away
     PORT_RESTORED = "port_restored"
+    CLOSED = "closed"  #: the link closed: the last event a watcher gets
 
 
 @dataclass(frozen=True, slots=True)
@@ -80,18 +89,22 @@ class SyncResult:
         return self.error is None
 
 
-class _Subscription:
-    """A bounded queue that drops its oldest item when full and counts the drop."""
+class Subscription(Generic[T]):
+    """``async for item in sub`` over a bounded queue that drops its oldest item when full
+    (counting the drop) and ends when the link closes or :meth:`close` is called. The link
+    never waits for a subscriber."""
 
-    def __init__(self, maxsize: int) -> None:
+    def __init__(self, maxsize: int, on_close: Callable[[Subscription[T]], None]) -> None:
         if maxsize < 1:
             raise ValueError("maxsize must be at least 1")
-        self._items: deque[Any] = deque(maxlen=maxsize)
+        self._items: deque[T] = deque(maxlen=maxsize)
         self._ready = asyncio.Event()
         self._closed = False
+        self._on_close = on_close
         self.dropped = 0
 
-    def _push(self, item: Any) -> bool:
+    def _push(self, item: T) -> bool:
+        """Queue ``item``; ``True`` when the oldest had to go to make room."""
         dropped = len(self._items) == self._items.maxlen
         if dropped:
             self.dropped += 1
@@ -99,11 +112,18 @@ class _Subscription:
         self._ready.set()
         return dropped
 
-    def _close(self) -> None:
+    def _end(self) -> None:
         self._closed = True
         self._ready.set()
 
-    async def get(self) -> Any:
+    def close(self) -> None:
+        self._on_close(self)
+        self._end()
+
+    def __aiter__(self) -> Subscription[T]:
+        return self
+
+    async def __anext__(self) -> T:
         while not self._items:
             if self._closed:
                 raise StopAsyncIteration
@@ -114,140 +134,121 @@ class _Subscription:
     def __len__(self) -> int:
         return len(self._items)
 
-
-class TelemetrySubscription(_Subscription):
-    """``async for sample in link.telemetry(): ...`` — ends when the link closes."""
-
-    def __init__(self, link: Link, maxsize: int) -> None:
-        super().__init__(maxsize)
-        self._link = link
-
-    def __aiter__(self) -> TelemetrySubscription:
-        return self
-
-    async def __anext__(self) -> Telemetry:
-        sample: Telemetry = await self.get()
-        return sample
-
-    def close(self) -> None:
-        self._link._telemetry_subs.discard(self)
-        self._close()
-
-    async def __aenter__(self) -> TelemetrySubscription:
+    async def __aenter__(self) -> Subscription[T]:
         return self
 
     async def __aexit__(self, *exc: object) -> None:
         self.close()
 
 
-class _EventSubscription(_Subscription):
-    def __aiter__(self) -> _EventSubscription:
-        return self
+class _PortProtocol(asyncio.Protocol):
+    """The link's end of one transport. A new one per (re)connection, so a late callback
+    from a transport already replaced is recognised and ignored."""
 
-    async def __anext__(self) -> LinkEvent:
-        event: LinkEvent = await self.get()
-        return event
-
-
-class _LinkProtocol(asyncio.Protocol):
     def __init__(self, link: Link) -> None:
         self._link = link
 
     def data_received(self, data: bytes) -> None:
-        self._link._on_data(data)
+        self._link._on_data(self, data)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._link._on_port_lost(exc)
+        self._link._on_port_lost(self, exc)
 
 
 class Link:
-    """One board. Use ``async with open_link(url) as link:`` so it always closes."""
+    """One board. Use ``async with open_link(url) as link:`` so it always closes.
+
+    ``Link(connection, transport)`` attaches to a transport already open (a test's
+    :class:`~fpgalink.testing.MemoryTransport`, say). With ``reopen`` and no transport,
+    :meth:`open` opens one, and with ``reconnect`` the link reopens it with backoff when the
+    port vanishes; :func:`open_link` builds all of that from a URL."""
 
     def __init__(
         self,
-        url: str,
+        connection: Connection,
+        transport: asyncio.BaseTransport | None = None,
         *,
-        baud: int = 1_000_000,
-        framing: Framing = DEFAULT_FRAMING,
-        heartbeat_interval: float = 0.1,
-        liveness_timeout: float = 0.7,
-        request_timeout: float = 0.05,
-        request_tries: int = 8,
+        name: str = "board",
+        url: str = "",
+        reopen: Reopen | None = None,
         reconnect: bool = True,
         reconnect_backoff: tuple[float, float] = (0.05, 2.0),
-        name: str | None = None,
     ) -> None:
-        self.url = url
-        self.baud = baud
-        self.name = name or url
-        self.reconnect = reconnect
+        self.connection = connection
+        self.name = name
+        self.url = url  #: where the board is, for messages
+        self.reconnect = reconnect and reopen is not None
         self.reconnect_backoff = reconnect_backoff
-        self._conn = Connection(
-            framing=framing,
-            heartbeat_interval=heartbeat_interval,
-            liveness_timeout=liveness_timeout,
-            request_timeout=request_timeout,
-            request_tries=request_tries,
-        )
         self.state = LinkState.CONNECTING
+        self._reopen = reopen
         self._transport: asyncio.BaseTransport | None = None
+        self._protocol: _PortProtocol | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None
         self._futures: dict[int, asyncio.Future[int | float]] = {}
-        self._telemetry_subs: set[TelemetrySubscription] = set()
-        self._event_subs: set[_EventSubscription] = set()
-        self._listeners: list[Callable[[Any], None]] = []
+        self._telemetry_subs: set[Subscription[Telemetry]] = set()
+        self._event_subs: set[Subscription[LinkEvent]] = set()
+        self._listeners: list[Callable[[Event], None]] = []
         self._reconnect_task: asyncio.Task[None] | None = None
-        self._port_released = asyncio.Event()
-        self.reconnects = 0
-        self.port_losses = 0
+        self._port_released: asyncio.Event | None = None
+        if transport is not None:
+            self._attach(transport)
 
     # --- lifecycle ------------------------------------------------------------------------
 
+    def _protocol_factory(self) -> _PortProtocol:
+        self._protocol = _PortProtocol(self)
+        return self._protocol
+
+    def _attach(self, transport: asyncio.BaseTransport) -> None:
+        transport.set_protocol(self._protocol_factory())
+        self._transport = transport
+
+    async def _connect(self) -> None:
+        if self._reopen is None:
+            raise PortError(f"{self.name}: no transport and nothing to open one with")
+        transport, _ = await self._reopen(self._protocol_factory)
+        self._transport = transport
+
     async def open(self) -> Link:
+        """Connect (unless a transport was given) and start expecting the board."""
         self._loop = asyncio.get_running_loop()
-        await self._connect()
-        self._conn.start_liveness(self._loop.time())
+        if self._transport is None:
+            await self._connect()
+        self.state = LinkState.CONNECTED
+        self.connection.start(self._now())
         self._arm_timer()
         return self
 
-    async def _connect(self) -> None:
-        transport, _ = await connect(self.url, self.baud, lambda: _LinkProtocol(self))
-        self._transport = transport
-        self.state = LinkState.CONNECTED
-
     async def close(self) -> None:
-        """Stop the heartbeat (sending ``RD`` if enabled), fail pending requests with
-        :class:`LinkClosed`, end subscriptions, release the port. Safe to call twice."""
+        """Send ``RD`` if enabled, fail pending requests with :class:`LinkClosed`, end every
+        subscription and watcher, release the port. Safe to call twice."""
         if self.state is LinkState.CLOSED:
+            self._end_waiters()
             return
-        if self._conn.enable_state is EnableState.ENABLED and self.state is LinkState.CONNECTED:
-            with contextlib.suppress(Exception):
-                self._conn.disable(self._now())
-                self._flush()
+        if self._loop is None:
+            self._loop = asyncio.get_running_loop()
+        connected = self.state is LinkState.CONNECTED
         self.state = LinkState.CLOSED
+        self.connection.close(self._now())
+        if connected:
+            self._write(self.connection.data_to_send())
         if self._reconnect_task is not None:
             self._reconnect_task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._reconnect_task
         if self._timer is not None:
             self._timer.cancel()
-        self._conn.close()
+            self._timer = None
         self._process()
-        for future in self._futures.values():
-            if not future.done():
-                future.set_exception(LinkClosed(f"{self.name}: link closed"))
-        self._futures.clear()
-        for sub in list(self._telemetry_subs):
-            sub.close()
-        for esub in list(self._event_subs):
-            esub._close()
+        self._emit(LinkEventKind.CLOSED)
+        self._end_waiters()
         transport, self._transport = self._transport, None
         if transport is not None:
             # Wait until the transport says it is gone (it may first flush the RD just
             # written): only then is the port released and can be opened again.
-            self._port_released.clear()
+            self._port_released = asyncio.Event()
             transport.close()
             try:
                 await asyncio.wait_for(self._port_released.wait(), 1.0)
@@ -256,6 +257,18 @@ class Link:
                 if abort is not None:
                     abort()
                 await asyncio.sleep(0)
+
+    def _end_waiters(self) -> None:
+        for future in self._futures.values():
+            if not future.done():
+                future.set_exception(LinkClosed(f"{self.name}: link closed"))
+        self._futures.clear()
+        for telemetry_sub in self._telemetry_subs:
+            telemetry_sub._end()
+        for event_sub in self._event_subs:
+            event_sub._end()
+        self._telemetry_subs.clear()
+        self._event_subs.clear()
 
     async def __aenter__(self) -> Link:
         return await self.open()
@@ -270,81 +283,93 @@ class Link:
 
     # --- commands -------------------------------------------------------------------------
 
-    async def enable(self) -> None:
+    def enable(self) -> None:
         """Send ``RE`` now and every heartbeat interval until :meth:`disable` or close."""
-        self._ensure_open()
-        self._conn.enable(self._now())
+        self._ensure_connected()
+        self.connection.enable(self._now())
         self._flush()
 
-    async def disable(self) -> None:
+    def disable(self) -> None:
         """Stop the heartbeat and send ``RD``: the board disables at once."""
         self._ensure_open()
-        self._conn.disable(self._now())
+        self.connection.disable(self._now())
         self._flush()
 
     @property
     def enabled(self) -> bool:
-        return self._conn.enable_state is EnableState.ENABLED
+        return self.connection.enabled
 
-    async def set_references(self, ref_a: float, ref_b: float) -> None:
-        """Send ``RV`` (deg/s in speed control)."""
-        for value in (ref_a, ref_b):
-            if not math.isfinite(value):
-                raise ValueError(f"references must be finite numbers, got {value!r}")
+    def set_references(self, ref_a: float, ref_b: float) -> None:
+        """Send ``RV`` (deg/s in speed control, N·m in torque control). Non-finite values
+        raise :class:`~fpgalink.errors.LocalProtocolError` and nothing is sent; when the
+        line is backed up, a newer reference replaces one still waiting (counted in
+        ``stats.references_superseded``)."""
         self.send(References(float(ref_a), float(ref_b)))
 
     def send(self, message: Message | CountedMessage | DirectCommand) -> bytes:
-        """Send any message; returns the exact wire bytes written."""
+        """Send any message; returns the exact wire bytes written (empty when a reference
+        waits for line room)."""
         self._ensure_connected()
-        wire = self._conn.send(message)
-        assert self._transport is not None
-        self._transport.write(wire)  # type: ignore[attr-defined]
+        self.connection.send(message, self._now())
+        wire = self.connection.data_to_send()
+        self._write(wire)
+        self._arm_timer()
         return wire
 
     async def set_param(
-        self, name: str | int, value: int | float, channel: int | str | None = None
+        self, name: str | int, value: object, channel: int | str | None = None
     ) -> int | float:
         """Set a parameter and return the value the board confirms is in force.
 
         Raises :class:`~fpgalink.errors.ParameterError` before sending for a bad name,
         channel, type or range; :class:`~fpgalink.errors.ParameterRefused` on ``PN``;
+        :class:`~fpgalink.errors.ValueMismatch` when the board kept echoing another value;
         :class:`~fpgalink.errors.RequestTimeout` when every try went unanswered."""
         param, code = resolve(name, channel)
         coerced = param.coerce(value)
         self._ensure_connected()
-        return await self._request(self._conn.set_param(param, code, coerced, self._now()))
+        return await self._request(self.connection.set_param(param, code, coerced, self._now()))
 
     async def get_param(self, name: str | int, channel: int | str | None = None) -> int | float:
         param, code = resolve(name, channel)
         self._ensure_connected()
-        return await self._request(self._conn.get_param(param, code, self._now()))
+        return await self._request(self.connection.get_param(param, code, self._now()))
+
+    async def read_params(self) -> dict[tuple[int, int], int | float]:
+        """Every parameter address's value, ``{(param id, channel): value}``, in table order;
+        stops at the first failure (a silent board would otherwise cost every address its
+        full retry budget)."""
+        values: dict[tuple[int, int], int | float] = {}
+        for param, code in iter_addresses():
+            values[(param.id, code)] = await self.get_param(param.id, code)
+        return values
 
     async def sync_params(
-        self, values: Mapping[str, int | float] | Iterable[tuple[str, str | None, int | float]]
+        self, values: Mapping[str, object] | Iterable[tuple[str, str | None, object]]
     ) -> list[SyncResult]:
         """Set many parameters, one at a time (the board's RX RAM holds two frames), and
         report each: keys are ``"Kp_Wheel_PidA"`` style names, or give
         ``(name, channel, value)`` triples. Host-side validation happens for all of them
         before the first byte is sent."""
-        items: list[tuple[Param, int, int | float, int | float]] = []
+        items: list[tuple[Param, int, int | float]] = []
         entries = (
             [(k, None, v) for k, v in values.items()] if isinstance(values, Mapping)
             else list(values)
         )
         for name, channel, value in entries:
             param, code = resolve(name, channel)
-            items.append((param, code, value, param.coerce(value)))
+            items.append((param, code, param.coerce(value)))
         results: list[SyncResult] = []
-        for param, code, requested, coerced in items:
+        for param, code, coerced in items:
             label = param.full_name(code)
             try:
                 self._ensure_connected()
                 confirmed = await self._request(
-                    self._conn.set_param(param, code, coerced, self._now())
+                    self.connection.set_param(param, code, coerced, self._now())
                 )
-                results.append(SyncResult(label, requested, confirmed, None))
+                results.append(SyncResult(label, coerced, confirmed, None))
             except FpgalinkError as exc:
-                results.append(SyncResult(label, requested, None, exc))
+                results.append(SyncResult(label, coerced, None, exc))
         return results
 
     async def _request(self, request_id: int) -> int | float:
@@ -359,30 +384,31 @@ class Link:
 
     # --- telemetry and events -------------------------------------------------------------
 
-    def telemetry(self, maxsize: int = 1024) -> TelemetrySubscription:
+    def telemetry(self, maxsize: int = 1024) -> Subscription[Telemetry]:
         """A new independent subscriber. When its queue is full the oldest sample is dropped
         and counted (``sub.dropped``, ``link.stats.subscriber_drops``); the link never waits."""
-        sub = TelemetrySubscription(self, maxsize)
+        sub: Subscription[Telemetry] = Subscription(maxsize, self._telemetry_subs.discard)
         if self.state is LinkState.CLOSED:
-            sub._close()
+            sub._end()
         else:
             self._telemetry_subs.add(sub)
         return sub
 
     def watch(self, maxsize: int = 256) -> AsyncIterator[LinkEvent]:
-        """Link events (board lost/found, port lost/restored) as an async iterator."""
-        sub = _EventSubscription(maxsize)
+        """Link events (board lost/found, port lost/restored) as an async iterator; it ends
+        after the ``CLOSED`` event when the link closes, for whatever reason."""
+        sub: Subscription[LinkEvent] = Subscription(maxsize, self._event_subs.discard)
         if self.state is LinkState.CLOSED:
-            sub._close()
+            sub._end()
         else:
             self._event_subs.add(sub)
         return sub
 
-    def add_listener(self, listener: Callable[[Any], None]) -> Callable[[], None]:
-        """Call ``listener(event)`` with everything the protocol core reports, in order:
-        every received message (catalogued, generic, direct commands), ``Malformed``, framing
-        errors, counter gaps… Returns a function that removes the listener. Listeners run
-        inside the receive path: keep them quick and do not raise."""
+    def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]:
+        """Call ``listener(event)`` with everything the connection reports, in order: every
+        received message (catalogued, generic, direct commands), ``Malformed``, framing
+        errors, counter gaps, request outcomes… Returns a function that removes it.
+        Listeners run inside the receive path: keep them quick and do not raise."""
         self._listeners.append(listener)
 
         def remove() -> None:
@@ -394,20 +420,15 @@ class Link:
     @property
     def latest(self) -> Telemetry | None:
         """The newest telemetry sample, or ``None`` before the first."""
-        return self._conn.latest_telemetry
+        return self.connection.latest_telemetry
 
     @property
     def stats(self) -> LinkStats:
-        return self._conn.stats
+        return self.connection.stats
 
     @property
     def board_alive(self) -> bool:
-        return self._conn.liveness is Liveness.ALIVE
-
-    @property
-    def connection(self) -> Connection:
-        """The sans-I/O core, for inspection."""
-        return self._conn
+        return self.connection.liveness is Liveness.ALIVE
 
     # --- plumbing -------------------------------------------------------------------------
 
@@ -418,27 +439,33 @@ class Link:
     def _ensure_open(self) -> None:
         if self.state is LinkState.CLOSED:
             raise LinkClosed(f"{self.name}: link is closed")
+        if self._loop is None:
+            raise LinkClosed(f"{self.name}: link is not open yet (use `async with`)")
 
     def _ensure_connected(self) -> None:
         self._ensure_open()
         if self.state is not LinkState.CONNECTED or self._transport is None:
             raise BoardLost(f"{self.name}: port is disconnected ({self.state.value})")
 
-    def _on_data(self, data: bytes) -> None:
-        self._conn.receive_data(data, self._now())
+    def _write(self, data: bytes) -> None:
+        if data and self._transport is not None and self.state is not LinkState.RECONNECTING:
+            self._transport.write(data)  # type: ignore[attr-defined]
+
+    def _on_data(self, protocol: _PortProtocol, data: bytes) -> None:
+        if protocol is not self._protocol or self.state is not LinkState.CONNECTED:
+            return
+        self.connection.receive_data(data, self._now())
         self._process()
         self._flush()
 
     def _flush(self) -> None:
-        data = self._conn.data_to_send()
-        if data and self._transport is not None and self.state is LinkState.CONNECTED:
-            self._transport.write(data)  # type: ignore[attr-defined]
+        self._write(self.connection.data_to_send())
         self._arm_timer()
 
     def _arm_timer(self) -> None:
         if self._loop is None or self.state is LinkState.CLOSED:
             return
-        deadline = self._conn.get_timer()
+        deadline = self.connection.get_timer()
         if deadline is None:
             return
         # Every message heard pushes the liveness deadline later; re-arming on each read
@@ -455,7 +482,7 @@ class Link:
     def _on_timer(self) -> None:
         self._timer = None
         self._timer_at = None
-        self._conn.handle_timer(self._now())
+        self.connection.handle_timer(self._now())
         self._process()
         self._flush()
 
@@ -465,39 +492,40 @@ class Link:
             sub._push(event)
 
     def _process(self) -> None:
-        stats = self._conn.stats
+        stats = self.connection.stats
         listeners = self._listeners
-        for event in self._conn.events():
+        for event in self.connection.events():
             for listener in listeners:
                 listener(event)
             kind = type(event)
             if kind is Telemetry:
                 for sub in self._telemetry_subs:
-                    if sub._push(event):
+                    if sub._push(event):  # type: ignore[arg-type]
                         stats.subscriber_drops += 1
-            elif kind is RequestDone:
-                future = self._futures.get(event.request_id)
+            elif kind is RequestDone or kind is RequestFailed:
+                future = self._futures.get(event.request_id)  # type: ignore[attr-defined]
                 if future is not None and not future.done():
-                    future.set_result(event.value)
-            elif kind is RequestFailed:
-                future = self._futures.get(event.request_id)
-                if future is not None and not future.done():
-                    future.set_exception(event.error)
-            elif kind is BoardSilent:
+                    if isinstance(event, RequestDone):
+                        future.set_result(event.value)
+                    else:
+                        assert isinstance(event, RequestFailed)
+                        future.set_exception(event.error)
+            elif isinstance(event, BoardSilent):
                 self._emit(LinkEventKind.BOARD_LOST, f"silent for {event.silent_for:.3f} s")
             elif kind is BoardFound:
                 self._emit(LinkEventKind.BOARD_FOUND)
 
-    def _on_port_lost(self, exc: Exception | None) -> None:
+    def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
+        if protocol is not self._protocol:
+            return  # a transport we already let go of
         if self.state is LinkState.CLOSED:
-            self._port_released.set()
+            if self._port_released is not None:
+                self._port_released.set()
             return
         self._transport = None
-        self.port_losses += 1
-        stats = self._conn.stats
-        stats.port_losses += 1
+        self._protocol = None
         reason = f"{self.name}: port lost ({exc or 'closed by the other end'})"
-        self._conn.fail_requests(BoardLost(reason))
+        self.connection.port_lost(self._now(), reason)
         self._process()
         self._emit(LinkEventKind.PORT_LOST, reason)
         if self.reconnect:
@@ -505,8 +533,11 @@ class Link:
             self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())
         else:
             self.state = LinkState.CLOSED
-            for sub in list(self._telemetry_subs):
-                sub.close()
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
+            self._emit(LinkEventKind.CLOSED, reason)
+            self._end_waiters()
 
     async def _reconnect_loop(self) -> None:
         delay, ceiling = self.reconnect_backoff
@@ -517,20 +548,39 @@ class Link:
                 await self._connect()
             except PortError:
                 continue
-            self.reconnects += 1
-            self._conn.stats.reconnects += 1
-            # The board may have restarted: its counter need not continue ours.
-            self._conn.counter_tracker.reset()
-            self._conn.reset_receiver()
-            if self._conn.enable_state is EnableState.ENABLED:
-                self._conn.enable(self._now())
+            self.state = LinkState.CONNECTED
+            self.connection.reconnected(self._now())
             self._flush()
             self._emit(LinkEventKind.PORT_RESTORED)
             return
 
 
-def open_link(url: str = "emu://", baud: int = 1_000_000, **options: Any) -> Link:
+def open_link(
+    url: str = "emu://",
+    baud: int = 1_000_000,
+    *,
+    name: str | None = None,
+    framing: Framing = DEFAULT_FRAMING,
+    heartbeat_interval: float = 0.1,
+    liveness_timeout: float = 0.7,
+    request_timeout: float = 0.05,
+    request_tries: int = 8,
+    max_reference_delay: float = 0.005,
+    reconnect: bool = True,
+    reconnect_backoff: tuple[float, float] = (0.05, 2.0),
+) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
-    ``socket://host:port``, or ``emu://`` for an emulated board in this process. Options are
-    :class:`Link`'s keyword arguments (timeouts, tries, heartbeat, reconnect, name)."""
-    return Link(url, baud=baud, **options)
+    ``socket://host:port``, or ``emu://`` for an emulated board in this process (any scheme
+    a package registers). The connection settings go to :class:`~fpgalink.Connection`;
+    ``reconnect`` reopens the URL with backoff when the port vanishes."""
+    connection = Connection(
+        framing=framing, baud=baud, heartbeat_interval=heartbeat_interval,
+        liveness_timeout=liveness_timeout, request_timeout=request_timeout,
+        request_tries=request_tries, max_reference_delay=max_reference_delay,
+    )
+
+    async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
+        return await open_transport(url, baud, factory)
+
+    return Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
+                reconnect_backoff=reconnect_backoff)

@@ -1,11 +1,17 @@
-"""Byte-stream adapters: every backend ends as an ``asyncio.Transport`` feeding an
-``asyncio.Protocol``, so the link above does not care which one it got.
+"""Opening a port: the URL scheme picks an opener from a registry, and every opener ends as
+an ``asyncio.Transport`` feeding an ``asyncio.Protocol``, so the link above does not care
+which one it got.
 
-* a device path (``/dev/ttyUSB0``, a pty) → pyserial-asyncio;
-* ``socket://host:port`` → asyncio's own TCP. pyserial's ``socket://`` backend returns
-  empty reads on a closed socket, which pyserial-asyncio ignores, so a vanished peer would
-  never be noticed; asyncio's TCP reports it as ``connection_lost``;
-* ``emu://`` → an emulated board in this process (:mod:`fpgaemu.serve`).
+Built in:
+
+* a device path (``/dev/ttyUSB0``, ``/dev/serial/by-id/…``, a pty) → pyserial-asyncio;
+* ``socket://host:port`` → asyncio's own TCP. pyserial's ``socket://`` backend returns empty
+  reads on a closed socket, which pyserial-asyncio ignores, so a vanished peer would never
+  be noticed; asyncio's TCP reports it as ``connection_lost``.
+
+Other schemes come from packages: an opener registered with :func:`register_scheme`, or
+advertised under the ``fpgalink.transports`` entry-point group (the emulator registers
+``emu://`` that way, so this package never imports it).
 """
 
 from __future__ import annotations
@@ -13,52 +19,120 @@ from __future__ import annotations
 import asyncio
 import functools
 import os
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
+from importlib.metadata import entry_points
 from typing import Any
-from urllib.parse import parse_qs, urlsplit
+from urllib.parse import urlsplit
 
 from fpgalink.errors import PortError
+from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
-__all__ = ["connect", "describe_url"]
+__all__ = [
+    "ENTRY_POINT_GROUP",
+    "Opener",
+    "ProtocolFactory",
+    "describe_url",
+    "open_transport",
+    "register_scheme",
+    "scheme_of",
+]
+
+ENTRY_POINT_GROUP = "fpgalink.transports"
+
+ProtocolFactory = Callable[[], asyncio.Protocol]
+#: ``await opener(url, baud, protocol_factory)`` → the transport and its protocol.
+Opener = Callable[
+    [str, int, ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]
+]
+
+_registry: dict[str, Opener] = {}
+
+
+def register_scheme(scheme: str, opener: Opener) -> None:
+    """Open ``scheme://…`` URLs with ``opener`` (replacing any earlier one)."""
+    _registry[scheme.lower()] = opener
+
+
+def scheme_of(url: str) -> str:
+    """``"socket"`` for ``socket://h:p``, ``""`` for a device path."""
+    head, sep, _ = url.partition("://")
+    return head.lower() if sep else ""
 
 
 def describe_url(url: str) -> str:
-    kind = "emulated board" if url.startswith("emu://") else (
-        "TCP" if url.startswith("socket://") else "serial port"
-    )
-    return f"{kind} {url}"
+    kinds = {"": "serial port", "socket": "TCP", "emu": "emulated board"}
+    return f"{kinds.get(scheme_of(url), scheme_of(url) + ' port')} {url}"
 
 
-async def connect(
-    url: str, baud: int, protocol_factory: Callable[[], asyncio.Protocol]
+def _opener(scheme: str) -> Opener | None:
+    opener = _registry.get(scheme)
+    if opener is None:
+        for entry in entry_points(group=ENTRY_POINT_GROUP, name=scheme):
+            opener = entry.load()
+            _registry[scheme] = opener
+            break
+    return opener
+
+
+def known_schemes() -> list[str]:
+    names = set(_registry) | {e.name for e in entry_points(group=ENTRY_POINT_GROUP)}
+    return sorted(names)
+
+
+async def open_transport(
+    url: str, baud: int, protocol_factory: ProtocolFactory
 ) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
-    """Open ``url`` and attach a protocol; :class:`PortError` (naming the port) on failure."""
-    loop = asyncio.get_running_loop()
+    """Open ``url`` and attach a protocol; :class:`PortError` (naming the port) on any
+    failure, whatever the opener raised."""
+    if isinstance(baud, bool) or not isinstance(baud, int) or not MIN_BAUD <= baud <= MAX_BAUD:
+        raise PortError(f"{url}: baud must be a whole number from {MIN_BAUD:,} to "
+                        f"{MAX_BAUD:,}, got {baud!r}")
+    scheme = scheme_of(url)
     try:
-        if url.startswith("emu://"):
-            return await _connect_emulator(url, baud, protocol_factory)
-        if url.startswith("socket://"):
-            parts = urlsplit(url)
-            if parts.hostname is None or parts.port is None:
-                raise PortError(f"{url}: expected socket://HOST:PORT")
-            return await loop.create_connection(protocol_factory, parts.hostname, parts.port)
-        import serial
-        import serial_asyncio
-
-        try:
-            if "://" in url or os.name != "posix":
-                port = serial.serial_for_url(url, baudrate=baud, exclusive=True)
-            else:
-                port = _loop_serial_class()(url, baudrate=baud, exclusive=True)
-            return await serial_asyncio.connection_for_serial(  # type: ignore[no-any-return]
-                loop, protocol_factory, port
-            )
-        except (serial.SerialException, ValueError) as exc:
-            raise PortError(f"cannot open serial port {url}: {exc}") from exc
+        opener = _opener(scheme)
+    except Exception as exc:  # a broken plug-in must not take the caller down with a trace
+        raise PortError(f"{url}: the {scheme}:// opener could not be loaded: {exc}") from exc
+    if opener is None:
+        known = ", ".join(f"{s}://" for s in known_schemes())
+        raise PortError(f"{url}: unsupported port; use a device path, {known}")
+    try:
+        return await opener(url, baud, protocol_factory)
     except PortError:
         raise
     except OSError as exc:
         raise PortError(f"cannot open {url}: {exc.strerror or exc}") from exc
+    except (ValueError, TypeError) as exc:
+        raise PortError(f"{url}: {exc}") from exc
+
+
+async def _open_socket(
+    url: str, baud: int, protocol_factory: ProtocolFactory
+) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
+    try:
+        parts = urlsplit(url)
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:  # a port out of 0..65535
+        raise PortError(f"{url}: {exc}; expected socket://HOST:PORT") from None
+    if not host or port is None:
+        raise PortError(f"{url}: expected socket://HOST:PORT")
+    loop = asyncio.get_running_loop()
+    return await loop.create_connection(protocol_factory, host, port)
+
+
+async def _open_serial(
+    url: str, baud: int, protocol_factory: ProtocolFactory
+) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
+    import serial
+    import serial_asyncio
+
+    loop = asyncio.get_running_loop()
+    try:
+        port = _loop_serial_class()(url, baudrate=baud, exclusive=True)
+        return await serial_asyncio.connection_for_serial(  # type: ignore[no-any-return]
+            loop, protocol_factory, port
+        )
+    except (serial.SerialException, ValueError) as exc:
+        raise PortError(f"cannot open serial port {url}: {exc}") from exc
 
 
 @functools.cache
@@ -68,6 +142,9 @@ def _loop_serial_class() -> Any:
     before and after its ``read`` — three system calls where one does, at 1,000 reads a
     second per board."""
     import serial
+
+    if os.name != "posix":  # pragma: no cover - the project runs on POSIX
+        return serial.Serial
 
     class LoopSerial(serial.Serial):  # type: ignore[misc]
         def read(self, size: int = 1) -> bytes:
@@ -90,12 +167,5 @@ def _loop_serial_class() -> Any:
     return LoopSerial
 
 
-async def _connect_emulator(
-    url: str, baud: int, protocol_factory: Callable[[], asyncio.Protocol]
-) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
-    try:
-        from fpgaemu.serve import open_emulated_transport
-    except ImportError as exc:  # pragma: no cover - both ship in one distribution
-        raise PortError(f"{url}: the emulator is not available ({exc})") from exc
-    options = {k: v[-1] for k, v in parse_qs(urlsplit(url).query).items()}
-    return await open_emulated_transport(protocol_factory, baud=baud, options=options)
+register_scheme("", _open_serial)
+register_scheme("socket", _open_socket)

@@ -1,8 +1,8 @@
 """``fpgalink-cli``: talk to a board (or the built-in emulator) from the shell.
 
 Commands: ``send``, ``param get|set|list|load|dump``, ``monitor``, ``record``, ``step``,
-``budget``, ``bench``. Every failure is one line on stderr and a documented exit code
-(:class:`~fpgalink.cli._common.ExitCode`); see ``docs/cli.md``.
+``budget``. Every failure is one line on stderr and a documented exit code
+(:class:`~fpgalink.cli.output.ExitCode`); see ``docs/cli.md``.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ import sys
 import click
 
 from fpgalink import __version__
-from fpgalink.cli._common import EXIT_CODES_HELP, CliError, ExitCode, quiet_stdout
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, quiet_stdout
 
 __all__ = ["cli", "main"]
 
@@ -33,10 +33,10 @@ def cli() -> None:
 
 def _register() -> None:
     # Imported here so `fpgalink-cli --help` stays quick and each module owns its command.
-    from fpgalink.cli import bench, budget, monitor, param, record, send, step
+    from fpgalink.cli import budget, monitor, param, record, send, step
 
     for command in (send.send, param.param, monitor.monitor, record.record, step.step,
-                    budget.budget, bench.bench):
+                    budget.budget):
         cli.add_command(command)
 
 

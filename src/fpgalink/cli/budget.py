@@ -6,42 +6,22 @@ only gathers the traffic plan from the command line and presents the result."""
 
 from __future__ import annotations
 
-import importlib
-from dataclasses import dataclass
-from types import ModuleType
-
 import click
 from rich.table import Table
 
-from fpgalink.cli._common import (
-    EXIT_CODES_HELP,
-    CliError,
-    ExitCode,
-    echo_out,
-    table_console,
-)
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, table_console
+from fpgalink.protocol import DEFAULT_FRAMING, MessageId, Role
+from fpgalink.protocol.wire import TM_CONTENT_BYTES, Flow, plan
 
-__all__ = ["Flow", "budget", "parse_message"]
+__all__ = ["budget", "parse_message"]
 
-TO_BOARD, TO_HOST = "host→board", "board→host"
-#: Catalogued IDs know their direction; anything else is assumed host → board.
-_DIRECTION = {"PS": TO_BOARD, "PG": TO_BOARD, "RV": TO_BOARD, "RE": TO_BOARD, "RD": TO_BOARD,
-              "PA": TO_HOST, "PN": TO_HOST, "TM": TO_HOST, "E": TO_HOST}
-_DIRECTION_WORDS = {"up": TO_BOARD, "to-board": TO_BOARD, "down": TO_HOST, "to-host": TO_HOST}
-
-
-@dataclass(frozen=True, slots=True)
-class Flow:
-    """``per_period`` frames of ``content`` bytes each, in one direction."""
-
-    name: str
-    content: int  #: frame content bytes (START/STOP and escapes are added by the arithmetic)
-    per_period: float
-    direction: str
+_DIRECTION_WORDS = {"up": True, "to-board": True, "down": False, "to-host": False}
+MAX_CONTENT = DEFAULT_FRAMING.max_content
 
 
 def parse_message(text: str) -> Flow:
-    """``NAME:BYTES:PER_PERIOD[:up|down]`` → a flow; BYTES is the frame content size."""
+    """``NAME:BYTES:PER_PERIOD[:up|down]`` → a flow; BYTES is the frame content size. A
+    catalogued ID knows its direction; any other is assumed host → board."""
     parts = text.split(":")
     if len(parts) not in (3, 4):
         raise CliError(f"--message {text!r}: expected NAME:BYTES:PER_PERIOD[:up|down]",
@@ -52,26 +32,19 @@ def parse_message(text: str) -> Flow:
     except ValueError:
         raise CliError(f"--message {text!r}: BYTES must be an integer and PER_PERIOD a number",
                        ExitCode.BAD_INPUT) from None
-    if not 1 <= content <= 200 or per_period < 0:
-        raise CliError(f"--message {text!r}: BYTES must be 1..200 (the frame content limit) "
-                       "and PER_PERIOD ≥ 0", ExitCode.BAD_INPUT)
+    if not 1 <= content <= MAX_CONTENT or not 0 <= per_period < float("inf"):
+        raise CliError(f"--message {text!r}: BYTES must be 1..{MAX_CONTENT} (the frame content "
+                       "limit) and PER_PERIOD a finite number ≥ 0", ExitCode.BAD_INPUT)
     if len(parts) == 4:
         word = parts[3].strip().lower()
         if word not in _DIRECTION_WORDS:
             raise CliError(f"--message {text!r}: direction must be up or down",
                            ExitCode.BAD_INPUT)
-        direction = _DIRECTION_WORDS[word]
+        to_board = _DIRECTION_WORDS[word]
     else:
-        direction = _DIRECTION.get(name, TO_BOARD)
-    return Flow(name, content, per_period, direction)
-
-
-def _arithmetic() -> ModuleType:
-    try:
-        return importlib.import_module("fpgalink.budget")
-    except ImportError:
-        raise CliError("budget: the wire arithmetic (fpgalink.budget) is not in this build",
-                       ExitCode.FAILURE) from None
+        known = MessageId.lookup(name)
+        to_board = known is None or known.sender is Role.HOST
+    return Flow(name, content, per_period, to_board=to_board)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
@@ -79,8 +52,9 @@ def _arithmetic() -> ModuleType:
               envvar="FPGALINK_BAUD", help="Line rate, 8N1.")
 @click.option("--period-ms", type=click.FloatRange(min=0, min_open=True), default=1.0,
               show_default=True, help="Timer period (TsTimerPeriod), ms.")
-@click.option("--tm-bytes", type=click.IntRange(0, 200), default=52, show_default=True,
-              help="TM frame content bytes (52 in this protocol; 0: no telemetry).")
+@click.option("--tm-bytes", type=click.IntRange(0, MAX_CONTENT), default=TM_CONTENT_BYTES,
+              show_default=True,
+              help=f"TM frame content bytes ({TM_CONTENT_BYTES} in this protocol; 0: none).")
 @click.option("--message", "messages", multiple=True, metavar="NAME:BYTES:PER_PERIOD",
               help="More traffic: frame content BYTES, PER_PERIOD frames each period; "
                    "direction from the ID (PS/PG/RV up, PA/PN/TM down) or a 4th field "
@@ -95,13 +69,8 @@ def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...]
     """
     flows = [parse_message(m) for m in messages]
     if tm_bytes:
-        flows.insert(0, Flow("TM", tm_bytes, 1.0, TO_HOST))
-    arithmetic = _arithmetic()
-    period_s = period_ms / 1000.0
-    report = arithmetic.plan(baud, period_s, [
-        arithmetic.Flow(f.name, f.content, f.per_period, to_board=f.direction == TO_BOARD)
-        for f in flows
-    ])
+        flows.insert(0, Flow("TM", tm_bytes, 1.0, to_board=False))
+    report = plan(baud, period_ms / 1000.0, flows)
     capacity = report.to_host.capacity
     table = Table(title=f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
                         f"({capacity:,.1f} wire bytes per direction per period)",

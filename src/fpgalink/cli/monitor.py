@@ -9,7 +9,6 @@ import json
 import sys
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import click
@@ -17,93 +16,26 @@ from rich.console import Console, Group
 from rich.live import Live
 from rich.table import Table
 
-from fpgalink.aio.link import Link, LinkState
-from fpgalink.catalogue import ChannelTelemetry
-from fpgalink.cli._common import (
-    EXIT_CODES_HELP,
-    ConnectionOptions,
-    Endpoint,
-    ExitCode,
-    connection_options,
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import EXIT_CODES_HELP, ExitCode, quiet_stdout
+from fpgalink.cli.session import (
+    TELEMETRY_FIELDS,
+    BoardSession,
+    compact,
+    flag_letters,
     install_stop_signals,
-    quiet_stdout,
+    open_sessions,
+    restore_streaming,
     run,
+    start_streaming,
     stop_exit_code,
+    telemetry_row,
     wait_or_stop,
 )
-from fpgalink.cli._telemetry import TELEMETRY_FIELDS, BoardClock, Streaming, telemetry_row
 
-__all__ = ["BoardSession", "monitor", "open_sessions"]
+__all__ = ["monitor"]
 
 REFRESH_S = 0.1  #: table refresh; also how often the TM rate is re-estimated
-
-
-def compact(value: Any) -> Any:
-    """Floats from the wire are float32: 7 significant digits say all they hold."""
-    if isinstance(value, float):
-        return float(f"{value:.7g}")
-    return value
-
-
-def flag_letters(channel: ChannelTelemetry) -> str:
-    return "".join(letter if on else "-" for letter, on in
-                   (("E", channel.enabled), ("S", channel.end_stop), ("X", channel.saturated)))
-
-
-@dataclass
-class BoardSession:
-    """One board being watched: its link, streaming switch, clock and rate estimate."""
-
-    endpoint: Endpoint
-    link: Link
-    streaming: Streaming
-    clock: BoardClock = field(default_factory=BoardClock)
-    rate: float = 0.0
-    _rate_mark: tuple[float, int] | None = None
-
-    def update_rate(self, now: float) -> None:
-        received = self.link.stats.telemetry_received
-        if self._rate_mark is not None:
-            then, count = self._rate_mark
-            if now - then >= 0.5:
-                self.rate = (received - count) / (now - then)
-                self._rate_mark = (now, received)
-        else:
-            self._rate_mark = (now, received)
-
-    @property
-    def status(self) -> str:
-        if self.link.state is LinkState.RECONNECTING:
-            return "port lost, reconnecting"
-        if self.link.board_alive:
-            return "alive"
-        return "waiting" if self.link.stats.messages_received == 0 else "SILENT"
-
-
-async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions
-                        ) -> list[BoardSession]:
-    """Open every board's link (closed by ``stack``). Long-running commands keep reconnecting
-    after a lost port and use the library's liveness timeout, so the table shows the truth."""
-    sessions = []
-    for endpoint in conn.endpoints:
-        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7, name=endpoint.name)
-        await stack.enter_async_context(link)
-        sessions.append(BoardSession(endpoint, link, Streaming(link)))
-    return sessions
-
-
-async def start_streaming(sessions: list[BoardSession], passive: bool) -> None:
-    if passive:
-        return
-    for session in sessions:
-        await session.streaming.start()
-
-
-async def restore_streaming(sessions: list[BoardSession], passive: bool) -> None:
-    if passive:
-        return
-    for session in sessions:
-        await session.streaming.restore()
 
 
 def render(sessions: list[BoardSession], started: float, duration: float | None) -> Group:

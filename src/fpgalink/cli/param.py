@@ -12,30 +12,20 @@ from typing import Any
 import click
 from rich.table import Table
 
-from fpgalink.aio.link import Link
-from fpgalink.cli._common import (
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
-    ConnectionOptions,
     ExitCode,
     classify,
-    connection_options,
     echo_out,
     format_value,
-    run,
     table_console,
 )
+from fpgalink.cli.session import run
 from fpgalink.errors import ParameterError
-from fpgalink.params import (
-    BOARD,
-    PARAMETERS,
-    Param,
-    ParamType,
-    Scope,
-    channel_name,
-    iter_addresses,
-    resolve,
-)
+from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
+from fpgalink.protocol.params import BOARD, channel_name
 
 __all__ = ["param", "parse_param_file", "parse_value", "render_toml"]
 
@@ -124,15 +114,6 @@ async def _set(conn: ConnectionOptions, p: Param, code: int, value: int | float)
         return await link.set_param(p.id, value, code)
 
 
-async def read_all(link: Link) -> dict[tuple[int, int], int | float]:
-    """Every parameter address's value; stops at the first failure (a silent board would
-    otherwise cost every address its full retry budget)."""
-    values: dict[tuple[int, int], int | float] = {}
-    for p, code in iter_addresses():
-        values[(p.id, code)] = await link.get_param(p.id, code)
-    return values
-
-
 @param.command("list", epilog=EXIT_CODES_HELP)
 @connection_options()
 def list_(conn: ConnectionOptions) -> int:
@@ -156,7 +137,7 @@ def list_(conn: ConnectionOptions) -> int:
 
 async def _read(conn: ConnectionOptions) -> dict[tuple[int, int], int | float]:
     async with conn.link(conn.single) as link:
-        return await read_all(link)
+        return await link.read_params()
 
 
 # --- files ------------------------------------------------------------------------------------

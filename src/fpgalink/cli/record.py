@@ -23,28 +23,25 @@ from rich.progress import (
 )
 
 from fpgalink import __version__
-from fpgalink.catalogue import ParamAck, ParamNack, Parsed
-from fpgalink.cli._common import (
-    EXIT_CODES_HELP,
-    CliError,
-    ConnectionOptions,
-    ExitCode,
-    TappedLink,
-    connection_options,
-    install_stop_signals,
-    run,
-    stop_exit_code,
-    wait_or_stop,
-)
-from fpgalink.cli._telemetry import TELEMETRY_FIELDS, telemetry_row, telemetry_schema
-from fpgalink.cli.monitor import (
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode
+from fpgalink.cli.session import (
+    TELEMETRY_FIELDS,
     BoardSession,
     compact,
+    install_stop_signals,
+    on_messages,
     open_sessions,
     restore_streaming,
+    run,
     start_streaming,
+    stop_exit_code,
+    telemetry_row,
+    telemetry_schema,
+    wait_or_stop,
 )
-from fpgalink.params import lookup
+from fpgalink.errors import UnknownParameter
+from fpgalink.protocol import ParamAck, ParamNack, Parsed, lookup
 
 __all__ = ["CsvSink", "McapSink", "record"]
 
@@ -172,7 +169,7 @@ def _parameter_record(message: Parsed) -> dict[str, Any] | None:
         return None
     try:
         name = lookup(message.param_id).full_name(message.channel)
-    except Exception:  # an id we do not know: still worth recording
+    except UnknownParameter:  # an id we do not know: still worth recording
         name = f"param{message.param_id}"
     record: dict[str, Any] = {"timestamp": time.time(), "name": name,
                               "param_id": message.param_id, "channel": message.channel}
@@ -232,10 +229,8 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
             sink.event(boards[0], {"timestamp": time.time(), "kind": "recording_started",
                                    "detail": metadata["ports"]})
             if not passive:
-                from fpgalink.cli.param import read_all
-
                 for session in sessions:
-                    await read_all(session.link)  # the PA replies are the snapshot
+                    await session.link.read_params()  # the PA replies are the snapshot
             await start_streaming(sessions, passive)
             for session, sub in zip(sessions, subs, strict=True):
                 tasks.append(asyncio.ensure_future(_record_telemetry(session, sub, sink, counts)))
@@ -257,9 +252,6 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
 
 
 def _tap_parameters(session: BoardSession, sink: Sink) -> None:
-    link = session.link
-    if not isinstance(link, TappedLink):  # pragma: no cover - conn.link always taps
-        return
     name = session.endpoint.name
 
     def on_message(message: Parsed) -> None:
@@ -267,7 +259,7 @@ def _tap_parameters(session: BoardSession, sink: Sink) -> None:
         if rec is not None:
             sink.parameter(name, rec)
 
-    link.add_tap(on_message)
+    on_messages(session.link, on_message)
 
 
 async def _record_events(session: BoardSession, sink: Sink) -> None:

@@ -3,31 +3,40 @@
 from __future__ import annotations
 
 import asyncio
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import click
 
-from fpgalink import Binary, CountedMessage, Disable, Enable, Malformed, Text, encode_message
-from fpgalink._messages import BodyItem, DirectCommand
-from fpgalink.catalogue import Parsed, parse_content
-from fpgalink.cli._common import (
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
-    ConnectionOptions,
     ExitCode,
-    connection_options,
+    describe,
     echo_out,
     message_id,
-    run,
 )
+from fpgalink.cli.session import on_messages, run
+from fpgalink.errors import LocalProtocolError
+from fpgalink.protocol import (
+    Binary,
+    CountedMessage,
+    DirectCommand,
+    Disable,
+    Enable,
+    Malformed,
+    Parsed,
+    Text,
+    encode_message,
+    parse_content,
+)
+from fpgalink.protocol.messages import BodyItem
 
-__all__ = ["describe", "send"]
+__all__ = ["send"]
 
 _ITEM_OPTIONS = ("text", "hex_items", "bin_files")
 _ORDER_KEY = "fpgalink.send.item_order"
-MAX_SECTION = 254  #: SPEC §4: LEN is one byte 0..254
 
 
 class _OrderedItems(click.Command):
@@ -66,46 +75,15 @@ def build_items(ctx: click.Context, texts: tuple[str, ...], hexes: tuple[str, ..
     for name in order:
         value = queues[name].pop(0)
         if name == "text":
-            data = value.encode("utf-8")
-            if b"{" in data or b"}" in data:
-                raise CliError(f"--text {value!r}: text items cannot contain '{{' or '}}' "
-                               "(use --hex for binary)", ExitCode.BAD_INPUT)
-            items.append(Text(data))
-            continue
-        if name == "hex_items":
-            data, label = _parse_hex(value), f"--hex {value!r}"
+            items.append(Text(value.encode("utf-8")))
+        elif name == "hex_items":
+            items.append(Binary(_parse_hex(value)))
         else:
             try:
-                data = Path(value).read_bytes()
+                items.append(Binary(Path(value).read_bytes()))
             except OSError as exc:
                 raise CliError(f"--bin-file {value}: {exc.strerror}", ExitCode.BAD_INPUT) from None
-            label = f"--bin-file {value}"
-        if len(data) > MAX_SECTION:
-            raise CliError(f"{label}: {len(data)} bytes; a binary section holds 0..{MAX_SECTION}",
-                           ExitCode.BAD_INPUT)
-        items.append(Binary(data))
     return tuple(items)
-
-
-def describe(message: Parsed) -> str:
-    """One line for a received (or about-to-be-sent) message."""
-    if isinstance(message, DirectCommand):
-        return message.content.decode("ascii", "replace")
-    if isinstance(message, Malformed):
-        return f"malformed ({message.reason.value}): {message.content!r}"
-    counter = getattr(message, "counter", None)
-    head = f"{message_id(message)} #{counter:05d}" if counter is not None else message_id(message)
-    if isinstance(message, CountedMessage):
-        parts = [
-            f"text {item.data.decode('utf-8', 'backslashreplace')!r}" if isinstance(item, Text)
-            else f"bin[{len(item.data)}] {item.data.hex(' ')}"
-            for item in message.items
-        ]
-        return " ".join([head, *parts])
-    shown = [
-        f"{f.name}={getattr(message, f.name)!r}" for f in fields(message) if f.name != "counter"
-    ]
-    return " ".join([head, *shown])
 
 
 @click.command(cls=_OrderedItems, epilog=EXIT_CODES_HELP)
@@ -152,7 +130,7 @@ def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tupl
         # Validate (ID, lengths) and see how the board will read it, before opening the port.
         try:
             content = encode_message(message, 0)
-        except Exception as exc:  # LocalProtocolError and friends: the text says why
+        except LocalProtocolError as exc:  # the encoder says what does not fit
             raise CliError(f"cannot send {msg_id!r}: {exc}", ExitCode.BAD_INPUT) from None
         parsed = parse_content(content)
         if isinstance(parsed, Malformed) and not force:
@@ -166,8 +144,7 @@ def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tupl
 async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand, shown: str,
                 reply_id: str | None, wait: float) -> int:
     endpoint = conn.single
-    link = conn.link(endpoint)
-    async with link:
+    async with conn.link(endpoint) as link:
         loop = asyncio.get_running_loop()
         replied: asyncio.Future[Parsed] = loop.create_future()
 
@@ -176,7 +153,7 @@ async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand
                 replied.set_result(received)
 
         if reply_id is not None:
-            link.add_tap(on_message)  # before sending: a fast reply must not be missed
+            on_messages(link, on_message)  # before sending: a fast reply must not be missed
         counter = link.connection.next_counter
         wire = link.send(message)
         if isinstance(message, CountedMessage):

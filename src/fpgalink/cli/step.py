@@ -12,18 +12,10 @@ from typing import Any
 import click
 from rich.table import Table
 
-from fpgalink.catalogue import ChannelTelemetry, Telemetry
-from fpgalink.cli._common import (
-    EXIT_CODES_HELP,
-    CliError,
-    ConnectionOptions,
-    ExitCode,
-    connection_options,
-    run,
-    table_console,
-)
-from fpgalink.cli._telemetry import BoardClock, Streaming
-from fpgalink.params import float32
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, table_console
+from fpgalink.cli.session import BoardClock, Streaming, run
+from fpgalink.protocol import ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
 
@@ -219,14 +211,14 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
 
         collector = asyncio.ensure_future(collect())
         try:
-            await link.enable()
-            await link.set_references(*refs(start))
+            link.enable()
+            link.set_references(*refs(start))
             await asyncio.sleep(pre)
             step_time = loop.time()  # on the samples' axis: anchored to this clock
-            await link.set_references(*refs(target))
+            link.set_references(*refs(target))
             await asyncio.sleep(hold)
         finally:
-            await link.disable()
+            link.disable()
             sub.close()
             await asyncio.gather(collector, return_exceptions=True)
             await streaming.restore()

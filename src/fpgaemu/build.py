@@ -1,0 +1,60 @@
+"""Putting a whole board together: the communication path and I/O blocks
+(:class:`~fpgaemu.board.Board`), the MicroBlaze software
+(:class:`~fpgaemu.firmware.Firmware`), the motors and wheels (:class:`~fpgaemu.motor.Motors`)
+and any injected faults — as ``fpgaemu serve`` and ``emu://`` build it."""
+
+from __future__ import annotations
+
+from typing import Any
+from urllib.parse import parse_qs, urlsplit
+
+from fpgaemu.board import Board, BoardConfig
+from fpgaemu.faults import parse_faults
+from fpgaemu.firmware import attach_firmware
+from fpgaemu.motor import GEARS, Motors
+from fpgaemu.uart import DEFAULT_BAUD
+
+__all__ = ["EMU_OPTIONS", "board_from_url", "build_board"]
+
+#: The query options an ``emu://`` URL understands.
+EMU_OPTIONS = ("seed", "gear", "fault")
+
+
+def build_board(
+    *,
+    baud: int = DEFAULT_BAUD,
+    seed: int = 0,
+    gear: str = "high",
+    settings: dict[str, Any] | None = None,
+    faults: list[str] | None = None,
+) -> Board:
+    """A complete board. ``settings`` are initial parameter values by name
+    (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
+    are ``--fault`` specs (docs/reliability.md). ``ValueError`` for anything invalid."""
+    if gear not in GEARS:
+        raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
+    wanted = parse_faults(faults or [])
+    config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
+                         tx_faults=wanted.line("tx"))
+    board = Board(config)
+    attach_firmware(board, settings or {})
+    board.add_peripheral("motors", Motors(gear))
+    board.add_peripheral("faults", wanted.board_faults())
+    return board
+
+
+def board_from_url(url: str, baud: int) -> Board:
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1`` → a board."""
+    parts = urlsplit(url)
+    if parts.scheme != "emu" or parts.netloc or parts.path not in ("", "/"):
+        raise ValueError(f"expected emu:// with optional ?{'&'.join(EMU_OPTIONS)} options")
+    options = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
+    unknown = sorted(set(options) - set(EMU_OPTIONS))
+    if unknown:
+        raise ValueError(f"unknown emu:// option(s) {unknown}; known: {list(EMU_OPTIONS)}")
+    try:
+        seed = int(options.get("seed", "0"))
+    except ValueError:
+        raise ValueError(f"emu:// seed must be an integer, got {options['seed']!r}") from None
+    return build_board(baud=baud, seed=seed, gear=options.get("gear", "high"),
+                       faults=[options["fault"]] if "fault" in options else [])

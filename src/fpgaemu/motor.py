@@ -1,0 +1,307 @@
+"""The motors and wheels: the physical world the board's PWM stages drive and its encoders and
+Hall sensors observe. Each wheel is a plant identified in the seed (SPEC §6).
+
+The seed identified wheel speed against PWM at Ts = 0.05 s:
+
+    high gear  H(z) = (−0.07017 z⁻² − 0.053 z⁻¹) / (1 − 1.393 z⁻¹ + 0.7321 z⁻² − 0.2117 z⁻³)
+    low gear   H(z) = (−0.0291 z⁻² − 0.009263 z⁻¹) / (1 − 1.394 z⁻¹ + 0.7058 z⁻² − 0.198 z⁻³)
+
+The continuous-time model behind it:
+
+* Poles: sᵢ = ln(pᵢ)/Ts for each root of the denominator. Both gears have one real positive
+  pole and a complex pair, so the logarithm is well defined (a real negative pole, which
+  rings at Nyquist and has no continuous image, would be mapped to ln|p|/Ts and lose its
+  alternation; `continuous_model` does that, neither gear needs it). High gear: −4.15 and
+  −13.5 ± 19.3j rad/s (dominant τ = 0.24 s); low gear: −3.69 and −14.4 ± 19.1j rad/s.
+* Zeros: the identified zeros (−1.32 high, −3.14 low) are negative real, sampling zeros of
+  the zero-order hold with no continuous image. The continuous model whose ZOH is exactly
+  H(z) exists but is non-minimum-phase (a right-half-plane zero at +2069 rad/s in high gear
+  and +82 rad/s in low): a motor driven forward would first turn backwards (in low gear by
+  0.1 deg/s), and the wheel would dither across an encoder count at start. So instead the
+  model has the poles above and one real zero s = −c, with c fitted so that the continuous
+  step response, sampled at Ts, matches the identified one in least squares. The response
+  is linear in 1/c, so the fit is one projection (`continuous_model`). Fitted c: 67.5 rad/s
+  (high), 200 rad/s (low); the sampled step response then matches H(z) within 0.03 % (high)
+  and 0.8 % (low) of its final value (without the zero: 4.8 % and 1.6 %).
+* DC gain: the identified one (the zero and the pole mapping keep it), then scaled below.
+
+The model is stepped in modal form, Σ rᵢ/(s − sᵢ), which integrates *any* interval exactly
+for a constant input, so the board can advance the wheel to the exact cycle a PWM value
+changes, and the wheel angle is the exact integral of the speed.
+
+Scaling: the identification's negative sign is the encoder's counting direction; physical
+speed is positive for positive duty. Full duty (32760) gives 90 deg/s in high gear; low
+gear keeps the identified ratio of DC gains (0.349), so about 31 deg/s at full duty.
+
+Current: a DC motor behind the 1:70 gearbox, i = (V·duty − k_e·ω_motor)/R, plus the current
+that carries a load torque. A load torque acts as an input disturbance in the same units;
+a stalled wheel holds speed 0 and draws the stall current.
+
+:class:`Motors` attaches the two wheels to a board: each channel's PWM output drives its
+wheel, the wheel turns that channel's encoder, the Hall sensor reads the motor current.
+The physics is integrated lazily, up to each cycle the PWM output changes and each cycle the
+processor samples (:meth:`fpgaemu.board.Board.settle`), in steps of at most 1 ms so encoder
+edges follow the wheel closely.
+"""
+
+from __future__ import annotations
+
+import cmath
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+from fpgaemu.timeline import CLOCK_HZ, ms
+
+if TYPE_CHECKING:
+    from fpgaemu.board import Board
+    from fpgaemu.encoder import QuadratureEncoder
+
+__all__ = [
+    "GEARS",
+    "PHYSICS_STEP_CYCLES",
+    "ContinuousModel",
+    "MotorConstants",
+    "Motors",
+    "WheelPlant",
+    "continuous_model",
+    "identified_response",
+    "turn",
+]
+
+#: The wheels are integrated at least this often, so encoder edges follow them closely.
+PHYSICS_STEP_CYCLES = ms(1)
+
+SEED_TS = 0.05
+#: numerator (z⁻¹, z⁻²) and denominator (z⁻¹, z⁻², z⁻³) coefficients
+GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
+    "high": ((-0.053, -0.07017), (-1.393, 0.7321, -0.2117)),
+    "low": ((-0.009263, -0.0291), (-1.394, 0.7058, -0.198)),
+}
+MAX_DUTY = 32760
+MAX_SPEED_HIGH_DPS = 90.0
+GEAR_RATIO = 70.0
+
+
+@dataclass(frozen=True, slots=True)
+class MotorConstants:
+    """A plausible 24 V geared DC motor (the seed gives only the gearbox and wheel speed)."""
+
+    supply_v: float = 24.0
+    resistance_ohm: float = 1.0
+    #: back-EMF constant; 90 % of the supply at full wheel speed leaves 2.4 A of friction
+    #: current at full duty
+    ke_v_s_per_rad: float = 0.9 * 24.0 / (GEAR_RATIO * MAX_SPEED_HIGH_DPS * cmath.pi / 180)
+
+    @property
+    def stall_torque_wheel_nm(self) -> float:
+        """Wheel torque at full duty and zero speed (k_t = k_e in SI units)."""
+        return self.ke_v_s_per_rad * self.supply_v / self.resistance_ohm * GEAR_RATIO
+
+
+def _roots_cubic(a1: float, a2: float, a3: float) -> list[complex]:
+    import numpy as np
+
+    return [complex(r) for r in np.roots([1.0, a1, a2, a3])]
+
+
+@dataclass(frozen=True, slots=True)
+class ContinuousModel:
+    """G(s) = dc_gain · (1 + s/zero_c) · Π(−sᵢ) / Π(s − sᵢ), per unit of duty/32760, with the
+    seed's sign (scaled to deg/s by :class:`WheelPlant`)."""
+
+    poles: tuple[complex, ...]
+    zero_c: float  #: the real zero is at s = −zero_c
+    dc_gain: float
+
+    def residues(self) -> list[complex]:
+        """rᵢ of G(s) = Σ rᵢ / (s − sᵢ)."""
+        prod_neg = complex(1.0)
+        for p in self.poles:
+            prod_neg *= -p
+        out = []
+        for i, p in enumerate(self.poles):
+            others = complex(1.0)
+            for j, q in enumerate(self.poles):
+                if j != i:
+                    others *= p - q
+            out.append(self.dc_gain * (1.0 + p / self.zero_c) * prod_neg / others)
+        return out
+
+    def step_response(self, times_s: list[float]) -> list[float]:
+        residues = self.residues()
+        return [sum((r * (cmath.exp(p * t) - 1) / p).real
+                    for p, r in zip(self.poles, residues, strict=True)) for t in times_s]
+
+
+def continuous_model(gear: str) -> ContinuousModel:
+    """Mapped poles, fitted real zero, identified DC gain (see the module docstring)."""
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    poles = []
+    for p in _roots_cubic(a1, a2, a3):
+        if abs(p.imag) < 1e-12 and p.real < 0:
+            poles.append(complex(cmath.log(abs(p.real)).real / SEED_TS))
+        else:
+            poles.append(cmath.log(p) / SEED_TS)
+    dc_gain = (b1 + b2) / (1 + a1 + a2 + a3)
+    samples = 80  # 4 s: the whole visible transient of either gear
+    times = [k * SEED_TS for k in range(samples)]
+    target = identified_response(gear, [1.0] * samples)
+    # A ZOH discretisation's step response equals the continuous one at the sample
+    # instants, so compare there (both start at 0: H(z) has its nk = 1 sample delay).
+    base = ContinuousModel(tuple(poles), float("inf"), dc_gain)
+    y0 = base.step_response(times)
+    residues = base.residues()
+    # With the zero, y(t) = y0(t) + (1/c)·Σ rᵢ(e^{sᵢt} − 1): linear in 1/c.
+    y1 = [sum((r * (cmath.exp(p * t) - 1)).real for p, r in zip(poles, residues, strict=True))
+          for t in times]
+    inv_c = (sum((a - b) * c for a, b, c in zip(target, y0, y1, strict=True))
+             / sum(c * c for c in y1))
+    return ContinuousModel(tuple(poles), 1.0 / inv_c, dc_gain)
+
+
+def _dc_gain(gear: str) -> float:
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    return (b1 + b2) / (1 + a1 + a2 + a3)
+
+
+def identified_response(gear: str, inputs: list[float]) -> list[float]:
+    """The seed's difference equation itself, for checking the modal model."""
+    (b1, b2), (a1, a2, a3) = GEARS[gear]
+    y = [0.0, 0.0, 0.0]
+    u = [0.0, 0.0]
+    out = []
+    for value in inputs:
+        new = b1 * u[0] + b2 * u[1] - a1 * y[0] - a2 * y[1] - a3 * y[2]
+        out.append(new)
+        y = [new, y[0], y[1]]
+        u = [value, u[0]]
+    return out
+
+
+class WheelPlant:
+    """One wheel: ``advance(seconds)`` with the duty held, then read ``speed_dps``,
+    ``angle_deg`` and ``current_a``."""
+
+    def __init__(self, gear: str = "high", motor: MotorConstants | None = None) -> None:
+        if gear not in GEARS:
+            raise ValueError(f"gear must be one of {sorted(GEARS)}, got {gear!r}")
+        self.gear = gear
+        self.motor = motor or MotorConstants()
+        model = continuous_model(gear)
+        dc_gain = model.dc_gain
+        high_dc = _dc_gain("high")
+        # Output in deg/s per unit input, sign flipped to physical; input is duty/32760.
+        scale = MAX_SPEED_HIGH_DPS / high_dc
+        self._s = list(model.poles)
+        self._b = [complex(1.0)] * 3
+        self._c = [r * scale for r in model.residues()]
+        self._x = [0j, 0j, 0j]
+        self.max_speed_dps = MAX_SPEED_HIGH_DPS * dc_gain / high_dc
+        self.duty = 0
+        self.load_torque_nm = 0.0  #: at the wheel; positive opposes positive speed
+        self.stalled = False
+        self.angle_deg = 0.0
+        self._cache: dict[float, list[tuple[complex, complex, complex, complex]]] = {}
+
+    @property
+    def speed_dps(self) -> float:
+        if self.stalled:
+            return 0.0
+        total = 0.0
+        for c, x in zip(self._c, self._x, strict=True):
+            total += (c * x).real
+        return total
+
+    @property
+    def current_a(self) -> float:
+        m = self.motor
+        volts = m.supply_v * self.duty / MAX_DUTY
+        omega_motor = self.speed_dps * cmath.pi / 180 * GEAR_RATIO
+        return (volts - m.ke_v_s_per_rad * omega_motor) / m.resistance_ohm
+
+    def _input(self) -> float:
+        # A load torque is the duty it would take to hold it at stall.
+        return self.duty / MAX_DUTY - self.load_torque_nm / self.motor.stall_torque_wheel_nm
+
+    def _coefficients(self, dt: float) -> list[tuple[complex, complex, complex, complex]]:
+        coefficients = self._cache.get(dt)
+        if coefficients is None:
+            coefficients = []
+            for s, b, c in zip(self._s, self._b, self._c, strict=True):
+                e = cmath.exp(s * dt)
+                phi = (e - 1) / s  # ∫ e^{sτ} dτ over the step
+                # state update (e, input gain) and the angle it adds (from state, from input)
+                coefficients.append((e, phi * b, c * phi, c * (phi - dt) / s * b))
+            if len(self._cache) < 64:
+                self._cache[dt] = coefficients
+        return coefficients
+
+    def advance(self, dt: float) -> tuple[float, float]:
+        """Hold the duty for ``dt`` seconds; returns (angle at start, speed at start) so a
+        caller can interpolate within the step."""
+        angle0, speed0 = self.angle_deg, self.speed_dps
+        if dt <= 0:
+            return angle0, speed0
+        if self.stalled:
+            return angle0, 0.0
+        u = self._input()
+        x = self._x
+        angle_gain = 0.0
+        for i, (e, gain, angle_from_state, angle_from_input) in enumerate(
+            self._coefficients(dt)
+        ):
+            xi = x[i]
+            angle_gain += (angle_from_state * xi + angle_from_input * u).real
+            x[i] = e * xi + gain * u
+        self.angle_deg += angle_gain
+        return angle0, speed0
+
+    def stall(self, stalled: bool = True) -> None:
+        """Block the wheel (or free it): a blocked wheel's dynamics restart from rest."""
+        self.stalled = stalled
+        if stalled:
+            self._x = [0j, 0j, 0j]
+
+
+def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) -> None:
+    """Hold ``wheel``'s duty from cycle ``start`` to ``end``, feeding ``encoder`` the angle
+    at least every :data:`PHYSICS_STEP_CYCLES`."""
+    c0 = start
+    while c0 < end:
+        c1 = min(end, c0 + PHYSICS_STEP_CYCLES)
+        angle0, _ = wheel.advance((c1 - c0) / CLOCK_HZ)
+        encoder.follow(c0, angle0, c1, wheel.angle_deg)
+        c0 = c1
+
+
+class Motors:
+    """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
+    current sensors (a board peripheral)."""
+
+    def __init__(self, gear: str = "high") -> None:
+        self.gear = gear
+        self.wheels: dict[int, WheelPlant] = {}
+        self._board: Board | None = None
+        self._cycle = 0
+
+    def attach(self, board: Board) -> None:
+        self._board = board
+        self._cycle = board.now
+        for code, io in board.channels.items():
+            self.wheels[code] = WheelPlant(self.gear)
+            io.pwm.on_change(self.advance_to)
+        board.on_settle(self.advance_to)
+
+    def advance_to(self, cycle: int) -> None:
+        """Integrate both wheels up to ``cycle`` with the duty their PWM applies now."""
+        start = self._cycle
+        if cycle <= start:
+            return
+        assert self._board is not None
+        channels = self._board.channels
+        for code, wheel in self.wheels.items():
+            io = channels[code]
+            wheel.duty = io.pwm.applied_duty
+            turn(wheel, io.encoder, start, cycle)
+            io.current_a = wheel.current_a
+        self._cycle = cycle

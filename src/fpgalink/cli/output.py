@@ -1,0 +1,166 @@
+"""What the CLI shows and how it fails: exit codes, one-line errors, consoles, values and
+messages as text."""
+
+from __future__ import annotations
+
+import os
+import sys
+from dataclasses import fields
+from enum import IntEnum
+from typing import Any
+
+import click
+from rich.console import Console
+
+from fpgalink.errors import (
+    BoardLost,
+    FpgalinkError,
+    LocalProtocolError,
+    ParameterError,
+    ParameterRefused,
+    PortError,
+    RequestTimeout,
+    ValueMismatch,
+)
+from fpgalink.protocol import (
+    CountedMessage,
+    DirectCommand,
+    Malformed,
+    ParamType,
+    Parsed,
+    Text,
+    float32,
+)
+
+__all__ = [
+    "EXIT_CODES_HELP",
+    "CliError",
+    "ExitCode",
+    "classify",
+    "describe",
+    "echo_out",
+    "err_console",
+    "format_value",
+    "message_id",
+    "quiet_stdout",
+    "table_console",
+]
+
+
+class ExitCode(IntEnum):
+    OK = 0
+    FAILURE = 1  #: anything not covered below
+    BAD_INPUT = 2  #: usage, unknown parameter, value out of range or of the wrong type
+    REFUSED = 3  #: the board answered PN (or another value than the one sent)
+    NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
+    PORT = 5  #: the port is missing, busy or failed
+    INTERRUPTED = 130  #: Ctrl-C (128 + SIGINT), after a clean stop
+
+
+EXIT_CODES_HELP = (
+    "Exit codes: 0 ok; 1 other failure; 2 bad input (usage, unknown parameter, value out of "
+    "range or of the wrong type; nothing sent); 3 board refused (PN) or confirmed another "
+    "value; 4 board not answering; 5 port missing or busy; 130 interrupted (Ctrl-C)."
+)
+
+#: Diagnostics go to stderr so stdout stays clean for pipes.
+err_console = Console(stderr=True, highlight=False)
+
+
+class CliError(click.ClickException):
+    """A user-facing failure: one line on stderr, a documented exit code, no traceback."""
+
+    def __init__(self, message: str, code: ExitCode = ExitCode.FAILURE) -> None:
+        # One line, whatever the library message looked like.
+        super().__init__(" ".join(message.split()))
+        # click declares exit_code on the class; each error carries its own.
+        setattr(self, "exit_code", int(code))  # noqa: B010
+
+    def show(self, file: Any = None) -> None:
+        click.echo(f"fpgalink-cli: error: {self.format_message()}", err=True)
+
+
+def classify(exc: FpgalinkError, where: str = "") -> CliError:
+    """Library error → the CLI's message and exit code."""
+    prefix = f"{where}: " if where else ""
+    if isinstance(exc, ParameterError | LocalProtocolError):
+        return CliError(str(exc), ExitCode.BAD_INPUT)
+    if isinstance(exc, ParameterRefused | ValueMismatch):
+        return CliError(f"{prefix}{exc}", ExitCode.REFUSED)
+    if isinstance(exc, RequestTimeout | BoardLost):
+        return CliError(f"{prefix}board not answering: {exc}", ExitCode.NO_ANSWER)
+    if isinstance(exc, PortError):
+        return CliError(str(exc), ExitCode.PORT)
+    return CliError(f"{prefix}{exc}", ExitCode.FAILURE)
+
+
+def format_value(value: int | float, kind: ParamType | None = None) -> str:
+    """A parameter value as the shortest text that means the same stored value: floats are
+    float32 on the board, so ``7.11`` prints as ``7.11``, not ``7.110000133514404``."""
+    if isinstance(value, bool):
+        return str(int(value))
+    if isinstance(value, int) and kind is not ParamType.FLOAT:
+        return str(value)
+    number = float(value)
+    if number != number or number in (float("inf"), float("-inf")):
+        return str(number)
+    if kind is ParamType.INT and number.is_integer():
+        return str(int(number))
+    try:
+        stored = float32(number)
+    except OverflowError:
+        return repr(number)
+    for digits in range(1, 10):
+        text = f"{stored:.{digits}g}"
+        if float32(float(text)) == stored:
+            break
+    # repr() of the same decimal gives fixed notation where Python would (520.0, not
+    # 5.2e+02) and keeps it a float to the eye and to TOML (7 → 7.0).
+    return repr(float(text))
+
+
+def message_id(message: Parsed) -> str:
+    """The two-letter ID of a received message (``E`` for the heartbeat)."""
+    if isinstance(message, Malformed):
+        return message.content[:2].decode("ascii", "replace")
+    msg_id = message.msg_id
+    return msg_id if isinstance(msg_id, str) else msg_id.decode("ascii", "replace")
+
+
+def describe(message: Parsed) -> str:
+    """One line for a received (or about-to-be-sent) message."""
+    if isinstance(message, DirectCommand):
+        return message.content.decode("ascii", "replace")
+    if isinstance(message, Malformed):
+        return f"malformed ({message.reason.value}): {message.content!r}"
+    counter = message.counter
+    head = f"{message_id(message)} #{counter:05d}" if counter is not None else message_id(message)
+    if isinstance(message, CountedMessage):
+        parts = [
+            f"text {item.data.decode('utf-8', 'backslashreplace')!r}" if isinstance(item, Text)
+            else f"bin[{len(item.data)}] {item.data.hex(' ')}"
+            for item in message.items
+        ]
+        return " ".join([head, *parts])
+    shown = [
+        f"{f.name}={getattr(message, f.name)!r}" for f in fields(message) if f.name != "counter"
+    ]
+    return " ".join([head, *shown])
+
+
+def echo_out(text: str = "") -> None:
+    """A line on stdout, flushed (pipes see it at once)."""
+    sys.stdout.write(text + "\n")
+    sys.stdout.flush()
+
+
+def quiet_stdout() -> None:
+    """The reader of our stdout went away (``| head``): send the rest to /dev/null so the
+    interpreter's final flush does not print a traceback."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
+def table_console() -> Console:
+    """stdout for tables: a terminal's width, or wide enough not to cut names in a pipe."""
+    return Console(soft_wrap=False) if sys.stdout.isatty() else Console(width=200)

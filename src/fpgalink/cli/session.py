@@ -1,0 +1,273 @@
+"""The streaming session shared by ``monitor``, ``record`` and ``step``: running a command's
+coroutine, stopping cleanly on a signal, opening every board, switching telemetry on and
+back, the board clock, and telemetry as flat rows (one schema for CSV, JSON lines, MCAP)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import signal
+import time
+from collections.abc import Awaitable, Callable, Coroutine
+from dataclasses import dataclass, field
+from typing import Any, TypeVar
+
+from fpgalink.aio.link import Link, LinkState
+from fpgalink.cli.options import ConnectionOptions, Endpoint
+from fpgalink.cli.output import classify
+from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import (
+    ChannelTelemetry,
+    CountedMessage,
+    DirectCommand,
+    Event,
+    Malformed,
+    Message,
+    Parsed,
+    Telemetry,
+)
+
+__all__ = [
+    "CHANNEL_FIELDS",
+    "TELEMETRY_FIELDS",
+    "BoardClock",
+    "BoardSession",
+    "Streaming",
+    "compact",
+    "gather_all",
+    "install_stop_signals",
+    "on_messages",
+    "open_sessions",
+    "restore_streaming",
+    "run",
+    "start_streaming",
+    "stop_exit_code",
+    "telemetry_row",
+    "telemetry_schema",
+    "wait_or_stop",
+]
+
+T = TypeVar("T")
+
+
+# --- running ----------------------------------------------------------------------------------
+
+
+def run(coro: Coroutine[Any, Any, T], where: str = "") -> T:
+    """Run one command's coroutine; library errors become :class:`CliError`."""
+    try:
+        return asyncio.run(coro)
+    except FpgalinkError as exc:
+        raise classify(exc, where) from None
+
+
+def install_stop_signals(stop: asyncio.Event) -> list[signal.Signals]:
+    """SIGINT/SIGTERM set ``stop`` so a long command can close its files and say goodbye;
+    returns the signals that were hooked (and will report which one fired via ``stop``)."""
+    loop = asyncio.get_running_loop()
+    hooked: list[signal.Signals] = []
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        try:
+            loop.add_signal_handler(sig, functools.partial(_on_signal, stop, sig))
+            hooked.append(sig)
+        except (NotImplementedError, RuntimeError):  # pragma: no cover - not on Unix
+            pass
+    return hooked
+
+
+def _on_signal(stop: asyncio.Event, sig: signal.Signals) -> None:
+    stop.signal = sig  # type: ignore[attr-defined]
+    stop.set()
+
+
+def stop_exit_code(stop: asyncio.Event) -> int:
+    sig = getattr(stop, "signal", None)
+    return 0 if sig is None else 128 + int(sig)
+
+
+async def wait_or_stop(stop: asyncio.Event, timeout: float | None) -> None:
+    """Wait for ``stop`` or ``timeout`` seconds, whichever first (``None``: only ``stop``)."""
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(stop.wait(), timeout)
+
+
+async def gather_all(*aws: Awaitable[T]) -> list[T]:
+    """``asyncio.gather`` that cancels the siblings when one fails."""
+    tasks = [asyncio.ensure_future(a) for a in aws]
+    try:
+        return list(await asyncio.gather(*tasks))
+    except BaseException:
+        for task in tasks:
+            task.cancel()
+        await asyncio.gather(*tasks, return_exceptions=True)
+        raise
+
+
+_RECEIVED = Message | CountedMessage | DirectCommand | Malformed
+
+
+def on_messages(link: Link, callback: Callable[[Parsed], None]) -> Callable[[], None]:
+    """Call ``callback`` with every message ``link`` receives (``PA`` echoes, unknown IDs,
+    ``E`` … not only telemetry); returns the function that stops it."""
+
+    def listener(event: Event) -> None:
+        if isinstance(event, _RECEIVED):
+            callback(event)
+
+    return link.add_listener(listener)
+
+#: Per channel, in TM wire order; ``ref`` is the reference the board is following.
+CHANNEL_FIELDS = ("position", "speed", "current", "pwm", "ref", "flags")
+TELEMETRY_FIELDS = (
+    "timestamp", "t_us", "counter",
+    *(f"{ch}_{name}" for ch in ("a", "b") for name in CHANNEL_FIELDS),
+)
+_UNITS = {"position": "encoder counts", "speed": "deg/s", "current": "A",
+          "pwm": "duty, ±32760 = ±100 %", "ref": "reference (deg/s or N·m)",
+          "flags": "bit0 enable, bit1 end-stop, bit2 saturated"}
+
+_WRAP = 1 << 32  #: t_us is a u32 of microseconds: it wraps every ~71.6 minutes
+
+
+@dataclass
+class BoardClock:
+    """Board time (``t_us``, wrapping) → host epoch seconds.
+
+    Anchored to the host clock at the first sample, then advanced by board time, so samples
+    that arrive in one burst still get their true spacing. A backward jump of less than half
+    the counter is a board restart (re-anchor); more is a wrap."""
+
+    anchor: float | None = None
+    _origin_us: int = 0
+    _last_us: int = 0
+    _base_us: int = 0
+
+    def seconds(self, t_us: int, host_now: float | None = None) -> float:
+        if self.anchor is None or (t_us < self._last_us and self._last_us - t_us < _WRAP // 2):
+            self.anchor = time.time() if host_now is None else host_now
+            self._origin_us, self._base_us = t_us, 0
+        elif t_us < self._last_us:
+            self._base_us += _WRAP
+        self._last_us = t_us
+        return self.anchor + (self._base_us + t_us - self._origin_us) / 1e6
+
+
+def telemetry_row(sample: Telemetry, timestamp: float) -> dict[str, Any]:
+    row: dict[str, Any] = {"timestamp": timestamp, "t_us": sample.t_us,
+                           "counter": sample.counter}
+    for prefix, channel in (("a", sample.a), ("b", sample.b)):
+        for name, value in zip(CHANNEL_FIELDS, channel, strict=True):
+            row[f"{prefix}_{name}"] = value
+    return row
+
+
+def telemetry_schema() -> dict[str, Any]:
+    """JSON Schema of a row: flat numeric fields, so Foxglove and PlotJuggler plot
+    ``/board/<name>/telemetry.a_speed`` without configuration."""
+    properties: dict[str, Any] = {
+        "timestamp": {"type": "number", "description": "host epoch time of the sample, s"},
+        "t_us": {"type": "integer", "description": "board time, µs (wraps at 2^32)"},
+        "counter": {"type": "integer", "description": "the TM message counter"},
+    }
+    for prefix in ("a", "b"):
+        for name in CHANNEL_FIELDS:
+            kind = "integer" if name in ("position", "pwm", "flags") else "number"
+            properties[f"{prefix}_{name}"] = {
+                "type": kind, "description": f"channel {prefix.upper()} {_UNITS[name]}"
+            }
+    return {"title": "fpgalink.Telemetry", "type": "object", "properties": properties,
+            "required": list(TELEMETRY_FIELDS)}
+
+
+def compact(value: Any) -> Any:
+    """Floats from the wire are float32: 7 significant digits say all they hold."""
+    if isinstance(value, float):
+        return float(f"{value:.7g}")
+    return value
+
+
+def flag_letters(channel: ChannelTelemetry) -> str:
+    return "".join(letter if on else "-" for letter, on in
+                   (("E", channel.enabled), ("S", channel.end_stop), ("X", channel.saturated)))
+
+
+@dataclass
+class Streaming:
+    """Turns ``GetDataPeriodical`` on for the duration of a command and restores what was
+    there before, so watching a board leaves it as it was found."""
+
+    link: Link
+    previous: int | float | None = None
+    changed: bool = field(default=False)
+
+    async def start(self) -> None:
+        self.previous = await self.link.get_param("GetDataPeriodical")
+        if self.previous != 1:
+            await self.link.set_param("GetDataPeriodical", 1)
+            self.changed = True
+
+    async def restore(self) -> None:
+        if self.changed and self.previous is not None and self.link.board_alive:
+            # Best effort: the board may be gone, and we are on our way out anyway.
+            with contextlib.suppress(FpgalinkError):
+                await self.link.set_param("GetDataPeriodical", self.previous)
+
+
+# --- several boards ---------------------------------------------------------------------------
+
+
+@dataclass
+class BoardSession:
+    """One board being watched: its link, streaming switch, clock and rate estimate."""
+
+    endpoint: Endpoint
+    link: Link
+    streaming: Streaming
+    clock: BoardClock = field(default_factory=BoardClock)
+    rate: float = 0.0
+    _rate_mark: tuple[float, int] | None = None
+
+    def update_rate(self, now: float) -> None:
+        received = self.link.stats.telemetry_received
+        if self._rate_mark is not None:
+            then, count = self._rate_mark
+            if now - then >= 0.5:
+                self.rate = (received - count) / (now - then)
+                self._rate_mark = (now, received)
+        else:
+            self._rate_mark = (now, received)
+
+    @property
+    def status(self) -> str:
+        if self.link.state is LinkState.RECONNECTING:
+            return "port lost, reconnecting"
+        if self.link.board_alive:
+            return "alive"
+        return "waiting" if self.link.stats.messages_received == 0 else "SILENT"
+
+
+async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions
+                        ) -> list[BoardSession]:
+    """Open every board's link (closed by ``stack``). Long-running commands keep reconnecting
+    after a lost port and use the library's liveness timeout, so their view shows the truth."""
+    sessions = []
+    for endpoint in conn.endpoints:
+        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7)
+        await stack.enter_async_context(link)
+        sessions.append(BoardSession(endpoint, link, Streaming(link)))
+    return sessions
+
+
+async def start_streaming(sessions: list[BoardSession], passive: bool) -> None:
+    if passive:
+        return
+    for session in sessions:
+        await session.streaming.start()
+
+
+async def restore_streaming(sessions: list[BoardSession], passive: bool) -> None:
+    if passive:
+        return
+    for session in sessions:
+        await session.streaming.restore()

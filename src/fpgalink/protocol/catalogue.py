@@ -1,0 +1,387 @@
+"""The typed message catalogue of SPEC §4: ``PS PG PA PN RV TM``.
+
+Each body layout is declared once, with :mod:`construct`, in ``LAYOUTS``. The hot path
+(1 kHz telemetry from every board) does not run construct's interpreter: a :mod:`struct`
+format is derived from the same declaration at import time and checked to have the same
+size, so the layout still lives in one place.
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, ClassVar, NamedTuple
+
+import construct as cs
+
+from fpgalink.protocol.errors import LocalProtocolError
+from fpgalink.protocol.event import Event
+from fpgalink.protocol.messages import (
+    DIRECT_BY_CONTENT,
+    SECTION_OPEN,
+    Binary,
+    CountedMessage,
+    DirectCommand,
+    Malformed,
+    MalformedReason,
+    MessageId,
+    encode_body,
+    encode_counted,
+    parse_body,
+    parse_header,
+    validate_id,
+)
+from fpgalink.protocol.params import ParamType
+
+__all__ = [
+    "LAYOUTS",
+    "ChannelTelemetry",
+    "Message",
+    "NackReason",
+    "ParamAck",
+    "ParamGet",
+    "ParamNack",
+    "ParamSet",
+    "Parsed",
+    "References",
+    "Telemetry",
+    "TelemetryFlags",
+    "content_length",
+    "encode_message",
+    "parse_content",
+]
+
+
+class NackReason(IntEnum):
+    """``PN`` error codes (SPEC §4)."""
+
+    UNKNOWN_ID = 1  #: no parameter has this id
+    BAD_CHANNEL = 2  #: board parameter with channel ≠ 0, or channel parameter with 0 or > 2
+    OUT_OF_RANGE = 3  #: value outside the range (NaN and infinities included)
+    WRONG_TYPE = 4  #: type code is not the parameter's type
+
+    @property
+    def text(self) -> str:
+        return {
+            1: "unknown parameter id",
+            2: "bad channel",
+            3: "value out of range",
+            4: "wrong value type",
+        }[self.value]
+
+
+class TelemetryFlags(IntEnum):
+    ENABLE = 1  #: bit0: ``global_enable`` as the PWM stages see it
+    END_STOP = 2  #: bit1: end-stop switch closed
+    SATURATED = 4  #: bit2: controller output saturated
+
+
+_CHANNEL_TM = cs.Struct(
+    "position" / cs.Int32sl,  # encoder counts
+    "speed" / cs.Float32l,  # deg/s
+    "current" / cs.Float32l,  # A
+    "pwm" / cs.Int16sl,  # applied duty, ±32760
+    "reference" / cs.Float32l,
+    "flags" / cs.Int8ul,
+)
+
+#: Body layouts, each carried as one binary section. Declared once; ``struct`` formats derive.
+LAYOUTS: dict[MessageId, cs.Construct] = {
+    MessageId.PS: cs.Struct(
+        "param_id" / cs.Int8ul, "channel" / cs.Int8ul, "value_type" / cs.Int8ul,
+        "value" / cs.Bytes(4),
+    ),
+    MessageId.PG: cs.Struct("param_id" / cs.Int8ul, "channel" / cs.Int8ul),
+    MessageId.PN: cs.Struct("param_id" / cs.Int8ul, "channel" / cs.Int8ul, "error" / cs.Int8ul),
+    MessageId.RV: cs.Struct("ref_a" / cs.Float32l, "ref_b" / cs.Float32l),
+    MessageId.TM: cs.Struct("t_us" / cs.Int32ul, "a" / _CHANNEL_TM, "b" / _CHANNEL_TM),
+}
+LAYOUTS[MessageId.PA] = LAYOUTS[MessageId.PS]
+
+
+def _struct_format(con: Any) -> str:
+    """The :mod:`struct` format (without byte order) of a fixed-size construct layout."""
+    if isinstance(con, cs.Renamed):
+        return _struct_format(con.subcon)
+    if isinstance(con, cs.Struct):
+        return "".join(_struct_format(sub) for sub in con.subcons)
+    if isinstance(con, cs.FormatField):
+        if con.fmtstr[0] != "<":
+            raise TypeError(f"layout field {con!r} is not little-endian")
+        return str(con.fmtstr[1:])
+    if isinstance(con, cs.Bytes):
+        return f"{con.length}s"
+    raise TypeError(f"no struct equivalent for {con!r}")
+
+
+def _compile(msg_id: MessageId) -> struct.Struct:
+    layout = LAYOUTS[msg_id]
+    compiled = struct.Struct("<" + _struct_format(layout))
+    if compiled.size != layout.sizeof():
+        raise AssertionError(f"{msg_id!r}: struct size {compiled.size} != {layout.sizeof()}")
+    return compiled
+
+
+_STRUCTS = {msg_id: _compile(msg_id) for msg_id in LAYOUTS}
+
+
+def content_length(msg_id: MessageId) -> int:
+    """Frame content bytes of a catalogued message: ID, counter, ``{`` LEN body ``}``."""
+    return 2 + 5 + 3 + _STRUCTS[msg_id].size
+_VALUE_INT = struct.Struct("<i")
+_VALUE_FLOAT = struct.Struct("<f")
+_VALUE_RAW = struct.Struct("<I")
+
+
+def _pack_value(value_type: int, value: int | float) -> bytes:
+    if value_type == ParamType.INT:
+        return _VALUE_INT.pack(int(value))
+    if value_type == ParamType.FLOAT:
+        return _VALUE_FLOAT.pack(float(value))
+    return _VALUE_RAW.pack(int(value) & 0xFFFFFFFF)
+
+
+def _unpack_value(value_type: int, raw: bytes) -> int | float:
+    if value_type == ParamType.INT:
+        return int(_VALUE_INT.unpack(raw)[0])
+    if value_type == ParamType.FLOAT:
+        return float(_VALUE_FLOAT.unpack(raw)[0])
+    # An unknown type code still decodes, so the board can answer it with PN 4.
+    return int(_VALUE_RAW.unpack(raw)[0])
+
+
+# --- the messages -----------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class _Catalogued(Event):
+    msg_id: ClassVar[MessageId]
+
+    def _body_values(self) -> tuple[Any, ...]:
+        raise NotImplementedError
+
+
+@dataclass(frozen=True, slots=True)
+class _ParamValue(_Catalogued):
+    """The ``PS``/``PA`` body: which parameter, and a value of the given type."""
+
+    param_id: int
+    channel: int
+    value_type: int  #: a :class:`~fpgalink.params.ParamType` code
+    value: int | float
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.param_id, self.channel, self.value_type,
+                _pack_value(self.value_type, self.value))
+
+
+@dataclass(frozen=True, slots=True)
+class ParamSet(_ParamValue):
+    """``PS`` host → board: set a parameter."""
+
+    msg_id: ClassVar[MessageId] = MessageId.PS
+
+
+@dataclass(frozen=True, slots=True)
+class ParamAck(_ParamValue):
+    """``PA`` board → host: the value now in force (answers ``PS`` and ``PG``)."""
+
+    msg_id: ClassVar[MessageId] = MessageId.PA
+
+
+@dataclass(frozen=True, slots=True)
+class ParamGet(_Catalogued):
+    """``PG`` host → board: read a parameter."""
+
+    msg_id: ClassVar[MessageId] = MessageId.PG
+    param_id: int
+    channel: int
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.param_id, self.channel)
+
+
+@dataclass(frozen=True, slots=True)
+class ParamNack(_Catalogued):
+    """``PN`` board → host: the request was refused; final."""
+
+    msg_id: ClassVar[MessageId] = MessageId.PN
+    param_id: int
+    channel: int
+    error: int  #: a :class:`NackReason` code
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.param_id, self.channel, self.error)
+
+    @property
+    def reason(self) -> str:
+        try:
+            return NackReason(self.error).text
+        except ValueError:
+            return f"unknown refusal code {self.error}"
+
+
+@dataclass(frozen=True, slots=True)
+class References(_Catalogued):
+    """``RV`` host → board: controller references (deg/s in speed control)."""
+
+    msg_id: ClassVar[MessageId] = MessageId.RV
+    ref_a: float
+    ref_b: float
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.ref_a, self.ref_b)
+
+
+class ChannelTelemetry(NamedTuple):
+    """One channel's part of a ``TM`` sample, in wire order."""
+
+    position: int  #: encoder counts
+    speed: float  #: deg/s
+    current: float  #: A
+    pwm: int  #: applied duty, −32760..32760, 0 while disabled
+    reference: float
+    flags: int  #: :class:`TelemetryFlags` bits
+
+    @property
+    def enabled(self) -> bool:
+        return bool(self.flags & TelemetryFlags.ENABLE)
+
+    @property
+    def end_stop(self) -> bool:
+        return bool(self.flags & TelemetryFlags.END_STOP)
+
+    @property
+    def saturated(self) -> bool:
+        return bool(self.flags & TelemetryFlags.SATURATED)
+
+
+@dataclass(frozen=True, slots=True)
+class Telemetry(_Catalogued):
+    """``TM`` board → host: one sample per timer period while ``GetDataPeriodical`` = 1."""
+
+    msg_id: ClassVar[MessageId] = MessageId.TM
+    t_us: int  #: board time in µs (wraps at 2³²)
+    a: ChannelTelemetry
+    b: ChannelTelemetry
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.t_us, *self.a, *self.b)
+
+
+Message = ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry
+
+
+# --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
+
+_new = object.__new__
+
+
+def _setter(cls: type, field: str) -> Callable[[object, object], None]:
+    descriptor = cls.__dict__[field]
+    return descriptor.__set__  # type: ignore[no-any-return]
+
+
+_tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", "counter"))
+_new_tuple = tuple.__new__
+
+
+# Builders take the unpacked whole-message tuple: (counter digits, "{"+LEN, *fields, "}").
+
+
+def _build_tm(v: tuple[Any, ...]) -> Telemetry:
+    tm = _new(Telemetry)
+    _tm_t(tm, v[2])
+    _tm_a(tm, _new_tuple(ChannelTelemetry, v[3:9]))
+    _tm_b(tm, _new_tuple(ChannelTelemetry, v[9:15]))
+    _tm_c(tm, int(v[0]))
+    return tm
+
+
+def _build_param(cls: type[ParamSet] | type[ParamAck]) -> Callable[[tuple[Any, ...]], Any]:
+    def build(v: tuple[Any, ...]) -> ParamSet | ParamAck:
+        return cls(v[2], v[3], v[4], _unpack_value(v[4], v[5]), int(v[0]))
+
+    return build
+
+
+class _Entry(NamedTuple):
+    whole: struct.Struct  #: the entire content after the ID: counter, "{" LEN, body, "}"
+    size: int  #: the body section's LEN
+    opener: bytes
+    build: Callable[[tuple[Any, ...]], Any]
+
+
+def _entry(msg_id: MessageId, build: Callable[[tuple[Any, ...]], Any]) -> _Entry:
+    body = _STRUCTS[msg_id]
+    whole = struct.Struct("<2x5s2s" + body.format[1:] + "c")
+    return _Entry(whole, body.size, bytes((SECTION_OPEN, body.size)), build)
+
+
+_BUILDERS: dict[bytes, _Entry] = {
+    MessageId.TM: _entry(MessageId.TM, _build_tm),
+    MessageId.PS: _entry(MessageId.PS, _build_param(ParamSet)),
+    MessageId.PA: _entry(MessageId.PA, _build_param(ParamAck)),
+    MessageId.PG: _entry(MessageId.PG, lambda v: ParamGet(v[2], v[3], int(v[0]))),
+    MessageId.PN: _entry(MessageId.PN, lambda v: ParamNack(v[2], v[3], v[4], int(v[0]))),
+    MessageId.RV: _entry(MessageId.RV, lambda v: References(v[2], v[3], int(v[0]))),
+}
+_CLOSE = b"}"
+
+Parsed = Message | CountedMessage | DirectCommand | Malformed
+
+
+def parse_content(content: bytes) -> Parsed:
+    """One frame's content as a typed message, a generic counted message, a direct command,
+    or a :class:`Malformed` event. Never raises."""
+    entry = _BUILDERS.get(content[:2])
+    if entry is not None and len(content) == entry.whole.size:
+        v = entry.whole.unpack(content)
+        if v[1] == entry.opener and v[-1] == _CLOSE and v[0].isdigit():
+            return entry.build(v)  # type: ignore[no-any-return]
+    direct = DIRECT_BY_CONTENT.get(content)
+    if direct is not None:
+        return direct
+    header = parse_header(content)
+    if isinstance(header, Malformed):
+        return header
+    raw_id, counter = header
+    items = parse_body(content)
+    if isinstance(items, Malformed):
+        return items
+    if entry is not None:
+        lengths = [len(i.data) if isinstance(i, Binary) else f"text {len(i.data)}" for i in items]
+        return Malformed(
+            MalformedReason.BAD_LAYOUT,
+            content,
+            f"{raw_id.decode()} needs one {entry.size}-byte binary section, got {lengths}",
+        )
+    return CountedMessage(raw_id.decode(), items, counter)
+
+
+def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
+    """Frame content for ``message`` with the given counter value."""
+    if isinstance(message, CountedMessage):
+        return encode_counted(validate_id(message.msg_id), counter, encode_body(message.items))
+    if type(message) is References and not (
+        math.isfinite(message.ref_a) and math.isfinite(message.ref_b)
+    ):
+        # A non-finite reference would poison a controller that trusts its host: never send one.
+        raise LocalProtocolError(
+            f"references must be finite numbers, got ({message.ref_a!r}, {message.ref_b!r})"
+        )
+    try:
+        body = _STRUCTS[message.msg_id].pack(*message._body_values())
+    except (struct.error, OverflowError) as exc:
+        raise LocalProtocolError(f"{type(message).__name__}: {exc}") from None
+    return encode_counted(
+        message.msg_id, counter, bytes((SECTION_OPEN, len(body))) + body + b"}"
+    )

@@ -1,0 +1,198 @@
+"""Each benchmark still runs end to end with ``--quick`` and writes a report of the shape the
+README's figures are read from.
+
+Speeds are never checked: they belong to the machine, and a loaded CI runner would make such
+a test flaky. What would silently rot is the scripts themselves as the API under them
+changes, and their bookkeeping: so the counts a script reports must add up (every message
+sent is received or counted lost, none lost on the in-memory paths).
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+pytestmark = pytest.mark.benchmark_smoke
+
+REPO = Path(__file__).resolve().parents[2]
+#: Generous: a quick run takes seconds, but a busy machine may stretch the emulator start-ups.
+TIMEOUT_S = 100
+HEADER = ("benchmark", "created", "machine", "python", "packages", "config")
+SUMMARY = {"median", "min", "max"}
+
+
+def run_quick(name: str, tmp_path: Path, *extra: str) -> tuple[str, dict[str, Any]]:
+    """``python -m benchmarks.<name> --quick`` from the repository root, as ``make bench``
+    runs it; its stdout and its JSON report (written to ``tmp_path``, so a smoke run never
+    overwrites a real run's ``benchmarks/results/<name>.json``)."""
+    out = tmp_path / f"{name}.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", f"benchmarks.{name}", "--quick", "--output", str(out), *extra],
+        cwd=REPO, capture_output=True, text=True, timeout=TIMEOUT_S, check=False,
+    )
+    assert proc.returncode == 0, f"stdout:\n{proc.stdout}\nstderr:\n{proc.stderr}"
+    report = json.loads(out.read_text(encoding="utf-8"))
+    for key in HEADER:
+        assert key in report, key
+    assert report["benchmark"] == name
+    assert report["config"]["quick"] is True
+    assert report["packages"]["fpgalink"]
+    machine = report["machine"]
+    assert machine["cpu_model"] and machine["cpu_count"]
+    # The figures are printed beside the machine that produced them.
+    assert machine["cpu_model"] in proc.stdout
+    assert str(out) in proc.stdout
+    return proc.stdout, report
+
+
+def assert_summary(summary: dict[str, Any], *metrics: str) -> None:
+    for metric in metrics:
+        assert set(summary[metric]) == SUMMARY, metric
+        assert summary[metric]["min"] <= summary[metric]["median"] <= summary[metric]["max"]
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_codec_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("codec", tmp_path)
+    assert "frames/s" in stdout
+    assert report["config"]["reps"] == 1
+    assert set(report["streams"]) == {"tm", "counted190", "escaped190"}
+
+    message_paths = ("decode.typed", "decode.connection", "encode.connection")
+    framing_paths = ("decode.framing", "decode.naive", "encode.framing", "encode.naive")
+    expected = {f"{s}.{p}" for s in ("tm", "counted190") for p in framing_paths + message_paths}
+    expected |= {f"escaped190.{p}" for p in framing_paths}
+    assert set(report["cases"]) == expected
+    for key, case in report["cases"].items():
+        assert case["frames"] > 0 and case["wire_bytes"] > 0, key
+        (rep,) = case["repetitions"]
+        assert rep["frames_handled"] == case["frames"], key
+        assert_summary(case["summary"], "frames_per_s", "mb_per_s", "line_rate_x", "seconds")
+
+    # Every path has its ratio to the naive model of the same operation, from this run.
+    assert set(report["ratios_vs_naive"]) == {k for k in expected if not k.endswith(".naive")}
+    for key, ratio in report["ratios_vs_naive"].items():
+        assert ratio["baseline"] == key.rsplit(".", 1)[0] + ".naive"
+        assert ratio["median"] > 0
+    for target in report["targets"]:
+        assert isinstance(target["pass"], bool) and target["case"] in report["cases"]
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_emulator_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("emulator", tmp_path)
+    assert "× real time" in stdout
+    config = report["config"]
+    assert config["reps"] == 1 and config["emulated_s"] == 1.0
+
+    assert set(report["cases"]) == {"board", "board+host", "board.tm_only"}
+    for key, case in report["cases"].items():
+        (rep,) = case["repetitions"]
+        assert rep["periods"] == 1000 and rep["missed"] == 0, key
+        assert rep["tm_dropped"] == 0, key
+        # Every period queued its TM; the last may still be on the wire when the run ends.
+        assert rep["tm_sent"] == rep["periods"], key
+        assert rep["tm_sent"] - 1 <= rep["tm_finished"] <= rep["tm_sent"], key
+        assert rep["rv_handled"] == rep["rv_sent"], key
+        assert rep["rv_sent"] == (0 if key == "board.tm_only" else 1000), key
+        assert case["events"] >= 2 * case["periods"], key  # at least a tick and a TM each
+        assert_summary(case["summary"], "x_real_time", "events_per_s", "seconds")
+        if key == "board+host":
+            # In memory nothing can be lost: every TM the board finished is decoded.
+            assert rep["tm_received"] == rep["tm_finished"], key
+            assert rep["tm_lost"] == 0 and rep["decode_errors"] == 0, key
+        else:
+            assert rep["tm_received"] is None, key
+
+    (target,) = report["targets"]
+    assert target["case"] == "board" and isinstance(target["pass"], bool)
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_link_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("link", tmp_path)
+    assert "set_param round trip p50" in stdout and "host CPU per TM" in stdout
+    assert report["config"]["sets"] == 100 and report["config"]["seconds"] == 3.0
+    assert report["serve"]["exit_code"] == 0
+
+    sets = report["set_param"]
+    assert sets["count"] == 100
+    assert 0 < sets["p50_us"] <= sets["p99_us"] <= sets["max_us"]
+
+    tm = report["telemetry"]
+    assert tm["received"] > 0
+    # The link's own count and the listener's agree, and every counter between the first
+    # and the last TM seen was either seen or counted missing. Loss itself is not asserted:
+    # a starved machine can overflow a pty, and that is the machine, not the code.
+    assert tm["listener_received"] == tm["received"]
+    assert tm["received"] + tm["missing_counters"] == tm["counter_span"]
+    for key in ("lost", "counter_gaps", "missing_counters", "subscriber_drops"):
+        assert isinstance(tm[key], int) and tm[key] >= 0, key
+    for key in ("interarrival_p50_ms", "interarrival_p99_ms", "jitter_p50_ms", "jitter_p99_ms",
+                "cpu_us_per_tm", "host_cpu_s", "idle_wakeup_cpu_us"):
+        assert tm[key] >= 0, key
+
+    assert {t["name"] for t in report["targets"]} == {
+        "tm.lost", "tm.cpu_us_per_tm", "tm.cpu_us_per_tm_above_idle"}
+    for target in report["targets"]:
+        assert isinstance(target["pass"], bool) and isinstance(target["required"], bool)
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_throughput_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("throughput", tmp_path, "--no-progress")
+    assert "msg/s" in stdout
+    for section in ("codec", "host_stack", "paced_1_board", "paced_2_boards", "payload_limit",
+                    "timing"):
+        assert section in report, section
+    assert report["config"]["reps"] == 1
+
+    codec = report["codec"]
+    impls = ["fpgalink"] + (["pymavlink"] if codec["pymavlink"]["available"] else [])
+    kinds = ("tm", "rv", "ps")
+    assert set(codec["cases"]) == {
+        f"{k}.{op}.{impl}" for k in kinds for op in ("encode", "decode") for impl in impls}
+    for key, case in codec["cases"].items():
+        assert case["messages"] > 0 and case["wire_bytes"] > 0, key
+        (rep,) = case["repetitions"]
+        assert rep["messages_handled"] == case["messages"], key
+        assert_summary(case["summary"], "messages_per_s", "mb_per_s")
+    if "pymavlink" in impls:
+        assert set(codec["ratios_fpgalink_over_pymavlink"]) == {
+            f"{k}.{op}" for k in kinds for op in ("encode", "decode")}
+        for kind in ("TM", "RV", "PS/PA"):
+            peer = codec["pymavlink"][kind]
+            # The comparison is only fair at the same payload size.
+            assert peer["payload_bytes_max"] == peer["ours_payload_bytes"], kind
+
+    stack = report["host_stack"]["cases"]
+    assert set(stack) == {"tm.bulk", "tm.per_frame"}
+    for key, case in stack.items():
+        (rep,) = case["repetitions"]
+        # In memory: every message sent arrives at the subscriber.
+        assert rep["sent"] == case["messages"] and rep["delivered"] == rep["sent"], key
+        assert rep["lost"] == rep["subscriber_drops"] == rep["decode_errors"] == 0, key
+        assert_summary(case["summary"], "messages_per_s", "cpu_us_per_message")
+
+    for section, boards in (("paced_1_board", 1), ("paced_2_boards", 2)):
+        paced = report[section]
+        assert paced["boards"] == boards and len(paced["board_names"]) == boards
+        assert paced["emulator_exit_code"] == 0, paced["emulator_stderr"]
+        (rep,) = paced["repetitions"]
+        assert set(rep["boards"]) == set(paced["board_names"])
+        for name, board in rep["boards"].items():
+            assert board["tm_received"] > 0, (section, name)
+            # Every counter between the first and last sample is received or missing;
+            # loss over a pty is the machine's, so it is counted, not asserted zero.
+            assert board["tm_received"] + board["counters_missing"] == board["counter_span"]
+            assert board["lost"] >= 0 and board["subscriber_drops"] >= 0
+        assert paced["summary"]["lost_total"] == sum(b["lost"] for b in rep["boards"].values())
+        assert_summary(paced["summary"], "tm_per_s_total", "host_cpu_percent")
+
+    limit = report["payload_limit"]
+    assert 0 < limit["largest_payload_bytes_all_escaped"] < limit["largest_payload_bytes"]

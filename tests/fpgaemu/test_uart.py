@@ -1,0 +1,160 @@
+"""uartread / uartwrite: line-rate timing, queuing, and bit-level fault injection."""
+
+from __future__ import annotations
+
+from hypothesis import given
+from hypothesis import strategies as st
+
+from fpgaemu.board import Board
+from fpgaemu.timeline import Timeline
+from fpgaemu.uart import (
+    BIT_START,
+    BIT_STOP,
+    ByteRun,
+    LineFaults,
+    UartRead,
+    UartWrite,
+    cycles_per_bit,
+)
+from tests.support.reference import naive_line_timing
+
+
+def collect(faults: LineFaults | None = None, seed: int = 0) -> tuple[UartRead, list[ByteRun]]:
+    runs: list[ByteRun] = []
+    line = UartRead(Timeline(seed), runs.append, faults=faults)
+    return line, runs
+
+
+def timed(runs: list[ByteRun]) -> list[tuple[int, int]]:
+    return [pair for run in runs for pair in run.timed()]
+
+
+def test_divider() -> None:
+    assert cycles_per_bit(1_000_000) == 100
+    assert cycles_per_bit(115_200) == 868
+    line, _ = collect()
+    assert line.cycles_per_byte == 1_000
+
+
+def test_idle_line_delivers_at_ten_bit_times() -> None:
+    line, runs = collect()
+    end = line.transmit(b"A", 500)
+    assert timed(runs) == [(0x41, 1_500)] and end == 1_500
+
+
+def test_bytes_written_faster_than_line_rate_queue() -> None:
+    line, runs = collect()
+    line.transmit(b"ab", 0)
+    line.transmit(b"c", 10)  # the host wrote while "ab" was still on the wire
+    line.transmit(b"d", 10_000)  # the line was idle again by then
+    assert timed(runs) == [(97, 1_000), (98, 2_000), (99, 3_000), (100, 11_000)]
+
+
+@given(st.lists(st.tuples(st.integers(0, 5_000), st.binary(min_size=1, max_size=8)),
+                max_size=12))
+def test_timing_matches_per_byte_reference(steps: list[tuple[int, bytes]]) -> None:
+    line, runs = collect()
+    writes: list[tuple[int, bytes]] = []
+    cycle = 0
+    for gap, data in steps:
+        cycle += gap
+        line.transmit(data, cycle)
+        writes.append((cycle, data))
+    assert timed(runs) == naive_line_timing(writes, 1_000)
+
+
+@given(st.binary(min_size=1, max_size=20), st.data())
+def test_a_flipped_data_bit_changes_exactly_one_byte(data: bytes, draw: st.DataObject) -> None:
+    index = draw.draw(st.integers(0, len(data) - 1))
+    bit = draw.draw(st.integers(0, 7))
+    line, runs = collect(LineFaults(flip_bits={(index, 1 + bit)}))
+    line.transmit(data, 0)
+    got = timed(runs)
+    expected = naive_line_timing([(0, data)], 1_000)
+    assert len(got) == len(data)
+    diffs = [k for k in range(len(data)) if got[k] != expected[k]]
+    assert diffs == [index]
+    assert got[index] == (data[index] ^ (1 << bit), expected[index][1])
+    assert line.stats.bits_flipped == 1
+
+
+@given(st.binary(min_size=1, max_size=20), st.data())
+def test_a_broken_stop_bit_drops_exactly_one_byte(data: bytes, draw: st.DataObject) -> None:
+    index = draw.draw(st.integers(0, len(data) - 1))
+    line, runs = collect(LineFaults(break_stop={index}))
+    line.transmit(data, 0)
+    expected = naive_line_timing([(0, data)], 1_000)
+    assert timed(runs) == expected[:index] + expected[index + 1 :]
+    assert line.stats.framing_errors == 1
+
+
+def test_flip_stop_bit_by_index_is_a_framing_error() -> None:
+    line, runs = collect(LineFaults(flip_bits={(1, BIT_STOP)}))
+    line.transmit(b"xyz", 0)
+    assert bytes(b for b, _ in timed(runs)) == b"xz"
+    assert line.stats.framing_errors == 1
+
+
+def test_a_flipped_start_bit_slips_then_resynchronises() -> None:
+    # 0xFF then idle-looking data: with its start bit high, 0xFF's slots are all high, so the
+    # receiver simply never sees it; the next byte is received normally.
+    line, runs = collect(LineFaults(flip_bits={(0, BIT_START)}))
+    line.transmit(b"\xffA", 0)
+    assert timed(runs) == [(0x41, 2_000)]
+    # 0x00 with a high start bit: the receiver starts at data bit 0, finds the next byte's
+    # start bit where it wants a stop bit (framing error), then locks two bits late onto the
+    # alternating 0x55 pattern; the last slipped byte is completed by the idle line.
+    line, runs = collect(LineFaults(flip_bits={(0, BIT_START)}))
+    line.transmit(b"\x00" + b"U" * 4, 0)
+    assert timed(runs) == [(0x55, 2_200), (0x55, 3_200), (0x55, 4_200), (0xD5, 5_200)]
+    assert line.stats.framing_errors == 1
+    line.transmit(b"ok", 10_000)  # after idle, in step again
+    assert timed(runs)[-2:] == [(ord("o"), 11_000), (ord("k"), 12_000)]
+
+
+def test_noise_and_drops() -> None:
+    line, runs = collect(LineFaults(noise={1: b"!?"}, drop={2}))
+    line.transmit(b"abc", 0)
+    assert timed(runs) == [(97, 1_000), (33, 2_000), (63, 3_000), (98, 4_000)]
+    assert line.stats.noise_bytes == 2 and line.stats.dropped_bytes == 1
+    assert line.line_free_at == 5_000  # noise took line time; the dropped byte too
+
+
+def test_faults_only_touch_their_indexes_later_bursts_take_the_fast_path() -> None:
+    line, runs = collect(LineFaults(flip_bits={(0, 1)}))
+    line.transmit(b"\x00", 0)
+    line.transmit(b"\x00", 0)
+    assert timed(runs) == [(1, 1_000), (0, 2_000)]
+
+
+def test_bit_error_rate_is_seeded() -> None:
+    data = bytes(range(256)) * 4
+
+    def run(seed: int) -> list[tuple[int, int]]:
+        line, runs = collect(LineFaults(bit_error_rate=0.01), seed=seed)
+        line.transmit(data, 0)
+        return timed(runs)
+
+    assert run(3) == run(3)
+    assert run(3) != run(4)
+    clean = naive_line_timing([(0, data)], 1_000)
+    assert run(3) != clean
+
+
+def test_uartwrite_drains_by_completion_cycle() -> None:
+    tl = Timeline()
+    tx = UartWrite(tl)
+    tx.transmit(b"hello", 0)
+    assert tx.read_completed(2_999) == b"he"
+    assert tx.read_completed(3_000) == b"l"
+    tl.run_until(10_000)
+    assert tx.read_completed_timed() == [(108, 4_000), (111, 5_000)]
+    assert tx.read_completed() == b""
+
+
+def test_faults_on_the_tx_direction() -> None:
+    board = Board(tx_faults=LineFaults(flip_bits={(1, 1)}))
+    board.axi.write_tx(b"ab")
+    board.axi.strobe_tx()
+    board.run_for(0.001)
+    assert board.read_host_bytes() == b"S`bP"  # 'a' (0x61) lost its bit 0

@@ -1,0 +1,106 @@
+"""Opening ports from URLs: the scheme registry, the emulator's entry point, TCP against a
+scripted board, and every way a URL can be wrong (a one-line PortError, never a traceback)."""
+
+from __future__ import annotations
+
+import asyncio
+import subprocess
+import sys
+import textwrap
+
+import pytest
+
+from fpgalink import PortError, open_link
+from fpgalink.aio.transport import open_transport, register_scheme, scheme_of
+from fpgalink.testing import MemoryTransport
+from tests.support.fakeboard import FakeBoard
+
+pytestmark = pytest.mark.timeout(30)
+
+
+@pytest.mark.parametrize(
+    ("url", "match"),
+    [
+        ("/dev/does-not-exist", r"/dev/does-not-exist"),
+        ("socket://127.0.0.1:1", r"127\.0\.0\.1:1"),
+        ("socket://127.0.0.1:99999", r"out of range"),
+        ("socket://nohost", r"socket://HOST:PORT"),
+        ("loop://", r"unsupported port"),
+        ("rfc2217://localhost:1", r"unsupported port"),
+        ("emu://?gear=sideways", r"gear"),
+        ("emu://?colour=red", r"unknown emu:// option"),
+        ("emu://?seed=x", r"seed must be an integer"),
+    ],
+)
+async def test_bad_urls_are_one_port_error(url: str, match: str) -> None:
+    with pytest.raises(PortError, match=match) as caught:
+        await open_link(url).open()
+    assert "\n" not in str(caught.value)
+
+
+@pytest.mark.parametrize("baud", [0, -1, 49, 20_000_001, 99_999_999_999, 10**30])
+async def test_impossible_baud_rates_are_refused_before_opening(baud: int) -> None:
+    # ``emu://`` with --baud 99999999999 divided by zero in the emulator.
+    with pytest.raises(ValueError, match="baud"):
+        open_link("emu://", baud)
+    with pytest.raises(PortError, match="baud"):
+        await open_transport("emu://", baud, asyncio.Protocol)
+
+
+def test_scheme_of() -> None:
+    assert scheme_of("/dev/ttyUSB0") == ""
+    assert scheme_of("socket://h:1") == "socket"
+    assert scheme_of("EMU://") == "emu"
+
+
+async def test_a_registered_scheme_opens_with_its_opener() -> None:
+    opened: list[tuple[str, int]] = []
+
+    async def opener(url, baud, factory):  # type: ignore[no-untyped-def]
+        opened.append((url, baud))
+        transport = MemoryTransport()
+        protocol = factory()
+        transport.set_protocol(protocol)
+        return transport, protocol
+
+    register_scheme("memtest", opener)
+    async with open_link("memtest://x", 57_600) as link:
+        assert link.url == "memtest://x"
+    assert opened == [("memtest://x", 57_600)]
+
+
+async def test_an_opener_that_raises_anything_becomes_a_port_error() -> None:
+    async def opener(url, baud, factory):  # type: ignore[no-untyped-def]
+        raise ValueError("this board is on fire")
+
+    register_scheme("broken", opener)
+    with pytest.raises(PortError, match="on fire"):
+        await open_transport("broken://", 9600, asyncio.Protocol)
+
+
+def test_fpgalink_finds_emu_through_the_entry_point_and_never_imports_fpgaemu_itself() -> None:
+    code = textwrap.dedent("""
+        import asyncio, sys
+        import fpgalink, fpgalink.aio, fpgalink.cli, fpgalink.connection, fpgalink.testing
+        assert not any(m.split(".")[0] == "fpgaemu" for m in sys.modules), "imported early"
+        async def main():
+            async with fpgalink.open_link("emu://") as link:
+                print(await link.get_param("TsTimerPeriod"))
+        asyncio.run(main())
+        print("fpgaemu" in sys.modules)
+    """)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                            timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.split() == ["1", "True"]
+
+
+async def test_tcp_to_a_scripted_board() -> None:
+    board = FakeBoard()
+    url = await board.start()
+    try:
+        async with open_link(url) as link:
+            assert await link.set_param("TsTimerPeriod", 5) == 5
+            assert await link.get_param("Kp_Wheel_PidB") == pytest.approx(520.0)
+    finally:
+        await board.stop()

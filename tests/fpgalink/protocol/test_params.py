@@ -1,0 +1,96 @@
+"""SPEC §5 parameter table: lookup by name/id/suffix, and host-side validation."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from fpgalink import ParameterError, UnknownParameter
+from fpgalink.protocol import PARAMETERS, ParamType, Scope, lookup, resolve
+from fpgalink.protocol.params import float32, iter_addresses
+
+
+def test_table_matches_spec() -> None:
+    assert [p.id for p in PARAMETERS] == list(range(1, 11))
+    assert [(p.name, p.scope, p.type) for p in PARAMETERS[:3]] == [
+        ("TsTimerPeriod", Scope.BOARD, ParamType.INT),
+        ("GetDataPeriodical", Scope.BOARD, ParamType.INT),
+        ("TorqueCoef", Scope.CHANNEL, ParamType.FLOAT),
+    ]
+    assert len(list(iter_addresses())) == 2 + 8 * 2
+
+
+@pytest.mark.parametrize(
+    ("name", "channel", "expected"),
+    [
+        ("Kp_Wheel_Pid", "A", (8, 1)),
+        ("kp_wheel_pid", "b", (8, 2)),
+        ("Kp_Wheel_PidA", None, (8, 1)),
+        ("Kp_Wheel_PidB", "B", (8, 2)),
+        ("TsTimerPeriod", None, (1, 0)),
+        ("TsTimerPeriod", 0, (1, 0)),
+        (6, 1, (6, 1)),
+    ],
+)
+def test_resolve(name: str | int, channel: str | int | None, expected: tuple[int, int]) -> None:
+    param, code = resolve(name, channel)
+    assert (param.id, code) == expected
+
+
+@pytest.mark.parametrize(
+    ("name", "channel", "message"),
+    [
+        ("Kp_Whel_Pid", "A", "unknown parameter"),
+        ("Kp_Wheel_Pid", None, "give channel A or B"),
+        ("TsTimerPeriod", "A", "board-wide"),
+        ("Kp_Wheel_PidA", "B", "name says channel A"),
+        ("Kp_Wheel_Pid", "C", "unknown channel"),
+        (11, None, "no parameter has id 11"),
+    ],
+)
+def test_resolve_errors(name: str | int, channel: str | None, message: str) -> None:
+    with pytest.raises(ParameterError, match=message):
+        resolve(name, channel)
+
+
+def test_unknown_parameter_is_a_key_error_with_a_plain_message() -> None:
+    with pytest.raises(KeyError) as info:
+        lookup("nope")
+    assert isinstance(info.value, UnknownParameter)
+    assert str(info.value).startswith("unknown parameter 'nope'")
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "ok"),
+    [
+        ("TsTimerPeriod", 1, 1), ("TsTimerPeriod", 1000, 1000), ("TsTimerPeriod", 5.0, 5),
+        ("MaxControlSignal", 32760, 32760), ("IncSenzCountDirection", -1, -1),
+        ("Kp_Wheel_Pid", 0, 0.0), ("Kp_Wheel_Pid", 7.11, float32(7.11)),
+        ("Ti_Wheel_Pid", 1e-3, float32(1e-3)),
+    ],
+)
+def test_coerce_accepts(name: str, value: float, ok: float) -> None:
+    assert lookup(name).coerce(value) == ok
+
+
+@pytest.mark.parametrize(
+    ("name", "value", "message"),
+    [
+        ("TsTimerPeriod", 0, "1..1000"),
+        ("TsTimerPeriod", 1001, "1..1000"),
+        ("TsTimerPeriod", 2.5, "integer parameter"),
+        ("IncSenzCountDirection", 0, "-1 or 1"),
+        ("Ti_Wheel_Pid", 0.0, "> 0"),
+        ("Kp_Wheel_Pid", -0.1, "≥ 0"),
+        ("Kp_Wheel_Pid", math.nan, "≥ 0"),
+        ("Kp_Wheel_Pid", math.inf, "≥ 0"),
+        ("Kp_Wheel_Pid", "7", "expected a number"),
+        ("GetDataPeriodical", True, "expected a number"),
+        ("TorqueCoef", 1e-50, "> 0"),  # rounds to 0 as float32: refused, not sent as 0
+    ],
+)
+def test_coerce_refuses_with_the_range(name: str, value: object, message: str) -> None:
+    with pytest.raises(ParameterError, match=message) as info:
+        lookup(name).coerce(value)
+    assert name in str(info.value)

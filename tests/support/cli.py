@@ -1,0 +1,108 @@
+"""Helpers for the CLI tests: a scripted board in a thread, the emulator served on a pty,
+and a runner for the CLI as a subprocess.
+
+``board`` (tests/fpgalink/cli/conftest.py) is parametrized over transports: ``fake`` (the
+scripted board of :mod:`tests.support.fakeboard` on loopback TCP), ``emu`` (``emu://``, the
+emulator in the CLI's own process) and ``pty`` (``fpgaemu serve --pty`` in a subprocess).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import os
+import select
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from tests.support.fakeboard import FakeBoard, ScriptedBoard
+
+ROOT = Path(__file__).resolve().parents[2]
+CLI = [sys.executable, "-m", "fpgalink"]
+#: Generous per-call bound: a hung CLI fails its test instead of the whole run.
+CALL_TIMEOUT = 20.0
+
+
+_SCRIPT_OPTIONS = {f.name for f in dataclasses.fields(ScriptedBoard)}
+
+
+class BoardThread:
+    """A FakeBoard serving from its own event loop in a thread, so a test can run the CLI
+    as a blocking subprocess while the board answers. Options are the scripted board's
+    (``nack=3``, ``mute=True``, ``echo=…``) or the server's (``silent``, ``tm_period``)."""
+
+    def __init__(self, **options: Any) -> None:
+        options.setdefault("values", {(2, 0): 0})  # telemetry off, as a board powers up
+        script = ScriptedBoard(**{k: v for k, v in options.items() if k in _SCRIPT_OPTIONS})
+        self.board = FakeBoard(script, **{k: v for k, v in options.items()
+                                          if k not in _SCRIPT_OPTIONS})
+        self.loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self.loop.run_forever, daemon=True)
+        self._thread.start()
+        self.url = self.call(self.board.start())
+
+    def call(self, coro: Any) -> Any:
+        return asyncio.run_coroutine_threadsafe(coro, self.loop).result(timeout=5)
+
+    def close(self) -> None:
+        self.call(self.board.stop())
+        self.loop.call_soon_threadsafe(self.loop.stop)
+        self._thread.join(timeout=5)
+        self.loop.close()
+
+
+@dataclass
+class Board:
+    """What a test needs to know about the board behind ``url``."""
+
+    kind: str  #: fake, emu or pty
+    url: str
+    fake: FakeBoard | None = None  #: the scripted board, to inspect what it received
+    has_dynamics: bool = False  #: a real plant behind it (the emulator)
+    #: the board outlives one CLI command (emu:// boots a fresh board in each process)
+    persistent: bool = True
+    cleanup: list[Callable[[], None]] = field(default_factory=list)
+
+
+def serve_pty() -> tuple[subprocess.Popen[str], str]:
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "fpgaemu", "serve", "--pty"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
+    )
+    assert proc.stdout is not None
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline:
+        ready, _, _ = select.select([proc.stdout], [], [], 0.1)
+        if ready:
+            line = proc.stdout.readline()
+            if line.startswith("ready "):
+                return proc, line.split()[2]
+            if not line and proc.poll() is not None:
+                break
+    proc.kill()
+    raise RuntimeError(f"fpgaemu serve --pty did not become ready: {proc.stderr.read()!r}"
+                       if proc.stderr else "fpgaemu serve --pty did not become ready")
+
+
+def cli_env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("FPGALINK_")}
+    env.update(COLUMNS="200", NO_COLOR="1", PYTHONUNBUFFERED="1")
+    env.update(extra)
+    return env
+
+
+def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = None,
+            timeout: float = CALL_TIMEOUT) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=ROOT,
+                          env=env or cli_env(), input=input, timeout=timeout)
+
+
+def start_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
+    return subprocess.Popen([*CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=ROOT, env=env or cli_env())

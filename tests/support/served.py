@@ -1,0 +1,214 @@
+"""Shared pieces of the end-to-end tests: a real ``fpgaemu serve`` subprocess, waits on
+conditions with deadlines, and telemetry streaming checks.
+
+Nothing here sleeps a fixed time and hopes: every wait is for a condition, bounded by a
+deadline, and fails with a message naming what did not happen.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import itertools
+import signal
+import sys
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
+
+from fpgalink import Telemetry
+from fpgalink.aio import Link, LinkEvent, LinkEventKind
+from fpgalink.protocol.params import Param, ParamType, Scope
+from tests.support.waiting import wait_until
+
+__all__ = [
+    "COUNTER_MODULUS",
+    "Serve",
+    "StreamResult",
+    "next_event",
+    "serve",
+    "stream",
+    "valid_value",
+    "wait_for_sample",
+    "wait_until",
+]
+
+COUNTER_MODULUS = 100_000
+T_US_MODULUS = 1 << 32
+#: Starting a Python interpreter and the emulator takes well under a second; a loaded CI
+#: machine gets ten.
+READY_TIMEOUT = 10.0
+
+
+@dataclass
+class Serve:
+    """A running ``python -m fpgaemu serve`` and the endpoints it printed."""
+
+    proc: asyncio.subprocess.Process
+    args: tuple[str, ...]
+    ready: dict[str, str] = field(default_factory=dict)  #: board name → path or URL
+
+    @property
+    def url(self) -> str:
+        """The first board's path or URL."""
+        return next(iter(self.ready.values()))
+
+    @property
+    def running(self) -> bool:
+        return self.proc.returncode is None
+
+    async def send_signal(self, sig: int) -> None:
+        if self.running:
+            self.proc.send_signal(sig)
+
+    async def wait(self, timeout: float = 5.0) -> int:
+        return await asyncio.wait_for(self.proc.wait(), timeout)
+
+    async def stderr_text(self) -> str:
+        assert self.proc.stderr is not None
+        if self.running:
+            return ""
+        return (await asyncio.wait_for(self.proc.stderr.read(), 2.0)).decode(errors="replace")
+
+    async def stop(self) -> None:
+        """SIGTERM, then SIGKILL if it does not go within five seconds."""
+        if not self.running:
+            return
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            await asyncio.wait_for(self.proc.wait(), 5.0)
+        except TimeoutError:
+            self.proc.kill()
+            await self.proc.wait()
+
+
+async def start_serve(*args: str, boards: int = 1) -> Serve:
+    """Start ``fpgaemu serve ARGS`` and return once it printed ``ready`` for every board."""
+    proc = await asyncio.create_subprocess_exec(
+        sys.executable, "-m", "fpgaemu", "serve", *args, "--boards", str(boards),
+        stdin=asyncio.subprocess.DEVNULL,
+        stdout=asyncio.subprocess.PIPE,
+        stderr=asyncio.subprocess.PIPE,
+    )
+    server = Serve(proc, args)
+    assert proc.stdout is not None
+    try:
+        while len(server.ready) < boards:
+            line = (await asyncio.wait_for(proc.stdout.readline(), READY_TIMEOUT)).decode()
+            if not line:
+                raise AssertionError(f"fpgaemu serve {' '.join(args)} exited before ready")
+            word, name, where = line.split()
+            assert word == "ready", line
+            server.ready[name] = where
+    except BaseException:
+        await server.stop()
+        raise
+    return server
+
+
+@contextlib.asynccontextmanager
+async def serve(*args: str, boards: int = 1) -> AsyncIterator[Serve]:
+    """``async with serve("--pty") as srv:`` — always stopped (and reaped) afterwards."""
+    server = await start_serve(*args, boards=boards)
+    try:
+        yield server
+    finally:
+        await server.stop()
+
+
+async def next_event(
+    events: AsyncIterator[LinkEvent], kinds: set[LinkEventKind], timeout: float
+) -> LinkEvent:
+    """The next link event of one of ``kinds`` (others are skipped), within ``timeout``."""
+
+    async def find() -> LinkEvent:
+        async for event in events:
+            if event.kind in kinds:
+                return event
+        raise AssertionError("the event stream ended")
+
+    try:
+        return await asyncio.wait_for(find(), timeout)
+    except TimeoutError:
+        names = sorted(k.value for k in kinds)
+        raise AssertionError(f"no {names} event within {timeout} s") from None
+
+
+async def wait_for_sample(
+    samples: AsyncIterator[Telemetry], predicate: Callable[[Telemetry], bool], timeout: float,
+    what: str,
+) -> Telemetry:
+    """The first telemetry sample satisfying ``predicate``, within ``timeout``."""
+
+    async def find() -> Telemetry:
+        async for sample in samples:
+            if predicate(sample):
+                return sample
+        raise AssertionError("the telemetry stream ended")
+
+    try:
+        return await asyncio.wait_for(find(), timeout)
+    except TimeoutError:
+        raise AssertionError(f"no telemetry sample with {what} within {timeout} s") from None
+
+
+@dataclass
+class StreamResult:
+    samples: list[Telemetry]
+    lost_during: int  #: ``link.stats.lost`` growth over the window
+    dropped: int  #: samples the subscription had to drop
+
+    def counter_gaps(self) -> list[tuple[int, int]]:
+        """Neighbouring samples whose counters are not consecutive."""
+        pairs = itertools.pairwise(self.samples)
+        return [
+            (a.counter or 0, b.counter or 0) for a, b in pairs
+            if ((b.counter or 0) - (a.counter or 0)) % COUNTER_MODULUS != 1
+        ]
+
+    def period_gaps(self, period_us: int) -> list[tuple[int, int]]:
+        """Neighbouring samples whose board times are not one period apart."""
+        pairs = itertools.pairwise(self.samples)
+        return [(a.t_us, b.t_us) for a, b in pairs if (b.t_us - a.t_us) % T_US_MODULUS
+                != period_us]
+
+
+async def stream(link: Link, seconds: float) -> StreamResult:
+    """Every telemetry sample the link delivers during ``seconds`` of wall time, read as it
+    arrives (so the subscription never fills)."""
+    loop = asyncio.get_running_loop()
+    sub = link.telemetry(maxsize=4 * 1024)
+    lost_before = link.stats.lost
+    samples: list[Telemetry] = []
+    end = loop.time() + seconds
+
+    async def consume() -> None:
+        async for sample in sub:
+            samples.append(sample)
+            if loop.time() >= end:
+                return
+
+    try:
+        await asyncio.wait_for(consume(), seconds + 2.0)
+    finally:
+        sub.close()
+    return StreamResult(samples, link.stats.lost - lost_before, sub.dropped)
+
+
+def valid_value(param: Param, channel: int) -> int | float:
+    """A value in range that differs from the board's power-up default and from the other
+    channel's, so a set that went nowhere (or to the wrong channel) is noticed."""
+    offset = 0 if param.scope is Scope.BOARD else channel - 1
+    chosen: dict[str, int | float] = {
+        "TsTimerPeriod": 7,
+        "GetDataPeriodical": 1,
+        "TorqueCoef": 0.35 + offset,
+        "ActiveController": 1 - offset,  # A: 1 (HW speed PID), B: 0 — both run
+        "MaxControlSignal": 30_000 - 1000 * offset,
+        "IncSenzRes": 1024 + offset,
+        "IncSenzCountDirection": -1 if offset == 0 else 1,
+        "Kp_Wheel_Pid": 9.5 + offset,
+        "Ti_Wheel_Pid": 30.25 + offset,
+        "Td_Wheel_Pid": 0.5 + offset,
+    }
+    value = chosen[param.name]
+    return float(value) if param.type is ParamType.FLOAT else int(value)
