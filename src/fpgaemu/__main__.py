@@ -117,6 +117,10 @@ async def _serve(use_pty: bool, host: str, port: int, count: int, baud: int, see
         for endpoint in endpoints:
             await endpoint.close()
         for endpoint, name in zip(endpoints, board_names(count), strict=False):
+            dropped = getattr(endpoint, "dropped_tx", 0)
+            if dropped:
+                print(f"dropped {name}: {dropped} TX bytes nobody read in time",
+                      file=sys.stderr, flush=True)
             lag = endpoint.paced.lag
             if lag.lag_events:
                 print(f"lag {name}: fell behind real time {lag.lag_events} times, worst "

@@ -118,6 +118,12 @@ class _Ticker:
 # --- pty --------------------------------------------------------------------------------------
 
 
+#: TX bytes a pty keeps for a host that is not reading (a busy or starved process), in
+#: seconds of line time; beyond it the oldest are dropped and counted, as a USB-UART's
+#: buffer overflows. The kernel's own pty buffer holds only about 40 ms at 1 MBd.
+TX_BACKLOG_S = 1.0
+
+
 class PtyEndpoint:
     """One board behind a pseudo-terminal. We keep the slave side open ourselves, so a host
     that closes and reopens the path finds the same board still running."""
@@ -130,7 +136,8 @@ class PtyEndpoint:
         self.path = os.ttyname(self._slave)
         self._ticker = _Ticker(self._tick)
         self._pending_out = bytearray()
-        #: TX bytes lost because nobody read the pty and its buffer filled
+        self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
+        #: TX bytes lost because nobody read the pty for longer than the backlog holds
         self.dropped_tx = 0
 
     def start(self) -> None:
@@ -153,13 +160,15 @@ class PtyEndpoint:
         if self._pending_out:
             try:
                 written = os.write(self._master, self._pending_out)
-            except (BlockingIOError, OSError):
-                # The pty buffer is full (nobody reading): like a wire with no listener,
-                # the bytes are gone. Count them rather than block the board.
-                self.dropped_tx += len(self._pending_out)
-                self._pending_out.clear()
-                return
-            del self._pending_out[:written]
+                del self._pending_out[:written]
+            except OSError:
+                pass  # the pty is full (nobody reading just now): keep the bytes for later
+            excess = len(self._pending_out) - self._backlog
+            if excess > 0:
+                # Nobody read for longer than the backlog: the oldest bytes are gone, counted
+                # rather than blocking the board.
+                del self._pending_out[:excess]
+                self.dropped_tx += excess
 
     async def close(self) -> None:
         await self._ticker.stop()

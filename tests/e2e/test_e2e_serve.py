@@ -11,7 +11,7 @@ import pytest
 import serial
 
 from fpgalink.aio import open_link
-from tests.support.served import serve, wait_until
+from tests.support.served import PATIENCE, serve, wait_until
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -23,7 +23,7 @@ async def test_pty_serve_exits_0_on_signal_and_removes_the_device(sig: int) -> N
         assert all(os.path.exists(p) for p in paths)
         # Reachable: a link hears the board's alive frames.
         async with open_link(paths[0]) as link:
-            await wait_until(lambda: link.stats.alive_received >= 1, 1.0, "an E frame")
+            await wait_until(lambda: link.stats.alive_received >= 1, PATIENCE, "an E frame")
         await server.send_signal(sig)
         assert await server.wait(5.0) == 0
         stderr = await server.stderr_text()
@@ -53,10 +53,10 @@ async def test_tcp_serve_raw_alive_frames_and_clean_exit(sig: int) -> None:
     async with serve("--tcp", "127.0.0.1:0") as server:
         url = server.url
         host, port = url.removeprefix("socket://").split(":")
-        data, took = await asyncio.to_thread(_raw_read_alive, url, 0.4)
+        data, took = await asyncio.to_thread(_raw_read_alive, url, PATIENCE)
         assert b"SEP" in data, f"no alive frame in {took:.3f} s: {data!r}"
         # The board sends E every 300 ms, so a second one follows the first.
-        data, took = await asyncio.to_thread(_raw_read_alive, url, 0.4)
+        data, took = await asyncio.to_thread(_raw_read_alive, url, PATIENCE)
         assert b"SEP" in data, f"no alive frame in {took:.3f} s on reconnect: {data!r}"
         await server.send_signal(sig)
         assert await server.wait(5.0) == 0

@@ -22,6 +22,7 @@ from tests.support.waiting import wait_until
 
 __all__ = [
     "COUNTER_MODULUS",
+    "PATIENCE",
     "Serve",
     "StreamResult",
     "next_event",
@@ -151,44 +152,58 @@ async def wait_for_sample(
         raise AssertionError(f"no telemetry sample with {what} within {timeout} s") from None
 
 
+#: How long a test waits for something that should happen. Waits return as soon as the
+#: condition holds, so a generous bound costs nothing when all is well and keeps a loaded
+#: machine from failing a test that is only slow.
+PATIENCE = 10.0
+
+
 @dataclass
 class StreamResult:
     samples: list[Telemetry]
-    lost_during: int  #: ``link.stats.lost`` growth over the window
+    lost_during: int  #: ``link.stats.lost`` growth over the stretch
     dropped: int  #: samples the subscription had to drop
 
-    def counter_gaps(self) -> list[tuple[int, int]]:
-        """Neighbouring samples whose counters are not consecutive."""
-        pairs = itertools.pairwise(self.samples)
-        return [
-            (a.counter or 0, b.counter or 0) for a, b in pairs
-            if ((b.counter or 0) - (a.counter or 0)) % COUNTER_MODULUS != 1
-        ]
+    @property
+    def missing(self) -> int:
+        """Counters missing between the first and the last sample delivered."""
+        return sum((b.counter or 0) - (a.counter or 0) - 1 if (b.counter or 0) >= (a.counter or 0)
+                   else (b.counter or 0) + COUNTER_MODULUS - (a.counter or 0) - 1
+                   for a, b in itertools.pairwise(self.samples))
 
-    def period_gaps(self, period_us: int) -> list[tuple[int, int]]:
-        """Neighbouring samples whose board times are not one period apart."""
-        pairs = itertools.pairwise(self.samples)
-        return [(a.t_us, b.t_us) for a, b in pairs if (b.t_us - a.t_us) % T_US_MODULUS
-                != period_us]
+    def check_accounting(self, period_us: int) -> None:
+        """What holds however loaded the machine is: samples in order, each missing period
+        a missing counter (nothing lost silently, the board's clock and its counter agree),
+        and every missing counter counted by the link or by the subscription."""
+        for a, b in itertools.pairwise(self.samples):
+            counters = ((b.counter or 0) - (a.counter or 0)) % COUNTER_MODULUS
+            elapsed = (b.t_us - a.t_us) % T_US_MODULUS
+            assert counters >= 1, f"counter {b.counter} after {a.counter}: not in order"
+            assert elapsed == counters * period_us, (
+                f"{elapsed} µs between counters {a.counter} and {b.counter}")
+        assert self.missing == self.lost_during + self.dropped, (
+            f"{self.missing} missing, link counted {self.lost_during} lost and the "
+            f"subscription {self.dropped} dropped")
 
 
-async def stream(link: Link, seconds: float) -> StreamResult:
-    """Every telemetry sample the link delivers during ``seconds`` of wall time, read as it
-    arrives (so the subscription never fills)."""
-    loop = asyncio.get_running_loop()
+async def stream(link: Link, count: int, timeout: float = 3 * PATIENCE) -> StreamResult:
+    """The next ``count`` telemetry samples the link delivers, read as they arrive (so the
+    subscription never fills), with the link's loss count over the same stretch."""
     sub = link.telemetry(maxsize=4 * 1024)
     lost_before = link.stats.lost
     samples: list[Telemetry] = []
-    end = loop.time() + seconds
 
     async def consume() -> None:
         async for sample in sub:
             samples.append(sample)
-            if loop.time() >= end:
+            if len(samples) >= count:
                 return
 
     try:
-        await asyncio.wait_for(consume(), seconds + 2.0)
+        await asyncio.wait_for(consume(), timeout)
+    except TimeoutError:
+        raise AssertionError(f"only {len(samples)} of {count} samples in {timeout:g} s"
+                             ) from None
     finally:
         sub.close()
     return StreamResult(samples, link.stats.lost - lost_before, sub.dropped)

@@ -20,6 +20,7 @@ import construct as cs
 from fpgalink.protocol.errors import LocalProtocolError
 from fpgalink.protocol.event import Event
 from fpgalink.protocol.messages import (
+    COUNTER_MODULUS,
     DIRECT_BY_CONTENT,
     SECTION_OPEN,
     Binary,
@@ -367,10 +368,28 @@ def parse_content(content: bytes) -> Parsed:
     return CountedMessage(raw_id.decode(), items, counter)
 
 
+def _whole(msg_id: MessageId) -> struct.Struct:
+    """The entire content as one struct: ID, five counter digits, ``{`` LEN, body, ``}``."""
+    return struct.Struct("<2s5s2s" + _STRUCTS[msg_id].format[1:] + "c")
+
+
+#: message type → (the whole-content struct, its ID, the section opener), for encoding in
+#: one pack call.
+_ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
+    cls: (_whole(cls.msg_id), bytes(cls.msg_id),
+          bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
+    for cls in (ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry)
+}
+
+
 def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
     """Frame content for ``message`` with the given counter value."""
-    if isinstance(message, CountedMessage):
-        return encode_counted(validate_id(message.msg_id), counter, encode_body(message.items))
+    encoder = _ENCODERS.get(type(message))
+    if encoder is None or isinstance(message, CountedMessage):
+        if isinstance(message, CountedMessage):
+            return encode_counted(validate_id(message.msg_id), counter,
+                                  encode_body(message.items))
+        raise LocalProtocolError(f"{type(message).__name__} is not a catalogued message")
     if type(message) is References and not (
         math.isfinite(message.ref_a) and math.isfinite(message.ref_b)
     ):
@@ -378,10 +397,9 @@ def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
         raise LocalProtocolError(
             f"references must be finite numbers, got ({message.ref_a!r}, {message.ref_b!r})"
         )
+    whole, msg_id, opener = encoder
     try:
-        body = _STRUCTS[message.msg_id].pack(*message._body_values())
+        return whole.pack(msg_id, b"%05d" % (counter % COUNTER_MODULUS), opener,
+                          *message._body_values(), _CLOSE)
     except (struct.error, OverflowError) as exc:
         raise LocalProtocolError(f"{type(message).__name__}: {exc}") from None
-    return encode_counted(
-        message.msg_id, counter, bytes((SECTION_OPEN, len(body))) + body + b"}"
-    )

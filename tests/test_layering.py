@@ -1,0 +1,75 @@
+"""The house rules of docs/architecture.md, read from every module's imports: each layer
+imports only the layers below it, and the two packages meet only in fpgalink.protocol."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src"
+
+
+def imports_of(path: Path) -> set[str]:
+    """Every module ``path`` imports, at any depth (lazy imports inside functions too)."""
+    found: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module)
+    return found
+
+
+def modules(package: str) -> list[tuple[str, Path]]:
+    root = SRC / package.replace(".", "/")
+    files = [root.with_suffix(".py")] if root.with_suffix(".py").exists() else sorted(
+        root.rglob("*.py"))
+    return [(str(f.relative_to(SRC)), f) for f in files]
+
+
+def first_party(names: set[str]) -> set[str]:
+    return {n for n in names if n.split(".")[0] in ("fpgalink", "fpgaemu")}
+
+
+def within(name: str, *allowed: str) -> bool:
+    return any(name == a or name.startswith(a + ".") for a in allowed)
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
+def test_the_emulator_imports_only_the_public_protocol_package(where: str, path: Path) -> None:
+    crossing = {n for n in first_party(imports_of(path))
+                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol")}
+    assert not crossing, f"{where} imports {sorted(crossing)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink"))
+def test_fpgalink_never_imports_the_emulator(where: str, path: Path) -> None:
+    assert not {n for n in imports_of(path) if n.split(".")[0] == "fpgaemu"}, where
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.protocol"))
+def test_the_protocol_stands_on_nothing_else(where: str, path: Path) -> None:
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.protocol")}, where
+    assert not names & {"asyncio", "time", "socket", "serial", "os"}, where
+
+
+SANS_IO = ("fpgalink.connection", "fpgalink.events", "fpgalink.errors")
+
+
+@pytest.mark.parametrize(("where", "path"),
+                         [m for package in SANS_IO for m in modules(package)])
+def test_the_sans_io_layer_has_no_io_and_no_clock(where: str, path: Path) -> None:
+    names = imports_of(path)
+    assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
+    assert not {n for n in first_party(names)
+                if not within(n, "fpgalink.protocol", *SANS_IO)}, where
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.aio"))
+def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -> None:
+    above = {n for n in first_party(imports_of(path))
+             if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2")}
+    assert not above, f"{where} imports {sorted(above)}"

@@ -1,0 +1,63 @@
+"""README.md tells the truth: every Python example in it is a complete program that runs as
+written (against emu://), and every output it shows for a deterministic program or command
+is what that program or command prints."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+README = (ROOT / "README.md").read_text(encoding="utf-8")
+#: A fenced block and the plain fenced block that directly follows it ("It prints:").
+BLOCK = re.compile(r"```(\w*)\n(.*?)```", re.DOTALL)
+
+pytestmark = pytest.mark.timeout(120)
+
+
+def python_examples() -> list[tuple[str, str | None]]:
+    """(program, the output shown after it if the next block is a plain one)."""
+    blocks = [(m.group(1), m.group(2), m.end()) for m in BLOCK.finditer(README)]
+    examples = []
+    for i, (lang, code, end) in enumerate(blocks):
+        if lang != "python":
+            continue
+        shown = None
+        if i + 1 < len(blocks) and blocks[i + 1][0] == "":
+            between = README[end:README.index("```", end)]
+            if between.strip() == "It prints:":
+                shown = blocks[i + 1][1]
+        examples.append((code, shown))
+    return examples
+
+
+def test_the_readme_has_examples() -> None:
+    assert len(python_examples()) >= 3
+
+
+@pytest.mark.parametrize(("code", "shown"), python_examples(),
+                         ids=lambda v: (v or "").strip().splitlines()[0][:40] if v else "-")
+def test_every_python_example_runs_as_written(code: str, shown: str | None) -> None:
+    result = subprocess.run([sys.executable, "-"], input=code, capture_output=True, text=True,
+                            timeout=100, cwd=ROOT)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert result.stdout.strip(), "an example should show something"
+    if shown is not None:
+        assert result.stdout == shown
+
+
+def test_the_parameter_table_shown_is_what_param_list_prints() -> None:
+    section = README[README.index("$ .venv/bin/fpgalink-cli param list"):]
+    shown = [line for line in section.splitlines()[1:] if line.startswith(("┃", "│"))]
+    shown = shown[: shown.index(next(s for s in shown if s.startswith("│ 10"))) + 1]
+    result = subprocess.run([sys.executable, "-m", "fpgalink", "param", "list"],
+                            capture_output=True, text=True, timeout=60, cwd=ROOT,
+                            env={"COLUMNS": "200", "NO_COLOR": "1", "PATH": "/usr/bin:/bin"})
+    assert result.returncode == 0, result.stderr
+    printed = [line.rstrip() for line in result.stdout.splitlines()
+               if line.startswith(("┃", "│"))]
+    assert printed == [line.rstrip() for line in shown]
