@@ -68,7 +68,7 @@ from fpgalink.protocol import (
     encode_message,
     resolve,
 )
-from fpgalink.protocol.catalogue import LAYOUTS
+from fpgalink.protocol.catalogue import layout
 from fpgalink.protocol.wire import (
     Flow,
     bytes_per_second,
@@ -308,8 +308,8 @@ def _decode_mavlink(mav_mod: Any, chunks: list[bytes]) -> Callable[[], int]:
 def _codec_cases(config: BenchConfig, rng: random.Random) -> tuple[list[CodecCase], dict[str, Any]]:
     cases: list[CodecCase] = []
     ours = _our_messages(rng, config.codec_messages)
-    body_size = {"TM": LAYOUTS[MessageId.TM].sizeof(), "RV": LAYOUTS[MessageId.RV].sizeof(),
-                 "PS/PA": LAYOUTS[MessageId.PS].sizeof()}
+    body_size = {"TM": layout(MessageId.TM).sizeof(), "RV": layout(MessageId.RV).sizeof(),
+                 "PS/PA": layout(MessageId.PS).sizeof()}
     for kind, (to_encode, to_decode) in ours.items():
         key = kind.split("/")[0].lower()
         enc_role = Role.BOARD if kind == "TM" else Role.HOST
@@ -540,7 +540,7 @@ def _payload_limits(baud: int, period_ms: int) -> dict[str, Any]:
         "largest_payload_bytes_all_escaped": escaped,
         "largest_payload_bytes_with_alive": largest(False, True),
         "largest_payload_bytes_all_escaped_with_alive": largest(True, True),
-        "tm_payload_bytes": LAYOUTS[MessageId.TM].sizeof(),
+        "tm_payload_bytes": layout(MessageId.TM).sizeof(),
     }
 
 

@@ -73,3 +73,13 @@ def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -
     above = {n for n in first_party(imports_of(path))
              if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2")}
     assert not above, f"{where} imports {sorted(above)}"
+
+
+@pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgaemu"])
+def test_every_public_name_of_a_package_resolves(package: str) -> None:
+    # The packages load their names on first use: every name listed must be there.
+    import importlib
+
+    module = importlib.import_module(package)
+    missing = [name for name in module.__all__ if not hasattr(module, name)]
+    assert not missing, f"{package} lists {missing} but cannot give them"

@@ -1,137 +1,300 @@
-"""``fpgaemu serve``: emulated boards as devices (pty or TCP), paced to the wall clock."""
+"""``fpgaemu serve``: emulated boards as devices (pty or TCP), paced to the wall clock.
+
+Every failure is one line on stderr, ``fpgaemu: error: …``, and an exit code: 2 for bad
+input (usage, a parameter or fault spec, a config file), 5 when a board cannot be served
+(an address in use or not valid here, a link path taken). Options go before or after
+``serve``.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import ipaddress
 import signal
 import sys
-import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NoReturn
 
 import click
 
 from fpgaemu.build import build_board
+from fpgaemu.faults import FAULT_HELP, parse_faults
 from fpgaemu.serve import PacedBoard, PtyEndpoint, TcpEndpoint
+from fpgalink.protocol import ParameterError
+from fpgalink.protocol.paramfile import parse_parameter_file, parse_parameter_table
+from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
+
+__all__ = ["cli", "main"]
+
+__version__ = "0.2.0"
 
 #: The robot has two boards, one per side; the seed calls them L and R.
 BOARD_NAMES = ("L", "R")
+
+EXIT_BAD_INPUT = 2
+EXIT_CANNOT_SERVE = 5
+
+
+class ServeError(click.ClickException):
+    """One line on stderr and an exit code; no traceback."""
+
+    def __init__(self, message: str, code: int) -> None:
+        super().__init__(" ".join(message.split()))
+        setattr(self, "exit_code", code)  # noqa: B010 - click declares it on the class
+
+    def show(self, file: Any = None) -> None:
+        click.echo(f"fpgaemu: error: {self.format_message()}", err=True)
 
 
 def board_names(count: int) -> list[str]:
     return [BOARD_NAMES[i] if i < len(BOARD_NAMES) else f"B{i + 1}" for i in range(count)]
 
 
-def parse_assignments(values: tuple[str, ...]) -> dict[str, float]:
-    out: dict[str, float] = {}
-    for item in values:
-        name, sep, raw = item.partition("=")
-        if not sep:
-            raise click.BadParameter(f"{item!r}: expected NAME=VALUE", param_hint="--set")
+def parse_tcp(text: str) -> tuple[str, int]:
+    """``HOST:PORT``, ``[IPv6]:PORT`` or ``:PORT`` (every interface)."""
+    host, sep, port_text = text.rpartition(":")
+    if not sep or not port_text.isdigit() or int(port_text) > 65535:
+        raise ServeError(f"--tcp {text!r}: expected HOST:PORT (port 0..65535; [ADDRESS]:PORT "
+                         "for IPv6)", EXIT_BAD_INPUT)
+    if host.startswith("[") and host.endswith("]"):
+        host = host[1:-1]
         try:
-            out[name.strip()] = float(raw) if any(c in raw for c in ".eE") else int(raw)
+            ipaddress.IPv6Address(host)
         except ValueError:
-            raise click.BadParameter(f"{item!r}: {raw!r} is not a number",
-                                     param_hint="--set") from None
-    return out
+            raise ServeError(f"--tcp {text!r}: {host!r} is not an IPv6 address",
+                             EXIT_BAD_INPUT) from None
+    elif ":" in host:
+        raise ServeError(f"--tcp {text!r}: write an IPv6 address in brackets, e.g. "
+                         "[::1]:0", EXIT_BAD_INPUT)
+    return host, int(port_text)
 
 
-@click.group()
-def cli() -> None:
-    """Cycle-level emulator of the FPGA motor-controller board."""
+def parse_settings(config: Path | None, assignments: tuple[str, ...]) -> dict[str, int | float]:
+    """``--config`` (the format ``fpgalink-cli param dump`` writes) then ``--set`` values, as
+    initial parameters by full name; every value validated as a ``PS`` would be."""
+    settings: dict[str, int | float] = {}
+    try:
+        if config is not None:
+            try:
+                text = config.read_text(encoding="utf-8")
+            except (OSError, UnicodeDecodeError) as exc:
+                raise ServeError(f"--config {config}: cannot read: {exc}",
+                                 EXIT_BAD_INPUT) from None
+            for param, channel, value in parse_parameter_file(text, str(config)):
+                settings[param.full_name(channel)] = value
+        table: dict[str, object] = {}
+        for item in assignments:
+            name, sep, raw = item.partition("=")
+            if not sep or not name.strip():
+                raise ServeError(f"--set {item!r}: expected NAME=VALUE", EXIT_BAD_INPUT)
+            try:
+                table[name.strip()] = int(raw) if raw.strip().lstrip("+-").isdigit() \
+                    else float(raw)
+            except ValueError:
+                raise ServeError(f"--set {item!r}: {raw!r} is not a number",
+                                 EXIT_BAD_INPUT) from None
+        for param, channel, value in parse_parameter_table(table, "--set"):
+            settings[param.full_name(channel)] = value
+    except ParameterError as exc:
+        raise ServeError(str(exc), EXIT_BAD_INPUT) from None
+    return settings
+
+
+def parse_links(values: tuple[str, ...], names: list[str]) -> dict[str, Path]:
+    """``--link PATH`` (one board) or ``--link NAME=PATH`` per board."""
+    links: dict[str, Path] = {}
+    for value in values:
+        name, sep, path = value.partition("=")
+        if not sep:
+            if len(names) != 1 or len(values) != 1:
+                raise ServeError(f"--link {value!r}: with several boards give NAME=PATH "
+                                 f"for each of {', '.join(names)}", EXIT_BAD_INPUT)
+            name, path = names[0], value
+        if name not in names:
+            raise ServeError(f"--link {value!r}: no board named {name!r} (boards: "
+                             f"{', '.join(names)})", EXIT_BAD_INPUT)
+        links[name] = Path(path)
+    return links
+
+
+@dataclass
+class Options:
+    """Options given before ``serve``, for the command to fall back on."""
+
+    given: dict[str, Any] = field(default_factory=dict)
+
+
+SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
+    click.option("--pty", "use_pty", is_flag=True, default=None,
+                 help="Serve each board on a pseudo-terminal."),
+    click.option("--tcp", "tcp", metavar="HOST:PORT",
+                 help="Serve on TCP. Port 0: each board gets a free port; port N: boards "
+                      "take N, N+1, … (the ready lines say which)."),
+    click.option("--boards", type=click.IntRange(1, 8),
+                 help="How many boards (2 = the robot's L and R)  [default: 1]"),
+    click.option("--baud", type=click.IntRange(MIN_BAUD, MAX_BAUD),
+                 help="Line rate  [default: 1000000]"),
+    click.option("--seed", type=int, help="Seed for noise and faults  [default: 0]"),
+    click.option("--gear", type=click.Choice(["high", "low"]),
+                 help="Gearbox stage of the wheels  [default: high]"),
+    click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path),
+                 help="Initial parameter values: the TOML file `fpgalink-cli param dump` "
+                      "writes (NAME = VALUE, tables [A] and [B])."),
+    click.option("--set", "assignments", multiple=True, metavar="NAME=VALUE",
+                 help="Initial parameter value, e.g. --set Kp_Wheel_PidA=9 (repeatable)."),
+    click.option("--link", "links", multiple=True, metavar="[NAME=]PATH",
+                 help="A stable symlink to the board's pty (per board: --link L=/tmp/fpga-L); "
+                      "removed on exit."),
+    click.option("--fault", "faults", multiple=True, metavar="SPEC",
+                 help="Fault injection, repeatable; see docs/reliability.md:\n" + FAULT_HELP),
+]
+DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 1_000_000,
+                            "seed": 0, "gear": "high", "config_path": None,
+                            "assignments": (), "links": (), "faults": ()}
+
+
+def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
+    for option in reversed(SERVE_OPTIONS):
+        func = option(func)
+    return func
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"],
+                               "max_content_width": 100})
+@click.version_option(__version__, prog_name="fpgaemu")
+@with_serve_options
+@click.pass_context
+def cli(ctx: click.Context, /, **given: Any) -> None:
+    """Cycle-level emulator of the FPGA motor-controller board.
+
+    Serve options may come before the command (fpgaemu --pty serve) or after it."""
+    ctx.obj = Options({k: v for k, v in given.items() if v not in (None, ())})
 
 
 @cli.command()
-@click.option("--pty", "use_pty", is_flag=True, help="Serve each board on a pseudo-terminal.")
-@click.option("--tcp", "tcp", metavar="HOST:PORT",
-              help="Serve on TCP; port 0 picks a free one, further boards take the next ports.")
-@click.option("--boards", default=1, show_default=True, type=click.IntRange(1, 8),
-              help="How many boards (2 = the robot's L and R).")
-@click.option("--baud", default=1_000_000, show_default=True, type=click.IntRange(1200, 12_000_000))
-@click.option("--seed", default=0, show_default=True, type=int, help="Seed for noise and faults.")
-@click.option("--gear", default="high", show_default=True, type=click.Choice(["high", "low"]))
-@click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False,
-              path_type=Path), help="TOML file of initial parameter values (NAME = VALUE).")
-@click.option("--set", "assignments", multiple=True, metavar="NAME=VALUE",
-              help="Initial parameter value, e.g. --set Kp_Wheel_PidA=9 (repeatable).")
-@click.option("--fault", "faults", multiple=True, metavar="SPEC",
-              help="Fault injection, repeatable. Per line (rx- host->board, tx- "
-                   "board->host): rx-ber=RATE, rx-drop=RATE, rx-dup=RATE, rx-noise=RATE:LEN, "
-                   "rx-stuck=START_S:DURATION_S (held low), rx-cut=START_S:DURATION_S, and "
-                   "the tx- forms; both lines: stuck=, disconnect=START_S:DURATION_S; host: "
-                   "stall=START_S:DURATION_S, babble=START_S:DURATION_S (random bytes at "
-                   "line rate); drop-frames=ID:N. See docs/reliability.md.")
-def serve(use_pty: bool, tcp: str | None, boards: int, baud: int, seed: int, gear: str,
-          config_path: Path | None, assignments: tuple[str, ...], faults: tuple[str, ...]) -> None:
+@with_serve_options
+@click.pass_context
+def serve(ctx: click.Context, /, **given: Any) -> None:
     """Serve emulated boards until SIGINT/SIGTERM. Prints `ready <board> <path-or-url>` per
-    board once it is reachable."""
+    board once it is reachable, and `ready <board> <link> -> <pty>` with --link."""
+    before = ctx.obj.given if isinstance(ctx.obj, Options) else {}
+    value = {**DEFAULTS, **before, **{k: v for k, v in given.items() if v not in (None, ())}}
+    use_pty, tcp = bool(value["use_pty"]), value["tcp"]
     if use_pty == (tcp is not None):
-        raise click.UsageError("give exactly one of --pty or --tcp HOST:PORT")
-    settings: dict[str, Any] = {}
-    if config_path is not None:
-        try:
-            settings.update(tomllib.loads(config_path.read_text()))
-        except tomllib.TOMLDecodeError as exc:
-            raise click.BadParameter(f"{config_path}: {exc}", param_hint="--config") from None
-    settings.update(parse_assignments(assignments))
-    host, port = "127.0.0.1", 0
-    if tcp is not None:
-        host, _, port_text = tcp.rpartition(":")
-        if not host or not port_text.isdigit():
-            raise click.BadParameter(f"{tcp!r}: expected HOST:PORT", param_hint="--tcp")
-        port = int(port_text)
+        raise ServeError("give exactly one of --pty or --tcp HOST:PORT", EXIT_BAD_INPUT)
+    host, port = parse_tcp(tcp) if tcp is not None else ("127.0.0.1", 0)
+    names = board_names(value["boards"])
+    links = parse_links(value["links"], names)
+    if links and not use_pty:
+        raise ServeError("--link makes a symlink to a pty: use it with --pty", EXIT_BAD_INPUT)
+    settings = parse_settings(value["config_path"], value["assignments"])
     try:
-        code = asyncio.run(_serve(use_pty, host, port, boards, baud, seed, gear, settings,
-                                  list(faults)))
+        parse_faults(list(value["faults"]))
     except ValueError as exc:
-        click.echo(f"fpgaemu: {exc}", err=True)
-        sys.exit(2)
+        raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
+    code = asyncio.run(_serve(use_pty, host, port, names, value["baud"], value["seed"],
+                              value["gear"], settings, list(value["faults"]), links))
     sys.exit(code)
 
 
-async def _serve(use_pty: bool, host: str, port: int, count: int, baud: int, seed: int,
-                 gear: str, settings: dict[str, Any], faults: list[str]) -> int:
+def _make_link(path: Path, target: str) -> None:
+    """A symlink at ``path`` to ``target``; an older symlink there (from a board served
+    before) is replaced, anything else is not touched."""
+    if path.is_symlink():
+        path.unlink()
+    elif path.exists():
+        raise ServeError(f"--link {path}: exists and is not a symlink; not replacing it",
+                         EXIT_CANNOT_SERVE)
+    try:
+        path.symlink_to(target)
+    except OSError as exc:
+        raise ServeError(f"--link {path}: {exc.strerror}", EXIT_CANNOT_SERVE) from None
+
+
+async def _serve(use_pty: bool, host: str, port: int, names: list[str], baud: int, seed: int,
+                 gear: str, settings: dict[str, int | float], faults: list[str],
+                 links: dict[str, Path]) -> int:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
-    endpoints: list[PtyEndpoint | TcpEndpoint] = []
+    endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
+    made: list[Path] = []
     try:
-        for index, name in enumerate(board_names(count)):
-            board = build_board(baud=baud, seed=seed + index, gear=gear,
-                                        settings=settings, faults=faults)
+        for index, name in enumerate(names):
+            try:
+                board = build_board(baud=baud, seed=seed + index, gear=gear,
+                                    settings=settings, faults=faults)
+            except ValueError as exc:
+                raise ServeError(str(exc), EXIT_BAD_INPUT) from None
             paced = PacedBoard(board)
             if use_pty:
                 pty = PtyEndpoint(paced)
                 pty.start()
-                endpoints.append(pty)
+                endpoints.append((name, pty))
                 where = pty.path
+                if name in links:
+                    _make_link(links[name], pty.path)
+                    made.append(links[name])
+                    where = f"{links[name]} -> {pty.path}"
             else:
                 tcp = TcpEndpoint(paced, host, port + index if port else 0)
-                await tcp.start()
-                endpoints.append(tcp)
+                try:
+                    await tcp.start()
+                except OSError as exc:
+                    raise ServeError(f"cannot serve board {name} on {tcp.url}: "
+                                     f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
+                endpoints.append((name, tcp))
                 where = tcp.url
             print(f"ready {name} {where}", flush=True)
         await stop.wait()
     finally:
-        for endpoint in endpoints:
+        for _, endpoint in endpoints:
             await endpoint.close()
-        for endpoint, name in zip(endpoints, board_names(count), strict=False):
-            dropped = getattr(endpoint, "dropped_tx", 0)
-            if dropped:
-                print(f"dropped {name}: {dropped} TX bytes nobody read in time",
-                      file=sys.stderr, flush=True)
-            lag = endpoint.paced.lag
-            if lag.lag_events:
-                print(f"lag {name}: fell behind real time {lag.lag_events} times, worst "
-                      f"{lag.worst_lag_s * 1000:.1f} ms (caught up, no bytes lost)",
-                      file=sys.stderr, flush=True)
+        for path in made:
+            with contextlib.suppress(OSError):
+                if path.is_symlink():
+                    path.unlink()
+        for name, endpoint in endpoints:
+            _report(name, endpoint)
     return 0
 
 
-def main() -> None:
-    cli()
+def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
+    paced = endpoint.paced
+    notes = []
+    if paced.dropped_rx:
+        notes.append(f"dropped {paced.dropped_rx} host bytes written faster than "
+                     f"{paced.board.config.baud:,} Bd carries")
+    if endpoint.dropped_tx:
+        notes.append(f"dropped {endpoint.dropped_tx} TX bytes nobody read in time")
+    if paced.lag.lag_events:
+        notes.append(f"fell behind real time {paced.lag.lag_events} times, worst "
+                     f"{paced.lag.worst_lag_s * 1000:.1f} ms (caught up, no bytes lost)")
+    for note in notes:
+        print(f"{name}: {note}", file=sys.stderr, flush=True)
+
+
+def main(argv: list[str] | None = None) -> NoReturn:
+    try:
+        cli.main(args=argv, prog_name="fpgaemu", standalone_mode=False)
+    except click.exceptions.NoArgsIsHelpError as exc:  # pragma: no cover - click >= 8.2
+        click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
+        sys.exit(0)
+    except click.ClickException as exc:
+        if isinstance(exc, ServeError):
+            exc.show()
+        else:  # click's own usage errors, as one line
+            click.echo(f"fpgaemu: error: {' '.join(exc.format_message().split())}", err=True)
+        sys.exit(exc.exit_code)
+    except click.Abort:
+        sys.exit(130)
+    sys.exit(0)
 
 
 if __name__ == "__main__":
     main()
+

@@ -153,6 +153,18 @@ class Board:
         behind bytes still on the line. Returns the cycle the last stop bit ends."""
         return self.uartread.transmit(data, cycle)
 
+    def host_unplugged(self, cycle: int | None = None) -> int:
+        """The host's cable comes out at ``cycle`` (default now): bytes it wrote that had not
+        begun their start bit by then never reach the board. Returns how many were lost."""
+        at = self.timeline.now if cycle is None else cycle
+        line = self.uartread
+        before = self.uartcommand.stats.bytes_received
+        last = self.uartcommand.discard_from(at)
+        lost = before - self.uartcommand.stats.bytes_received
+        line.stats.dropped_bytes += lost
+        line.line_free_at = max(at, last) if last is not None else at
+        return lost
+
     def read_host_bytes(self) -> bytes:
         """TX bytes whose stop bit has ended by now, not returned before."""
         return self.uartwrite.read_completed()

@@ -39,6 +39,10 @@ START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
   babble=START_S:DURATION_S        the host sends random bytes at full line rate
   drop-frames=ID:N                 lose the first N host->board frames with message ID"""
 
+FAULT_KEYS = ("rx-ber", "tx-ber", "rx-drop", "tx-drop", "rx-dup", "tx-dup", "rx-noise",
+              "tx-noise", "rx-stuck", "tx-stuck", "stuck", "rx-cut", "tx-cut", "disconnect",
+              "stall", "babble", "drop-frames")
+
 #: The babbler refills the line this often; short enough that the line never goes idle
 #: between refills for longer than a few bytes, long enough to cost one call per refill.
 BABBLE_CHUNK_S = 0.001
@@ -159,7 +163,9 @@ def parse_fault_spec(spec: str, into: FaultSet) -> None:
         else:
             raise ValueError
     except ValueError:
-        raise ValueError(f"bad fault spec {spec!r}; the grammar is:\n{FAULT_HELP}") from None
+        raise ValueError(f"bad fault spec {spec!r}: expected KEY=VALUE with KEY one of "
+                         f"{', '.join(FAULT_KEYS)} (the grammar: fpgaemu serve --help, "
+                         "docs/reliability.md)") from None
 
 
 class Babbler:

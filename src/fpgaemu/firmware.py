@@ -82,6 +82,8 @@ class FirmwareStats:
     param_gets: int = 0
     refusals: int = 0
     references: int = 0
+    #: RV messages refused for a non-finite reference (the references in force stay)
+    invalid_references: int = 0
     telemetry_sent: int = 0
     telemetry_dropped: int = 0  #: the TX queue was full
     alive_sent: int = 0
@@ -192,10 +194,14 @@ class Firmware:
             self._handle_get(message)
         elif isinstance(message, References):
             # Only the next timer tick reads the references, so the wheels need not be
-            # brought up to this cycle.
-            self.stats.references += 1
-            self.channels[CHANNEL_A].reference = message.ref_a
-            self.channels[CHANNEL_B].reference = message.ref_b
+            # brought up to this cycle. A non-finite reference is refused whole, as a
+            # malformed message is: nothing a broken host sends may reach a controller.
+            if math.isfinite(message.ref_a) and math.isfinite(message.ref_b):
+                self.stats.references += 1
+                self.channels[CHANNEL_A].reference = message.ref_a
+                self.channels[CHANNEL_B].reference = message.ref_b
+            else:
+                self.stats.invalid_references += 1
         elif isinstance(message, Malformed):
             self.stats.malformed += 1
         else:

@@ -6,12 +6,16 @@ Parallel form in the seed's parameters: u = Kp·(e + (1/Ti)∫e dt + Td·de/dt),
 * the output clamped to ±MaxControlSignal;
 * anti-windup by conditional integration: while the output is clamped, the integrator only
   moves in the direction that leaves the clamp;
-* ``reset()`` while disabled, so re-enabling starts from rest.
+* ``reset()`` while disabled, so re-enabling starts from rest;
+* a non-finite reference or measurement (a broken sensor, a bug upstream) outputs 0 and
+  resets the state, so no NaN or infinity ever enters the integrator — where a NaN would
+  make every later comparison with the clamp false and latch the output at its limit.
 Units: error in deg/s, output in PWM counts (32760 = 100 %).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 __all__ = ["PidGains", "SpeedPid"]
@@ -43,6 +47,9 @@ class SpeedPid:
 
     def update(self, reference: float, measurement: float, dt: float) -> int:
         """One controller period; returns the duty command."""
+        if not (math.isfinite(reference) and math.isfinite(measurement)):
+            self.reset()
+            return 0
         g = self.gains
         error = reference - measurement
         proportional = g.kp * error

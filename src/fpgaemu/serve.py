@@ -41,6 +41,13 @@ CATCH_UP_SLICE_S = 0.05
 LAG_THRESHOLD_S = 0.005
 
 
+#: The USB-UART's buffer toward the board (the CmodA7's FT2232H holds 4 KiB per channel).
+#: Bytes a host writes while this much is still waiting for the line are dropped and
+#: counted: a real chip would hold the host's write back, but the emulator cannot block its
+#: host, and an unbounded queue would apply the host's bytes seconds late.
+HOST_FIFO_BYTES = 4096
+
+
 @dataclass(slots=True)
 class LagReport:
     """How far the board fell behind the wall clock."""
@@ -61,16 +68,35 @@ class PacedBoard:
     def __post_init__(self) -> None:
         self._origin = self.clock() - self.board.now / CLOCK_HZ
         self._lagging = False
+        #: host bytes dropped because the host wrote faster than the line carries them
+        self.dropped_rx = 0
 
     def target_cycle(self, now: float | None = None) -> int:
         now = self.clock() if now is None else now
         return int((now - self._origin) * CLOCK_HZ)
 
-    def host_write(self, data: bytes, now: float | None = None) -> None:
+    def host_write(self, data: bytes, now: float | None = None) -> int:
         """Bytes the host wrote at wall time ``now`` enter the RX pin then (or as soon as
-        the board has caught up to that moment — never earlier than its present)."""
+        the board has caught up to that moment — never earlier than its present), queued
+        behind what the line has not carried yet, up to :data:`HOST_FIFO_BYTES`; beyond it
+        they are dropped and counted in :attr:`dropped_rx`. Returns the bytes accepted."""
+        if not data:
+            return 0
+        cycle = max(self.board.now, self.target_cycle(now))
+        line = self.board.uartread
+        queued = max(0, -(-(line.line_free_at - cycle) // line.cycles_per_byte))
+        room = max(0, HOST_FIFO_BYTES - queued)
+        if len(data) > room:
+            self.dropped_rx += len(data) - room
+            data = data[:room]
         if data:
-            self.board.host_write(data, max(self.board.now, self.target_cycle(now)))
+            self.board.host_write(data, cycle)
+        return len(data)
+
+    def host_gone(self, now: float | None = None) -> int:
+        """The host went away: what it wrote that the line had not begun to carry is
+        discarded, as it would be with the cable. Returns how many bytes."""
+        return self.board.host_unplugged(max(self.board.now, self.target_cycle(now)))
 
     def advance(self, now: float | None = None) -> bytes:
         """Run the board up to ``now`` (in slices while catching up) and return the TX bytes
@@ -117,6 +143,10 @@ class _Ticker:
 
 # --- pty --------------------------------------------------------------------------------------
 
+
+#: How long a connection that arrives while another host is served waits for that host to
+#: turn out to have left already, before it is turned away.
+BUSY_GRACE_S = 0.2
 
 #: TX bytes a pty keeps for a host that is not reading (a busy or starved process), in
 #: seconds of line time; beyond it the oldest are dropped and counted, as a USB-UART's
@@ -183,8 +213,11 @@ class PtyEndpoint:
 
 
 class TcpEndpoint:
-    """One board on a TCP port; one host at a time (a new connection replaces the old, as
-    plugging a new cable would)."""
+    """One board on a TCP port, one host at a time, as a serial port has one owner: while a
+    host is connected the port does not listen (a second host is refused: "connection
+    refused"), and it listens again when that host leaves. What a departed host wrote that
+    the line had not begun to carry is discarded. TX bytes a host does not read pile up to
+    the same backlog a pty keeps, then the oldest are dropped and counted."""
 
     def __init__(self, paced: PacedBoard, host: str, port: int) -> None:
         self.paced = paced
@@ -193,38 +226,70 @@ class TcpEndpoint:
         self._server: asyncio.Server | None = None
         self._writer: asyncio.StreamWriter | None = None
         self._ticker = _Ticker(self._tick)
+        self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
+        self._closing = False
+        self._free = asyncio.Event()
         self.connections = 0
+        #: TX bytes lost because the host did not read them for longer than the backlog holds
+        self.dropped_tx = 0
 
     @property
     def url(self) -> str:
-        return f"socket://{self.host}:{self.port}"
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"socket://{host}:{self.port}"
 
     async def start(self) -> None:
-        self._server = await asyncio.start_server(self._client, self.host, self.port)
-        self.port = self._server.sockets[0].getsockname()[1]
+        await self._listen()
         self._ticker.start()
+
+    async def _listen(self) -> None:
+        # A backlog of one: while a host is served the port stops listening, and the kernel
+        # should queue as few others as possible meanwhile (those it did are closed at once).
+        self._server = await asyncio.start_server(self._client, self.host, self.port,
+                                                  reuse_address=True, backlog=1)
+        self.port = self._server.sockets[0].getsockname()[1]
 
     async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         if self._writer is not None:
-            self._writer.close()
+            # Accepted by the kernel before the port stopped listening. Most often the host
+            # being served has just left and serve has not seen it yet: give that a moment,
+            # else this is a second host, and it is turned away.
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._free.wait(), BUSY_GRACE_S)
+            if self._writer is not None:
+                writer.close()
+                return
         self._writer = writer
+        self._free.clear()
         self.connections += 1
+        if self._server is not None:
+            self._server.close()  # busy: refuse others until this host leaves
+            self._server = None
         try:
             while data := await reader.read(65536):
                 self.paced.host_write(data)
         except (ConnectionError, OSError, asyncio.CancelledError):
             pass
         finally:
-            if self._writer is writer:
-                self._writer = None
+            self.paced.host_gone()
+            self._writer = None
+            self._free.set()
             writer.close()
+            if not self._closing:
+                with contextlib.suppress(OSError):
+                    await self._listen()
 
     def _tick(self) -> None:
         out = self.paced.advance()
-        if out and self._writer is not None and not self._writer.is_closing():
-            self._writer.write(out)
+        writer = self._writer
+        if out and writer is not None and not writer.is_closing():
+            if writer.transport.get_write_buffer_size() + len(out) > self._backlog:
+                self.dropped_tx += len(out)  # the host is not reading: like a wire, gone
+                return
+            writer.write(out)
 
     async def close(self) -> None:
+        self._closing = True
         await self._ticker.stop()
         if self._writer is not None:
             self._writer.close()

@@ -234,6 +234,34 @@ class UartCommand:
         if self._candidate is None:
             self._arm()
 
+    def discard_from(self, cycle: int) -> int | None:
+        """The sender was unplugged at ``cycle``: bytes whose start bit had not begun by then
+        never arrive. Returns the completion cycle of the last byte that still does (``None``
+        when none is pending)."""
+        self.sync()
+        runs = self._runs
+        last: int | None = None
+        for index in range(len(runs) - 1, -1, -1):
+            cursor = runs[index]
+            run = cursor.run
+            # Byte i starts one byte time before it completes.
+            kept = max(cursor.pos, min(len(run.data), run.completed_by(cycle + run.step - 1)))
+            if kept == len(run.data):
+                last = run.last
+                break
+            self._stats.bytes_received -= len(run.data) - kept
+            if kept == cursor.pos:
+                del runs[index]
+                continue
+            cursor.run = ByteRun(run.data[:kept], run.first, run.step)
+            last = cursor.run.last
+            break
+        if self._candidate is not None:
+            self._candidate.cancel()
+            self._candidate = None
+        self._arm()
+        return last
+
     def _arm(self) -> None:
         stop_b = self._stop_b
         for cursor in self._runs:

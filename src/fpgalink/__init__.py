@@ -9,40 +9,64 @@ Layers, each importing only the ones below it:
   retries, reconnects, telemetry subscriptions;
 * the robot, the CLI and the ROS 2 node above that.
 
-Importing ``fpgalink`` does not import asyncio: the asyncio names load on first use.
+The names below load on first use, so ``import fpgalink`` costs nothing a program does not
+use (the asyncio layer, in particular, is not imported by the sans-I/O core).
 """
 
-from typing import TYPE_CHECKING
+from __future__ import annotations
 
-from fpgalink.connection import Connection, LinkStats
-from fpgalink.errors import (
-    BoardLost,
-    FpgalinkError,
-    LinkClosed,
-    LocalProtocolError,
-    ParameterError,
-    ParameterRefused,
-    PortError,
-    RequestTimeout,
-    UnknownParameter,
-    ValueMismatch,
-)
-from fpgalink.protocol import Role, Telemetry
+import importlib
+from typing import TYPE_CHECKING
 
 __version__ = "0.2.0"
 
+#: public name → the module that defines it
+_HOMES = {
+    "Connection": "fpgalink.connection",
+    "LinkStats": "fpgalink.connection",
+    "BoardLost": "fpgalink.errors",
+    "FpgalinkError": "fpgalink.errors",
+    "LinkClosed": "fpgalink.errors",
+    "LocalProtocolError": "fpgalink.errors",
+    "ParameterError": "fpgalink.errors",
+    "ParameterRefused": "fpgalink.errors",
+    "PortError": "fpgalink.errors",
+    "RequestTimeout": "fpgalink.errors",
+    "UnknownParameter": "fpgalink.errors",
+    "ValueMismatch": "fpgalink.errors",
+    "Role": "fpgalink.protocol",
+    "Telemetry": "fpgalink.protocol",
+    "Link": "fpgalink.aio.link",
+    "LinkEvent": "fpgalink.aio.link",
+    "LinkEventKind": "fpgalink.aio.link",
+    "open_link": "fpgalink.aio.link",
+}
+
 if TYPE_CHECKING:
     from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, open_link
-
-_AIO_NAMES = ("Link", "LinkEvent", "LinkEventKind", "open_link")
+    from fpgalink.connection import Connection, LinkStats
+    from fpgalink.errors import (
+        BoardLost,
+        FpgalinkError,
+        LinkClosed,
+        LocalProtocolError,
+        ParameterError,
+        ParameterRefused,
+        PortError,
+        RequestTimeout,
+        UnknownParameter,
+        ValueMismatch,
+    )
+    from fpgalink.protocol import Role, Telemetry
 
 
 def __getattr__(name: str) -> object:
-    if name in _AIO_NAMES:
-        from fpgalink.aio import link
-
-        return getattr(link, name)
-    raise AttributeError(f"module 'fpgalink' has no attribute {name!r}")
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'fpgalink' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
 
 
 __all__ = [

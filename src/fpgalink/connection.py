@@ -45,6 +45,7 @@ from fpgalink.events import (
 )
 from fpgalink.protocol import (
     DEFAULT_FRAMING,
+    FLOAT32_MAX,
     AbortReason,
     Alive,
     CountedMessage,
@@ -345,10 +346,10 @@ class Connection:
                     self._answer(msg, now)
             counted += 1
             assert counter is not None
-            if tracker.expected == counter:
-                tracker.expected = counter + 1 if counter != 99_999 else 0
+            if tracker.expected == counter and counter != 99_999:
+                tracker.expected = counter + 1
                 tracker.received += 1
-            else:
+            else:  # anything else, the wrap included, is the tracker's to judge
                 self._counter_event(tracker.observe(counter), counter)
             append(msg)
         stats.frames_received += frames
@@ -422,10 +423,12 @@ class Connection:
         if type(message) not in self._sendable:
             raise LocalProtocolError(f"a {self.role.value} does not send {type(message).__name__}")
         if type(message) is References:
-            if not (math.isfinite(message.ref_a) and math.isfinite(message.ref_b)):
+            if not (abs(message.ref_a) <= FLOAT32_MAX and abs(message.ref_b) <= FLOAT32_MAX):
+                # NaN fails the comparison too. Checked here, not at encoding: a held
+                # reference is encoded later, where an error would surface far from its cause.
                 raise LocalProtocolError(
-                    f"references must be finite numbers, got ({message.ref_a!r}, "
-                    f"{message.ref_b!r})"
+                    f"references must be finite numbers within the float32 range, got "
+                    f"({message.ref_a!r}, {message.ref_b!r})"
                 )
             if self._byte_time and self._line_free_at - now > self.max_reference_delay:
                 if self._held_reference is not None:

@@ -24,7 +24,9 @@ from tests.support.served import (
     PATIENCE,
     T_US_MODULUS,
     Serve,
+    connect_when_free,
     next_event,
+    open_when_free,
     serve,
     start_serve,
     stream,
@@ -265,7 +267,7 @@ async def test_reconnect_to_the_running_board_finds_it_disabled_after_a_lapse() 
                                                   "enable")
         # A raw client: once the board shows itself disabled (the first session's RD), one RE,
         # then silence, watching the board until its watchdog lapses.
-        reader, writer = await asyncio.open_connection(host, int(port))
+        reader, writer = await connect_when_free(host, int(port))
         decoder = Connection(baud=None)
         loop = asyncio.get_running_loop()
 
@@ -290,7 +292,7 @@ async def test_reconnect_to_the_running_board_finds_it_disabled_after_a_lapse() 
         writer.close()  # vanishes without RD
         await writer.wait_closed()
         # A new session on the same running board finds it still running, disabled.
-        async with open_link(server.url) as link:
+        async with await open_when_free(server.url) as link:
             samples = link.telemetry(maxsize=8192)
             seen = await wait_for_sample(samples, lambda s: True, 5.0, "any sample")
             assert 0 < board_delta(seen, first_session) < 60 * 1_000_000

@@ -10,7 +10,7 @@ import pytest
 
 from fpgalink.aio import Link, open_link
 from fpgalink.protocol.params import ParamType, float32, iter_addresses
-from tests.support.served import serve, stream, valid_value
+from tests.support.served import PATIENCE, serve, stream, valid_value, wait_for_sample
 
 #: Five seconds of 1 kHz telemetry, however long the machine takes to deliver them.
 STREAM_SAMPLES = 5000
@@ -92,3 +92,27 @@ async def test_two_boards_left_and_right_in_one_program() -> None:
             for result in results:
                 result.check_accounting(1000)
 
+
+
+@pytest.mark.timeout(60)
+async def test_references_faster_than_the_line_are_superseded_not_queued() -> None:
+    # A host sending references faster than the line carries them once had its next one
+    # applied 5 s late, silently. Now the link never hands the port more than the line
+    # carries, newer references replace waiting ones, and the last one takes effect.
+    async with open_link("emu://") as link:
+        link.enable()
+        assert await link.set_param("GetDataPeriodical", 1) == 1
+        loop = asyncio.get_running_loop()
+        started, sent_before = loop.time(), link.stats.bytes_sent
+        for k in range(20_000):  # 20,000 × 21 wire bytes: 4.2 s of line time
+            link.set_references(float(k % 50), 0.0)
+            if k % 500 == 0:
+                await asyncio.sleep(0)
+        link.set_references(33.0, -12.0)
+        elapsed = loop.time() - started
+        # What went to the port fits the line in the time it took, plus the allowed delay.
+        assert link.stats.bytes_sent - sent_before <= (elapsed + 0.01) * 100_000 + 200
+        assert link.stats.references_superseded > 15_000
+        samples = link.telemetry()
+        await wait_for_sample(samples, lambda s: s.a.reference == 33.0 and s.b.reference == -12.0,
+                              PATIENCE, "the last reference in force")

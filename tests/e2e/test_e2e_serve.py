@@ -3,15 +3,21 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import signal
+import socket
+import subprocess
+import sys
 import time
+from pathlib import Path
 
 import pytest
 import serial
 
+from fpgalink import PortError
 from fpgalink.aio import open_link
-from tests.support.served import PATIENCE, serve, wait_until
+from tests.support.served import PATIENCE, connect_when_free, open_when_free, serve, wait_until
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -36,9 +42,17 @@ async def test_pty_serve_exits_0_on_signal_and_removes_the_device(sig: int) -> N
 def _raw_read_alive(url: str, window: float) -> tuple[bytes, float]:
     """Open ``url`` with pyserial's own ``socket://`` backend, read raw bytes until an
     ``SEP`` frame shows up or ``window`` seconds from connecting pass; returns what was read
-    and how long it took. (pyserial's socket ``close()`` itself sleeps 0.3 s.)"""
+    and how long it took. (pyserial's socket ``close()`` itself sleeps 0.3 s.) Serve takes
+    one host at a time, so a connection right after another may be refused for a moment."""
     start = time.monotonic()
-    port = serial.serial_for_url(url, timeout=0.02)
+    while True:
+        try:
+            port = serial.serial_for_url(url, timeout=0.02)
+            break
+        except serial.SerialException:
+            if time.monotonic() - start > window:
+                raise
+            time.sleep(0.02)
     try:
         data = b""
         while b"SEP" not in data and time.monotonic() - start < window:
@@ -76,3 +90,196 @@ async def test_closing_a_link_releases_the_serial_port_at_once() -> None:
             async with open_link(srv.url) as link:
                 link.enable()
                 assert await link.get_param("TsTimerPeriod") == 1
+
+
+# --- hostile and careless hosts ---------------------------------------------------------------
+
+
+def rss_kb(pid: int) -> int:
+    with open(f"/proc/{pid}/status", encoding="ascii") as status:
+        line = next(x for x in status if x.startswith("VmRSS:"))
+    return int(line.split()[1])
+
+
+@pytest.mark.timeout(60)
+async def test_a_client_flooding_tcp_keeps_serve_memory_flat_and_is_counted() -> None:
+    async with serve("--tcp", "127.0.0.1:0") as server:
+        host, port = server.url.removeprefix("socket://").rsplit(":", 1)
+        before = rss_kb(server.proc.pid)
+        _, writer = await asyncio.open_connection(host, int(port))
+        chunk = b"\x00" * 65536
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 2.0
+        sent = 0
+        while loop.time() < end:
+            writer.write(chunk)
+            await writer.drain()
+            sent += len(chunk)
+        writer.close()
+        await writer.wait_closed()
+        # Whatever the machine's speed, megabytes went in; the board's line carries 100 kB/s.
+        assert sent > 2_000_000
+        growth = rss_kb(server.proc.pid) - before
+        assert growth < 30_000, f"serve grew {growth} kB taking {sent / 1e6:.0f} MB"
+        # The board is not behind: a new host's request is answered at once.
+        async with await open_when_free(server.url) as link:
+            assert await link.get_param("TsTimerPeriod") == 1
+        await server.send_signal(signal.SIGTERM)
+        assert await server.wait(5.0) == 0
+        assert "dropped" in await server.stderr_text()
+
+
+@pytest.mark.timeout(90)
+async def test_clients_that_write_garbage_and_leave_do_not_hold_up_the_next() -> None:
+    async with serve("--tcp", "127.0.0.1:0") as server:
+        host, port = server.url.removeprefix("socket://").rsplit(":", 1)
+        for _ in range(30):
+            _, writer = await asyncio.wait_for(connect_when_free(host, int(port)), PATIENCE)
+            # A connection the kernel queued while another host was still being served is
+            # closed at once (one host at a time): that is a refusal too.
+            with contextlib.suppress(ConnectionError):
+                writer.write(os.urandom(1_000_000))
+                await writer.drain()
+                writer.close()
+                await writer.wait_closed()
+        # Their bytes are gone with them: the next host is answered within 2 s, where one
+        # client's megabyte alone would hold the line for 10 s (100 kB/s at 1 MBd).
+        async with await open_when_free(server.url, request_timeout=0.5,
+                                        request_tries=4) as link:
+            assert await link.set_param("TsTimerPeriod", 2) == 2
+
+
+async def test_a_second_client_is_refused_while_the_first_is_connected() -> None:
+    async with serve("--tcp", "127.0.0.1:0") as server:
+        async with open_link(server.url, reconnect=False) as first:
+            assert await first.get_param("TsTimerPeriod") == 1  # the first is being served
+            with pytest.raises(PortError, match=r"refused|Connect call failed"):
+                await open_link(server.url, reconnect=False).open()
+            assert await first.get_param("TsTimerPeriod") == 1
+        # Once the first has gone, the port listens again.
+        async with await open_when_free(server.url) as second:
+            await wait_until(lambda: second.board_alive, PATIENCE, "the board")
+
+
+# --- fpgaemu's own command line: one line and an exit code, never a traceback -------------------
+
+
+def fpgaemu(*args: str, timeout: float = 20) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "fpgaemu", *args], capture_output=True,
+                          text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize(
+    ("args", "code", "says"),
+    [
+        (("serve", "--tcp", "::1:0"), 2, "brackets"),
+        (("serve", "--tcp", "127.0.0.1:99999"), 2, "HOST:PORT"),
+        (("serve", "--tcp", "203.0.113.7:0"), 5, "cannot serve"),
+        (("serve", "--pty", "--set", "Kp_Wheel_PidA=1e39"), 2, "float32"),
+        (("serve", "--pty", "--set", "TsTimerPeriod=0"), 2, "1..1000"),
+        (("serve", "--pty", "--fault", "nonsense"), 2, "fault spec"),
+        (("serve", "--pty", "--config", "/nonexistent.toml"), 2, "cannot read"),
+        (("serve",), 2, "--pty or --tcp"),
+        (("bogus",), 2, "No such command"),
+    ],
+)
+def test_bad_input_is_one_line_and_an_exit_code(args: tuple[str, ...], code: int,
+                                                says: str) -> None:
+    result = fpgaemu(*args)
+    assert result.returncode == code, result.stderr
+    assert result.stderr.startswith("fpgaemu: error: ") and says in result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr
+
+
+async def test_a_busy_port_is_one_line() -> None:
+    async with serve("--tcp", "127.0.0.1:0") as server:
+        port = server.url.rsplit(":", 1)[1]
+        result = await asyncio.to_thread(fpgaemu, "serve", "--tcp", f"127.0.0.1:{port}")
+    assert result.returncode == 5
+    assert result.stderr.startswith("fpgaemu: error: cannot serve board L")
+    assert result.stderr.count("\n") == 1
+
+
+def test_version_and_help_before_the_command() -> None:
+    assert fpgaemu("--version").stdout.startswith("fpgaemu, version ")
+    assert "serve" in fpgaemu("-h").stdout
+    assert "--link" in fpgaemu("serve", "-h").stdout
+
+
+@pytest.mark.timeout(60)
+async def test_a_parameter_dump_serves_as_a_config(tmp_path: Path) -> None:
+    # `param dump` wrote a file `serve --config` refused ("unknown parameter 'A'").
+    dump = tmp_path / "params.toml"
+    async with serve("--pty", "--set", "Kp_Wheel_PidB=7.11") as server:
+        result = await asyncio.to_thread(subprocess.run, [
+            sys.executable, "-m", "fpgalink", "param", "dump", str(dump),
+            "--port", server.url], capture_output=True, text=True, timeout=30)
+        assert result.returncode == 0, result.stderr
+    assert "[A]" in dump.read_text() and "[B]" in dump.read_text()
+    async with serve("--pty", "--config", str(dump)) as server, \
+            open_link(server.url) as link:
+        assert await link.get_param("Kp_Wheel_PidB") == pytest.approx(7.11)
+
+
+async def test_links_name_each_pty_stably_and_go_on_exit(tmp_path: Path) -> None:
+    left, right = tmp_path / "fpga-L", tmp_path / "fpga-R"
+    async with serve("--pty", "--link", f"L={left}", "--link", f"R={right}",
+                     boards=2) as server:
+        assert server.ready == {"L": str(left), "R": str(right)}
+        for name, path in (("L", left), ("R", right)):
+            assert path.is_symlink() and os.readlink(path) == server.links[name]
+        async with open_link(str(left)) as link:  # the link path is a working port
+            await wait_until(lambda: link.stats.alive_received >= 1, PATIENCE, "an E frame")
+        await server.send_signal(signal.SIGTERM)
+        assert await server.wait(5.0) == 0
+    assert not left.exists() and not left.is_symlink() and not right.is_symlink()
+
+
+async def test_a_link_never_replaces_a_file(tmp_path: Path) -> None:
+    precious = tmp_path / "notes.txt"
+    precious.write_text("mine")
+    result = await asyncio.to_thread(fpgaemu, "serve", "--pty", "--link", str(precious))
+    assert result.returncode == 5
+    assert result.stderr.startswith("fpgaemu: error: --link") and "not a symlink" in result.stderr
+    assert precious.read_text() == "mine"
+
+
+async def test_tcp_ports_are_reported_as_they_are() -> None:
+    # Port 0: every board gets its own free port, and the ready lines say which.
+    async with serve("--tcp", "127.0.0.1:0", boards=2) as server:
+        ports = [int(url.rsplit(":", 1)[1]) for url in server.ready.values()]
+        assert len(set(ports)) == 2 and 0 not in ports
+        for url in server.ready.values():
+            link = await open_when_free(url)
+            try:
+                await wait_until(lambda lk=link: lk.stats.alive_received >= 1,  # type: ignore[misc]
+                                 PATIENCE, "an E frame")
+            finally:
+                await link.close()
+    # Port N: boards take N, N+1.
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        base = probe.getsockname()[1]
+    async with serve("--tcp", f"127.0.0.1:{base}", boards=2) as server:
+        assert list(server.ready.values()) == [f"socket://127.0.0.1:{base}",
+                                               f"socket://127.0.0.1:{base + 1}"]
+
+
+def test_options_before_serve_and_after_it() -> None:
+    result = fpgaemu("--tcp", "127.0.0.1:0", "serve", "--pty")
+    assert result.returncode == 2  # both given: the one after does not silently win
+    assert "exactly one of --pty or --tcp" in result.stderr
+
+
+def test_options_before_serve_are_honoured() -> None:
+    proc = subprocess.Popen([sys.executable, "-m", "fpgaemu", "--pty", "--boards", "2", "serve"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout is not None
+        lines = [proc.stdout.readline(), proc.stdout.readline()]  # blocks until ready
+        assert [li.split()[:2] for li in lines] == [["ready", "L"], ["ready", "R"]], lines
+        assert all(li.split()[2].startswith("/dev/pts/") for li in lines)
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+    assert proc.returncode == 0

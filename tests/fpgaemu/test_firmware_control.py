@@ -5,12 +5,14 @@ enable's fall, and a re-enable that does not jump (SPEC §4 details, §6)."""
 from __future__ import annotations
 
 import itertools
+import math
+import struct
 
 import pytest
 
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import Telemetry
-from fpgalink.protocol import ParamAck
+from fpgalink.protocol import ParamAck, References, encode_frame
 from tests.support.host import MS, Host, StepFigures, step_figures
 from tests.support.plant import DEFAULT_GAINS
 
@@ -163,3 +165,34 @@ def test_the_seed_tunings_read_literally_barely_move_the_wheel() -> None:
     last = host.telemetry[-1]
     assert last.a.speed < 2.0
     assert 0 < last.a.pwm < 1000  # about 1 % duty for a 45 deg/s error
+
+
+# --- a non-finite reference never drives a motor ----------------------------------------------
+
+
+def raw_references(host: Host, ref_a: float, ref_b: float) -> int:
+    """An RV the host library would refuse to send (a broken or hostile host)."""
+    counter = host.conn.next_counter
+    host.conn.send(References(0.0, 0.0), host.now_s)  # keep the host's counter in step
+    host.conn.data_to_send()
+    content = b"RV%05d{\x08" % counter + struct.pack("<ff", ref_a, ref_b) + b"}"
+    return host.board.host_write(encode_frame(content))
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_reference_is_refused_and_never_latches_the_pwm(bad: float) -> None:
+    # It used to: one RV with NaN poisoned the integrator, and 5 s after RV(0, 0) the PWM
+    # still sat at 32760 with the wheel at 90 deg/s; only RD + RE cleared it.
+    host = streaming_enabled()
+    step(host, 20.0, 10.0, 1.0)
+    raw_references(host, bad, 0.0)
+    host.run(0.5)
+    assert host.firmware.stats.invalid_references == 1
+    # The whole message is ignored: the references in force are the previous ones.
+    assert host.telemetry[-1].a.reference == 20.0 and host.telemetry[-1].b.reference == 10.0
+    assert host.telemetry[-1].a.speed == pytest.approx(20.0, rel=0.05)
+    step(host, 0.0, 0.0, 2.0)
+    last = host.telemetry[-1]
+    assert abs(last.a.pwm) < 1000 and abs(last.a.speed) < 0.5
+    assert all(math.isfinite(ch.integral) for ch in (host.firmware.channels[1].pid,
+                                                     host.firmware.channels[2].pid))

@@ -6,6 +6,8 @@ encoder and plant. A 0 → 45 deg/s step at TsTimerPeriod = 1 ms settles within 
 
 from __future__ import annotations
 
+import math
+
 import pytest
 
 from fpgaemu.motor import GEARS
@@ -149,3 +151,16 @@ def test_seed_tunings_converted_track_at_1_ms_and_lose_margin_at_20_ms() -> None
 
 def test_default_gains_are_the_documented_ones() -> None:
     assert PidGains(kp=520.0, ti=float32(0.24), td=0.0) == DEFAULT_GAINS
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_input_outputs_zero_and_never_enters_the_state(bad: float) -> None:
+    pid = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.05))
+    for _ in range(50):
+        pid.update(30.0, 10.0, TS)
+    assert pid.update(bad, 10.0, TS) == 0
+    assert pid.update(30.0, bad, TS) == 0
+    assert pid.integral == 0.0 and not pid.saturated
+    # Back to finite inputs: an ordinary controller from rest, not one latched at its limit.
+    fresh = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.05))
+    assert pid.update(0.0, 0.0, TS) == fresh.update(0.0, 0.0, TS) == 0

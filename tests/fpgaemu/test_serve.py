@@ -4,7 +4,7 @@ slices without losing a byte, and reports the lag. Driven by a fake clock: no sl
 from __future__ import annotations
 
 from fpgaemu.build import build_board
-from fpgaemu.serve import CATCH_UP_SLICE_S, PacedBoard
+from fpgaemu.serve import CATCH_UP_SLICE_S, HOST_FIFO_BYTES, PacedBoard
 from fpgalink import Connection, Telemetry
 from fpgalink.protocol import Enable, ParamSet
 from tests.support.wire import sent
@@ -41,3 +41,29 @@ def test_starved_board_catches_up_without_losing_bytes_and_reports_lag() -> None
     assert len(counters) >= 495
     assert counters == list(range(counters[0], counters[0] + len(counters)))
     assert host.stats.lost == 0 and host.stats.decode_errors == 0
+
+
+def test_a_host_writing_faster_than_the_line_is_bounded_and_counted() -> None:
+    # 4.9 GB were once accepted from a TCP client in 30 s; the line carries 100 kB/s.
+    now = [10.0]
+    paced = PacedBoard(build_board(), clock=lambda: now[0])
+    accepted = sum(paced.host_write(b"x" * 65536) for _ in range(100))
+    assert accepted == HOST_FIFO_BYTES
+    assert paced.dropped_rx == 100 * 65536 - HOST_FIFO_BYTES
+    # As the line drains, there is room again: 1 ms carries 100 bytes at 1 MBd.
+    now[0] += 0.001
+    paced.advance()
+    assert paced.host_write(b"y" * 1000) in (99, 100)  # give or take the byte on the wire
+
+
+def test_a_departed_hosts_bytes_are_discarded() -> None:
+    now = [10.0]
+    paced = PacedBoard(build_board(), clock=lambda: now[0])
+    paced.host_write(b"z" * 4000)
+    now[0] += 0.001
+    paced.advance()
+    lost = paced.host_gone()
+    assert 3850 <= lost <= 3900  # ~100 bytes went out in that millisecond
+    assert paced.board.uartread.stats.dropped_bytes == lost
+    # The next host starts on an idle line.
+    assert paced.host_write(b"w" * 10) == 10

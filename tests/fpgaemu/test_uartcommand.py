@@ -389,3 +389,33 @@ def test_edges_match_the_per_byte_model(steps: list[tuple[int, bytes]]) -> None:
     model.feed(timed)
     model.finish(end)
     assert [(c.cycle, c.enabled) for c in changes] == model.enable
+
+
+# --- the host unplugged mid-stream -------------------------------------------------------------
+
+
+def test_bytes_not_yet_on_the_wire_when_the_host_goes_never_arrive() -> None:
+    board = Board()
+    frames: list[bytes] = []
+
+    def on_frame(irq: RxInterrupt) -> None:
+        frames.append(board.axi.read_rx(irq.start_address, irq.length))
+        board.axi.ack_rx(irq.start_address)
+
+    board.axi.on_rx_interrupt(on_frame)
+    cpb = board.cycles_per_byte
+    first = encode_frame(b"AB00001")  # 9 wire bytes
+    second = encode_frame(b"CD00002")
+    board.host_write(first + second, 0)
+    # Unplugged while the 12th byte (the second frame's third) is on the wire: it still
+    # arrives, nothing after it does.
+    lost = board.host_unplugged(11 * cpb + cpb // 2)
+    assert lost == len(first) + len(second) - 12
+    board.run_until(100 * cpb)
+    assert frames == [b"AB00001"]
+    assert board.uartcommand.stats.bytes_received == 12
+    assert board.uartread.line_free_at == 12 * cpb
+    # The next host's bytes start right after the byte that made it.
+    board.host_write(encode_frame(b"EF00003"), 100 * cpb)
+    board.run_until(200 * cpb)
+    assert frames == [b"AB00001", b"EF00003"]

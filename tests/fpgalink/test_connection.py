@@ -33,6 +33,7 @@ from fpgalink.events import (
     RequestFailed,
 )
 from fpgalink.protocol import (
+    FLOAT32_MAX,
     Alive,
     ChannelTelemetry,
     Disable,
@@ -47,6 +48,7 @@ from fpgalink.protocol import (
     ParamSet,
     References,
     encode_frame,
+    float32,
     lookup,
 )
 from tests.support.wire import sent
@@ -357,12 +359,25 @@ def test_a_get_takes_any_value_of_the_right_type() -> None:
 # --- references -------------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
-def test_non_finite_references_are_refused_before_anything_is_sent(bad: float) -> None:
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, 1e39, -3.5e38])
+def test_references_outside_float32_are_refused_before_anything_is_sent(bad: float) -> None:
     host = Connection()
     with pytest.raises(LocalProtocolError, match="finite"):
         host.send(References(bad, 0.0), 0.0)
+    with pytest.raises(LocalProtocolError, match="finite"):
+        host.send(References(0.0, bad), 0.0)
     assert host.data_to_send() == b"" and host.next_counter == 0
+
+
+def test_a_held_reference_out_of_range_fails_at_send_not_later() -> None:
+    # The line is backed up, so a reference would be held and encoded later: the range check
+    # must still happen when the caller sends it.
+    host = Connection(baud=1_000_000, max_reference_delay=1e-6)
+    host.send(References(1.0, 0.0), 0.0)
+    host.send(References(2.0, 0.0), 0.0)  # held: the first still occupies the line
+    with pytest.raises(LocalProtocolError, match="float32"):
+        host.send(References(1e39, 0.0), 0.0)
+    assert float32(FLOAT32_MAX) == FLOAT32_MAX
 
 
 def test_references_never_queue_behind_more_than_the_allowed_delay() -> None:

@@ -41,6 +41,8 @@ class ScriptedBoard:
     mute: bool = False
     echo: Echo | None = None
     values: dict[tuple[int, int], int | float] = field(default_factory=dict)
+    #: the speed every TM reports (default: t_us as a float); NaN to test non-finite data
+    speed: float | None = None
     received: list[Event] = field(default_factory=list)
     conn: Connection = field(default_factory=lambda: Connection(role=Role.BOARD, baud=None))
 
@@ -57,7 +59,8 @@ class ScriptedBoard:
         return self.conn.data_to_send()
 
     def telemetry(self, t_us: int) -> bytes:
-        ch = ChannelTelemetry(t_us, float(t_us), 0.0, 0, 0.0, 1)
+        speed = float(t_us) if self.speed is None else self.speed
+        ch = ChannelTelemetry(t_us, speed, 0.0, 0, 0.0, 1)
         return self.send(Telemetry(t_us, ch, ch))
 
     def alive(self) -> bytes:
@@ -81,6 +84,9 @@ class ScriptedBoard:
                 ParamAck(event.param_id, event.channel, event.value_type, event.value), now
             )
         elif isinstance(event, ParamGet):
+            if self.nack is not None:
+                self.conn.send(ParamNack(event.param_id, event.channel, self.nack), now)
+                return
             try:
                 param = lookup(event.param_id)
             except UnknownParameter:
@@ -141,6 +147,13 @@ class FakeBoard:
             await self.server.wait_closed()
             self.server = None
         self.writers.clear()
+
+    async def vanish(self) -> None:
+        """Fall silent as a board that lost power with the port still open: no heartbeat,
+        no telemetry, no answers."""
+        self.silent = True
+        self.script.mute = True
+        self._set_streaming(False)
 
     def broadcast(self, data: bytes) -> None:
         for w in self.writers:

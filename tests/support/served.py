@@ -14,9 +14,10 @@ import signal
 import sys
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
+from typing import Any
 
-from fpgalink import Telemetry
-from fpgalink.aio import Link, LinkEvent, LinkEventKind
+from fpgalink import PortError, Telemetry
+from fpgalink.aio import Link, LinkEvent, LinkEventKind, open_link
 from fpgalink.protocol.params import Param, ParamType, Scope
 from tests.support.waiting import wait_until
 
@@ -25,7 +26,9 @@ __all__ = [
     "PATIENCE",
     "Serve",
     "StreamResult",
+    "connect_when_free",
     "next_event",
+    "open_when_free",
     "serve",
     "stream",
     "valid_value",
@@ -47,6 +50,7 @@ class Serve:
     proc: asyncio.subprocess.Process
     args: tuple[str, ...]
     ready: dict[str, str] = field(default_factory=dict)  #: board name → path or URL
+    links: dict[str, str] = field(default_factory=dict)  #: with --link: name → the pty
 
     @property
     def url(self) -> str:
@@ -97,9 +101,11 @@ async def start_serve(*args: str, boards: int = 1) -> Serve:
             line = (await asyncio.wait_for(proc.stdout.readline(), READY_TIMEOUT)).decode()
             if not line:
                 raise AssertionError(f"fpgaemu serve {' '.join(args)} exited before ready")
-            word, name, where = line.split()
+            word, name, where, *pointed = line.split()  # "ready L LINK -> /dev/pts/N"
             assert word == "ready", line
             server.ready[name] = where
+            if pointed:
+                server.links[name] = pointed[-1]
     except BaseException:
         await server.stop()
         raise
@@ -207,6 +213,30 @@ async def stream(link: Link, count: int, timeout: float = 3 * PATIENCE) -> Strea
     finally:
         sub.close()
     return StreamResult(samples, link.stats.lost - lost_before, sub.dropped)
+
+
+async def open_when_free(url: str, **options: Any) -> Link:
+    """Open ``url`` as soon as serve listens again: one host at a time, so a TCP port
+    refuses the next host until serve has seen the previous one leave."""
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + PATIENCE
+    while True:
+        try:
+            return await open_link(url, **options).open()
+        except PortError:
+            if loop.time() > deadline:
+                raise
+            await asyncio.sleep(0.02)
+
+
+async def connect_when_free(host: str, port: int) -> tuple[asyncio.StreamReader,
+                                                         asyncio.StreamWriter]:
+    """A raw TCP connection, as soon as serve listens again (see :func:`open_when_free`)."""
+    while True:
+        try:
+            return await asyncio.open_connection(host, port)
+        except (ConnectionRefusedError, ConnectionResetError):  # reset: queued, then refused
+            await asyncio.sleep(0.02)
 
 
 def valid_value(param: Param, channel: int) -> int | float:

@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mappin
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
-from typing import Generic, TypeVar
+from typing import Generic, NamedTuple, TypeVar
 
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkStats, Liveness
@@ -42,6 +42,7 @@ __all__ = [
     "LinkEventKind",
     "LinkState",
     "Reopen",
+    "Stamped",
     "Subscription",
     "SyncResult",
     "open_link",
@@ -51,6 +52,13 @@ T = TypeVar("T")
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
+
+
+class Stamped(NamedTuple):
+    """A telemetry sample and when the link received it (the loop's clock, seconds)."""
+
+    at: float
+    sample: Telemetry
 
 
 class LinkState(Enum):
@@ -188,6 +196,7 @@ class Link:
         self._timer_at: float | None = None
         self._futures: dict[int, asyncio.Future[int | float]] = {}
         self._telemetry_subs: set[Subscription[Telemetry]] = set()
+        self._stamped_subs: set[Subscription[Stamped]] = set()
         self._event_subs: set[Subscription[LinkEvent]] = set()
         self._listeners: list[Callable[[Event], None]] = []
         self._reconnect_task: asyncio.Task[None] | None = None
@@ -265,9 +274,12 @@ class Link:
         self._futures.clear()
         for telemetry_sub in self._telemetry_subs:
             telemetry_sub._end()
+        for stamped_sub in self._stamped_subs:
+            stamped_sub._end()
         for event_sub in self._event_subs:
             event_sub._end()
         self._telemetry_subs.clear()
+        self._stamped_subs.clear()
         self._event_subs.clear()
 
     async def __aenter__(self) -> Link:
@@ -394,6 +406,16 @@ class Link:
             self._telemetry_subs.add(sub)
         return sub
 
+    def stamped_telemetry(self, maxsize: int = 1024) -> Subscription[Stamped]:
+        """As :meth:`telemetry`, each sample with the loop time the link received it — the
+        host's side of the clock, beside the board's ``t_us``."""
+        sub: Subscription[Stamped] = Subscription(maxsize, self._stamped_subs.discard)
+        if self.state is LinkState.CLOSED:
+            sub._end()
+        else:
+            self._stamped_subs.add(sub)
+        return sub
+
     def watch(self, maxsize: int = 256) -> AsyncIterator[LinkEvent]:
         """Link events (board lost/found, port lost/restored) as an async iterator; it ends
         after the ``CLOSED`` event when the link closes, for whatever reason."""
@@ -494,13 +516,19 @@ class Link:
     def _process(self) -> None:
         stats = self.connection.stats
         listeners = self._listeners
+        stamped = self._stamped_subs
+        now = self._now() if stamped else 0.0
         for event in self.connection.events():
             for listener in listeners:
                 listener(event)
             kind = type(event)
             if kind is Telemetry:
+                assert isinstance(event, Telemetry)
                 for sub in self._telemetry_subs:
-                    if sub._push(event):  # type: ignore[arg-type]
+                    if sub._push(event):
+                        stats.subscriber_drops += 1
+                for stamped_sub in stamped:
+                    if stamped_sub._push(Stamped(now, event)):
                         stats.subscriber_drops += 1
             elif kind is RequestDone or kind is RequestFailed:
                 future = self._futures.get(event.request_id)  # type: ignore[attr-defined]

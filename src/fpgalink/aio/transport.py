@@ -93,7 +93,7 @@ async def open_transport(
     except Exception as exc:  # a broken plug-in must not take the caller down with a trace
         raise PortError(f"{url}: the {scheme}:// opener could not be loaded: {exc}") from exc
     if opener is None:
-        known = ", ".join(f"{s}://" for s in known_schemes())
+        known = ", ".join(f"{s}://" for s in known_schemes() if s)  # "" is the device path
         raise PortError(f"{url}: unsupported port; use a device path, {known}")
     try:
         return await opener(url, baud, protocol_factory)

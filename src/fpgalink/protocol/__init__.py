@@ -11,71 +11,147 @@ stands on it, and so does the board emulator (``fpgaemu``): it is the only part 
 * :mod:`.params` — the parameter table (ranges, types, power-up defaults);
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
 * :mod:`.wire` — 8N1 wire-time arithmetic and budgets.
+
+Names load from their submodule on first use, so importing one part of the protocol (the
+wire arithmetic, say) does not import the rest.
 """
 
-from fpgalink.protocol.catalogue import (
-    ChannelTelemetry,
-    Message,
-    NackReason,
-    ParamAck,
-    ParamGet,
-    ParamNack,
-    ParamSet,
-    Parsed,
-    References,
-    Telemetry,
-    TelemetryFlags,
-    content_length,
-    encode_message,
-    parse_content,
-)
-from fpgalink.protocol.counter import CounterTracker, Observation, SendCounter
-from fpgalink.protocol.errors import (
-    FpgalinkError,
-    LocalProtocolError,
-    ParameterError,
-    UnknownParameter,
-)
-from fpgalink.protocol.event import Event
-from fpgalink.protocol.framing import (
-    DEFAULT_FRAMING,
-    AbortReason,
-    FrameAborted,
-    FrameDecoder,
-    FrameTooLong,
-    Framing,
-    FramingError,
-    FramingStats,
-    NoiseDropped,
-    encode_frame,
-)
-from fpgalink.protocol.messages import (
-    COUNTER_MODULUS,
-    Alive,
-    Binary,
-    CountedMessage,
-    DirectCommand,
-    Disable,
-    Enable,
-    Malformed,
-    MalformedReason,
-    MessageId,
-    Role,
-    Text,
-)
-from fpgalink.protocol.params import (
-    PARAMETERS,
-    Param,
-    ParamType,
-    Scope,
-    float32,
-    lookup,
-    resolve,
-)
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+#: public name → the submodule that defines it
+_HOMES = {
+    "AbortReason": "fpgalink.protocol.framing",
+    "Alive": "fpgalink.protocol.messages",
+    "Binary": "fpgalink.protocol.messages",
+    "COUNTER_MODULUS": "fpgalink.protocol.messages",
+    "ChannelTelemetry": "fpgalink.protocol.catalogue",
+    "CountedMessage": "fpgalink.protocol.messages",
+    "CounterTracker": "fpgalink.protocol.counter",
+    "DEFAULT_FRAMING": "fpgalink.protocol.framing",
+    "DirectCommand": "fpgalink.protocol.messages",
+    "Disable": "fpgalink.protocol.messages",
+    "Enable": "fpgalink.protocol.messages",
+    "Event": "fpgalink.protocol.event",
+    "FpgalinkError": "fpgalink.protocol.errors",
+    "FLOAT32_MAX": "fpgalink.protocol.params",
+    "FrameAborted": "fpgalink.protocol.framing",
+    "FrameDecoder": "fpgalink.protocol.framing",
+    "FrameTooLong": "fpgalink.protocol.framing",
+    "Framing": "fpgalink.protocol.framing",
+    "FramingError": "fpgalink.protocol.framing",
+    "FramingStats": "fpgalink.protocol.framing",
+    "LocalProtocolError": "fpgalink.protocol.errors",
+    "Malformed": "fpgalink.protocol.messages",
+    "MalformedReason": "fpgalink.protocol.messages",
+    "Message": "fpgalink.protocol.catalogue",
+    "MessageId": "fpgalink.protocol.messages",
+    "NackReason": "fpgalink.protocol.catalogue",
+    "NoiseDropped": "fpgalink.protocol.framing",
+    "Observation": "fpgalink.protocol.counter",
+    "PARAMETERS": "fpgalink.protocol.params",
+    "Param": "fpgalink.protocol.params",
+    "ParamAck": "fpgalink.protocol.catalogue",
+    "ParamGet": "fpgalink.protocol.catalogue",
+    "ParamNack": "fpgalink.protocol.catalogue",
+    "ParamSet": "fpgalink.protocol.catalogue",
+    "ParamType": "fpgalink.protocol.params",
+    "ParameterError": "fpgalink.protocol.errors",
+    "Parsed": "fpgalink.protocol.catalogue",
+    "References": "fpgalink.protocol.catalogue",
+    "Role": "fpgalink.protocol.messages",
+    "Scope": "fpgalink.protocol.params",
+    "SendCounter": "fpgalink.protocol.counter",
+    "Telemetry": "fpgalink.protocol.catalogue",
+    "TelemetryFlags": "fpgalink.protocol.catalogue",
+    "Text": "fpgalink.protocol.messages",
+    "UnknownParameter": "fpgalink.protocol.errors",
+    "content_length": "fpgalink.protocol.catalogue",
+    "encode_frame": "fpgalink.protocol.framing",
+    "encode_message": "fpgalink.protocol.catalogue",
+    "float32": "fpgalink.protocol.params",
+    "lookup": "fpgalink.protocol.params",
+    "parse_content": "fpgalink.protocol.catalogue",
+    "resolve": "fpgalink.protocol.params",
+}
+
+if TYPE_CHECKING:
+    from fpgalink.protocol.catalogue import (
+        ChannelTelemetry,
+        Message,
+        NackReason,
+        ParamAck,
+        ParamGet,
+        ParamNack,
+        ParamSet,
+        Parsed,
+        References,
+        Telemetry,
+        TelemetryFlags,
+        content_length,
+        encode_message,
+        parse_content,
+    )
+    from fpgalink.protocol.counter import CounterTracker, Observation, SendCounter
+    from fpgalink.protocol.errors import (
+        FpgalinkError,
+        LocalProtocolError,
+        ParameterError,
+        UnknownParameter,
+    )
+    from fpgalink.protocol.event import Event
+    from fpgalink.protocol.framing import (
+        DEFAULT_FRAMING,
+        AbortReason,
+        FrameAborted,
+        FrameDecoder,
+        FrameTooLong,
+        Framing,
+        FramingError,
+        FramingStats,
+        NoiseDropped,
+        encode_frame,
+    )
+    from fpgalink.protocol.messages import (
+        COUNTER_MODULUS,
+        Alive,
+        Binary,
+        CountedMessage,
+        DirectCommand,
+        Disable,
+        Enable,
+        Malformed,
+        MalformedReason,
+        MessageId,
+        Role,
+        Text,
+    )
+    from fpgalink.protocol.params import (
+        FLOAT32_MAX,
+        PARAMETERS,
+        Param,
+        ParamType,
+        Scope,
+        float32,
+        lookup,
+        resolve,
+    )
+
+
+def __getattr__(name: str) -> object:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'fpgalink.protocol' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
 
 __all__ = [
     "COUNTER_MODULUS",
     "DEFAULT_FRAMING",
+    "FLOAT32_MAX",
     "PARAMETERS",
     "AbortReason",
     "Alive",

@@ -1,9 +1,10 @@
 """The typed message catalogue of SPEC §4: ``PS PG PA PN RV TM``.
 
-Each body layout is declared once, with :mod:`construct`, in ``LAYOUTS``. The hot path
-(1 kHz telemetry from every board) does not run construct's interpreter: a :mod:`struct`
-format is derived from the same declaration at import time and checked to have the same
-size, so the layout still lives in one place.
+Each body layout is declared once, as data, in :data:`BODIES`. The hot path (1 kHz
+telemetry from every board) uses :mod:`struct` formats derived from it at import;
+:func:`layout` derives a :mod:`construct` description of the same layout on first use, for
+readers and tools (and a test checks both agree on every message), so importing the
+protocol does not pay for construct.
 """
 
 from __future__ import annotations
@@ -14,8 +15,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any, ClassVar, NamedTuple
-
-import construct as cs
 
 from fpgalink.protocol.errors import LocalProtocolError
 from fpgalink.protocol.event import Event
@@ -38,7 +37,7 @@ from fpgalink.protocol.messages import (
 from fpgalink.protocol.params import ParamType
 
 __all__ = [
-    "LAYOUTS",
+    "BODIES",
     "ChannelTelemetry",
     "Message",
     "NackReason",
@@ -52,6 +51,7 @@ __all__ = [
     "TelemetryFlags",
     "content_length",
     "encode_message",
+    "layout",
     "parse_content",
 ]
 
@@ -80,58 +80,75 @@ class TelemetryFlags(IntEnum):
     SATURATED = 4  #: bit2: controller output saturated
 
 
-_CHANNEL_TM = cs.Struct(
-    "position" / cs.Int32sl,  # encoder counts
-    "speed" / cs.Float32l,  # deg/s
-    "current" / cs.Float32l,  # A
-    "pwm" / cs.Int16sl,  # applied duty, ±32760
-    "reference" / cs.Float32l,
-    "flags" / cs.Int8ul,
+#: One field: its name, its :mod:`struct` code (little-endian) and what it holds.
+Field = tuple[str, str, str]
+#: A layout: fields, or ``(name, layout)`` for a nested one.
+Layout = tuple["Field | tuple[str, Layout]", ...]
+
+_CHANNEL_TM: Layout = (
+    ("position", "i", "encoder counts"),
+    ("speed", "f", "deg/s"),
+    ("current", "f", "A"),
+    ("pwm", "h", "applied duty, ±32760 = ±100 %"),
+    ("reference", "f", "deg/s, or N·m under current control"),
+    ("flags", "B", "bit0 enable, bit1 end-stop, bit2 saturated"),
+)
+_PARAM_VALUE: Layout = (
+    ("param_id", "B", "parameter id"),
+    ("channel", "B", "0 board, 1 A, 2 B"),
+    ("value_type", "B", "1 int32, 2 float32"),
+    ("value", "4s", "the value, as its type"),
 )
 
-#: Body layouts, each carried as one binary section. Declared once; ``struct`` formats derive.
-LAYOUTS: dict[MessageId, cs.Construct] = {
-    MessageId.PS: cs.Struct(
-        "param_id" / cs.Int8ul, "channel" / cs.Int8ul, "value_type" / cs.Int8ul,
-        "value" / cs.Bytes(4),
-    ),
-    MessageId.PG: cs.Struct("param_id" / cs.Int8ul, "channel" / cs.Int8ul),
-    MessageId.PN: cs.Struct("param_id" / cs.Int8ul, "channel" / cs.Int8ul, "error" / cs.Int8ul),
-    MessageId.RV: cs.Struct("ref_a" / cs.Float32l, "ref_b" / cs.Float32l),
-    MessageId.TM: cs.Struct("t_us" / cs.Int32ul, "a" / _CHANNEL_TM, "b" / _CHANNEL_TM),
+#: Body layouts, each carried as one binary section: the single declaration. The ``struct``
+#: formats of the hot path and the ``construct`` layouts (:func:`layout`) both derive from
+#: it.
+BODIES: dict[MessageId, Layout] = {
+    MessageId.PS: _PARAM_VALUE,
+    MessageId.PA: _PARAM_VALUE,
+    MessageId.PG: (("param_id", "B", "parameter id"), ("channel", "B", "0 board, 1 A, 2 B")),
+    MessageId.PN: (("param_id", "B", "parameter id"), ("channel", "B", "0 board, 1 A, 2 B"),
+                   ("error", "B", "a NackReason code")),
+    MessageId.RV: (("ref_a", "f", "channel A reference"), ("ref_b", "f", "channel B reference")),
+    MessageId.TM: (("t_us", "I", "board time, µs, wraps"), ("a", _CHANNEL_TM), ("b", _CHANNEL_TM)),
 }
-LAYOUTS[MessageId.PA] = LAYOUTS[MessageId.PS]
 
 
-def _struct_format(con: Any) -> str:
-    """The :mod:`struct` format (without byte order) of a fixed-size construct layout."""
-    if isinstance(con, cs.Renamed):
-        return _struct_format(con.subcon)
-    if isinstance(con, cs.Struct):
-        return "".join(_struct_format(sub) for sub in con.subcons)
-    if isinstance(con, cs.FormatField):
-        if con.fmtstr[0] != "<":
-            raise TypeError(f"layout field {con!r} is not little-endian")
-        return str(con.fmtstr[1:])
-    if isinstance(con, cs.Bytes):
-        return f"{con.length}s"
-    raise TypeError(f"no struct equivalent for {con!r}")
+def _nested(entry: Field | tuple[str, Layout]) -> Layout | None:
+    return entry[1] if len(entry) == 2 else None
 
 
-def _compile(msg_id: MessageId) -> struct.Struct:
-    layout = LAYOUTS[msg_id]
-    compiled = struct.Struct("<" + _struct_format(layout))
-    if compiled.size != layout.sizeof():
-        raise AssertionError(f"{msg_id!r}: struct size {compiled.size} != {layout.sizeof()}")
-    return compiled
+def _codes(fields: Layout) -> str:
+    return "".join(_codes(inner) if (inner := _nested(f)) is not None else str(f[1])
+                   for f in fields)
 
 
-_STRUCTS = {msg_id: _compile(msg_id) for msg_id in LAYOUTS}
+_STRUCTS = {msg_id: struct.Struct("<" + _codes(fields)) for msg_id, fields in BODIES.items()}
+
+
+def layout(msg_id: MessageId) -> Any:
+    """The body of ``msg_id`` as a :mod:`construct` ``Struct`` — a readable, parsing and
+    building description of the same layout (loaded on first use: the hot path does not
+    need it)."""
+    import construct as cs
+
+    types = {"B": cs.Int8ul, "h": cs.Int16sl, "i": cs.Int32sl, "I": cs.Int32ul,
+             "f": cs.Float32l, "4s": cs.Bytes(4)}
+
+    def build(fields: Layout) -> Any:
+        return cs.Struct(*(
+            f[0] / (build(inner) if (inner := _nested(f)) is not None else types[str(f[1])])
+            for f in fields
+        ))
+
+    return build(BODIES[msg_id])
 
 
 def content_length(msg_id: MessageId) -> int:
     """Frame content bytes of a catalogued message: ID, counter, ``{`` LEN body ``}``."""
     return 2 + 5 + 3 + _STRUCTS[msg_id].size
+
+
 _VALUE_INT = struct.Struct("<i")
 _VALUE_FLOAT = struct.Struct("<f")
 _VALUE_RAW = struct.Struct("<I")

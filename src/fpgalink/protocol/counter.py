@@ -13,7 +13,8 @@ __all__ = ["CounterTracker", "Observation", "SendCounter"]
 #: How far back a counter is still "recent": older ones are judged duplicates of something
 #: long gone. Half the counter space, so the wrap never looks like a jump backwards.
 _HALF = COUNTER_MODULUS // 2
-#: How many missing counters are remembered, so a late arrival is recognised as reordered.
+#: How far behind the expected counter a missing one is still remembered, so its late
+#: arrival is recognised as reordering rather than a duplicate.
 _MISSING_WINDOW = 4096
 #: A jump ahead by more than this is only believed once the next counter follows it: a
 #: single corrupted counter (there is no checksum) must not make every later message look
@@ -49,7 +50,13 @@ class Observation(Enum):
 class CounterTracker:
     """Receiver side. ``observe(counter)`` classifies each arrival. A jump ahead of less than
     half the counter space is a gap (those messages are counted skipped); anything behind is
-    a late arrival if it was one of the skipped, else a duplicate. ``lost`` is the net."""
+    a late arrival if it was one of the skipped within the last :data:`_MISSING_WINDOW`
+    counters, else a duplicate. ``lost`` is the net.
+
+    Every counter sequence costs O(1) per message: missing counters are marked in a table
+    indexed by counter value (a C-level fill per gap, at most the window long), tagged with
+    the lap of the counter space they belong to, so nothing has to be trimmed one entry at a
+    time and marks older than the window simply stop matching."""
 
     expected: int | None = None
     received: int = 0
@@ -59,43 +66,55 @@ class CounterTracker:
     corrupted: int = 0  #: counters judged damaged (a big jump the next counter denied)
     last_gap: int = 0
     suspect: int | None = None
+    laps: int = 0  #: times the expected counter passed 99999 → 0
     _held: int = 0  #: the expected counter while a suspect is pending
-    _missing: dict[int, None] = field(default_factory=dict, repr=False)
+    #: per counter value: 0, or 1 + the lap (mod 255) in which it went missing
+    _missing: bytearray = field(default_factory=lambda: bytearray(COUNTER_MODULUS), repr=False)
 
     @property
     def lost(self) -> int:
         """Messages skipped and not (yet) seen: the net loss."""
         return self.skipped - self.late
 
+    def _expect_after(self, counter: int) -> None:
+        """The next counter expected is the one after ``counter``, which is ahead of (or at)
+        the present expectation; count the lap when that passes 99999."""
+        following = counter + 1 if counter != COUNTER_MODULUS - 1 else 0
+        previous = self.expected
+        # Moving forward by less than half the space, a smaller value means the wrap.
+        if previous is not None and previous >= 0 and following < previous:
+            self.laps += 1
+        self.expected = following
+
     def observe(self, counter: int) -> Observation:
         self.received += 1
         expected = self.expected
         if expected == counter:
-            self.expected = (counter + 1) % COUNTER_MODULUS
+            self._expect_after(counter)
             return Observation.IN_ORDER
         if expected is None:
-            self.expected = (counter + 1) % COUNTER_MODULUS
+            self.expected = counter + 1 if counter != COUNTER_MODULUS - 1 else 0
             return Observation.FIRST
         suspect = self.suspect
         if suspect is not None:
             expected = self._held
+            self.expected = expected
             self.suspect = None
             if 0 < (counter - suspect) % COUNTER_MODULUS <= _TRUSTED_JUMP:
                 # The jump is real (an outage, a board restart): count it from the suspect.
+                self._expect_after(counter)
                 self._gap(expected, (suspect - expected) % COUNTER_MODULUS)
                 self._gap((suspect + 1) % COUNTER_MODULUS,
                           (counter - suspect - 1) % COUNTER_MODULUS)
                 self.last_gap = (counter - expected) % COUNTER_MODULUS - 1
-                self.expected = (counter + 1) % COUNTER_MODULUS
                 return Observation.GAP
             self.corrupted += 1
             ahead = (counter - expected) % COUNTER_MODULUS
             if ahead <= 1:
                 # Back on the expected sequence: the suspect was the expected message with a
                 # damaged counter (ahead 1), or a damaged extra (ahead 0). Nothing was lost.
-                self.expected = (counter + 1) % COUNTER_MODULUS
+                self._expect_after(counter)
                 return Observation.CORRUPT
-            self.expected = expected
         ahead = (counter - expected) % COUNTER_MODULUS
         if _TRUSTED_JUMP < ahead < _HALF:
             self.suspect = counter
@@ -104,29 +123,49 @@ class CounterTracker:
             self.expected = -1
             return Observation.SUSPECT
         if ahead < _HALF:
+            self._expect_after(counter)
             self._gap(expected, ahead)
             self.last_gap = ahead
-            self.expected = (counter + 1) % COUNTER_MODULUS
             return Observation.GAP
-        if counter in self._missing:
-            del self._missing[counter]
+        if self._take_missing(counter):
             self.late += 1
             return Observation.LATE
         self.duplicates += 1
         return Observation.DUPLICATE
 
+    def _tag(self, counter: int) -> int:
+        """The mark of ``counter`` as a counter behind the present expectation."""
+        expected = self.expected
+        assert expected is not None and expected >= 0
+        lap = self.laps if counter < expected else self.laps - 1
+        return lap % 255 + 1
+
     def _gap(self, first: int, count: int) -> None:
-        """``count`` counters from ``first`` on were skipped."""
+        """``count`` counters from ``first`` on were skipped (all behind the expectation)."""
         self.skipped += count
+        remembered = min(count, _MISSING_WINDOW)
+        start = (first + count - remembered) % COUNTER_MODULUS
         missing = self._missing
-        for k in range(max(0, count - _MISSING_WINDOW), count):
-            missing[(first + k) % COUNTER_MODULUS] = None
-        while len(missing) > _MISSING_WINDOW:
-            del missing[next(iter(missing))]
+        while remembered:
+            run = min(remembered, COUNTER_MODULUS - start)
+            missing[start : start + run] = bytes((self._tag(start),)) * run
+            remembered -= run
+            start = 0
+
+    def _take_missing(self, counter: int) -> bool:
+        """Whether ``counter`` went missing within the window (and is no longer missing)."""
+        expected = self.expected
+        if expected is None or expected < 0:
+            return False
+        behind = (expected - counter) % COUNTER_MODULUS
+        if not 0 < behind <= _MISSING_WINDOW or self._missing[counter] != self._tag(counter):
+            return False
+        self._missing[counter] = 0
+        return True
 
     def reset(self) -> None:
         """Forget the sequence (e.g. after a reconnect, when the board may have restarted)."""
         self.expected = None
         self.suspect = None
         self._held = 0
-        self._missing.clear()
+        self._missing[:] = bytes(COUNTER_MODULUS)

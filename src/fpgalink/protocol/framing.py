@@ -167,7 +167,7 @@ class FramingStats:
 #: The irregular path looks for a run of clean frames at most this far ahead, so a frame that
 #: never ends costs one window of scanning, not the rest of the stream. Any size above the
 #: longest frame that can complete (START, 2 × content limit, STOP) is exact.
-_CLEAN_WINDOW = 4096
+_CLEAN_WINDOW = 1024
 #: The clean-stream path tokenizes this many bytes at a time.
 _TOKEN_WINDOW = 16384
 

@@ -24,6 +24,7 @@ __all__ = [
     "BOARD",
     "CHANNEL_A",
     "CHANNEL_B",
+    "FLOAT32_MAX",
     "PARAMETERS",
     "Param",
     "ParamType",
@@ -50,6 +51,8 @@ class ParamType(IntEnum):
 
 
 _F32 = struct.Struct("<f")
+#: The largest finite float32, (2 − 2⁻²³)·2¹²⁷: the bound for any float the wire carries.
+FLOAT32_MAX = 3.4028234663852886e38
 
 
 def float32(value: float) -> float:

@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import math
+from decimal import Decimal
+from fractions import Fraction
 
+import numpy
 import pytest
 
 from fpgalink import ParameterError, UnknownParameter
@@ -94,3 +97,48 @@ def test_coerce_refuses_with_the_range(name: str, value: object, message: str) -
     with pytest.raises(ParameterError, match=message) as info:
         lookup(name).coerce(value)
     assert name in str(info.value)
+
+
+# --- any real number, never a raw Python error -------------------------------------------------
+
+
+@pytest.mark.parametrize("value", [1e39, -1e39, 3.5e38, math.inf, math.nan])
+def test_values_beyond_a_float32_are_a_parameter_error_naming_the_range(value: float) -> None:
+    # set_param(..., 1e39) raised a raw OverflowError from struct.
+    with pytest.raises(ParameterError, match=r"≥ 0"):
+        lookup("Kp_Wheel_Pid").coerce(value)
+    with pytest.raises(ParameterError, match=r"1\.\.1000"):
+        lookup("TsTimerPeriod").coerce(value)
+
+
+def test_the_largest_float32_is_still_accepted() -> None:
+    largest = 3.4028234663852886e38
+    assert lookup("Kp_Wheel_Pid").coerce(largest) == largest
+
+
+@pytest.mark.parametrize(
+    ("value", "expected"),
+    [
+        (numpy.int64(7), 7),
+        (numpy.float64(7.0), 7),
+        (Decimal("7"), 7),
+        (Fraction(14, 2), 7),
+    ],
+)
+def test_any_real_number_type_is_accepted(value: object, expected: int) -> None:
+    assert lookup("TsTimerPeriod").coerce(value) == expected
+    assert type(lookup("TsTimerPeriod").coerce(value)) is int
+
+
+def test_real_number_types_for_a_float_parameter() -> None:
+    kp = lookup("Kp_Wheel_Pid")
+    for value, expected in ((numpy.float64(7.11), 7.11), (Decimal("7.11"), 7.11),
+                            (Fraction(711, 100), 7.11), (numpy.int64(7), 7.0)):
+        assert kp.coerce(value) == float32(expected)
+        assert type(kp.coerce(value)) is float
+
+
+@pytest.mark.parametrize("value", [True, "7", None, 7j, [7], Decimal("7.5")])
+def test_what_is_not_a_real_number_or_not_whole_is_refused(value: object) -> None:
+    with pytest.raises(ParameterError):
+        lookup("TsTimerPeriod").coerce(value)
