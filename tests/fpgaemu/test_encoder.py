@@ -11,7 +11,7 @@ import math
 from fractions import Fraction
 
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from fpgaemu.encoder import SPEED_TIMEOUT_CYCLES, QuadratureEncoder
@@ -52,6 +52,7 @@ def test_counts_per_turn_is_ten_times_the_pulses() -> None:
 
 @given(st.lists(st.floats(-720.0, 720.0, allow_nan=False), min_size=1, max_size=30),
        st.sampled_from([1, -1]), st.integers(1, 2000))
+@example(angles=[1.9], direction=1, pulses=180)  # 1.9 is below 1.9: exact 9.99…, float 10
 def test_position_is_the_floor_rule_of_the_angle(angles: list[float], direction: int,
                                                  pulses: int) -> None:
     encoder = QuadratureEncoder(pulses, direction)
@@ -63,8 +64,8 @@ def test_position_is_the_floor_rule_of_the_angle(angles: list[float], direction:
         # arithmetic may land either side; the exact value decides everywhere else.
         exact = (Fraction(angle) * 10 * pulses / 360 + Fraction(1, 2))
         allowed = {math.floor(exact) * direction}
-        if abs(exact - round(exact)) < Fraction(1, 10**9):
-            allowed.add((round(exact) - 1) * direction)
+        if abs(exact - round(exact)) < Fraction(1, 10**9):  # either side of the boundary
+            allowed |= {(round(exact) - 1) * direction, round(exact) * direction}
         assert encoder.position in allowed
 
 
