@@ -9,11 +9,14 @@ emulator in the CLI's own process) and ``pty`` (``fpgaemu serve --pty`` in a sub
 from __future__ import annotations
 
 import asyncio
+import atexit
 import dataclasses
 import os
 import select
+import shutil
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from collections.abc import Callable
@@ -90,17 +93,31 @@ def serve_pty() -> tuple[subprocess.Popen[str], str]:
                        if proc.stderr else "fpgaemu serve --pty did not become ready")
 
 
+_EMPTY_CONFIG_HOME = tempfile.mkdtemp(prefix="fpgalink-tests-config-")
+atexit.register(shutil.rmtree, _EMPTY_CONFIG_HOME, True)
+
+
 def cli_env(**extra: str) -> dict[str, str]:
     env = {k: v for k, v in os.environ.items() if not k.startswith("FPGALINK_")}
-    env.update(COLUMNS="200", NO_COLOR="1", PYTHONUNBUFFERED="1")
+    # The user's own config file must not steer the tests (and matplotlib may write its
+    # cache under XDG_CONFIG_HOME, so it must be a real, private directory).
+    env.update(COLUMNS="200", NO_COLOR="1", PYTHONUNBUFFERED="1",
+               XDG_CONFIG_HOME=_EMPTY_CONFIG_HOME)
     env.update(extra)
     return env
 
 
 def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = None,
-            timeout: float = CALL_TIMEOUT) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=ROOT,
-                          env=env or cli_env(), input=input, timeout=timeout)
+            timeout: float = CALL_TIMEOUT, cwd: Path | None = None
+            ) -> subprocess.CompletedProcess[str]:
+    """The CLI as a subprocess. From another ``cwd`` it still imports this checkout's
+    packages (PYTHONPATH), as an installed CLI would."""
+    env = env or cli_env()
+    if cwd is not None:
+        env = {**env, "PYTHONPATH": os.pathsep.join(
+            [str(ROOT / "src"), str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)}
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, cwd=cwd or ROOT,
+                          env=env, input=input, timeout=timeout)
 
 
 def start_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:

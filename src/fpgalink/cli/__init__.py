@@ -1,46 +1,85 @@
 """``fpgalink-cli``: talk to a board (or the built-in emulator) from the shell.
 
-Commands: ``send``, ``param get|set|list|load|dump``, ``monitor``, ``record``, ``step``,
-``budget``. Every failure is one line on stderr and a documented exit code
-(:class:`~fpgalink.cli.output.ExitCode`); see ``docs/cli.md``.
+Every failure is one line on stderr starting ``fpgalink-cli: error:`` and a documented exit
+code (:class:`~fpgalink.cli.output.ExitCode`); see ``docs/cli.md``. Commands load on first
+use, so ``--help`` and a quick ``param get`` do not pay for the others' imports.
 """
 
 from __future__ import annotations
 
+import importlib
 import sys
+from typing import Any
 
 import click
 
 from fpgalink import __version__
+from fpgalink.cli.options import global_connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, quiet_stdout
 
-__all__ = ["cli", "main"]
+__all__ = ["COMMANDS", "cli", "main"]
+
+#: name → (module, attribute, one-line help). The help is declared here so listing the
+#: commands imports none of them; a test checks it matches each command's own.
+COMMANDS: dict[str, tuple[str, str, str]] = {
+    "param": ("fpgalink.cli.param", "param",
+              "Read and write board parameters (confirmed by the board's echo)."),
+    "monitor": ("fpgalink.cli.monitor", "monitor",
+                "Watch telemetry of both channels and the link's health, live."),
+    "record": ("fpgalink.cli.record", "record",
+               "Record telemetry, parameter changes and link events into FILE."),
+    "step": ("fpgalink.cli.step", "step",
+             "Step the speed reference of one channel and measure the response."),
+    "send": ("fpgalink.cli.send", "send",
+             "Send one message with ID and print it; with --reply, wait for the reply."),
+    "budget": ("fpgalink.cli.budget", "budget",
+               "Static timing budget: wire bytes per period and utilisation per direction."),
+    "plot": ("fpgalink.cli.plot", "plot",
+             "Plot fields of a recording against time into a PNG."),
+    "ports": ("fpgalink.cli.ports", "ports",
+              "List serial ports, mark the board's USB-UART, check its latency timer."),
+    "config": ("fpgalink.cli.config", "config",
+               "Show the connection settings in force and where each came from."),
+}
+
+
+class LazyGroup(click.Group):
+    """Imports a command's module only when that command runs (or asks for its help)."""
+
+    def list_commands(self, ctx: click.Context) -> list[str]:
+        return list(COMMANDS)
+
+    def get_command(self, ctx: click.Context, cmd_name: str) -> click.Command | None:
+        entry = COMMANDS.get(cmd_name)
+        if entry is None:
+            return None
+        module, attribute, _ = entry
+        command = getattr(importlib.import_module(module), attribute)
+        assert isinstance(command, click.Command)
+        return command
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        rows = [(name, help_text) for name, (_, _, help_text) in COMMANDS.items()]
+        with formatter.section("Commands"):
+            formatter.write_dl(rows)
 
 
 @click.group(
+    cls=LazyGroup,
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
     epilog=EXIT_CODES_HELP,
 )
 @click.version_option(__version__, prog_name="fpgalink-cli")
-def cli() -> None:
+@global_connection_options
+@click.pass_context
+def cli(ctx: click.Context, /, **options: Any) -> None:
     """Talk to an FPGA motor-controller board over its UART protocol.
 
-    Every command that talks to a board takes --port (a device path, socket://HOST:PORT or
-    emu://), --baud, --timeout and --retries, also read from FPGALINK_PORT / FPGALINK_BAUD.
-    With no port anywhere it runs against the built-in emulator (emu://).
+    The connection options (--port, --board, --baud, --timeout, --retries, -v, --config) go
+    before the command or after it. Without a port anywhere (option, FPGALINK_PORT, the
+    config file), commands run against the built-in emulator (emu://).
     """
-
-
-def _register() -> None:
-    # Imported here so `fpgalink-cli --help` stays quick and each module owns its command.
-    from fpgalink.cli import budget, monitor, param, record, send, step
-
-    for command in (send.send, param.param, monitor.monitor, record.record, step.step,
-                    budget.budget):
-        cli.add_command(command)
-
-
-_register()
+    ctx.obj = options
 
 
 def main(argv: list[str] | None = None) -> None:
@@ -50,8 +89,9 @@ def main(argv: list[str] | None = None) -> None:
     except CliError as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except click.ClickException as exc:  # usage errors: click's own message, exit 2
-        exc.show()
+    except click.ClickException as exc:  # usage errors: one line, exit 2
+        message = " ".join(exc.format_message().split())
+        click.echo(f"fpgalink-cli: error: {message} (see fpgalink-cli -h)", err=True)
         sys.exit(exc.exit_code)
     except (click.Abort, KeyboardInterrupt):
         click.echo("fpgalink-cli: interrupted", err=True)
@@ -60,4 +100,3 @@ def main(argv: list[str] | None = None) -> None:
         quiet_stdout()
         sys.exit(ExitCode.OK)
     sys.exit(result if isinstance(result, int) else ExitCode.OK)
-

@@ -9,9 +9,16 @@ from __future__ import annotations
 import click
 from rich.table import Table
 
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, table_console
+from fpgalink.cli.output import (
+    EXIT_CODES_HELP,
+    CliError,
+    ExitCode,
+    FiniteRange,
+    echo_out,
+    table_console,
+)
 from fpgalink.protocol import DEFAULT_FRAMING, MessageId, Role
-from fpgalink.protocol.wire import TM_CONTENT_BYTES, Flow, plan
+from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, TM_CONTENT_BYTES, Flow, plan
 
 __all__ = ["budget", "parse_message"]
 
@@ -48,9 +55,9 @@ def parse_message(text: str) -> Flow:
 
 
 @click.command(epilog=EXIT_CODES_HELP)
-@click.option("--baud", type=click.IntRange(min=1), default=1_000_000, show_default=True,
-              envvar="FPGALINK_BAUD", help="Line rate, 8N1.")
-@click.option("--period-ms", type=click.FloatRange(min=0, min_open=True), default=1.0,
+@click.option("--baud", type=click.IntRange(MIN_BAUD, MAX_BAUD), default=1_000_000,
+              show_default=True, envvar="FPGALINK_BAUD", help="Line rate, 8N1.")
+@click.option("--period-ms", type=FiniteRange(min=0, min_open=True, max=60_000), default=1.0,
               show_default=True, help="Timer period (TsTimerPeriod), ms.")
 @click.option("--tm-bytes", type=click.IntRange(0, MAX_CONTENT), default=TM_CONTENT_BYTES,
               show_default=True,

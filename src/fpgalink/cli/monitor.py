@@ -5,25 +5,26 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import csv
+import io
 import json
 import sys
 import time
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-from rich.console import Console, Group
-from rich.live import Live
-from rich.table import Table
 
+from fpgalink.aio.link import Subscription
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import EXIT_CODES_HELP, ExitCode, quiet_stdout
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, quiet_stdout
 from fpgalink.cli.session import (
     TELEMETRY_FIELDS,
     BoardSession,
+    check_boards_answered,
     compact,
     flag_letters,
     install_stop_signals,
+    json_safe,
     open_sessions,
     restore_streaming,
     run,
@@ -31,7 +32,12 @@ from fpgalink.cli.session import (
     stop_exit_code,
     telemetry_row,
     wait_or_stop,
+    write_stdout,
 )
+from fpgalink.protocol import Telemetry
+
+if TYPE_CHECKING:  # rich loads when the table is drawn
+    from rich.console import Group
 
 __all__ = ["monitor"]
 
@@ -39,6 +45,9 @@ REFRESH_S = 0.1  #: table refresh; also how often the TM rate is re-estimated
 
 
 def render(sessions: list[BoardSession], started: float, duration: float | None) -> Group:
+    from rich.console import Group
+    from rich.table import Table
+
     telemetry = Table(title="Telemetry", title_justify="left")
     for column in ("board", "ch", "position", "speed deg/s", "current A", "pwm", "ref",
                    "flags"):
@@ -71,7 +80,7 @@ def render(sessions: list[BoardSession], started: float, duration: float | None)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True),
+@click.option("--duration", type=FiniteRange(min=0, min_open=True),
               help="Stop after S seconds (default: until Ctrl-C).")
 @click.option("--format", "fmt", type=click.Choice(["table", "csv", "jsonl"]),
               help="table (live view), or csv / jsonl with one line per TM sample. "
@@ -95,13 +104,16 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
                    passive: bool) -> int:
     stop = asyncio.Event()
     install_stop_signals(stop)
+    failure: list[BaseException] = []
     pipe_closed = False
+    started = time.time()
     async with contextlib.AsyncExitStack() as stack:
         sessions = await open_sessions(stack, conn)
         subs = [s.link.telemetry(maxsize=65536) for s in sessions]
         tasks: list[asyncio.Task[None]] = []
         for session in sessions:
-            tasks.append(asyncio.ensure_future(_report_events(session)))
+            report = _report_event(session) if fmt != "table" else None
+            tasks.append(asyncio.ensure_future(session.follow(report)))
         try:
             await start_streaming(sessions, passive)
             if fmt == "table":
@@ -109,7 +121,8 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
             else:
                 write = _stream_writer(fmt)
                 for session, sub in zip(sessions, subs, strict=True):
-                    tasks.append(asyncio.ensure_future(_stream(session, sub, write, stop)))
+                    tasks.append(asyncio.ensure_future(
+                        _stream(session, sub, write, stop, failure)))
                 await wait_or_stop(stop, duration)
                 pipe_closed = getattr(stop, "pipe_closed", False)
         finally:
@@ -117,14 +130,20 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
             await restore_streaming(sessions, passive)
+    if failure:
+        raise failure[0]
     if pipe_closed:
         quiet_stdout()
         return ExitCode.OK
+    check_boards_answered(sessions, started)
     return stop_exit_code(stop)
 
 
 async def _live_table(sessions: list[BoardSession], stop: asyncio.Event,
                       duration: float | None) -> None:
+    from rich.console import Console
+    from rich.live import Live
+
     started = time.monotonic()
     deadline = None if duration is None else started + duration
     with Live(render(sessions, started, duration), console=Console(), auto_refresh=False,
@@ -144,17 +163,30 @@ async def _live_table(sessions: list[BoardSession], stop: asyncio.Event,
 def _stream_writer(fmt: str) -> Callable[[dict[str, Any]], None]:
     if fmt == "jsonl":
         def write_json(row: dict[str, Any]) -> None:
-            sys.stdout.write(json.dumps(row, separators=(",", ":")) + "\n")
+            write_stdout(json.dumps(json_safe(row), separators=(",", ":"), allow_nan=False)
+                         + "\n")
 
         return write_json
-    writer = csv.DictWriter(sys.stdout, fieldnames=["board", *TELEMETRY_FIELDS],
+    stream = io.StringIO()
+    writer = csv.DictWriter(stream, fieldnames=["board", *TELEMETRY_FIELDS],
                             lineterminator="\n")
+
+    def write_csv(row: dict[str, Any]) -> None:
+        writer.writerow(row)
+        write_stdout(stream.getvalue())
+        stream.seek(0)
+        stream.truncate()
+
     writer.writeheader()
-    return writer.writerow
+    write_stdout(stream.getvalue())
+    stream.seek(0)
+    stream.truncate()
+    return write_csv
 
 
-async def _stream(session: BoardSession, sub: Any, write: Callable[[dict[str, Any]], None],
-                  stop: asyncio.Event) -> None:
+async def _stream(session: BoardSession, sub: Subscription[Telemetry],
+                  write: Callable[[dict[str, Any]], None], stop: asyncio.Event,
+                  failure: list[BaseException]) -> None:
     name = session.endpoint.name
     try:
         async for sample in sub:
@@ -167,9 +199,16 @@ async def _stream(session: BoardSession, sub: Any, write: Callable[[dict[str, An
     except BrokenPipeError:
         stop.pipe_closed = True  # type: ignore[attr-defined]
         stop.set()
+    except (CliError, OSError) as exc:  # stdout on a full disk, say
+        failure.append(exc if isinstance(exc, CliError) else
+                       CliError(f"cannot write to stdout: {exc.strerror or exc}",
+                                ExitCode.FAILURE))
+        stop.set()
 
 
-async def _report_events(session: BoardSession) -> None:
-    async for event in session.link.watch():
-        detail = f": {event.detail}" if event.detail else ""
-        click.echo(f"# {session.endpoint.name}: {event.kind.value}{detail}", err=True)
+def _report_event(session: BoardSession) -> Callable[[str, str, float], None]:
+    def report(kind: str, detail: str, at: float) -> None:
+        text = f": {detail}" if detail else ""
+        click.echo(f"# {session.endpoint.name}: {kind}{text}", err=True)
+
+    return report

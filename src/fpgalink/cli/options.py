@@ -1,77 +1,136 @@
-"""The connection options every board command takes (``--port``, ``--baud``, ``--timeout``,
-``--retries``, ``-v``), and the links they open."""
+"""The connection options every board command takes — ``--port``, ``--board``, ``--baud``,
+``--timeout``, ``--retries``, ``-v``, ``--config`` — accepted before the command (the usual
+place: ``fpgalink-cli --port /dev/ttyUSB0 param get …``) and after it, and the links they
+open. Values resolve as :mod:`fpgalink.cli.settings` describes."""
 
 from __future__ import annotations
 
 import functools
-import re
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from fpgalink.aio.link import Link, open_link
-from fpgalink.cli.output import CliError, ExitCode, err_console
+from fpgalink.cli.output import CliError, ExitCode, FiniteRange, note
+from fpgalink.cli.settings import (
+    DEFAULT,
+    EMULATOR_URL,
+    Endpoint,
+    Settings,
+    parse_ports,
+    resolve_settings,
+)
+from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
+
+if TYPE_CHECKING:  # the asyncio layer loads when a command first opens a link
+    from fpgalink.aio.link import Link
 
 __all__ = [
+    "CONNECTION_OPTION_NAMES",
     "EMULATOR_URL",
     "ConnectionOptions",
     "Endpoint",
     "connection_options",
+    "global_connection_options",
     "parse_ports",
 ]
 
 T = TypeVar("T")
 
-_NAMED = re.compile(r"^([A-Za-z][A-Za-z0-9_-]*)=(.+)$")
-EMULATOR_URL = "emu://"
+CONNECTION_OPTION_NAMES = ("ports", "board", "baud", "timeout", "retries", "verbose", "config")
 
 
-@dataclass(frozen=True, slots=True)
-class Endpoint:
-    name: str  #: ``L``/``R`` when given as ``--port L=URL``; ``0``, ``1``… otherwise
-    url: str
+def _board_names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
+    """Shell completion for --board: the names the configuration knows."""
+    try:
+        settings = resolve_settings({}, {})
+    except CliError:
+        return []
+    return [e.name for e in settings.endpoints if e.name.startswith(incomplete)]
 
 
-def parse_ports(values: tuple[str, ...]) -> tuple[Endpoint, ...]:
-    """``--port URL`` or ``--port NAME=URL`` (repeatable). A name is letters, digits, ``_`` and
-    ``-`` before the first ``=`` — so ``emu://?seed=3`` is a URL, not a name."""
-    endpoints: list[Endpoint] = []
-    for index, value in enumerate(values):
-        match = _NAMED.match(value)
-        name, url = (match.group(1), match.group(2)) if match else (str(index), value)
-        if not url.strip():
-            raise CliError(f"--port {value!r}: empty port", ExitCode.BAD_INPUT)
-        endpoints.append(Endpoint(name, url.strip()))
-    names = [e.name for e in endpoints]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise CliError(f"--port: board name {duplicates[0]!r} given twice", ExitCode.BAD_INPUT)
-    return tuple(endpoints)
+def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., Any]]]:
+    port_help = (
+        "Board port: a device path (/dev/serial/by-id/… stays the same across boots), "
+        "socket://HOST:PORT or emu://. "
+        + ("Repeat as NAME=URL for several boards (--port L=… --port R=…). " if multi else "")
+        + "Env FPGALINK_PORT, or the config file. Default: the built-in emulator."
+    )
+    return [
+        click.option("--port", "ports", multiple=True, metavar="[NAME=]URL", help=port_help),
+        click.option("--board", metavar="NAME", shell_complete=_board_names,
+                     help="Which board, when several are configured (env FPGALINK_BOARD)."),
+        click.option("--baud", type=click.IntRange(MIN_BAUD, MAX_BAUD),
+                     help="Line rate (env FPGALINK_BAUD)  [default: 1000000]"),
+        click.option("--timeout", type=FiniteRange(min=0, min_open=True, max=60),
+                     help="Per-try request timeout, s  [default: 0.05]"),
+        click.option("--retries", type=click.IntRange(1, 1000),
+                     help="Tries per request, resends included  [default: 8]"),
+        click.option("-v", "--verbose", count=True, help="More detail (wire bytes)."),
+        click.option("--config", metavar="FILE",
+                     help="Config file (env FPGALINK_CONFIG; default fpgalink.toml here, "
+                          "then ~/.config/fpgalink/fpgalink.toml)."),
+    ]
+
+
+def global_connection_options(func: Callable[..., T]) -> Callable[..., T]:
+    """The same options on the group, so they may come before the command."""
+    for option in reversed(_options(multi=True)):
+        func = option(func)
+    return func
 
 
 @dataclass(frozen=True, slots=True)
 class ConnectionOptions:
-    endpoints: tuple[Endpoint, ...]
-    baud: int
-    timeout: float  #: per-try request timeout, s
-    retries: int  #: request tries
-    verbose: int
+    settings: Settings
+
+    @property
+    def endpoints(self) -> tuple[Endpoint, ...]:
+        return self.settings.endpoints
+
+    @property
+    def baud(self) -> int:
+        return self.settings.baud
+
+    @property
+    def timeout(self) -> float:
+        return self.settings.timeout
+
+    @property
+    def retries(self) -> int:
+        return self.settings.retries
+
+    @property
+    def verbose(self) -> int:
+        return self.settings.verbose
 
     @property
     def single(self) -> Endpoint:
-        if len(self.endpoints) != 1:
-            raise CliError(
-                "this command talks to one board; give --port once", ExitCode.BAD_INPUT
-            )
-        return self.endpoints[0]
+        """The one board a one-board command talks to (``--board`` picks among several)."""
+        endpoints, board = self.endpoints, self.settings.board
+        if board is not None:
+            for endpoint in endpoints:
+                if endpoint.name == board:
+                    return endpoint
+            names = ", ".join(e.name for e in endpoints)
+            raise CliError(f"--board {board}: no such board (configured: {names})",
+                           ExitCode.BAD_INPUT)
+        if len(endpoints) == 1:
+            return endpoints[0]
+        names = ", ".join(e.name for e in endpoints)
+        where = self.settings.sources.get("port", "")
+        raise CliError(f"this command talks to one board and {len(endpoints)} are configured "
+                       f"({names}, from {where}): pick one with --board NAME",
+                       ExitCode.BAD_INPUT)
 
     def link(self, endpoint: Endpoint, *, reconnect: bool = False,
              liveness_timeout: float | None = None) -> Link:
         """A link to ``endpoint`` (not open yet). By default a silent board must surface as
         "no answer after N tries", not as the shorter liveness timeout failing the request
         first, so liveness waits for every try."""
+        from fpgalink.aio.link import open_link
+
         if liveness_timeout is None:
             liveness_timeout = max(0.7, self.timeout * self.retries + 0.2)
         return open_link(
@@ -80,46 +139,36 @@ class ConnectionOptions:
             reconnect=reconnect,
         )
 
+    def note_ephemeral(self) -> None:
+        """Say that an in-process board (emu://) forgets what this command changes."""
+        if any(e.url.startswith(EMULATOR_URL) for e in self.endpoints):
+            note("note: the built-in emulator lives only for this command; to keep a board "
+                 "between commands, serve one (fpgaemu serve --pty --link /tmp/fpga) and give "
+                 "--port /tmp/fpga")
 
-def connection_options(*, multi: bool = False) -> Callable[[Callable[..., T]], Callable[..., T]]:
-    """Add --port/--baud/--timeout/--retries/-v to a command; it receives ``conn``."""
-    port_help = (
-        "Board port: a device path, socket://HOST:PORT or emu://. "
-        + ("Repeat as NAME=URL for several boards (--port L=... --port R=...). " if multi else "")
-        + "Env FPGALINK_PORT. Default: the built-in emulator."
-    )
+
+def connection_options(*, multi: bool = False, announce: bool = True
+                       ) -> Callable[[Callable[..., T]], Callable[..., T]]:
+    """Add the connection options to a command; it receives ``conn``. Options given before
+    the command (on the group) apply unless given again after it. ``announce``: say on
+    stderr when no port is configured and the built-in emulator stands in."""
 
     def decorate(func: Callable[..., T]) -> Callable[..., T]:
         @functools.wraps(func)
-        def wrapper(
-            *args: Any, ports: tuple[str, ...], baud: int, timeout: float, retries: int,
-            verbose: int, **kwargs: Any,
-        ) -> T:
-            endpoints = parse_ports(ports)
-            if not endpoints:
-                err_console.print(
-                    f"fpgalink-cli: no --port given (nor FPGALINK_PORT): using the built-in "
-                    f"emulator {EMULATOR_URL}", soft_wrap=True,
-                )
-                endpoints = (Endpoint("0", EMULATOR_URL),)
-            conn = ConnectionOptions(endpoints, baud, timeout, retries, verbose)
+        def wrapper(*args: Any, **kwargs: Any) -> T:
+            given = {name: kwargs.pop(name) for name in CONNECTION_OPTION_NAMES}
+            root = click.get_current_context().find_root()
+            before = root.obj if isinstance(root.obj, dict) else {}
+            settings = resolve_settings(given, before)
+            conn = ConnectionOptions(settings)
+            if announce and settings.sources["port"] == DEFAULT:
+                note(f"no --port given (nor FPGALINK_PORT or a config file): using the "
+                     f"built-in emulator {EMULATOR_URL}")
             if not multi:
                 conn.single  # noqa: B018 - validates: one board only
             return func(*args, conn=conn, **kwargs)
 
-        options = [
-            click.option("--port", "ports", multiple=True, envvar="FPGALINK_PORT",
-                         metavar="[NAME=]URL" if multi else "URL", help=port_help),
-            click.option("--baud", type=click.IntRange(50, 20_000_000), default=1_000_000,
-                         envvar="FPGALINK_BAUD", show_default=True,
-                         help="Line rate (env FPGALINK_BAUD)."),
-            click.option("--timeout", type=click.FloatRange(min=0, min_open=True, max=60),
-                         default=0.05, show_default=True, help="Per-try request timeout, s."),
-            click.option("--retries", type=click.IntRange(1, 1000), default=8,
-                         show_default=True, help="Tries per request (resends included)."),
-            click.option("-v", "--verbose", count=True, help="More detail (wire bytes)."),
-        ]
-        for option in reversed(options):
+        for option in reversed(_options(multi)):
             wrapper = option(wrapper)
         return wrapper
 

@@ -3,45 +3,32 @@ messages as text."""
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from dataclasses import fields
 from enum import IntEnum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
-from rich.console import Console
 
-from fpgalink.errors import (
-    BoardLost,
-    FpgalinkError,
-    LocalProtocolError,
-    ParameterError,
-    ParameterRefused,
-    PortError,
-    RequestTimeout,
-    ValueMismatch,
-)
-from fpgalink.protocol import (
-    CountedMessage,
-    DirectCommand,
-    Malformed,
-    ParamType,
-    Parsed,
-    Text,
-    float32,
-)
+if TYPE_CHECKING:  # the library and rich load with the first command that needs them
+    from rich.console import Console
+
+    from fpgalink.errors import FpgalinkError
+    from fpgalink.protocol import ParamType, Parsed
 
 __all__ = [
     "EXIT_CODES_HELP",
     "CliError",
     "ExitCode",
+    "FiniteRange",
     "classify",
     "describe",
     "echo_out",
-    "err_console",
     "format_value",
     "message_id",
+    "note",
     "quiet_stdout",
     "table_console",
 ]
@@ -63,8 +50,24 @@ EXIT_CODES_HELP = (
     "value; 4 board not answering; 5 port missing or busy; 130 interrupted (Ctrl-C)."
 )
 
-#: Diagnostics go to stderr so stdout stays clean for pipes.
-err_console = Console(stderr=True, highlight=False)
+
+class FiniteRange(click.FloatRange):
+    """A float option that is a real number in range: click's ``FloatRange`` lets ``nan``
+    through (every comparison with it is false) and ``inf`` when no maximum is set."""
+
+    name = "finite float range"
+
+    def convert(self, value: Any, param: click.Parameter | None,
+                ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
+def note(text: str) -> None:
+    """One line of information on stderr, so stdout stays clean for pipes."""
+    click.echo(f"fpgalink-cli: {text}", err=True)
 
 
 class CliError(click.ClickException):
@@ -82,6 +85,16 @@ class CliError(click.ClickException):
 
 def classify(exc: FpgalinkError, where: str = "") -> CliError:
     """Library error → the CLI's message and exit code."""
+    from fpgalink.errors import (
+        BoardLost,
+        LocalProtocolError,
+        ParameterError,
+        ParameterRefused,
+        PortError,
+        RequestTimeout,
+        ValueMismatch,
+    )
+
     prefix = f"{where}: " if where else ""
     if isinstance(exc, ParameterError | LocalProtocolError):
         return CliError(str(exc), ExitCode.BAD_INPUT)
@@ -95,32 +108,16 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
 
 
 def format_value(value: int | float, kind: ParamType | None = None) -> str:
-    """A parameter value as the shortest text that means the same stored value: floats are
-    float32 on the board, so ``7.11`` prints as ``7.11``, not ``7.110000133514404``."""
-    if isinstance(value, bool):
-        return str(int(value))
-    if isinstance(value, int) and kind is not ParamType.FLOAT:
-        return str(value)
-    number = float(value)
-    if number != number or number in (float("inf"), float("-inf")):
-        return str(number)
-    if kind is ParamType.INT and number.is_integer():
-        return str(int(number))
-    try:
-        stored = float32(number)
-    except OverflowError:
-        return repr(number)
-    for digits in range(1, 10):
-        text = f"{stored:.{digits}g}"
-        if float32(float(text)) == stored:
-            break
-    # repr() of the same decimal gives fixed notation where Python would (520.0, not
-    # 5.2e+02) and keeps it a float to the eye and to TOML (7 → 7.0).
-    return repr(float(text))
+    """A parameter value as the shortest text that means the stored value."""
+    from fpgalink.protocol.paramfile import format_value as shortest
+
+    return shortest(value, kind)
 
 
 def message_id(message: Parsed) -> str:
     """The two-letter ID of a received message (``E`` for the heartbeat)."""
+    from fpgalink.protocol import Malformed
+
     if isinstance(message, Malformed):
         return message.content[:2].decode("ascii", "replace")
     msg_id = message.msg_id
@@ -129,6 +126,8 @@ def message_id(message: Parsed) -> str:
 
 def describe(message: Parsed) -> str:
     """One line for a received (or about-to-be-sent) message."""
+    from fpgalink.protocol import CountedMessage, DirectCommand, Malformed, Text
+
     if isinstance(message, DirectCommand):
         return message.content.decode("ascii", "replace")
     if isinstance(message, Malformed):
@@ -163,4 +162,6 @@ def quiet_stdout() -> None:
 
 def table_console() -> Console:
     """stdout for tables: a terminal's width, or wide enough not to cut names in a pipe."""
+    from rich.console import Console
+
     return Console(soft_wrap=False) if sys.stdout.isatty() else Console(width=200)

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import datetime as dt
 import os
+import stat
 import sys
-import tomllib
+from importlib import resources
 from pathlib import Path
-from typing import Any
 
 import click
-from rich.table import Table
 
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import (
@@ -20,14 +19,27 @@ from fpgalink.cli.output import (
     classify,
     echo_out,
     format_value,
+    note,
     table_console,
 )
 from fpgalink.cli.session import run
 from fpgalink.errors import ParameterError
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
-from fpgalink.protocol.params import BOARD, channel_name
+from fpgalink.protocol.paramfile import Setting, parse_parameter_file, render_parameter_file
+from fpgalink.protocol.params import BOARD
 
-__all__ = ["param", "parse_param_file", "parse_value", "render_toml"]
+__all__ = ["SHIPPED_SETS", "param", "parse_param_file", "parse_value", "write_output"]
+
+#: Parameter sets that ship with the package, loadable by name (``param load seed-high``).
+SHIPPED_SETS = "fpgalink.parameter_sets"
+
+
+def _names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
+    """Shell completion: parameter names, with and without the channel suffix."""
+    names = [p.name for p in PARAMETERS]
+    names += [p.name + c for p in PARAMETERS if p.scope is Scope.CHANNEL for c in "AB"]
+    return [n for n in names if n.lower().startswith(incomplete.lower())]
+
 
 _CHANNEL = click.option("--channel", "-c", type=click.Choice(["A", "B"], case_sensitive=False),
                         help="Channel of a per-channel parameter (or suffix the name: ...A).")
@@ -53,18 +65,11 @@ def parse_value(param: Param, channel: int, text: str) -> int | float:
         except ValueError:
             raise CliError(f"{label}: {text!r} is not {kind}; valid: {param.range_text}",
                            ExitCode.BAD_INPUT) from None
-    return _coerce(param, channel, value)
-
-
-def _coerce(param: Param, channel: int, value: object) -> int | float:
     try:
         return param.coerce(value)
     except ParameterError as exc:
-        message = str(exc)
-        label = param.full_name(channel)
         # coerce names the base parameter; say which channel too.
-        if label != param.name:
-            message = message.replace(param.name, label, 1)
+        message = str(exc).replace(param.name, label, 1) if label != param.name else str(exc)
         raise CliError(message, ExitCode.BAD_INPUT) from None
 
 
@@ -74,7 +79,7 @@ def param() -> None:
 
 
 @param.command("get", epilog=EXIT_CODES_HELP)
-@click.argument("name")
+@click.argument("name", shell_complete=_names)
 @_CHANNEL
 @connection_options()
 def get(name: str, channel: str | None, conn: ConnectionOptions) -> int:
@@ -92,18 +97,20 @@ async def _get(conn: ConnectionOptions, p: Param, code: int) -> int | float:
 
 @param.command("set", epilog=EXIT_CODES_HELP,
                context_settings={"ignore_unknown_options": True})
-@click.argument("name")
+@click.argument("name", shell_complete=_names)
 @click.argument("value")
 @_CHANNEL
 @connection_options()
 def set_(name: str, value: str, channel: str | None, conn: ConnectionOptions) -> int:
     """Set parameter NAME to VALUE; prints the value the board confirms is in force.
 
-    The request is resent until the board's echo matches (--timeout, --retries). Negative
-    values need no quoting: `param set IncSenzCountDirectionA -1`.
+    The request is resent until the board's echo matches exactly (--timeout, --retries);
+    another value in the echo is not a confirmation (exit 3). Negative values need no
+    quoting: `param set IncSenzCountDirectionA -1`.
     """
     p, code = _resolve(name, channel)
     coerced = parse_value(p, code, value)
+    conn.note_ephemeral()
     confirmed = run(_set(conn, p, code, coerced), conn.single.url)
     echo_out(f"{p.full_name(code)} = {format_value(confirmed, p.type)}")
     return ExitCode.OK
@@ -118,6 +125,8 @@ async def _set(conn: ConnectionOptions, p: Param, code: int, value: int | float)
 @connection_options()
 def list_(conn: ConnectionOptions) -> int:
     """Table of every parameter: id, name, scope, type, range and the board's values."""
+    from rich.table import Table
+
     values = run(_read(conn), conn.single.url)
     table = Table(title=f"Parameters on {conn.single.url}")
     for column in ("id", "name", "scope", "type", "range", "unit"):
@@ -143,80 +152,57 @@ async def _read(conn: ConnectionOptions) -> dict[tuple[int, int], int | float]:
 # --- files ------------------------------------------------------------------------------------
 
 
-def render_toml(values: dict[tuple[int, int], int | float], source: str) -> str:
-    """Parameter values as TOML: board parameters at the top, then ``[A]`` and ``[B]`` tables
-    (the layout ``param load`` reads). Written by hand: the values are only numbers."""
-    stamp = dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat()
-    lines = [f"# fpgalink parameters read from {source} at {stamp}",
-             "# NAME = VALUE  # range, unit. Load with: fpgalink-cli param load FILE", ""]
-
-    def line(p: Param, code: int) -> str:
-        note = ", ".join(x for x in (p.range_text, p.unit) if x)
-        return f"{p.name} = {format_value(values[(p.id, code)], p.type)}  # {note}"
-
-    lines += [line(p, BOARD) for p in PARAMETERS if p.scope is Scope.BOARD]
-    for code in (1, 2):
-        lines += ["", f"[{channel_name(code)}]"]
-        lines += [line(p, code) for p in PARAMETERS if p.scope is Scope.CHANNEL]
-    return "\n".join(lines) + "\n"
-
-
-def parse_param_file(text: str, source: str) -> list[tuple[Param, int, int | float]]:
-    """TOML → validated ``(param, channel, value)`` list; any problem is a one-line error
-    (exit 2) before anything is sent. Top level: board parameters or suffixed names
-    (``Kp_Wheel_PidA``); tables ``[A]``/``[B]``: unsuffixed channel parameters."""
+def parse_param_file(text: str, source: str) -> list[Setting]:
+    """The file's settings, or a one-line error (exit 2) before anything is sent."""
     try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise CliError(f"{source}: not valid TOML: {exc}", ExitCode.BAD_INPUT) from None
-    entries: list[tuple[str, str | None, Any]] = []
-    for key, value in document.items():
-        if isinstance(value, dict):
-            if key.upper() not in ("A", "B"):
-                raise CliError(f"{source}: unknown table [{key}]; use [A] or [B]",
-                               ExitCode.BAD_INPUT)
-            entries += [(name, key.upper(), v) for name, v in value.items()]
-        else:
-            entries.append((key, None, value))
-    result: list[tuple[Param, int, int | float]] = []
-    seen: set[tuple[int, int]] = set()
-    for name, channel, value in entries:
-        where = f"[{channel}] {name}" if channel else name
-        try:
-            p, code = resolve(name, channel)
-        except ParameterError as exc:
-            raise CliError(f"{source}: {where}: {exc}", ExitCode.BAD_INPUT) from None
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise CliError(f"{source}: {p.full_name(code)} = {value!r}: expected a number "
-                           f"({p.range_text})", ExitCode.BAD_INPUT)
-        if (p.id, code) in seen:
-            raise CliError(f"{source}: {p.full_name(code)} given twice", ExitCode.BAD_INPUT)
-        seen.add((p.id, code))
-        try:
-            coerced = p.coerce(value)
-        except ParameterError as exc:
-            raise CliError(f"{source}: {p.full_name(code)}: {exc}", ExitCode.BAD_INPUT) from None
-        result.append((p, code, coerced))
-    return result
+        return parse_parameter_file(text, source)
+    except ParameterError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+
+
+def shipped_sets() -> list[str]:
+    """The names of the parameter sets that ship with the package."""
+    folder = resources.files(SHIPPED_SETS)
+    return sorted(p.name.removesuffix(".toml") for p in folder.iterdir()
+                  if p.name.endswith(".toml"))
+
+
+def _read_settings(file: str) -> tuple[str, str]:
+    """The text of FILE: '-' is stdin, a name without a path is a shipped set."""
+    if file == "-":
+        return sys.stdin.read(), "stdin"
+    if not Path(file).exists() and os.sep not in file and file in shipped_sets():
+        resource = resources.files(SHIPPED_SETS) / f"{file}.toml"
+        return resource.read_text(encoding="utf-8"), f"{file} (shipped)"
+    try:
+        return Path(file).read_text(encoding="utf-8"), file
+    except (OSError, UnicodeDecodeError) as exc:
+        known = ", ".join(shipped_sets())
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+        raise CliError(f"{file}: cannot read: {reason} (shipped sets: {known})",
+                       ExitCode.BAD_INPUT) from None
+
+
+def _file_names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
+    return [n for n in shipped_sets() if n.startswith(incomplete)]
 
 
 @param.command("load", epilog=EXIT_CODES_HELP)
-@click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
+@click.argument("file", shell_complete=_file_names)
 @connection_options()
 def load(file: str, conn: ConnectionOptions) -> int:
-    """Set every parameter in a TOML FILE ('-' for stdin), one at a time; each line is
-    reported as confirmed or failed. All values are checked before the first is sent."""
-    try:
-        text = sys.stdin.read() if file == "-" else Path(file).read_text(encoding="utf-8")
-    except (OSError, UnicodeDecodeError) as exc:
-        raise CliError(f"{file}: cannot read: {exc}", ExitCode.BAD_INPUT) from None
-    entries = parse_param_file(text, file)
+    """Set every parameter in a TOML FILE ('-' for stdin, or the name of a shipped set such
+    as seed-high), one at a time; each line is reported as confirmed or failed. All values
+    are checked before the first is sent."""
+    text, source = _read_settings(file)
+    entries = parse_param_file(text, source)
     if not entries:
-        raise CliError(f"{file}: no parameters in the file", ExitCode.BAD_INPUT)
+        raise CliError(f"{source}: no parameters in the file", ExitCode.BAD_INPUT)
+    conn.note_ephemeral()
     return run(_load(conn, entries), conn.single.url)
 
 
-async def _load(conn: ConnectionOptions, entries: list[tuple[Param, int, int | float]]) -> int:
+async def _load(conn: ConnectionOptions, entries: list[Setting]) -> int:
     worst = ExitCode.OK
     async with conn.link(conn.single) as link:
         results = await link.sync_params(
@@ -240,25 +226,48 @@ async def _load(conn: ConnectionOptions, entries: list[tuple[Param, int, int | f
     return ExitCode.OK
 
 
+def write_output(file: str, text: str) -> None:
+    """Write ``text`` to FILE without ever replacing what a path points to unasked: a new
+    or regular file is written to a temporary beside it and renamed over it (a reader never
+    sees half a file); a symlink's target is replaced that way and the link stays; a device
+    or FIFO is written as a stream. One-line error otherwise (exit 1)."""
+    target = Path(file)
+    try:
+        mode = target.stat().st_mode if target.exists() else None
+        if mode is not None and stat.S_ISDIR(mode):
+            raise CliError(f"{file}: is a directory", ExitCode.BAD_INPUT)
+        if mode is not None and not stat.S_ISREG(mode):
+            with open(target, "w", encoding="utf-8") as stream:
+                stream.write(text)
+            return
+        real = target.resolve() if target.is_symlink() else target
+        temporary = real.with_name(f".{real.name}.tmp{os.getpid()}")
+        try:
+            temporary.write_text(text, encoding="utf-8")
+            if mode is not None:
+                os.chmod(temporary, stat.S_IMODE(mode))
+            temporary.replace(real)
+        finally:
+            temporary.unlink(missing_ok=True)
+    except OSError as exc:
+        raise CliError(f"{file}: cannot write: {exc.strerror or exc}", ExitCode.FAILURE) from None
+
+
 @param.command("dump", epilog=EXIT_CODES_HELP)
 @click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
 @connection_options()
 def dump(file: str, conn: ConnectionOptions) -> int:
-    """Read every parameter from the board into a TOML FILE ('-' for stdout) that
-    `param load` accepts. Nothing is written unless every value was read."""
+    """Read every parameter from the board into a TOML FILE ('-' for stdout) that `param
+    load` and `fpgaemu serve --config` accept. Nothing is written unless every value was
+    read; an existing regular file is replaced whole, a device or FIFO written to."""
     values = run(_read(conn), conn.single.url)
-    text = render_toml(values, conn.single.url)
+    stamp = dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat()
+    text = render_parameter_file(values, f"fpgalink parameters read from {conn.single.url} "
+                                         f"at {stamp}")
     if file == "-":
         sys.stdout.write(text)
         sys.stdout.flush()
         return ExitCode.OK
-    target = Path(file)
-    temporary = target.with_name(f".{target.name}.tmp{os.getpid()}")
-    try:
-        temporary.write_text(text, encoding="utf-8")
-        temporary.replace(target)
-    except OSError as exc:
-        temporary.unlink(missing_ok=True)
-        raise CliError(f"{file}: cannot write: {exc.strerror}", ExitCode.FAILURE) from None
-    click.echo(f"wrote {len(values)} values to {file}", err=True)
+    write_output(file, text)
+    note(f"wrote {len(values)} values to {file}")
     return ExitCode.OK

@@ -5,31 +5,22 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import csv
-import json
+import functools
 import time
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import Any
 
 import click
-from mcap.writer import Writer
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    Progress,
-    SpinnerColumn,
-    TextColumn,
-    TimeElapsedColumn,
-)
 
-from fpgalink import __version__
+from fpgalink.aio.link import Stamped, Subscription
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, note
 from fpgalink.cli.session import (
-    TELEMETRY_FIELDS,
     BoardSession,
+    check_boards_answered,
     compact,
     install_stop_signals,
+    json_safe,
     on_messages,
     open_sessions,
     restore_streaming,
@@ -37,131 +28,15 @@ from fpgalink.cli.session import (
     start_streaming,
     stop_exit_code,
     telemetry_row,
-    telemetry_schema,
     wait_or_stop,
 )
+from fpgalink.cli.sinks import STATS_FIELDS, CsvSink, DiskFull, McapSink, Sink
 from fpgalink.errors import UnknownParameter
 from fpgalink.protocol import ParamAck, ParamNack, Parsed, lookup
 
-__all__ = ["CsvSink", "McapSink", "record"]
+__all__ = ["record"]
 
 STATS_PERIOD_S = 1.0
-CHUNK_BYTES = 64 * 1024
-
-PARAM_SCHEMA: dict[str, Any] = {
-    "title": "fpgalink.ParameterChange", "type": "object",
-    "properties": {
-        "timestamp": {"type": "number", "description": "host epoch time, s"},
-        "name": {"type": "string", "description": "e.g. Kp_Wheel_PidA"},
-        "param_id": {"type": "integer"},
-        "channel": {"type": "integer", "description": "0 board, 1 A, 2 B"},
-        "value": {"type": "number", "description": "value in force (PA); absent if refused"},
-        "status": {"type": "string", "enum": ["in_force", "refused"]},
-        "detail": {"type": "string"},
-    },
-}
-EVENT_SCHEMA: dict[str, Any] = {
-    "title": "fpgalink.LinkEvent", "type": "object",
-    "properties": {
-        "timestamp": {"type": "number", "description": "host epoch time, s"},
-        "kind": {"type": "string"},
-        "detail": {"type": "string"},
-    },
-}
-STATS_FIELDS = ("telemetry_rate", "telemetry_received", "lost", "decode_errors", "malformed",
-                "retries", "heartbeat_misses", "alive_received", "subscriber_drops",
-                "port_losses", "reconnects")
-STATS_SCHEMA: dict[str, Any] = {
-    "title": "fpgalink.LinkStats", "type": "object",
-    "properties": {"timestamp": {"type": "number"},
-                   **{name: {"type": "number"} for name in STATS_FIELDS}},
-}
-
-
-class Sink(Protocol):
-    def telemetry(self, board: str, row: dict[str, Any]) -> None: ...
-    def parameter(self, board: str, record: dict[str, Any]) -> None: ...
-    def event(self, board: str, record: dict[str, Any]) -> None: ...
-    def stats(self, board: str, record: dict[str, Any]) -> None: ...
-    def close(self) -> None: ...
-
-
-class McapSink:
-    """Topics per board: ``/board/<name>/telemetry``, ``/params``, ``/events``, ``/stats``."""
-
-    def __init__(self, path: Path, boards: list[str], metadata: dict[str, str]) -> None:
-        self._file: IO[bytes] = path.open("wb")
-        # Small chunks: a hard kill (no Ctrl-C) loses at most ~a second of telemetry.
-        self._writer = Writer(self._file, chunk_size=CHUNK_BYTES)
-        self._writer.start(profile="", library=f"fpgalink-cli {__version__}")
-        schemas = {
-            kind: self._writer.register_schema(
-                name=schema["title"], encoding="jsonschema",
-                data=json.dumps(schema).encode())
-            for kind, schema in (("telemetry", telemetry_schema()), ("params", PARAM_SCHEMA),
-                                 ("events", EVENT_SCHEMA), ("stats", STATS_SCHEMA))
-        }
-        self._channels = {
-            (board, kind): self._writer.register_channel(
-                topic=f"/board/{board}/{kind}", message_encoding="json", schema_id=schema_id)
-            for board in boards for kind, schema_id in schemas.items()
-        }
-        self._sequence = 0
-        self._writer.add_metadata("fpgalink", metadata)
-        self.messages = 0
-
-    def _add(self, board: str, kind: str, record: dict[str, Any]) -> None:
-        stamp = int(record["timestamp"] * 1e9)
-        self._sequence += 1
-        self._writer.add_message(self._channels[(board, kind)], log_time=stamp,
-                                 data=json.dumps(record, separators=(",", ":")).encode(),
-                                 publish_time=stamp, sequence=self._sequence)
-        self.messages += 1
-
-    def telemetry(self, board: str, row: dict[str, Any]) -> None:
-        self._add(board, "telemetry", row)
-
-    def parameter(self, board: str, record: dict[str, Any]) -> None:
-        self._add(board, "params", record)
-
-    def event(self, board: str, record: dict[str, Any]) -> None:
-        self._add(board, "events", record)
-
-    def stats(self, board: str, record: dict[str, Any]) -> None:
-        self._add(board, "stats", record)
-
-    def close(self) -> None:
-        try:
-            self._writer.finish()  # type: ignore[no-untyped-call] # the summary and footer make the file valid and indexed
-        finally:
-            self._file.close()
-
-
-class CsvSink:
-    """Telemetry only, one row per TM sample (``board`` column first); the rest is dropped."""
-
-    def __init__(self, path: Path) -> None:
-        self._file: IO[str] = path.open("w", newline="", encoding="utf-8")
-        self._writer = csv.DictWriter(self._file, fieldnames=["board", *TELEMETRY_FIELDS],
-                                      lineterminator="\n")
-        self._writer.writeheader()
-        self.messages = 0
-
-    def telemetry(self, board: str, row: dict[str, Any]) -> None:
-        self._writer.writerow({"board": board, **row})
-        self.messages += 1
-
-    def parameter(self, board: str, record: dict[str, Any]) -> None:
-        pass
-
-    def event(self, board: str, record: dict[str, Any]) -> None:
-        pass
-
-    def stats(self, board: str, record: dict[str, Any]) -> None:
-        pass
-
-    def close(self) -> None:
-        self._file.close()
 
 
 def _parameter_record(message: Parsed) -> dict[str, Any] | None:
@@ -177,12 +52,12 @@ def _parameter_record(message: Parsed) -> dict[str, Any] | None:
         record.update(value=message.value, status="in_force", detail="")
     else:
         record.update(status="refused", detail=message.reason)
-    return record
+    return json_safe(record)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
 @click.argument("file", type=click.Path(dir_okay=False, writable=True, path_type=Path))
-@click.option("--duration", type=click.FloatRange(min=0, min_open=True),
+@click.option("--duration", type=FiniteRange(min=0, min_open=True, max=1e7),
               help="Stop after S seconds (default: until Ctrl-C).")
 @click.option("--csv", "as_csv", is_flag=True,
               help="Write telemetry as CSV instead of MCAP.")
@@ -191,15 +66,20 @@ def _parameter_record(message: Parsed) -> dict[str, Any] | None:
 @connection_options(multi=True)
 def record(file: Path, duration: float | None, as_csv: bool, passive: bool,
            conn: ConnectionOptions) -> int:
-    """Record telemetry, parameter changes and link events into FILE (MCAP).
+    """Record telemetry, parameter changes and link events into FILE.
 
-    Topics per board NAME: /board/NAME/telemetry (flat numeric fields: timestamp, t_us,
-    a_speed, b_pwm …), /board/NAME/params (every PA/PN the board sent: the initial snapshot
-    and each change), /board/NAME/events (link events), /board/NAME/stats (1 Hz).
-    Ctrl-C stops cleanly: the file is closed and valid (exit 130).
+    FILE is MCAP (JSON Schema + JSON), or CSV of the telemetry alone with --csv. Topics per
+    board NAME: /board/NAME/telemetry (flat numeric fields: timestamp, t_us, a_speed, b_pwm
+    …), /board/NAME/params (every PA/PN the board sent: the initial snapshot and each
+    change), /board/NAME/events (link events, as foxglove.Log), /board/NAME/stats (1 Hz).
+    Each message's log_time is when the host received it, its publish_time the board's
+    sample time on the host clock. Ctrl-C stops cleanly: the file is closed and valid
+    (exit 130). A full disk stops the recording with the file complete so far (exit 1).
     """
     if file.exists() and file.is_dir():
         raise CliError(f"{file} is a directory", ExitCode.BAD_INPUT)
+    if not file.parent.is_dir():
+        raise CliError(f"{file}: no such directory {file.parent}", ExitCode.BAD_INPUT)
     return run(_record(conn, file, duration, as_csv, passive))
 
 
@@ -207,78 +87,109 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
                   passive: bool) -> int:
     stop = asyncio.Event()
     install_stop_signals(stop)
-    console = Console(stderr=True)
-    started = time.monotonic()
+    failure: list[BaseException] = []
+    started = time.time()
+    loop = asyncio.get_running_loop()
+    to_epoch = time.time() - loop.time()  # loop clock → host epoch
+    counts: dict[str, int] = {}
     async with contextlib.AsyncExitStack() as stack:
         sessions = await open_sessions(stack, conn)
         boards = [s.endpoint.name for s in sessions]
+        counts.update(dict.fromkeys(boards, 0))
         metadata = {"ports": " ".join(f"{s.endpoint.name}={s.endpoint.url}" for s in sessions),
-                    "baud": str(conn.baud), "started": f"{time.time():.6f}"}
+                    "baud": str(conn.baud), "started": f"{started:.6f}",
+                    "clocks": "log_time: host receive time; publish_time: the board's t_us "
+                              "mapped onto the host clock (anchored at the first sample)"}
         try:
             sink: Sink = CsvSink(path) if as_csv else McapSink(path, boards, metadata)
         except OSError as exc:
             raise CliError(f"{path}: cannot write: {exc.strerror}", ExitCode.FAILURE) from None
-        stack.callback(sink.close)  # runs last: after streaming is restored and links close
+
+        def guarded(write: Any) -> Any:
+            """Run a sink write; a write error stops the recording (reported at the end)."""
+            def call(*args: Any) -> None:
+                if failure:
+                    return
+                try:
+                    write(*args)
+                except OSError as exc:
+                    failure.append(exc)
+                    stop.set()
+            return call
+
+        on_parameter = guarded(sink.parameter)
+        on_event = guarded(sink.event)
+        on_telemetry = guarded(sink.telemetry)
+        on_stats = guarded(sink.stats)
         tasks: list[asyncio.Task[None]] = []
-        counts = dict.fromkeys(boards, 0)
         for session in sessions:
-            _tap_parameters(session, sink)
-            tasks.append(asyncio.ensure_future(_record_events(session, sink)))
-        subs = [s.link.telemetry(maxsize=65536) for s in sessions]
+            _tap_parameters(session, on_parameter)
+            tasks.append(asyncio.ensure_future(session.follow(
+                functools.partial(on_event, session.endpoint.name))))
+        subs = [s.link.stamped_telemetry(maxsize=65536) for s in sessions]
         try:
-            sink.event(boards[0], {"timestamp": time.time(), "kind": "recording_started",
-                                   "detail": metadata["ports"]})
+            on_event(boards[0], "recording_started", metadata["ports"], time.time())
             if not passive:
                 for session in sessions:
                     await session.link.read_params()  # the PA replies are the snapshot
             await start_streaming(sessions, passive)
             for session, sub in zip(sessions, subs, strict=True):
-                tasks.append(asyncio.ensure_future(_record_telemetry(session, sub, sink, counts)))
-                tasks.append(asyncio.ensure_future(_record_stats(session, sink)))
-            await _progress(console, stop, duration, counts, path)
+                tasks.append(asyncio.ensure_future(
+                    _record_telemetry(session, sub, on_telemetry, counts, to_epoch)))
+                tasks.append(asyncio.ensure_future(_record_stats(session, on_stats)))
+            await _progress(stop, duration, counts, path)
         finally:
             for task in tasks:
                 task.cancel()
             await asyncio.gather(*tasks, return_exceptions=True)
             with contextlib.suppress(Exception):
                 await restore_streaming(sessions, passive)
-            sink.event(boards[0], {"timestamp": time.time(), "kind": "recording_stopped",
-                                   "detail": ""})
+            if not failure:
+                on_event(boards[0], "recording_stopped", "", time.time())
     total = sum(counts.values())
-    elapsed = time.monotonic() - started
-    click.echo(f"recorded {total} telemetry samples from {len(counts)} board(s) in "
-               f"{elapsed:.1f} s to {path}", err=True)
+    elapsed = time.time() - started
+    if failure:
+        error = failure[0]
+        with contextlib.suppress(CliError):
+            sink.close()
+        reason = "the disk is full" if isinstance(error, DiskFull) else (
+            f"cannot write: {getattr(error, 'strerror', None) or error}")
+        kept = sink.rows_written if isinstance(sink, CsvSink) else sink.messages
+        what = "complete rows" if isinstance(sink, CsvSink) else "messages"
+        raise CliError(f"{path}: {reason}; recording stopped after {elapsed:.1f} s with "
+                       f"{kept} {what} in the file, which is complete up to there",
+                       ExitCode.FAILURE)
+    sink.close()
+    note(f"recorded {total} telemetry samples from {len(counts)} board(s) in "
+         f"{elapsed:.1f} s to {path}")
+    check_boards_answered(sessions, started)
     return stop_exit_code(stop)
 
 
-def _tap_parameters(session: BoardSession, sink: Sink) -> None:
+def _tap_parameters(session: BoardSession, write: Any) -> None:
     name = session.endpoint.name
 
     def on_message(message: Parsed) -> None:
         rec = _parameter_record(message)
         if rec is not None:
-            sink.parameter(name, rec)
+            write(name, rec)
 
     on_messages(session.link, on_message)
 
 
-async def _record_events(session: BoardSession, sink: Sink) -> None:
-    async for event in session.link.watch():
-        sink.event(session.endpoint.name, {"timestamp": time.time(), "kind": event.kind.value,
-                                           "detail": event.detail})
-
-
-async def _record_telemetry(session: BoardSession, sub: Any, sink: Sink,
-                            counts: dict[str, int]) -> None:
+async def _record_telemetry(session: BoardSession, sub: Subscription[Stamped], write: Any,
+                            counts: dict[str, int], to_epoch: float) -> None:
     name = session.endpoint.name
-    async for sample in sub:
-        row = {k: compact(v) for k, v in telemetry_row(sample, 0.0).items()}
-        row["timestamp"] = session.clock.seconds(sample.t_us)
-        sink.telemetry(name, row)
+    async for received, sample in sub:
+        received += to_epoch
+        sampled = session.clock.seconds(sample.t_us, received)
+        row = json_safe({k: compact(v) for k, v in telemetry_row(sample, 0.0).items()})
+        row["timestamp"] = round(sampled, 6)
+        write(name, row, received, sampled)
         counts[name] += 1
 
 
-async def _record_stats(session: BoardSession, sink: Sink) -> None:
+async def _record_stats(session: BoardSession, write: Any) -> None:
     while True:
         await asyncio.sleep(STATS_PERIOD_S)
         session.update_rate(time.monotonic())
@@ -286,12 +197,16 @@ async def _record_stats(session: BoardSession, sink: Sink) -> None:
         rec: dict[str, Any] = {"timestamp": time.time(), "telemetry_rate": session.rate}
         for name in STATS_FIELDS[1:]:
             rec[name] = getattr(stats, name)
-        sink.stats(session.endpoint.name, rec)
+        write(session.endpoint.name, rec)
 
 
-async def _progress(console: Console, stop: asyncio.Event, duration: float | None,
-                    counts: dict[str, int], path: Path) -> None:
-    columns = [SpinnerColumn(), TextColumn("recording to {task.fields[path]}")]
+async def _progress(stop: asyncio.Event, duration: float | None, counts: dict[str, int],
+                    path: Path) -> None:
+    from rich.console import Console
+    from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
+
+    console = Console(stderr=True)
+    columns: list[Any] = [SpinnerColumn(), TextColumn("recording to {task.fields[path]}")]
     if duration is not None:
         columns.append(BarColumn())
     columns += [TimeElapsedColumn(), TextColumn("{task.fields[samples]} samples")]

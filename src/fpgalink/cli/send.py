@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,7 @@ from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
     ExitCode,
+    FiniteRange,
     describe,
     echo_out,
     message_id,
@@ -26,7 +28,14 @@ from fpgalink.protocol import (
     Disable,
     Enable,
     Malformed,
+    MessageId,
+    ParamAck,
+    ParamGet,
+    ParamNack,
+    ParamSet,
     Parsed,
+    References,
+    Role,
     Text,
     encode_message,
     parse_content,
@@ -95,17 +104,19 @@ def build_items(ctx: click.Context, texts: tuple[str, ...], hexes: tuple[str, ..
               type=click.Path(dir_okay=False, path_type=Path),
               help="A binary section from a file's bytes (repeatable).")
 @click.option("--reply", "reply_id", metavar="ID2",
-              help="Wait for a message with this ID and print it.")
-@click.option("--wait", type=click.FloatRange(min=0, min_open=True), default=1.0,
+              help="Wait for the reply and print it: for PS/PG the board's PA or PN about "
+                   "that parameter (a PN exits 3), else the first message with ID2.")
+@click.option("--wait", type=FiniteRange(min=0, min_open=True, max=3600), default=1.0,
               show_default=True, help="How long to wait for --reply, s.")
 @click.option("--force", is_flag=True,
-              help="Send even when a catalogued ID's body does not match its layout.")
+              help="Send even what the library would refuse: a body that does not match a "
+                   "catalogued layout, or references that are not finite numbers.")
 @connection_options()
 @click.pass_context
 def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tuple[str, ...],
          bin_files: tuple[Path, ...], reply_id: str | None, wait: float, force: bool,
          conn: ConnectionOptions) -> int:
-    """Send one message with ID and print it; with --reply, wait for a reply and print it.
+    """Send one message with ID and print it; with --reply, wait for the reply.
 
     ID is a counted message (two characters A-Z0-9; body items from --text/--hex/--bin-file
     in command-line order) or a direct command: RE (enable once) or RD (disable). A body that
@@ -114,16 +125,20 @@ def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tupl
     \b
     Examples:
       fpgalink-cli send ZZ --text hello --hex 0102
-      fpgalink-cli send PG --hex 0201 --reply PA      # read GetDataPeriodical
+      fpgalink-cli send PG --hex 0200 --reply PA      # read GetDataPeriodical
       fpgalink-cli send RD
     """
     msg_id = msg_id.strip().upper()
     items = build_items(ctx, text, hex_items, bin_files)
     message: CountedMessage | DirectCommand
-    if msg_id in ("RE", "RD"):
+    known = MessageId.lookup(msg_id)
+    request: ParamSet | ParamGet | None = None
+    if known is not None and known.direct:
+        if known.sender is not Role.HOST:
+            raise CliError(f"{msg_id} is what a board sends, not a host", ExitCode.BAD_INPUT)
         if items:
             raise CliError(f"{msg_id} is a direct command: it carries no body", ExitCode.BAD_INPUT)
-        message = Enable() if msg_id == "RE" else Disable()
+        message = Enable() if known is MessageId.RE else Disable()
         shown = msg_id
     else:
         message = CountedMessage(msg_id, items)
@@ -136,21 +151,41 @@ def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tupl
         if isinstance(parsed, Malformed) and not force:
             raise CliError(f"{msg_id}: {parsed.detail or parsed.reason.value} "
                            "(--force sends it anyway)", ExitCode.BAD_INPUT)
+        if isinstance(parsed, References) and not force and not (
+                math.isfinite(parsed.ref_a) and math.isfinite(parsed.ref_b)):
+            raise CliError(f"RV with references ({parsed.ref_a}, {parsed.ref_b}): not finite "
+                           "numbers; a board must never get one (--force sends it anyway)",
+                           ExitCode.BAD_INPUT)
+        if isinstance(parsed, ParamSet | ParamGet):
+            request = parsed
         shown = describe(parsed)
     reply = reply_id.strip().upper() if reply_id else None
-    return run(_send(conn, message, shown, reply, wait), conn.single.url)
+    if request is not None and isinstance(request, ParamSet):
+        conn.note_ephemeral()
+    return run(_send(conn, message, shown, reply, request, wait), conn.single.url)
 
 
 async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand, shown: str,
-                reply_id: str | None, wait: float) -> int:
+                reply_id: str | None, request: ParamSet | ParamGet | None, wait: float) -> int:
     endpoint = conn.single
     async with conn.link(endpoint) as link:
         loop = asyncio.get_running_loop()
         replied: asyncio.Future[Parsed] = loop.create_future()
+        others: list[str] = []
+
+        def answers(received: Parsed) -> bool:
+            if request is not None and isinstance(received, ParamAck | ParamNack):
+                return (received.param_id, received.channel) == (request.param_id,
+                                                                 request.channel)
+            return message_id(received) == reply_id
 
         def on_message(received: Parsed) -> None:
-            if not replied.done() and message_id(received) == reply_id:
+            if replied.done():
+                return
+            if answers(received):
                 replied.set_result(received)
+            else:
+                others.append(message_id(received))
 
         if reply_id is not None:
             on_messages(link, on_message)  # before sending: a fast reply must not be missed
@@ -166,7 +201,12 @@ async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand
         try:
             received = await asyncio.wait_for(replied, wait)
         except TimeoutError:
-            raise CliError(f"{endpoint.url}: board not answering: no {reply_id} reply within "
-                           f"{wait:g} s", ExitCode.NO_ANSWER) from None
+            heard = (", ".join(f"{n}×{others.count(n)}" for n in sorted(set(others)))
+                     or "nothing")
+            raise CliError(f"{endpoint.url}: board not answering: no reply to {shown.split()[0]} "
+                           f"within {wait:g} s (heard: {heard})", ExitCode.NO_ANSWER) from None
         echo_out(f"reply {describe(received)}")
+        if isinstance(received, ParamNack):
+            raise CliError(f"{endpoint.url}: the board refused: {received.reason} (PN error "
+                           f"{received.error})", ExitCode.REFUSED)
         return ExitCode.OK

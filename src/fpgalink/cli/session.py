@@ -7,15 +7,17 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
+import math
 import signal
+import sys
 import time
 from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from fpgalink.aio.link import Link, LinkState
+from fpgalink.aio.link import Link, LinkEventKind, LinkState
 from fpgalink.cli.options import ConnectionOptions, Endpoint
-from fpgalink.cli.output import classify
+from fpgalink.cli.output import CliError, ExitCode, classify, note
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import (
     ChannelTelemetry,
@@ -34,9 +36,11 @@ __all__ = [
     "BoardClock",
     "BoardSession",
     "Streaming",
+    "check_boards_answered",
     "compact",
     "gather_all",
     "install_stop_signals",
+    "json_safe",
     "on_messages",
     "open_sessions",
     "restore_streaming",
@@ -46,6 +50,7 @@ __all__ = [
     "telemetry_row",
     "telemetry_schema",
     "wait_or_stop",
+    "write_stdout",
 ]
 
 T = TypeVar("T")
@@ -153,6 +158,25 @@ class BoardClock:
         return self.anchor + (self._base_us + t_us - self._origin_us) / 1e6
 
 
+def json_safe(row: dict[str, Any]) -> dict[str, Any]:
+    """JSON has no NaN or infinity: a non-finite number (a board can send one) is written as
+    ``null``, so every line stays valid JSON (docs/cli.md)."""
+    return {k: None if isinstance(v, float) and not math.isfinite(v) else v
+            for k, v in row.items()}
+
+
+def write_stdout(text: str) -> None:
+    """Write to stdout; a write error (a full disk behind a redirect) is one line, exit 1.
+    A reader that went away (``| head``) is not an error: BrokenPipeError goes up."""
+    try:
+        sys.stdout.write(text)
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
+                       ) from None
+
+
 def telemetry_row(sample: Telemetry, timestamp: float) -> dict[str, Any]:
     row: dict[str, Any] = {"timestamp": timestamp, "t_us": sample.t_us,
                            "counter": sample.counter}
@@ -227,6 +251,26 @@ class BoardSession:
     clock: BoardClock = field(default_factory=BoardClock)
     rate: float = 0.0
     _rate_mark: tuple[float, int] | None = None
+    #: when (host epoch) the board went silent or its port vanished, while it is so
+    lost_at: float | None = None
+    #: (lost at, back at or None) for every time it was lost during the command
+    episodes: list[tuple[float, float | None]] = field(default_factory=list)
+
+    async def follow(self, report: Callable[[str, str, float], None] | None = None) -> None:
+        """Keep :attr:`lost_at` and :attr:`episodes` true to the link's events, and hand
+        each event to ``report(kind, detail, epoch time)``."""
+        async for event in self.link.watch():
+            at = time.time()
+            if event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST):
+                if self.lost_at is None:
+                    self.lost_at = at
+                    self.episodes.append((at, None))
+            elif (event.kind in (LinkEventKind.BOARD_FOUND, LinkEventKind.PORT_RESTORED)
+                  and self.lost_at is not None and self.link.board_alive):
+                self.episodes[-1] = (self.lost_at, at)
+                self.lost_at = None
+            if report is not None:
+                report(event.kind.value, event.detail, at)
 
     def update_rate(self, now: float) -> None:
         received = self.link.stats.telemetry_received
@@ -257,6 +301,28 @@ async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOption
         await stack.enter_async_context(link)
         sessions.append(BoardSession(endpoint, link, Streaming(link)))
     return sessions
+
+
+def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
+    """A board lost and back during the command is told on stderr; a board not answering
+    at the end ends the command with "board not answering" (exit 4), saying since when."""
+    for session in sessions:
+        for lost, back in session.episodes:
+            if back is not None:
+                note(f"board {session.endpoint.name} was not answering from "
+                     f"{_clock(lost)} to {_clock(back)} ({back - lost:.1f} s; "
+                     f"{lost - started:.1f} s into the run)")
+    gone = [s for s in sessions if s.lost_at is not None]
+    if gone:
+        first = gone[0]
+        assert first.lost_at is not None
+        names = ", ".join(s.endpoint.name for s in gone)
+        raise CliError(f"board not answering: {names} since {_clock(first.lost_at)} "
+                       f"({first.lost_at - started:.1f} s into the run)", ExitCode.NO_ANSWER)
+
+
+def _clock(epoch: float) -> str:
+    return time.strftime("%H:%M:%S", time.localtime(epoch)) + f".{int(epoch % 1 * 10)}"
 
 
 async def start_streaming(sessions: list[BoardSession], passive: bool) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import math
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -12,16 +13,18 @@ from typing import Any
 import click
 from rich.table import Table
 
+from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, table_console
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, table_console
 from fpgalink.cli.session import BoardClock, Streaming, run
-from fpgalink.protocol import ChannelTelemetry, Telemetry, float32
+from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
 
 RISE_LOW, RISE_HIGH = 0.1, 0.9  #: rise time is measured between 10 % and 90 % of the step
 SETTLING_BAND = 0.02  #: settled once within ±2 % of the step size, for good
 STEADY_FRACTION = 0.1  #: steady-state error: mean of the last 10 % of the hold
+MAX_PHASE_S = 3600.0  #: longest --pre/--hold: a step is an experiment, not a service
 
 
 @dataclass(frozen=True, slots=True)
@@ -95,21 +98,8 @@ def split_response(samples: list[tuple[float, Telemetry]], channel: str, target:
     return response
 
 
-def _check_plot_backend() -> None:
-    try:
-        import matplotlib  # noqa: F401
-    except ImportError:
-        raise CliError("--plot needs matplotlib: pip install 'fpgalink[plot]'",
-                       ExitCode.BAD_INPUT) from None
-
-
 def save_plot(path: Path, response: StepResponse, channel: str, title: str) -> None:
-    # Figure + Agg canvas directly: no pyplot global state, no display needed.
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-
-    figure = Figure(figsize=(8, 6), layout="constrained")
-    FigureCanvasAgg(figure)
+    figure = new_figure((8, 6))
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2, 1])
     top.plot(response.t, response.reference, label="reference", drawstyle="steps-post")
     top.plot(response.t, response.speed, label="speed")
@@ -121,21 +111,23 @@ def save_plot(path: Path, response: StepResponse, channel: str, title: str) -> N
     bottom.set_ylabel(f"pwm {channel}")
     bottom.set_xlabel("time since step, s")
     bottom.grid(True, alpha=0.3)
-    figure.savefig(str(path), dpi=100)
+    save_figure(figure, path)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
 @click.option("--channel", "-c", type=click.Choice(["A", "B"], case_sensitive=False),
               required=True, help="Channel to step (the other gets reference 0).")
-@click.option("--to", "target", type=float, required=True, help="Reference after the step.")
+@click.option("--to", "target", type=float, required=True,
+              help="Reference after the step (deg/s).")
 @click.option("--from", "start", type=float, default=0.0, show_default=True,
-              help="Reference before the step.")
-@click.option("--hold", type=click.FloatRange(min=0, min_open=True), default=3.0,
-              show_default=True, help="How long to record after the step, s.")
-@click.option("--pre", type=click.FloatRange(min=0), default=1.0, show_default=True,
-              help="How long to hold --from before the step, s.")
+              help="Reference before the step (deg/s).")
+@click.option("--hold", type=FiniteRange(min=0, min_open=True, max=MAX_PHASE_S),
+              default=3.0, show_default=True, help="How long to record after the step, s.")
+@click.option("--pre", type=FiniteRange(min=0, max=MAX_PHASE_S), default=1.0,
+              show_default=True, help="How long to hold --from before the step, s.")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
-              help="Save a PNG of reference, speed and pwm against time (needs matplotlib).")
+              help="Save reference, speed and pwm against time to a .png, .svg or .pdf "
+                   "(needs matplotlib; the path is checked before the step runs).")
 @connection_options()
 def step(channel: str, target: float, start: float, hold: float, pre: float,
          plot: Path | None, conn: ConnectionOptions) -> int:
@@ -147,12 +139,13 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
     """
     channel = channel.upper()
     for label, value in (("--to", target), ("--from", start)):
-        if not math.isfinite(value):
-            raise CliError(f"{label} must be a finite number, got {value}", ExitCode.BAD_INPUT)
-    if target == start:
+        if not abs(value) <= FLOAT32_MAX:  # NaN fails this too
+            raise CliError(f"{label} must be a finite number within the float32 range "
+                           f"(±{FLOAT32_MAX:.4g}), got {value}", ExitCode.BAD_INPUT)
+    if float32(target) == float32(start):
         raise CliError("--to and --from are equal: there is no step", ExitCode.BAD_INPUT)
     if plot is not None:
-        _check_plot_backend()
+        check_plot_path(plot)
     response = run(_step(conn, channel, start, target, pre, hold), conn.single.url)
     if len(response.t) < 2:
         raise CliError(f"{conn.single.url}: no telemetry arrived during the step",
@@ -211,12 +204,13 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
 
         collector = asyncio.ensure_future(collect())
         try:
-            link.enable()
-            link.set_references(*refs(start))
-            await asyncio.sleep(pre)
-            step_time = loop.time()  # on the samples' axis: anchored to this clock
-            link.set_references(*refs(target))
-            await asyncio.sleep(hold)
+            with _StepProgress(pre + hold, samples) as progress:
+                link.enable()
+                link.set_references(*refs(start))
+                await progress.phase(f"holding {start:g} deg/s on {channel}", pre)
+                step_time = loop.time()  # on the samples' axis: anchored to this clock
+                link.set_references(*refs(target))
+                await progress.phase(f"stepped to {target:g} deg/s", hold)
         finally:
             link.disable()
             sub.close()
@@ -224,3 +218,35 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
             await streaming.restore()
     return split_response(samples, channel, target, step_time)
 
+
+
+class _StepProgress:
+    """A bar on stderr while the step runs (only on a terminal, like ``record``'s)."""
+
+    def __init__(self, total: float, samples: list[Any]) -> None:
+        from rich.console import Console
+        from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
+
+        console = Console(stderr=True)
+        self._samples = samples
+        self._started = time.monotonic()
+        self._progress = Progress(
+            TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+            TextColumn("{task.fields[samples]} samples"),
+            console=console, disable=not console.is_terminal)
+        self._task = self._progress.add_task("starting", total=total, samples=0)
+
+    def __enter__(self) -> _StepProgress:
+        self._progress.start()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._progress.stop()
+
+    async def phase(self, description: str, seconds: float) -> None:
+        self._progress.update(self._task, description=description)
+        end = time.monotonic() + seconds
+        while (left := end - time.monotonic()) > 0:
+            await asyncio.sleep(min(0.1, left))
+            self._progress.update(self._task, completed=time.monotonic() - self._started,
+                                  samples=len(self._samples))

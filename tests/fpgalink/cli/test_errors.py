@@ -107,7 +107,7 @@ def test_send_reply_timeout_exits_4(fake_board: Callable[..., BoardThread]) -> N
     done = run_cli("send", "PG", "--hex", "0100", "--reply", "PA", "--wait", "0.2",
                    "--port", fake.url)
     assert done.returncode == 4
-    assert_one_line_error(done.stderr, "no PA reply within 0.2 s")
+    assert_one_line_error(done.stderr, "no reply to PG within 0.2 s", "heard: nothing")
 
 
 def test_refusal_exits_3_with_reason(fake_board: Callable[..., BoardThread]) -> None:

@@ -70,8 +70,11 @@ def test_record_mcap_has_telemetry_params_and_events(board: Board, tmp_path: Pat
     assert {"timestamp", "t_us", "a_speed", "b_current", "a_pwm"} <= set(telemetry[0])
     names = {p["name"] for p in topics["/board/0/params"]}
     assert {"TsTimerPeriod", "Kp_Wheel_PidA", "GetDataPeriodical"} <= names  # snapshot
-    kinds = [e["kind"] for e in topics["/board/0/events"]]
+    events = topics["/board/0/events"]  # foxglove.Log, so Foxglove's Log panel shows them
+    assert {"timestamp", "level", "message", "name", "file", "line"} <= set(events[0])
+    kinds = [str(e["message"]).split(":")[0] for e in events]
     assert kinds[0] == "recording_started" and kinds[-1] == "recording_stopped"
+    assert all(e["name"] == "0" for e in events)
     assert topics["/board/0/stats"]
 
 
@@ -101,7 +104,7 @@ def test_ctrl_c_stops_record_cleanly_with_a_valid_file(board: Board, tmp_path: P
     assert "Traceback" not in err
     topics = read_mcap(path)
     assert len(topics["/board/0/telemetry"]) > 0
-    assert topics["/board/0/events"][-1]["kind"] == "recording_stopped"
+    assert topics["/board/0/events"][-1]["message"] == "recording_stopped"
 
 
 def test_ctrl_c_stops_monitor_with_130(board: Board) -> None:

@@ -1,0 +1,66 @@
+"""``config``: the connection settings a command would use here, and where each came from
+(command line, environment, config file, default) — the first thing to run when a command
+talks to the wrong port."""
+
+from __future__ import annotations
+
+import json
+
+import click
+
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import EXIT_CODES_HELP, ExitCode, echo_out
+from fpgalink.cli.settings import Settings, config_paths
+
+__all__ = ["config", "settings_rows"]
+
+
+def settings_rows(settings: Settings) -> list[tuple[str, str, str]]:
+    """(setting, value, source) for every setting, in the order a user reads them."""
+    ports = " ".join(f"{e.name}={e.url}" if len(settings.endpoints) > 1 or not
+                     e.name.isdigit() else e.url for e in settings.endpoints)
+    src = settings.sources
+    return [
+        ("port", ports, src["port"]),
+        ("board", settings.board or "-", src["board"]),
+        ("baud", f"{settings.baud}", src["baud"]),
+        ("timeout", f"{settings.timeout:g} s", src["timeout"]),
+        ("retries", f"{settings.retries}", src["retries"]),
+        ("robot", str(settings.robot) if settings.robot else "-", src["robot"]),
+    ]
+
+
+@click.command(epilog=EXIT_CODES_HELP)
+@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
+              show_default=True)
+@connection_options(multi=True, announce=False)
+def config(fmt: str, conn: ConnectionOptions) -> int:
+    """Show the connection settings in force and where each came from.
+
+    Precedence: options after the command, options before it, the environment
+    (FPGALINK_PORT, FPGALINK_BAUD, FPGALINK_BOARD), the config file, the defaults. The
+    config file is --config FILE, FPGALINK_CONFIG, else the first of ./fpgalink.toml and
+    ~/.config/fpgalink/fpgalink.toml (XDG_CONFIG_HOME is honoured).
+    """
+    settings = conn.settings
+    rows = settings_rows(settings)
+    searched = [str(p) for p in config_paths()]
+    if fmt == "json":
+        echo_out(json.dumps({
+            "config_file": str(settings.config_file) if settings.config_file else None,
+            "searched": searched,
+            "settings": {name: {"value": value, "source": source}
+                         for name, value, source in rows},
+        }))
+        return ExitCode.OK
+    if settings.config_file is not None:
+        echo_out(f"config file: {settings.config_file}")
+    else:
+        echo_out(f"config file: none (looked for {' and '.join(searched)})")
+    width = max(len(name) for name, _, _ in rows)
+    value_width = max(len(value) for _, value, _ in rows)
+    for name, value, source in rows:
+        echo_out(f"  {name:<{width}}  {value:<{value_width}}  ({source})")
+    if settings.emulated:
+        echo_out("no port configured: commands run against the built-in emulator (emu://)")
+    return ExitCode.OK

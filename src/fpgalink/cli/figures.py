@@ -1,0 +1,57 @@
+"""Figures for ``step --plot`` and ``plot``: matplotlib's object API with the Agg canvas (no
+pyplot global state, no display), and a path check done before any work."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from fpgalink.cli.output import CliError, ExitCode
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+__all__ = ["PLOT_SUFFIXES", "check_plot_path", "new_figure", "save_figure"]
+
+PLOT_SUFFIXES = (".png", ".svg", ".pdf")  #: what --plot can write (Agg, SVG and PDF backends)
+
+
+def check_plot_path(path: Path, option: str = "--plot") -> None:
+    """Refuse a plot path that cannot be written, before any work is done: a step takes
+    seconds, and its result must not be lost to a typo at the end."""
+    if path.suffix.lower() not in PLOT_SUFFIXES:
+        raise CliError(f"{option} {path}: the file name must end in "
+                       f"{', '.join(PLOT_SUFFIXES)} (the format is taken from it)",
+                       ExitCode.BAD_INPUT)
+    if path.is_dir():
+        raise CliError(f"{option} {path}: is a directory", ExitCode.BAD_INPUT)
+    parent = path.parent
+    if not parent.is_dir():
+        raise CliError(f"{option} {path}: no such directory {parent}", ExitCode.BAD_INPUT)
+    if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and
+                                                     not os.access(path, os.W_OK)):
+        raise CliError(f"{option} {path}: not writable", ExitCode.BAD_INPUT)
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:
+        raise CliError(f"{option} needs matplotlib: pip install 'fpgalink[plot]'",
+                       ExitCode.BAD_INPUT) from None
+
+
+def new_figure(size: tuple[float, float]) -> Figure:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=size, layout="constrained")
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def save_figure(figure: Figure, path: Path) -> None:
+    """Save, with a failure (full disk, a path gone since the check) as one line."""
+    try:
+        figure.savefig(str(path), dpi=100)
+    except OSError as exc:
+        raise CliError(f"{path}: cannot write the plot: {exc.strerror or exc}",
+                       ExitCode.FAILURE) from None

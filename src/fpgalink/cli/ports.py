@@ -1,0 +1,205 @@
+"""``ports``: every serial port the machine has, with what is needed to pick the board's and
+to keep picking it: the stable ``/dev/serial/by-id/…`` path (``ttyUSB`` numbers change
+between boots and plug orders), USB vendor:product, description and serial number.
+
+The CmodA7 carries an FTDI FT2232: interface 0 is the FPGA's JTAG, interface 1 its UART.
+For FTDI ports the driver's ``latency_timer`` (sysfs) decides how long the chip holds
+received bytes before sending a USB packet when fewer than 62 are waiting: the default
+16 ms turns 1 kHz telemetry into 16 ms bursts. Above 1 ms we warn and say how to fix it."""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Iterable
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import click
+
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, table_console
+
+__all__ = ["PortReport", "ports", "scan_ports"]
+
+FTDI_VID = 0x0403
+FT2232_PID = 0x6010  #: FT2232C/D/H: the CmodA7's USB bridge (JTAG + UART)
+BOARD_UART_INTERFACE = 1  #: FT2232 channel B, the CmodA7's UART (channel A is JTAG)
+GOOD_LATENCY_MS = 1
+UDEV_RULE = ('ACTION=="add", SUBSYSTEM=="usb-serial", DRIVER=="ftdi_sio", '
+             'ATTR{latency_timer}="1"')
+
+
+@dataclass(frozen=True, slots=True)
+class PortReport:
+    device: str
+    by_id: str | None  #: the stable path to give as --port, when udev made one
+    usb_id: str | None  #: VID:PID in hex
+    description: str
+    serial_number: str | None
+    interface: int | None  #: USB interface number of a multi-interface chip
+    verdict: str  #: what this port is likely to be, for the board's purposes
+    latency_timer_ms: int | None  #: FTDI only
+    latency_path: str | None
+
+    @property
+    def likely_board(self) -> bool:
+        return self.verdict.startswith("board UART")
+
+    @property
+    def slow_latency(self) -> bool:
+        return self.latency_timer_ms is not None and self.latency_timer_ms > GOOD_LATENCY_MS
+
+    def fix_command(self) -> str:
+        return f"echo {GOOD_LATENCY_MS} | sudo tee {self.latency_path}"
+
+
+def _by_id_links(by_id_dir: Path) -> dict[str, str]:
+    """Real device path → its by-id symlink."""
+    links: dict[str, str] = {}
+    try:
+        entries = sorted(by_id_dir.iterdir())
+    except OSError:
+        return links
+    for entry in entries:
+        try:
+            links.setdefault(os.path.realpath(entry), str(entry))
+        except OSError:
+            continue
+    return links
+
+
+def _interface_number(info: Any, by_id: str | None) -> int | None:
+    # pyserial's location ends ":<config>.<interface>"; by-id names end "-ifNN-portN".
+    location = getattr(info, "location", None) or ""
+    if ":" in location:
+        try:
+            return int(location.rsplit(":", 1)[1].split(".")[-1])
+        except ValueError:
+            pass
+    if by_id and "-if" in by_id:
+        digits = by_id.rsplit("-if", 1)[1][:2]
+        if digits.isdigit():
+            return int(digits)
+    return None
+
+
+def _verdict(vid: int | None, pid: int | None, interface: int | None) -> str:
+    if vid == FTDI_VID and pid == FT2232_PID:
+        if interface == BOARD_UART_INTERFACE:
+            return "board UART (FT2232 channel B, as on the CmodA7)"
+        if interface == 0:
+            return "FT2232 channel A: JTAG on the CmodA7, not its UART"
+        return "FT2232: channel B (interface 1) is the CmodA7's UART"
+    if vid == FTDI_VID:
+        return "FTDI USB-UART"
+    if vid is not None:
+        return "USB serial"
+    return "not USB"
+
+
+def _latency(sysfs: Path, name: str) -> tuple[int | None, str | None]:
+    path = sysfs / "bus" / "usb-serial" / "devices" / name / "latency_timer"
+    try:
+        return int(path.read_text().strip()), str(path)
+    except (OSError, ValueError):
+        return None, None
+
+
+def scan_ports(infos: Iterable[Any], sysfs: Path = Path("/sys"),
+               by_id_dir: Path = Path("/dev/serial/by-id")) -> list[PortReport]:
+    """Reports for pyserial's port list (``serial.tools.list_ports.comports()``)."""
+    links = _by_id_links(by_id_dir)
+    reports = []
+    for info in infos:
+        device = str(info.device)
+        by_id = links.get(os.path.realpath(device))
+        vid, pid = info.vid, info.pid
+        interface = _interface_number(info, by_id)
+        latency, latency_path = (_latency(sysfs, Path(device).name) if vid == FTDI_VID
+                                 else (None, None))
+        description = info.description if info.description not in (None, "n/a") else ""
+        reports.append(PortReport(
+            device=device, by_id=by_id,
+            usb_id=f"{vid:04x}:{pid:04x}" if vid is not None and pid is not None else None,
+            description=description or "", serial_number=info.serial_number,
+            interface=interface, verdict=_verdict(vid, pid, interface),
+            latency_timer_ms=latency, latency_path=latency_path,
+        ))
+    # The likely board first, then USB ports, then the rest (legacy ttyS* last).
+    return sorted(reports, key=lambda r: (not r.likely_board, r.usb_id is None, r.device))
+
+
+def set_low_latency(report: PortReport) -> None:
+    """Write 1 ms into the port's ``latency_timer`` (needs root or a udev rule)."""
+    assert report.latency_path is not None
+    try:
+        Path(report.latency_path).write_text(f"{GOOD_LATENCY_MS}\n")
+    except PermissionError:
+        raise CliError(f"{report.device}: not permitted to set the latency timer; run: "
+                       f"{report.fix_command()}", ExitCode.FAILURE) from None
+    except OSError as exc:
+        raise CliError(f"{report.latency_path}: cannot write: {exc.strerror or exc}",
+                       ExitCode.FAILURE) from None
+
+
+@click.command(epilog=EXIT_CODES_HELP)
+@click.option("--all", "show_all", is_flag=True,
+              help="Also list ports that are not USB (legacy ttyS*, most of them absent).")
+@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
+              show_default=True)
+@click.option("--fix-latency", is_flag=True,
+              help=f"Set every FTDI port's latency timer to {GOOD_LATENCY_MS} ms (needs "
+                   "permission to write sysfs; lasts until the device is replugged).")
+def ports(show_all: bool, fmt: str, fix_latency: bool) -> int:
+    """List serial ports, mark the board's USB-UART, check its latency timer.
+
+    Give the by-id path as --port (or in fpgalink.toml): it names the same board after a
+    reboot or replug, where /dev/ttyUSB numbers do not.
+    """
+    from serial.tools import list_ports
+
+    reports = [r for r in scan_ports(list_ports.comports())
+               if show_all or r.usb_id is not None]
+    if fix_latency:
+        for report in reports:
+            if report.slow_latency:
+                set_low_latency(report)
+                click.echo(f"fpgalink-cli: {report.device}: latency timer "
+                           f"{report.latency_timer_ms} → {GOOD_LATENCY_MS} ms", err=True)
+        reports = [r for r in scan_ports(list_ports.comports())
+                   if show_all or r.usb_id is not None]
+    if fmt == "json":
+        for report in reports:
+            echo_out(json.dumps(asdict(report)))
+        return ExitCode.OK
+    if not reports:
+        echo_out("no USB serial ports found" + ("" if show_all else
+                                               " (--all lists the others)"))
+        return ExitCode.OK
+    _print_table(reports)
+    for report in reports:
+        if report.slow_latency:
+            click.echo(
+                f"warning: {report.device}: FTDI latency timer is {report.latency_timer_ms} ms: "
+                f"1 kHz telemetry arrives in {report.latency_timer_ms} ms bursts. Fix now: "
+                f"{report.fix_command()} (or fpgalink-cli ports --fix-latency); for every "
+                f"plug-in, a udev rule: {UDEV_RULE}", err=True)
+    return ExitCode.OK
+
+
+def _print_table(reports: list[PortReport]) -> None:
+    from rich.table import Table
+
+    table = Table(title="Serial ports", title_justify="left")
+    for column in ("port", "stable path (give as --port)", "VID:PID", "description",
+                   "serial", "latency", "what it is"):
+        table.add_column(column, overflow="fold")
+    for r in reports:
+        latency = "" if r.latency_timer_ms is None else f"{r.latency_timer_ms} ms"
+        if r.slow_latency:
+            latency = f"[bold red]{latency}[/]"
+        table.add_row(r.device, r.by_id or "-", r.usb_id or "-", r.description or "-",
+                      r.serial_number or "-", latency or "-",
+                      f"[bold]{r.verdict}[/]" if r.likely_board else r.verdict)
+    table_console().print(table)
