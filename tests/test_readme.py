@@ -50,14 +50,16 @@ def test_every_python_example_runs_as_written(code: str, shown: str | None) -> N
         assert result.stdout == shown
 
 
-def test_the_parameter_table_shown_is_what_param_list_prints() -> None:
+def test_the_parameter_table_shown_is_what_param_list_prints(tmp_path: Path) -> None:
     section = README[README.index("$ .venv/bin/fpgalink-cli param list"):]
     shown = [line for line in section.splitlines()[1:] if line.startswith(("┃", "│"))]
     shown = shown[: shown.index(next(s for s in shown if s.startswith("│ 10"))) + 1]
     result = subprocess.run([sys.executable, "-m", "fpgalink", "param", "list"],
                             capture_output=True, text=True, timeout=60, cwd=ROOT,
-                            env={"COLUMNS": "200", "NO_COLOR": "1", "PATH": "/usr/bin:/bin"})
+                            env={"COLUMNS": "200", "NO_COLOR": "1", "PATH": "/usr/bin:/bin",
+                                 "XDG_CONFIG_HOME": str(tmp_path)})
     assert result.returncode == 0, result.stderr
+    assert section.splitlines()[1] == result.stderr.splitlines()[0]  # the emulator notice
     printed = [line.rstrip() for line in result.stdout.splitlines()
                if line.startswith(("┃", "│"))]
     assert printed == [line.rstrip() for line in shown]

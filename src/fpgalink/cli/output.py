@@ -55,7 +55,7 @@ class FiniteRange(click.FloatRange):
     """A float option that is a real number in range: click's ``FloatRange`` lets ``nan``
     through (every comparison with it is false) and ``inf`` when no maximum is set."""
 
-    name = "finite float range"
+    name = "float range"
 
     def convert(self, value: Any, param: click.Parameter | None,
                 ctx: click.Context | None) -> Any:
