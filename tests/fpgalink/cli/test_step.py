@@ -66,3 +66,32 @@ def test_step_rejects_a_zero_step() -> None:
     done = run_cli("step", "--channel", "A", "--to", "5", "--from", "5")
     assert done.returncode == 2
     assert "no step" in done.stderr
+
+
+def test_step_shows_its_progress_on_a_terminal() -> None:
+    # stderr on a pseudo-terminal, as at a shell: the phases show while the step runs.
+    import os
+    import subprocess
+
+    from tests.support.cli import CLI, ROOT, cli_env
+
+    master, slave = os.openpty()
+    try:
+        proc = subprocess.Popen([*CLI, "step", "-c", "A", "--to", "20", "--pre", "0.3",
+                                 "--hold", "0.6", "--port", "emu://"], cwd=ROOT,
+                                stdout=subprocess.PIPE, stderr=slave, env=cli_env())
+        os.close(slave)
+        seen = b""
+        while True:
+            try:
+                chunk = os.read(master, 4096)
+            except OSError:  # EIO: the child closed its side
+                break
+            if not chunk:
+                break
+            seen += chunk
+        assert proc.wait(timeout=30) == 0
+    finally:
+        os.close(master)
+    text = seen.decode("utf-8", "replace")
+    assert "holding 0 deg/s on A" in text and "stepped to 20 deg/s" in text

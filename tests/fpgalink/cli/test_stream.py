@@ -120,3 +120,23 @@ def test_ctrl_c_stops_monitor_with_130(board: Board) -> None:
             proc.kill()
     assert proc.returncode == 130, err
     assert "Traceback" not in err
+
+
+def test_record_clocks_mean_what_mcap_says(tmp_path: Path) -> None:
+    # log_time: when the host received the message; publish_time: the board's sample time
+    # on the host clock (the payload's timestamp); raw t_us kept.
+    path = tmp_path / "clocks.mcap"
+    done = run_cli("record", str(path), "--duration", "1.0", "--port", "emu://")
+    assert done.returncode == 0, done.stderr
+    with path.open("rb") as f:
+        samples = [(m.log_time, m.publish_time, json.loads(m.data))
+                   for _, c, m in make_reader(f).iter_messages()
+                   if c.topic == "/board/0/telemetry"]
+    assert len(samples) > 100
+    assert any(log != pub for log, pub, _ in samples)  # two clocks, not one copied
+    for log, pub, row in samples:
+        assert abs(pub - row["timestamp"] * 1e9) < 2e3  # the payload's time, to its 1 µs
+        assert abs(log - pub) < 1e9  # the same epoch, apart by transport and drift only
+    # publish_time advances exactly as board time does
+    (_, pub0, row0), (_, pub1, row1) = samples[0], samples[-1]
+    assert (pub1 - pub0) / 1e3 == pytest.approx(row1["t_us"] - row0["t_us"], abs=2)
