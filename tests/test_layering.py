@@ -75,7 +75,18 @@ def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -
     assert not above, f"{where} imports {sorted(above)}"
 
 
-@pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgaemu"])
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.robot"))
+def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path) -> None:
+    names = imports_of(path)
+    above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2")}
+    assert not above, f"{where} imports {sorted(above)}"
+    if not where.endswith("robot/robot.py"):  # the sans-I/O parts: no I/O, no clock
+        assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
+        assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
+
+
+@pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgalink.robot",
+                                     "fpgaemu"])
 def test_every_public_name_of_a_package_resolves(package: str) -> None:
     # The packages load their names on first use: every name listed must be there.
     import importlib

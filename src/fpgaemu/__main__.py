@@ -22,9 +22,18 @@ import click
 
 from fpgaemu.build import build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
-from fpgaemu.serve import PacedBoard, PtyEndpoint, TcpEndpoint
+from fpgaemu.robot import EmulatedRobot
+from fpgaemu.serve import (
+    PacedBoard,
+    PacedRobot,
+    PtyEndpoint,
+    RobotSide,
+    TcpEndpoint,
+    TruthEndpoint,
+)
 from fpgalink.protocol import ParameterError
 from fpgalink.protocol.paramfile import parse_parameter_file, parse_parameter_table
+from fpgalink.protocol.robot import DescriptionError, RobotDescription, load_robot, seed_robot
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = ["cli", "main"]
@@ -148,12 +157,25 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--link", "links", multiple=True, metavar="[NAME=]PATH",
                  help="A stable symlink to the board's pty (per board: --link L=/tmp/fpga-L); "
                       "removed on exit."),
-    click.option("--fault", "faults", multiple=True, metavar="SPEC",
-                 help="Fault injection, repeatable; see docs/reliability.md:\n" + FAULT_HELP),
+    click.option("--fault", "faults", multiple=True, metavar="[BOARD:]SPEC",
+                 help="Fault injection, repeatable (BOARD: only that board, e.g. "
+                      "L:wheel-stuck=A); see docs/reliability.md:\n" + FAULT_HELP),
+    click.option("--robot", "robot", is_flag=True, default=None,
+                 help="Serve a robot: its boards (L, R) move one emulated body; the true "
+                      "pose streams from a truth endpoint (see --truth)."),
+    click.option("--robot-file", "robot_file", type=click.Path(dir_okay=False, path_type=Path),
+                 help="The robot description (TOML; default: the seed's robot)."),
+    click.option("--surface", metavar="NAME",
+                 help="What the robot drives on: a surface of its description (the seed's "
+                      "robot: ideal, gravel, marble)  [default: the description's]"),
+    click.option("--truth", "truth", metavar="HOST:PORT",
+                 help="With --robot: where the true pose streams as JSON lines  "
+                      "[default: 127.0.0.1:0]"),
 ]
 DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 1_000_000,
                             "seed": 0, "gear": "high", "config_path": None,
-                            "assignments": (), "links": (), "faults": ()}
+                            "assignments": (), "links": (), "faults": (), "robot": False,
+                            "robot_file": None, "surface": None, "truth": None}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -179,25 +201,76 @@ def cli(ctx: click.Context, /, **given: Any) -> None:
 @click.pass_context
 def serve(ctx: click.Context, /, **given: Any) -> None:
     """Serve emulated boards until SIGINT/SIGTERM. Prints `ready <board> <path-or-url>` per
-    board once it is reachable, and `ready <board> <link> -> <pty>` with --link."""
+    board once it is reachable, `ready <board> <link> -> <pty>` with --link, and with --robot
+    `ready truth socket://HOST:PORT` (the true pose as JSON lines)."""
     before = ctx.obj.given if isinstance(ctx.obj, Options) else {}
     value = {**DEFAULTS, **before, **{k: v for k, v in given.items() if v not in (None, ())}}
     use_pty, tcp = bool(value["use_pty"]), value["tcp"]
     if use_pty == (tcp is not None):
         raise ServeError("give exactly one of --pty or --tcp HOST:PORT", EXIT_BAD_INPUT)
     host, port = parse_tcp(tcp) if tcp is not None else ("127.0.0.1", 0)
-    names = board_names(value["boards"])
+    robot = _robot(value) if value["robot"] else None
+    if robot is None and any(value[k] is not None for k in ("robot_file", "surface", "truth")):
+        raise ServeError("--robot-file, --surface and --truth go with --robot", EXIT_BAD_INPUT)
+    names = list(robot.boards) if robot else board_names(value["boards"])
     links = parse_links(value["links"], names)
     if links and not use_pty:
         raise ServeError("--link makes a symlink to a pty: use it with --pty", EXIT_BAD_INPUT)
     settings = parse_settings(value["config_path"], value["assignments"])
+    faults = _board_faults(list(value["faults"]), names)
+    truth = parse_tcp(value["truth"] or "127.0.0.1:0") if robot else None
     try:
-        parse_faults(list(value["faults"]))
+        paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
+                              settings, faults)
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
-    code = asyncio.run(_serve(use_pty, host, port, names, value["baud"], value["seed"],
-                              value["gear"], settings, list(value["faults"]), links))
+    code = asyncio.run(_serve(use_pty, host, port, paced, links, truth))
     sys.exit(code)
+
+
+def _robot(value: dict[str, Any]) -> RobotDescription:
+    try:
+        description = load_robot(str(value["robot_file"])) if value["robot_file"] \
+            else seed_robot()
+        if value["surface"] is not None:
+            description = description.on_surface(value["surface"])
+    except DescriptionError as exc:
+        raise ServeError(str(exc), EXIT_BAD_INPUT) from None
+    if value["boards"] not in (1, len(description.boards)):
+        raise ServeError(f"--robot serves the robot's {len(description.boards)} boards; "
+                         "leave out --boards", EXIT_BAD_INPUT)
+    return description
+
+
+def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
+    """``--fault SPEC`` (every board) or ``--fault BOARD:SPEC`` → specs per board."""
+    faults: dict[str, list[str]] = {name: [] for name in names}
+    for spec in specs:
+        board, sep, rest = spec.partition(":")
+        if sep and board in names and "=" not in board:
+            targets, fault = [board], rest
+        else:
+            targets, fault = names, spec
+        try:
+            parse_faults([fault])
+        except ValueError as exc:
+            raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
+        for target in targets:
+            faults[target].append(fault)
+    return faults
+
+
+def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, seed: int,
+                  gear: str, settings: dict[str, int | float],
+                  faults: dict[str, list[str]]) -> dict[str, PacedBoard]:
+    if robot is not None:
+        emulated = EmulatedRobot(robot, baud=baud, seed=seed, gear=gear, faults=faults,
+                                 settings=settings)
+        paced_robot = PacedRobot(emulated)
+        return {name: paced_robot.side(name) for name in names}
+    return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
+                                         settings=settings, faults=faults[name]))
+            for index, name in enumerate(names)}
 
 
 def _make_link(path: Path, target: str) -> None:
@@ -214,25 +287,19 @@ def _make_link(path: Path, target: str) -> None:
         raise ServeError(f"--link {path}: {exc.strerror}", EXIT_CANNOT_SERVE) from None
 
 
-async def _serve(use_pty: bool, host: str, port: int, names: list[str], baud: int, seed: int,
-                 gear: str, settings: dict[str, int | float], faults: list[str],
-                 links: dict[str, Path]) -> int:
+async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoard],
+                 links: dict[str, Path], truth: tuple[str, int] | None) -> int:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
     made: list[Path] = []
+    truth_endpoint: TruthEndpoint | None = None
     try:
-        for index, name in enumerate(names):
-            try:
-                board = build_board(baud=baud, seed=seed + index, gear=gear,
-                                    settings=settings, faults=faults)
-            except ValueError as exc:
-                raise ServeError(str(exc), EXIT_BAD_INPUT) from None
-            paced = PacedBoard(board)
+        for index, (name, board) in enumerate(paced.items()):
             if use_pty:
-                pty = PtyEndpoint(paced)
+                pty = PtyEndpoint(board)
                 pty.start()
                 endpoints.append((name, pty))
                 where = pty.path
@@ -241,7 +308,7 @@ async def _serve(use_pty: bool, host: str, port: int, names: list[str], baud: in
                     made.append(links[name])
                     where = f"{links[name]} -> {pty.path}"
             else:
-                tcp = TcpEndpoint(paced, host, port + index if port else 0)
+                tcp = TcpEndpoint(board, host, port + index if port else 0)
                 try:
                     await tcp.start()
                 except OSError as exc:
@@ -250,8 +317,19 @@ async def _serve(use_pty: bool, host: str, port: int, names: list[str], baud: in
                 endpoints.append((name, tcp))
                 where = tcp.url
             print(f"ready {name} {where}", flush=True)
+        sides = [b for b in paced.values() if isinstance(b, RobotSide)]
+        if truth is not None and sides:
+            truth_endpoint = TruthEndpoint(sides[0].robot, *truth)
+            try:
+                await truth_endpoint.start()
+            except OSError as exc:
+                raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
+                                 f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
+            print(f"ready truth {truth_endpoint.url}", flush=True)
         await stop.wait()
     finally:
+        if truth_endpoint is not None:
+            await truth_endpoint.close()
         for _, endpoint in endpoints:
             await endpoint.close()
         for path in made:

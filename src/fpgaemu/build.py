@@ -14,7 +14,7 @@ from fpgaemu.firmware import attach_firmware
 from fpgaemu.motor import GEARS, Motors
 from fpgaemu.uart import DEFAULT_BAUD
 
-__all__ = ["EMU_OPTIONS", "board_from_url", "build_board"]
+__all__ = ["EMU_OPTIONS", "board_from_url", "build_board", "parse_emu_options", "seed_option"]
 
 #: The query options an ``emu://`` URL understands.
 EMU_OPTIONS = ("seed", "gear", "fault")
@@ -41,6 +41,22 @@ def build_board(
     board.add_peripheral("motors", Motors(gear))
     board.add_peripheral("faults", wanted.board_faults())
     return board
+
+
+def parse_emu_options(query: str, known: tuple[str, ...], what: str) -> dict[str, list[str]]:
+    options = parse_qs(query, keep_blank_values=True)
+    unknown = sorted(set(options) - set(known))
+    if unknown:
+        raise ValueError(f"unknown {what} option(s) {unknown}; known: {list(known)}")
+    return options
+
+
+def seed_option(options: dict[str, list[str]]) -> int:
+    text = options.get("seed", ["0"])[-1]
+    try:
+        return int(text)
+    except ValueError:
+        raise ValueError(f"emu:// seed must be an integer, got {text!r}") from None
 
 
 def board_from_url(url: str, baud: int) -> Board:

@@ -12,8 +12,9 @@ the board started serving).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fpgaemu.timeline import seconds_to_cycles
 from fpgaemu.uart import LineFaults
@@ -37,11 +38,12 @@ START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
   tx-cut=..., disconnect=...       (disconnect = both lines)
   stall=START_S:DURATION_S         the host stalls: the board hears nothing (= rx-cut)
   babble=START_S:DURATION_S        the host sends random bytes at full line rate
-  drop-frames=ID:N                 lose the first N host->board frames with message ID"""
+  drop-frames=ID:N                 lose the first N host->board frames with message ID
+  wheel-stuck=A|B[:START_S:DUR_S]  that channel's wheel is blocked (from power-up, for ever)"""
 
 FAULT_KEYS = ("rx-ber", "tx-ber", "rx-drop", "tx-drop", "rx-dup", "tx-dup", "rx-noise",
               "tx-noise", "rx-stuck", "tx-stuck", "stuck", "rx-cut", "tx-cut", "disconnect",
-              "stall", "babble", "drop-frames")
+              "stall", "babble", "drop-frames", "wheel-stuck")
 
 #: The babbler refills the line this often; short enough that the line never goes idle
 #: between refills for longer than a few bytes, long enough to cost one call per refill.
@@ -57,6 +59,8 @@ class FaultSet:
     drop_frames: dict[bytes, int] = field(default_factory=dict)
     #: ``(start, end)`` cycle windows of host babble
     babble: list[tuple[int, int]] = field(default_factory=list)
+    #: ``(channel code, start, end)``: a blocked wheel (``end`` None: for ever)
+    stuck_wheels: list[tuple[int, int, int | None]] = field(default_factory=list)
 
     def line(self, which: str) -> LineFaults | None:
         """The line faults for ``"rx"`` or ``"tx"``, or ``None`` when that line is clean
@@ -66,7 +70,8 @@ class FaultSet:
 
     def board_faults(self) -> BoardFaults:
         """The faults that attach to a board rather than to one line."""
-        return BoardFaults(drop_frames=dict(self.drop_frames), babble=list(self.babble))
+        return BoardFaults(drop_frames=dict(self.drop_frames), babble=list(self.babble),
+                           stuck_wheels=list(self.stuck_wheels))
 
 
 def parse_faults(specs: list[str]) -> FaultSet:
@@ -87,6 +92,7 @@ class BoardFaults:
     dropped: int = 0
     babble: list[tuple[int, int]] = field(default_factory=list)
     babbler: Babbler | None = None
+    stuck_wheels: list[tuple[int, int, int | None]] = field(default_factory=list)
 
     def attach(self, board: Board) -> None:
         if self.drop_frames:
@@ -94,6 +100,27 @@ class BoardFaults:
         if self.babble:
             self.babbler = Babbler(self.babble)
             self.babbler.attach(board)
+        for channel, start, end in self.stuck_wheels:
+            self._block(board, channel, start, end)
+
+    @staticmethod
+    def _block(board: Board, channel: int, start: int, end: int | None) -> None:
+        motors: Any = board.peripherals.get("motors")
+        if motors is None:
+            raise ValueError("wheel-stuck needs the board's motors (attach them first)")
+
+        def stall(on: bool) -> Callable[[int], None]:
+            def apply(cycle: int) -> None:
+                motors.advance_to(cycle)  # the wheel turns freely up to this moment
+                motors.wheels[channel].stall(on)
+            return apply
+
+        if start <= board.now:
+            stall(True)(board.now)
+        else:
+            board.schedule(start, stall(True))
+        if end is not None:
+            board.schedule(max(end, board.now), stall(False))
 
     def _keep(self, content: bytes, cycle: int) -> bool:
         for msg_id, left in self.drop_frames.items():
@@ -141,6 +168,12 @@ def parse_fault_spec(spec: str, into: FaultSet) -> None:
         elif key == "babble":
             start, end = _window(value)
             into.babble.append((start, end))
+        elif key == "wheel-stuck":
+            channel, _, when = value.partition(":")
+            if channel not in ("A", "B"):
+                raise ValueError
+            first, last = _window(when) if when else (0, None)
+            into.stuck_wheels.append((1 if channel == "A" else 2, first, last))
         elif lines is not None and kind == "ber":
             for line in lines:
                 line.bit_error_rate = _rate(value)

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import os
 import time
 import tty
@@ -21,14 +22,19 @@ from typing import Any
 
 from fpgaemu.board import Board
 from fpgaemu.build import board_from_url
+from fpgaemu.robot import EmulatedRobot, robot_from_options, robot_from_url
 from fpgaemu.timeline import CLOCK_HZ
 
 __all__ = [
+    "TRUTH_EXTRA",
     "EmulatedTransport",
     "LagReport",
     "PacedBoard",
+    "PacedRobot",
     "PtyEndpoint",
+    "RobotSide",
     "TcpEndpoint",
+    "TruthEndpoint",
     "open_emulated_transport",
 ]
 
@@ -116,6 +122,91 @@ class PacedBoard:
         if step_to > self.board.now:
             self.board.run_until(step_to)
         return self.board.read_host_bytes()
+
+
+#: ``transport.get_extra_info(TRUTH_EXTRA)`` on an emulated robot's board: a function that
+#: returns the body's true state as a JSON-ready dict (fpgalink reads it without importing
+#: the emulator).
+TRUTH_EXTRA = "fpgaemu.truth"
+
+
+class PacedRobot:
+    """An emulated robot whose boards and body follow the wall clock together: one origin,
+    one lag report, every board advanced to the same cycle (:class:`RobotSide` gives each
+    board the interface a :class:`PacedBoard` has, for the endpoints)."""
+
+    def __init__(self, robot: EmulatedRobot, clock: Callable[[], float] = time.monotonic
+                 ) -> None:
+        self.robot = robot
+        self.clock = clock
+        self.lag = LagReport()
+        self._origin = clock() - robot.now / CLOCK_HZ
+        self._lagging = False
+        self._sides: dict[str, RobotSide] = {}
+        self._open: set[str] = set()
+        self.on_release: Callable[[], None] | None = None
+
+    def target_cycle(self, now: float | None = None) -> int:
+        now = self.clock() if now is None else now
+        return int((now - self._origin) * CLOCK_HZ)
+
+    def side(self, name: str) -> RobotSide:
+        if name not in self.robot.boards:
+            raise ValueError(f"the robot has no board {name!r} (boards: "
+                             f"{', '.join(self.robot.boards)})")
+        if name in self._open:
+            raise ValueError(f"robot board {name} is already open in this process")
+        side = self._sides.get(name)
+        if side is None:
+            side = self._sides[name] = RobotSide(self, name)
+        self._open.add(name)
+        return side
+
+    def release(self, name: str) -> None:
+        self._open.discard(name)
+        if not self._open and self.on_release is not None:
+            self.on_release()
+
+    def advance(self, now: float | None = None) -> None:
+        """Boards and body up to ``now``, in bounded slices while catching up."""
+        target = self.target_cycle(now)
+        behind = (target - self.robot.now) / CLOCK_HZ
+        self.lag.current_lag_s = max(0.0, behind - TICK_S)
+        if self.lag.current_lag_s > LAG_THRESHOLD_S:
+            if not self._lagging:
+                self.lag.lag_events += 1
+                self._lagging = True
+            self.lag.worst_lag_s = max(self.lag.worst_lag_s, self.lag.current_lag_s)
+        else:
+            self._lagging = False
+        step_to = min(target, self.robot.now + int(CATCH_UP_SLICE_S * CLOCK_HZ))
+        if step_to > self.robot.now:
+            self.robot.run_until(step_to)
+
+    def truth_record(self) -> dict[str, float | str]:
+        state = self.robot.truth()
+        return {"t": state.t, "x": state.pose.x, "y": state.pose.y,
+                "theta": state.pose.theta, "v": state.v, "omega": state.omega,
+                "distance": state.distance, "surface": state.surface}
+
+
+class RobotSide(PacedBoard):
+    """One board of a :class:`PacedRobot`, as the endpoints see a paced board."""
+
+    def __init__(self, robot: PacedRobot, name: str) -> None:
+        super().__init__(robot.robot.boards[name], robot.clock, robot.lag)
+        self.robot = robot
+        self.name = name
+
+    def target_cycle(self, now: float | None = None) -> int:
+        return self.robot.target_cycle(now)
+
+    def advance(self, now: float | None = None) -> bytes:
+        self.robot.advance(now)
+        return self.board.read_host_bytes()
+
+    def release(self) -> None:
+        self.robot.release(self.name)
 
 
 class _Ticker:
@@ -298,6 +389,62 @@ class TcpEndpoint:
             await self._server.wait_closed()
 
 
+# --- the robot's truth -------------------------------------------------------------------------
+
+#: How often the truth endpoint sends the body's state (50 Hz: a path plot's resolution).
+TRUTH_PERIOD_S = 0.02
+
+
+class TruthEndpoint:
+    """The emulated body's true state for any number of readers on a TCP port: one JSON
+    object per line every :data:`TRUTH_PERIOD_S` (``t x y theta v omega distance surface``;
+    metres, radians, seconds of emulated time). Read-only; what a reader sends is ignored."""
+
+    def __init__(self, robot: PacedRobot, host: str, port: int) -> None:
+        self.robot = robot
+        self.host = host
+        self.port = port
+        self._server: asyncio.Server | None = None
+        self._clients: set[asyncio.Task[None]] = set()
+
+    @property
+    def url(self) -> str:
+        host = f"[{self.host}]" if ":" in self.host else self.host
+        return f"socket://{host}:{self.port}"
+
+    async def start(self) -> None:
+        self._server = await asyncio.start_server(self._client, self.host, self.port,
+                                                  reuse_address=True)
+        self.port = self._server.sockets[0].getsockname()[1]
+
+    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._clients.add(task)
+        try:
+            while not writer.is_closing():
+                self.robot.advance()
+                line = json.dumps(self.robot.truth_record(), separators=(",", ":"))
+                writer.write(line.encode() + b"\n")
+                if writer.transport.get_write_buffer_size() > 1 << 20:
+                    break  # a reader that does not read is let go
+                await asyncio.sleep(TRUTH_PERIOD_S)
+        except (ConnectionError, OSError, asyncio.CancelledError):
+            pass
+        finally:
+            self._clients.discard(task)
+            writer.close()
+
+    async def close(self) -> None:
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+        for task in list(self._clients):
+            task.cancel()
+        await asyncio.gather(*self._clients, return_exceptions=True)
+
+
 # --- emu:// in-process ------------------------------------------------------------------------
 
 
@@ -331,10 +478,14 @@ class EmulatedTransport(asyncio.Transport):
         loop = asyncio.get_running_loop()
         self._stopping = loop.create_task(self._ticker.stop())
         loop.call_soon(self._protocol.connection_lost, None)
+        if isinstance(self.paced, RobotSide):
+            self.paced.release()
 
     def get_extra_info(self, name: str, default: Any = None) -> Any:
         if name == "board":
             return self.paced.board
+        if name == TRUTH_EXTRA and isinstance(self.paced, RobotSide):
+            return self.paced.robot.truth_record
         return default
 
 
@@ -343,10 +494,32 @@ async def open_emulated_transport(
 ) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
     """The ``emu://`` opener ``fpgalink`` finds through the ``fpgalink.transports`` entry
     point: a board built from the URL's options, paced to the wall clock in this process.
-    ``ValueError`` for an option the emulator does not understand."""
-    board = board_from_url(url, baud)
-    paced = PacedBoard(board)
+    ``emu://robot/L`` and ``emu://robot/R`` (same options) are the two boards of one
+    emulated robot. ``ValueError`` for an option the emulator does not understand."""
+    robot = robot_from_url(url)
+    if robot is not None:
+        key, side_name, options = robot
+        paced: PacedBoard = _shared_robot(key, options, baud).side(side_name)
+    else:
+        paced = PacedBoard(board_from_url(url, baud))
     protocol = protocol_factory()
     transport = EmulatedTransport(paced, protocol)
     protocol.connection_made(transport)
     return transport, protocol
+
+
+#: In-process robots, by their URL options (without the board), shared by the links to
+#: their boards; dropped when the last of those closes.
+_ROBOTS: dict[tuple[str, int], PacedRobot] = {}
+
+
+def _shared_robot(key: str, options: dict[str, list[str]], baud: int) -> PacedRobot:
+    paced = _ROBOTS.get((key, baud))
+    if paced is None:
+        paced = _ROBOTS[(key, baud)] = PacedRobot(robot_from_options(options, baud))
+
+        def forget() -> None:
+            _ROBOTS.pop((key, baud), None)
+
+        paced.on_release = forget
+    return paced

@@ -16,7 +16,7 @@ from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mappin
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
-from typing import Generic, NamedTuple, TypeVar
+from typing import Any, Generic, NamedTuple, TypeVar
 
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkStats, Liveness
@@ -199,6 +199,7 @@ class Link:
         self._stamped_subs: set[Subscription[Stamped]] = set()
         self._event_subs: set[Subscription[LinkEvent]] = set()
         self._listeners: list[Callable[[Event], None]] = []
+        self._event_callbacks: list[Callable[[LinkEvent], None]] = []
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
         if transport is not None:
@@ -426,6 +427,18 @@ class Link:
             self._event_subs.add(sub)
         return sub
 
+    def on_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
+        """Call ``callback(event)`` for every link event, synchronously, as it happens: for
+        reactions that must not wait for a task to be scheduled (a robot stopping its other
+        boards when one goes silent). Keep it quick and do not raise. Returns a remover."""
+        self._event_callbacks.append(callback)
+
+        def remove() -> None:
+            if callback in self._event_callbacks:
+                self._event_callbacks.remove(callback)
+
+        return remove
+
     def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]:
         """Call ``listener(event)`` with everything the connection reports, in order: every
         received message (catalogued, generic, direct commands), ``Malformed``, framing
@@ -447,6 +460,13 @@ class Link:
     @property
     def stats(self) -> LinkStats:
         return self.connection.stats
+
+    def get_extra_info(self, name: str, default: Any = None) -> Any:
+        """What the transport offers under ``name`` (asyncio's ``get_extra_info``): for
+        example an emulated robot's true pose (``"fpgaemu.truth"``). ``default`` while no
+        transport is attached."""
+        transport = self._transport
+        return default if transport is None else transport.get_extra_info(name, default)
 
     @property
     def board_alive(self) -> bool:
@@ -510,6 +530,8 @@ class Link:
 
     def _emit(self, kind: LinkEventKind, detail: str = "") -> None:
         event = LinkEvent(kind, self._now(), detail)
+        for callback in list(self._event_callbacks):
+            callback(event)
         for sub in self._event_subs:
             sub._push(event)
 

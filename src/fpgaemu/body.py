@@ -1,0 +1,84 @@
+"""The robot's body: one rigid body in the plane that the four emulated wheels move (the
+physical world above the wheels, as :mod:`fpgaemu.motor` is the world below the boards).
+
+Each wheel's rotation comes from its motor plant (the exact integral of its speed); a side
+rolls the mean of its two wheels' ground distance, and the body moves through the same
+skid-steer model the host uses (:class:`fpgalink.protocol.robot.SkidSteer`), with the χ of
+the surface it stands on. The body's pose is the truth odometry is measured against.
+Simplifications: the ground does not load the wheels (their plants run as identified), and
+the two wheels of a side agree (their mean moves the side).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+
+from fpgalink.protocol.robot import (
+    LEFT_WHEELS,
+    RIGHT_WHEELS,
+    Pose,
+    RobotDescription,
+    integrate_arc,
+)
+
+__all__ = ["Body", "BodyState"]
+
+
+@dataclass(frozen=True, slots=True)
+class BodyState:
+    """The body's true state at one moment."""
+
+    t: float  #: s of emulated time
+    pose: Pose
+    v: float  #: m/s over the last step
+    omega: float  #: rad/s over the last step
+    distance: float  #: m travelled
+    surface: str
+
+
+class Body:
+    """``follow(t, angles)`` with each wheel's physical angle (deg) moves the body; read
+    :attr:`pose` and :meth:`state`."""
+
+    def __init__(self, description: RobotDescription, surface: str | None = None,
+                 pose: Pose | None = None) -> None:
+        self.surface = surface or description.surface
+        self.kinematics = description.kinematics(self.surface)
+        self.radius = description.wheel_radius
+        # The sign of physical rotation that moves the robot forward: the board's speed is
+        # physical × its count direction, and the description says which board sign is
+        # forward. Fixed when the robot is built, as the wiring is.
+        self.mount: dict[str, int] = {}
+        for wheel in description.wheels:
+            direction = 1
+            for param, channel, value in description.settings_for(wheel.board):
+                if param.name == "IncSenzCountDirection" and channel == wheel.channel:
+                    direction = int(value)
+            self.mount[wheel.name] = wheel.forward * direction
+        self.pose = pose or Pose()
+        self.t = 0.0
+        self.v = 0.0
+        self.omega = 0.0
+        self.distance = 0.0
+        self._angles: dict[str, float] | None = None
+
+    def follow(self, t: float, angles: Mapping[str, float]) -> None:
+        """The wheels stand at ``angles`` (deg, physical) at emulated time ``t`` (s)."""
+        last, self._angles = self._angles, dict(angles)
+        dt, self.t = t - self.t, t
+        if last is None:
+            return
+        ground = {name: math.radians(angles[name] - last[name]) * self.radius * self.mount[name]
+                  for name in angles}
+        left = sum(ground[n] for n in LEFT_WHEELS) / len(LEFT_WHEELS)
+        right = sum(ground[n] for n in RIGHT_WHEELS) / len(RIGHT_WHEELS)
+        distance, turn = self.kinematics.displacement(left, right)
+        self.pose = integrate_arc(self.pose, distance, turn)
+        self.distance += abs(distance)
+        if dt > 0:
+            self.v, self.omega = distance / dt, turn / dt
+
+    def state(self) -> BodyState:
+        return BodyState(self.t, self.pose, self.v, self.omega, self.distance, self.surface)

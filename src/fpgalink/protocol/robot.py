@@ -1,0 +1,448 @@
+"""The robot both sides agree on: a four-wheel skid-steered body (the seed's SSMR) whose left
+and right boards each drive the front (channel A) and rear (channel B) wheel of one side —
+described as data (a TOML file, or :data:`SEED_ROBOT_TOML`), and its kinematics.
+
+The host uses it to turn a body command into wheel references and encoder counts into
+odometry; the emulator uses the very same model to move its emulated body from the wheels'
+rotation. Nothing here does I/O or reads a clock.
+
+**Frame.** REP-103, as ROS expects: x forward, y left, z up, yaw counter-clockwise. (The
+seed's URDF puts the left wheels at y = −0.33 m, a y-right frame; its eq. 2.20 has the
+matching sign. We keep the seed's wheel names and distances and use y-left.)
+
+**Skid-steer model** (seed §2.6, eqs. 2.19–2.23, with the expanded track of Mandow et al.):
+the two wheels of a side turn together; a side's ground speed is ``v_s = r·ω_s``; the body
+moves as a differential drive whose track is the geometric one times ``χ ≥ 1``, because the
+wheels slip sideways and the body turns slower than the speed difference says::
+
+    v = (v_L + v_R) / 2                 (2.19)
+    Ω = (v_R − v_L) / (χ·B)             (2.20, REP-103 sign, B = geometric track)
+    ICR_x = −v_y / Ω = 0                (2.21: no lateral body speed in this model)
+    ICR_y = v / Ω                       (2.22)
+    R = √(ICR_x² + ICR_y²)              (2.23)
+
+χ depends on the surface; the seed's measurements (§3.6) give about 1.65 on gravel and
+1.85 on marble (docs/robot.md has the calibration).
+"""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+from fpgalink.protocol.errors import FpgalinkError, ParameterError
+from fpgalink.protocol.paramfile import Setting, parse_parameter_table
+from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
+
+__all__ = [
+    "LEFT_WHEELS",
+    "RIGHT_WHEELS",
+    "SEED_ROBOT_TOML",
+    "WHEEL_NAMES",
+    "DescriptionError",
+    "OdometryNoise",
+    "Pose",
+    "RobotDescription",
+    "SkidSteer",
+    "WheelMount",
+    "integrate_arc",
+    "load_robot",
+    "parse_robot",
+    "seed_robot",
+    "wrap_angle",
+]
+
+WHEEL_NAMES = ("FL", "BL", "FR", "BR")
+LEFT_WHEELS = ("FL", "BL")
+RIGHT_WHEELS = ("FR", "BR")
+_CHANNELS = {"A": CHANNEL_A, "B": CHANNEL_B}
+
+#: The seed's robot (SapRoover, seed §3.1 and the URDF of §3.3.4), as a robot file.
+SEED_ROBOT_TOML = """\
+# The seed's robot: a four-wheel skid-steered body, boards L and R, channel A = front wheel.
+name = "SapRoover"
+wheel_radius = 0.20        # m (wheel diameter 0.40 m)
+gear_ratio = 70            # the worm gearbox; the boards measure wheel speed after it
+max_wheel_speed = 90.0     # deg/s, at the wheel
+max_linear_speed = 0.25    # m/s (seed §3.1)
+max_angular_speed = 25.0   # deg/s (seed §3.1)
+surface = "gravel"         # the chi odometry and driving use
+
+[surfaces]                 # skid-steer expanded-track factor chi (docs/robot.md)
+ideal = 1.0
+gravel = 1.65
+marble = 1.85
+
+# Wheel positions from the seed's URDF, in REP-103 (x forward, y left). forward: the sign
+# of the board's speed that drives the robot forward.
+[wheels.FL]
+board = "L"
+channel = "A"
+x = 0.29
+y = 0.33
+forward = 1
+
+[wheels.BL]
+board = "L"
+channel = "B"
+x = -0.29
+y = 0.33
+forward = 1
+
+[wheels.FR]
+board = "R"
+channel = "A"
+x = 0.29
+y = -0.33
+forward = 1
+
+[wheels.BR]
+board = "R"
+channel = "B"
+x = -0.29
+y = -0.33
+forward = 1
+
+[odometry]                 # how fast the pose covariance grows
+distance_noise = 1e-4      # m² of position variance per m travelled
+turn_noise = 1.6e-3        # rad² of heading variance per rad turned
+drift_noise = 1e-4         # rad² of heading variance per m travelled
+
+# Loaded into every board at start (the format `fpgalink-cli param dump` writes); then
+# [board_parameters.NAME] for one board. The encoder resolution is read back from the
+# boards, never assumed.
+[parameters]
+TsTimerPeriod = 1
+
+[parameters.A]
+IncSenzRes = 500
+IncSenzCountDirection = 1
+Kp_Wheel_Pid = 520.0
+Ti_Wheel_Pid = 0.24
+Td_Wheel_Pid = 0.0
+
+[parameters.B]
+IncSenzRes = 500
+IncSenzCountDirection = 1
+Kp_Wheel_Pid = 520.0
+Ti_Wheel_Pid = 0.24
+Td_Wheel_Pid = 0.0
+"""
+
+_TOP_KEYS = frozenset({"name", "wheel_radius", "gear_ratio", "max_wheel_speed",
+                       "max_linear_speed", "max_angular_speed", "surface", "surfaces",
+                       "wheels", "odometry", "parameters", "board_parameters"})
+_WHEEL_KEYS = frozenset({"board", "channel", "x", "y", "forward"})
+_ODOMETRY_KEYS = frozenset({"distance_noise", "turn_noise", "drift_noise"})
+
+
+class DescriptionError(FpgalinkError, ValueError):
+    """A robot description that does not hold together; the message names the file and
+    the key."""
+
+
+def wrap_angle(angle: float) -> float:
+    """``angle`` in (−π, π]."""
+    wrapped = math.remainder(angle, math.tau)
+    return math.pi if wrapped == -math.pi else wrapped
+
+
+@dataclass(frozen=True, slots=True)
+class Pose:
+    """A pose in the plane: m, m, rad (REP-103, θ in (−π, π])."""
+
+    x: float = 0.0
+    y: float = 0.0
+    theta: float = 0.0
+
+
+def integrate_arc(pose: Pose, distance: float, turn: float) -> Pose:
+    """Move ``pose`` along a circular arc of length ``distance`` (m, signed) that turns by
+    ``turn`` (rad): exact for a constant body twist over the step."""
+    if abs(turn) < 1e-9:
+        forward, left = distance, distance * turn / 2  # second order, the arc's chord
+    else:
+        radius = distance / turn
+        forward, left = radius * math.sin(turn), radius * (1.0 - math.cos(turn))
+    c, s = math.cos(pose.theta), math.sin(pose.theta)
+    return Pose(pose.x + c * forward - s * left, pose.y + s * forward + c * left,
+                wrap_angle(pose.theta + turn))
+
+
+@dataclass(frozen=True, slots=True)
+class SkidSteer:
+    """The expanded-track skid-steer model (module docstring). Wheel speeds are the wheels'
+    own angular speeds in deg/s, positive when driving the body forward."""
+
+    wheel_radius: float  #: m
+    track: float  #: m, geometric (between left and right wheel centres)
+    chi: float = 1.0  #: ≥ 1, per surface
+
+    @property
+    def effective_track(self) -> float:
+        return self.chi * self.track
+
+    def side_speed(self, wheel_dps: float) -> float:
+        """A side's ground speed, m/s, for its wheels turning at ``wheel_dps``."""
+        return math.radians(wheel_dps) * self.wheel_radius
+
+    def wheel_speeds(self, v: float, omega: float) -> tuple[float, float]:
+        """(left, right) wheel speeds, deg/s, for body speed ``v`` (m/s) and yaw rate
+        ``omega`` (rad/s): the inverse of eqs. 2.19–2.20."""
+        half = omega * self.effective_track / 2.0
+        return (math.degrees((v - half) / self.wheel_radius),
+                math.degrees((v + half) / self.wheel_radius))
+
+    def body_twist(self, left_dps: float, right_dps: float) -> tuple[float, float]:
+        """(v m/s, Ω rad/s) from the sides' wheel speeds (eqs. 2.19–2.20)."""
+        v_left, v_right = self.side_speed(left_dps), self.side_speed(right_dps)
+        return (v_left + v_right) / 2.0, (v_right - v_left) / self.effective_track
+
+    def icr(self, left_dps: float, right_dps: float) -> tuple[float, float, float]:
+        """(ICR_x, ICR_y, R) in the body frame (eqs. 2.21–2.23); ``inf`` for a straight
+        line."""
+        v, omega = self.body_twist(left_dps, right_dps)
+        if omega == 0.0:
+            return 0.0, math.inf, math.inf
+        icr_y = v / omega
+        return 0.0, icr_y, abs(icr_y)
+
+    def displacement(self, left_m: float, right_m: float) -> tuple[float, float]:
+        """(distance m, turn rad) of the body for its sides rolling ``left_m``/``right_m``
+        of ground: the twist of eqs. 2.19–2.20 integrated over a step."""
+        return (left_m + right_m) / 2.0, (right_m - left_m) / self.effective_track
+
+
+@dataclass(frozen=True, slots=True)
+class WheelMount:
+    name: str  #: FL, BL, FR, BR
+    board: str  #: the board that drives it (L, R)
+    channel: int  #: that board's channel code (CHANNEL_A front, CHANNEL_B rear)
+    x: float  #: m, forward of the body centre
+    y: float  #: m, left of the body centre
+    forward: int  #: +1 or −1: the sign of the board's speed that drives the robot forward
+
+    @property
+    def left(self) -> bool:
+        return self.name in LEFT_WHEELS
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryNoise:
+    """How the odometry covariance grows (a standard odometry motion model)."""
+
+    distance_noise: float = 1e-4  #: m² per m travelled
+    turn_noise: float = 1.6e-3  #: rad² per rad turned
+    drift_noise: float = 1e-4  #: rad² per m travelled
+
+
+@dataclass(frozen=True, slots=True)
+class RobotDescription:
+    """A robot: its wheels and boards, geometry, limits, surfaces and start-up parameters."""
+
+    name: str
+    wheel_radius: float  #: m
+    gear_ratio: float
+    max_wheel_speed: float  #: deg/s
+    max_linear_speed: float  #: m/s
+    max_angular_speed: float  #: deg/s
+    wheels: tuple[WheelMount, ...]
+    surfaces: Mapping[str, float]
+    surface: str
+    odometry: OdometryNoise = field(default_factory=OdometryNoise)
+    #: settings loaded into every board at start, then each board's own
+    parameters: tuple[Setting, ...] = ()
+    board_parameters: Mapping[str, tuple[Setting, ...]] = field(default_factory=dict)
+
+    @property
+    def boards(self) -> tuple[str, ...]:
+        """Board names in wheel order (L, R for the seed's robot)."""
+        return tuple(dict.fromkeys(w.board for w in self.wheels))
+
+    def wheel(self, name: str) -> WheelMount:
+        return next(w for w in self.wheels if w.name == name)
+
+    @property
+    def track(self) -> float:
+        left = [w.y for w in self.wheels if w.left]
+        right = [w.y for w in self.wheels if not w.left]
+        return sum(left) / len(left) - sum(right) / len(right)
+
+    @property
+    def wheelbase(self) -> float:
+        return self.wheel("FL").x - self.wheel("BL").x
+
+    @property
+    def chi(self) -> float:
+        return self.surfaces[self.surface]
+
+    @property
+    def max_angular_speed_rad(self) -> float:
+        return math.radians(self.max_angular_speed)
+
+    def kinematics(self, surface: str | None = None) -> SkidSteer:
+        chi = self.surfaces[surface] if surface is not None else self.chi
+        return SkidSteer(self.wheel_radius, self.track, chi)
+
+    def on_surface(self, surface: str) -> RobotDescription:
+        """The same robot, driving (and computing odometry) for ``surface``."""
+        if surface not in self.surfaces:
+            raise DescriptionError(f"no surface {surface!r}; the robot knows "
+                                   f"{', '.join(sorted(self.surfaces))}")
+        return replace(self, surface=surface)
+
+    def settings_for(self, board: str) -> list[Setting]:
+        """Start-up settings of ``board``: the common ones, then its own (which win)."""
+        chosen: dict[tuple[int, int], Setting] = {}
+        for setting in (*self.parameters, *self.board_parameters.get(board, ())):
+            chosen[(setting[0].id, setting[1])] = setting
+        return list(chosen.values())
+
+
+def _number(table: Mapping[str, Any], key: str, where: str, *, low: float = 0.0,
+            low_open: bool = True, high: float = math.inf) -> float:
+    if key not in table:
+        raise DescriptionError(f"{where}{key}: missing")
+    value = table[key]
+    if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(
+            value) or value < low or (low_open and value == low) or value > high:
+        bound = f"> {low:g}" if low_open else f"≥ {low:g}"
+        if high != math.inf:
+            bound += f" and ≤ {high:g}"
+        raise DescriptionError(f"{where}{key}: must be a finite number {bound}, got {value!r}")
+    return float(value)
+
+
+def _unknown(table: Mapping[str, Any], known: frozenset[str], where: str) -> None:
+    extra = sorted(set(table) - known)
+    if extra:
+        raise DescriptionError(f"{where}{extra[0]}: unknown key (known: "
+                               f"{', '.join(sorted(known))})")
+
+
+def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> RobotDescription:
+    """A robot file (TOML text, or the parsed table) → a validated description;
+    :class:`DescriptionError` naming ``source`` and the key otherwise."""
+    if isinstance(document, str):
+        try:
+            document = tomllib.loads(document)
+        except tomllib.TOMLDecodeError as exc:
+            raise DescriptionError(f"{source}: not valid TOML: {exc}") from None
+    where = f"{source}: "
+    _unknown(document, _TOP_KEYS, where)
+    name = document.get("name", "robot")
+    if not isinstance(name, str):
+        raise DescriptionError(f"{where}name: must be a string, got {name!r}")
+    radius = _number(document, "wheel_radius", where, high=10.0)
+    gear = _number(document, "gear_ratio", where)
+    max_wheel = _number(document, "max_wheel_speed", where, high=1e5)
+    max_v = _number(document, "max_linear_speed", where, high=100.0)
+    max_w = _number(document, "max_angular_speed", where, high=1e4)
+
+    surfaces_table = document.get("surfaces", {"ideal": 1.0})
+    if not isinstance(surfaces_table, dict) or not surfaces_table:
+        raise DescriptionError(f"{where}surfaces: must be a table of NAME = chi")
+    surfaces = {str(k): _number(surfaces_table, k, f"{where}surfaces.", low=1.0,
+                                low_open=False, high=10.0) for k in surfaces_table}
+    surface = document.get("surface", next(iter(surfaces)))
+    if surface not in surfaces:
+        raise DescriptionError(f"{where}surface: {surface!r} is not in [surfaces] "
+                               f"({', '.join(sorted(surfaces))})")
+
+    wheels_table = document.get("wheels")
+    if not isinstance(wheels_table, dict):
+        raise DescriptionError(f"{where}wheels: missing (tables [wheels.FL], [wheels.BL], "
+                               "[wheels.FR], [wheels.BR])")
+    _unknown(wheels_table, frozenset(WHEEL_NAMES), f"{where}wheels.")
+    wheels = []
+    for wheel_name in WHEEL_NAMES:
+        entry = wheels_table.get(wheel_name)
+        at = f"{where}wheels.{wheel_name}."
+        if not isinstance(entry, dict):
+            raise DescriptionError(f"{where}wheels.{wheel_name}: missing")
+        _unknown(entry, _WHEEL_KEYS, at)
+        board = entry.get("board")
+        if not isinstance(board, str) or not board.strip():
+            raise DescriptionError(f"{at}board: must be a board name such as \"L\", "
+                                   f"got {board!r}")
+        channel = entry.get("channel")
+        if channel not in _CHANNELS:
+            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got {channel!r}")
+        forward = entry.get("forward", 1)
+        if forward not in (1, -1) or isinstance(forward, bool):
+            raise DescriptionError(f"{at}forward: must be 1 or -1, got {forward!r}")
+        x = _number(entry, "x", at, low=-100.0, low_open=False, high=100.0)
+        y = _number(entry, "y", at, low=-100.0, low_open=False, high=100.0)
+        if (y > 0) != (wheel_name in LEFT_WHEELS) or y == 0:
+            side = "left (y > 0)" if wheel_name in LEFT_WHEELS else "right (y < 0)"
+            raise DescriptionError(f"{at}y: {wheel_name} is a {side} wheel in REP-103 "
+                                   f"(x forward, y left), got {y!r}")
+        wheels.append(WheelMount(wheel_name, board.strip(), _CHANNELS[channel], x, y,
+                                 int(forward)))
+    used: dict[tuple[str, int], str] = {}
+    for wheel in wheels:
+        other = used.setdefault((wheel.board, wheel.channel), wheel.name)
+        if other != wheel.name:
+            raise DescriptionError(f"{where}wheels.{wheel.name}: board {wheel.board} channel "
+                                   f"{'AB'[wheel.channel - 1]} already drives {other}")
+
+    odometry_table = document.get("odometry", {})
+    if not isinstance(odometry_table, dict):
+        raise DescriptionError(f"{where}odometry: must be a table")
+    _unknown(odometry_table, _ODOMETRY_KEYS, f"{where}odometry.")
+    noise = OdometryNoise(**{
+        key: _number(odometry_table, key, f"{where}odometry.", low=0.0, low_open=False,
+                     high=1.0)
+        for key in _ODOMETRY_KEYS if key in odometry_table})
+
+    boards = tuple(dict.fromkeys(w.board for w in wheels))
+    common = _settings(document.get("parameters", {}), f"{where}parameters")
+    per_board: dict[str, tuple[Setting, ...]] = {}
+    board_table = document.get("board_parameters", {})
+    if not isinstance(board_table, dict):
+        raise DescriptionError(f"{where}board_parameters: must be tables [board_parameters.NAME]")
+    for board_name, table in board_table.items():
+        if board_name not in boards:
+            raise DescriptionError(f"{where}board_parameters.{board_name}: no such board "
+                                   f"(the wheels name {', '.join(boards)})")
+        per_board[board_name] = _settings(table, f"{where}board_parameters.{board_name}")
+
+    description = RobotDescription(
+        name=name, wheel_radius=radius, gear_ratio=gear, max_wheel_speed=max_wheel,
+        max_linear_speed=max_v, max_angular_speed=max_w, wheels=tuple(wheels),
+        surfaces=surfaces, surface=str(surface), odometry=noise, parameters=common,
+        board_parameters=per_board)
+    if description.track <= 0 or description.wheelbase < 0:
+        raise DescriptionError(f"{where}wheels: the left wheels must be left of the right "
+                               "ones and the front wheels ahead of the rear ones")
+    return description
+
+
+def _settings(table: object, where: str) -> tuple[Setting, ...]:
+    if not isinstance(table, dict):
+        raise DescriptionError(f"{where}: must be a table of parameter values")
+    try:
+        return tuple(parse_parameter_table(table, where))
+    except ParameterError as exc:
+        raise DescriptionError(str(exc)) from None
+
+
+def load_robot(path: str, text: str | None = None) -> RobotDescription:
+    """The robot file at ``path`` (``text`` when the caller already read it)."""
+    if text is None:
+        try:
+            with open(path, encoding="utf-8") as stream:
+                text = stream.read()
+        except OSError as exc:
+            raise DescriptionError(f"{path}: cannot read: {exc.strerror or exc}") from None
+        except UnicodeDecodeError:
+            raise DescriptionError(f"{path}: not UTF-8 text") from None
+    return parse_robot(text, path)
+
+
+def seed_robot() -> RobotDescription:
+    """The seed's robot, as :data:`SEED_ROBOT_TOML` describes it."""
+    return parse_robot(SEED_ROBOT_TOML, "the built-in seed robot")

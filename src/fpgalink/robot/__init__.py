@@ -1,0 +1,93 @@
+"""The robot: two boards as one skid-steered base (seed §2.6, §3.3, §3.5).
+
+* the description and the skid-steer model, shared with the emulator, live in
+  :mod:`fpgalink.protocol.robot` (re-exported here);
+* :mod:`.drive` — body command → wheel references, limits keeping the curvature;
+* :mod:`.odometry` — pose from encoder counts, with a covariance;
+* :mod:`.supervision` — the deadman and the boards' liveness, as a table;
+* :mod:`.goto` — the seed's position controller (Algorithm 1);
+* :mod:`.robot` — :class:`Robot`, all of it over one asyncio link per board.
+
+Everything but :class:`Robot` is sans-I/O: time is passed in. Names load on first use.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING
+
+_HOMES = {
+    "DescriptionError": "fpgalink.protocol.robot",
+    "Pose": "fpgalink.protocol.robot",
+    "RobotDescription": "fpgalink.protocol.robot",
+    "SkidSteer": "fpgalink.protocol.robot",
+    "load_robot": "fpgalink.protocol.robot",
+    "parse_robot": "fpgalink.protocol.robot",
+    "seed_robot": "fpgalink.protocol.robot",
+    "WheelCommand": "fpgalink.robot.drive",
+    "wheel_command": "fpgalink.robot.drive",
+    "Odometry": "fpgalink.robot.odometry",
+    "OdometryState": "fpgalink.robot.odometry",
+    "NotReady": "fpgalink.robot.supervision",
+    "StopReason": "fpgalink.robot.supervision",
+    "SupervisionEvent": "fpgalink.robot.supervision",
+    "Supervisor": "fpgalink.robot.supervision",
+    "GoTo": "fpgalink.robot.goto",
+    "GoToSettings": "fpgalink.robot.goto",
+    "Phase": "fpgalink.robot.goto",
+    "GoalTimeout": "fpgalink.robot.robot",
+    "Robot": "fpgalink.robot.robot",
+    "RobotError": "fpgalink.robot.robot",
+    "RobotStopped": "fpgalink.robot.robot",
+}
+
+if TYPE_CHECKING:
+    from fpgalink.protocol.robot import (
+        DescriptionError,
+        Pose,
+        RobotDescription,
+        SkidSteer,
+        load_robot,
+        parse_robot,
+        seed_robot,
+    )
+    from fpgalink.robot.drive import WheelCommand, wheel_command
+    from fpgalink.robot.goto import GoTo, GoToSettings, Phase
+    from fpgalink.robot.odometry import Odometry, OdometryState
+    from fpgalink.robot.robot import GoalTimeout, Robot, RobotError, RobotStopped
+    from fpgalink.robot.supervision import NotReady, StopReason, SupervisionEvent, Supervisor
+
+
+def __getattr__(name: str) -> object:
+    home = _HOMES.get(name)
+    if home is None:
+        raise AttributeError(f"module 'fpgalink.robot' has no attribute {name!r}")
+    value = getattr(importlib.import_module(home), name)
+    globals()[name] = value
+    return value
+
+
+__all__ = [
+    "DescriptionError",
+    "GoTo",
+    "GoToSettings",
+    "GoalTimeout",
+    "NotReady",
+    "Odometry",
+    "OdometryState",
+    "Phase",
+    "Pose",
+    "Robot",
+    "RobotDescription",
+    "RobotError",
+    "RobotStopped",
+    "SkidSteer",
+    "StopReason",
+    "SupervisionEvent",
+    "Supervisor",
+    "WheelCommand",
+    "load_robot",
+    "parse_robot",
+    "seed_robot",
+    "wheel_command",
+]

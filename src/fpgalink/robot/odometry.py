@@ -1,0 +1,170 @@
+"""Wheel odometry from encoder counts (the seed's WheelOdometry node), sans-I/O.
+
+Pose comes from the wheels' encoder *positions* — the exact integral of their rotation —
+never from integrating reported speeds, so it does not drift with sample timing or lost
+telemetry: a lost ``TM`` only makes the next step longer. Counts are i32 on the wire and
+wrap; differences are taken modulo 2³². Each step moves the body along an arc through the
+skid-steer model (:meth:`~fpgalink.protocol.robot.SkidSteer.displacement`), and the pose
+covariance grows by a standard odometry motion model (:class:`OdometryNoise`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from fpgalink.protocol import Telemetry
+from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
+from fpgalink.protocol.robot import (
+    LEFT_WHEELS,
+    RIGHT_WHEELS,
+    Pose,
+    RobotDescription,
+    SkidSteer,
+    integrate_arc,
+)
+
+__all__ = ["Odometry", "OdometryState", "count_delta"]
+
+_WRAP = 1 << 32
+_HALF = 1 << 31
+
+Matrix = list[list[float]]
+
+
+def count_delta(new: int, old: int) -> int:
+    """``new − old`` for i32 encoder counts, across the wrap at ±2³¹."""
+    return (new - old + _HALF) % _WRAP - _HALF
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryState:
+    """What :class:`Odometry` knows at one moment."""
+
+    pose: Pose
+    v: float  #: m/s, body speed (from the wheels' measured speeds)
+    omega: float  #: rad/s
+    covariance: tuple[tuple[float, ...], ...]  #: 3×3 over (x, y, θ)
+    distance: float  #: m travelled (path length)
+    turned: float  #: rad turned (absolute)
+
+
+class Odometry:
+    """Feed it each board's telemetry (:meth:`update`); read :attr:`pose`, :attr:`state`.
+    The body moves one step each time every board has reported (once a period at 1 kHz
+    telemetry); a board whose samples are lost only makes the next step longer.
+
+    The encoder resolution of every wheel must be given first (:meth:`set_resolution`,
+    from the boards' ``IncSenzRes``): it is read from the boards, never assumed."""
+
+    def __init__(self, description: RobotDescription, kinematics: SkidSteer | None = None,
+                 pose: Pose | None = None) -> None:
+        self.description = description
+        self.kinematics = kinematics or description.kinematics()
+        self.pose = pose or Pose()
+        self.covariance: Matrix = [[0.0] * 3 for _ in range(3)]
+        self.v = 0.0
+        self.omega = 0.0
+        self.distance = 0.0
+        self.turned = 0.0
+        self.steps = 0
+        self._wheels = {(w.board, w.channel): w for w in description.wheels}
+        self._counts_per_turn: dict[str, int] = {}
+        self._last_counts: dict[str, int] = {}
+        self._unintegrated: dict[str, float] = {w.name: 0.0 for w in description.wheels}
+        self._speeds: dict[str, float] = {w.name: 0.0 for w in description.wheels}
+        self._boards = frozenset(description.boards)
+        self._fresh: set[str] = set()
+
+    def set_resolution(self, board: str, channel: int, pulses_per_turn: int) -> None:
+        """The wheel on ``board``/``channel`` has ``pulses_per_turn`` encoder pulses a turn
+        (the board counts 10 per pulse, SPEC §5)."""
+        wheel = self._wheels.get((board, channel))
+        if wheel is None:
+            raise ValueError(f"no wheel on board {board!r} channel {channel}")
+        if pulses_per_turn <= 0:
+            raise ValueError(f"{wheel.name}: the board reports {pulses_per_turn} encoder "
+                             "pulses per turn; odometry needs a positive resolution")
+        self._counts_per_turn[wheel.name] = 10 * pulses_per_turn
+
+    @property
+    def ready(self) -> bool:
+        return len(self._counts_per_turn) == len(self._wheels)
+
+    def reset(self, pose: Pose | None = None) -> None:
+        """Start again from ``pose`` with zero covariance (counts keep their reference)."""
+        self.pose = pose or Pose()
+        self.covariance = [[0.0] * 3 for _ in range(3)]
+        self.distance = self.turned = 0.0
+
+    def update(self, board: str, sample: Telemetry) -> None:
+        """One ``TM`` of ``board``: its wheels' positions and speeds."""
+        for channel, data in ((CHANNEL_A, sample.a), (CHANNEL_B, sample.b)):
+            wheel = self._wheels.get((board, channel))
+            if wheel is None:
+                continue
+            per_turn = self._counts_per_turn.get(wheel.name)
+            if per_turn is None:
+                raise ValueError(f"{wheel.name}: encoder resolution not known yet "
+                                 "(set_resolution from the board's IncSenzRes)")
+            last = self._last_counts.get(wheel.name)
+            self._last_counts[wheel.name] = data.position
+            if math.isfinite(data.speed):
+                self._speeds[wheel.name] = data.speed * wheel.forward
+            if last is None:
+                continue  # the first sample only sets the reference
+            turns = count_delta(data.position, last) / per_turn
+            self._unintegrated[wheel.name] += (
+                turns * math.tau * self.description.wheel_radius * wheel.forward)
+        # Integrate once every board has reported since the last step: a step then moves
+        # both sides together (one board at a time would zig-zag the heading, and a turn in
+        # place would add path length).
+        self._fresh.add(board)
+        if self._fresh >= self._boards:
+            self._fresh.clear()
+            self._integrate()
+        self._update_twist()
+
+    def _integrate(self) -> None:
+        left, right = LEFT_WHEELS, RIGHT_WHEELS
+        left_m = sum(self._unintegrated[n] for n in left) / len(left)
+        right_m = sum(self._unintegrated[n] for n in right) / len(right)
+        for name in self._unintegrated:
+            self._unintegrated[name] = 0.0
+        if left_m == 0.0 and right_m == 0.0:
+            return
+        distance, turn = self.kinematics.displacement(left_m, right_m)
+        self._propagate(distance, turn)
+        self.pose = integrate_arc(self.pose, distance, turn)
+        self.distance += abs(distance)
+        self.turned += abs(turn)
+        self.steps += 1
+
+    def _propagate(self, distance: float, turn: float) -> None:
+        """P ← G P Gᵀ + V M Vᵀ for a step (distance, turn) from the current pose."""
+        mid = self.pose.theta + turn / 2.0
+        c, s = math.cos(mid), math.sin(mid)
+        g = [[1.0, 0.0, -distance * s], [0.0, 1.0, distance * c], [0.0, 0.0, 1.0]]
+        v = [[c, -distance * s / 2.0], [s, distance * c / 2.0], [0.0, 1.0]]
+        noise = self.description.odometry
+        m = (noise.distance_noise * abs(distance),
+             noise.turn_noise * abs(turn) + noise.drift_noise * abs(distance))
+        p = self.covariance
+        gp = [[sum(g[i][k] * p[k][j] for k in range(3)) for j in range(3)] for i in range(3)]
+        self.covariance = [
+            [sum(gp[i][k] * g[j][k] for k in range(3))
+             + v[i][0] * m[0] * v[j][0] + v[i][1] * m[1] * v[j][1] for j in range(3)]
+            for i in range(3)
+        ]
+
+    def _update_twist(self) -> None:
+        speeds = self._speeds
+        left = (speeds["FL"] + speeds["BL"]) / 2.0
+        right = (speeds["FR"] + speeds["BR"]) / 2.0
+        self.v, self.omega = self.kinematics.body_twist(left, right)
+
+    @property
+    def state(self) -> OdometryState:
+        return OdometryState(self.pose, self.v, self.omega,
+                             tuple(tuple(row) for row in self.covariance),
+                             self.distance, self.turned)

@@ -1,0 +1,413 @@
+"""The robot over asyncio: one :class:`~fpgalink.aio.Link` per board, with the sans-I/O
+parts (:mod:`.drive`, :mod:`.odometry`, :mod:`.supervision`, :mod:`.goto`) fed from the
+links' telemetry and events and the loop's clock.
+
+    async with Robot.open(seed_robot(), {"L": "emu://robot/L", "R": "emu://robot/R"}) as robot:
+        async with robot.enabled():          # the deadman, renewed while the block runs
+            await robot.go_to(1.0, 0.5)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import math
+from collections.abc import AsyncIterator, Callable, Mapping
+from typing import Any
+
+from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open_link
+from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import Telemetry
+from fpgalink.protocol.robot import Pose, RobotDescription
+from fpgalink.robot.drive import WheelCommand, wheel_command
+from fpgalink.robot.goto import GoTo, GoToCommand, GoToSettings
+from fpgalink.robot.odometry import Odometry, OdometryState
+from fpgalink.robot.supervision import (
+    DEADMAN_S,
+    Action,
+    NotReady,
+    State,
+    SupervisionEvent,
+    Supervisor,
+)
+
+__all__ = ["TRUTH_EXTRA", "GoalTimeout", "Robot", "RobotError", "RobotStopped"]
+
+#: What an emulated robot's transport offers for its true pose (see fpgaemu.serve).
+TRUTH_EXTRA = "fpgaemu.truth"
+#: How often :meth:`Robot.enabled` renews the deadman (well inside the 0.5 s).
+RENEW_S = 0.1
+#: Below these the robot counts as at rest (m/s, rad/s).
+SETTLED_SPEED = 0.005
+SETTLED_TURN = math.radians(0.5)
+#: How long :meth:`Robot.start` waits for every board to be heard.
+START_TIMEOUT_S = 5.0
+
+
+class RobotError(FpgalinkError):
+    """The robot cannot do what was asked (not started, a board missing, bad settings)."""
+
+
+class RobotStopped(RobotError):
+    """Supervision stopped the robot (``event`` says why), or it was not enabled."""
+
+    def __init__(self, message: str, event: SupervisionEvent | None = None) -> None:
+        super().__init__(message)
+        self.event = event
+
+
+class GoalTimeout(RobotError):
+    """``go_to`` did not arrive in time; the robot was stopped."""
+
+
+class Robot:
+    """A skid-steered robot whose boards are reached through ``links`` (board name → link,
+    as the description names them). The robot owns the links: it opens and closes them."""
+
+    def __init__(self, description: RobotDescription, links: Mapping[str, Link], *,
+                 deadman_s: float = DEADMAN_S, control_period: float = 0.02,
+                 goto_settings: GoToSettings | None = None) -> None:
+        missing = sorted(set(description.boards) - set(links))
+        extra = sorted(set(links) - set(description.boards))
+        if missing or extra:
+            raise RobotError(f"the robot's boards are {', '.join(description.boards)}; "
+                             f"links given for {', '.join(sorted(links)) or 'none'}")
+        if not (math.isfinite(control_period) and 0 < control_period <= 1):
+            raise ValueError(f"control_period must be in (0, 1] s, got {control_period!r}")
+        self.description = description
+        self.links = dict(links)
+        self.control_period = control_period
+        self.goto_settings = goto_settings or GoToSettings(
+            max_speed=description.max_linear_speed,
+            max_turn_rate=description.max_angular_speed_rad)
+        self.kinematics = description.kinematics()
+        self.odometry = Odometry(description, self.kinematics)
+        self.supervisor = Supervisor(description.boards, deadman_s)
+        self.command: WheelCommand | None = None
+        self.resolution: dict[tuple[str, int], int] = {}
+        self._tasks: list[asyncio.Task[None]] = []
+        self._removers: list[Callable[[], None]] = []
+        self._subs: set[Subscription[SupervisionEvent]] = set()
+        self._timer: asyncio.TimerHandle | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._streaming_before: dict[str, int | float] = {}
+        self._started = False
+        self._stopped_event = asyncio.Event()
+
+    @classmethod
+    def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
+             baud: int = 1_000_000, **options: Any) -> Robot:
+        """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
+        ``options`` go to the robot (deadman_s, control_period, goto_settings)."""
+        links = {name: open_link(url, baud, name=name) for name, url in ports.items()}
+        return cls(description, links, **options)
+
+    # --- lifecycle ------------------------------------------------------------------------
+
+    async def start(self) -> Robot:
+        """Open the links, wait for every board, load the description's parameters, read
+        each wheel's encoder resolution back from its board, and turn telemetry on."""
+        self._loop = asyncio.get_running_loop()
+        try:
+            await asyncio.gather(*(link.open() for link in self.links.values()))
+            await self._wait_for_boards()
+            for name, link in self.links.items():
+                await self._configure(name, link)
+        except BaseException:
+            await self._close_links()
+            raise
+        for name, link in self.links.items():
+            self.supervisor.board_alive(name, link.board_alive, self._now())
+            self._tasks.append(asyncio.ensure_future(self._follow_telemetry(name, link)))
+            # Synchronously: the other boards get RD in the very callback that notices.
+            self._removers.append(link.on_event(functools.partial(self._on_link_event, name,
+                                                                  link)))
+        self._started = True
+        return self
+
+    async def _wait_for_boards(self) -> None:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + START_TIMEOUT_S
+        while not all(link.board_alive for link in self.links.values()):
+            if loop.time() > deadline:
+                silent = [n for n, lk in self.links.items() if not lk.board_alive]
+                raise RobotError(f"board {', '.join(silent)} not answering after "
+                                 f"{START_TIMEOUT_S:g} s")
+            await asyncio.sleep(0.01)
+
+    async def _configure(self, name: str, link: Link) -> None:
+        settings = self.description.settings_for(name)
+        for param, channel, value in settings:
+            try:
+                await link.set_param(param.id, value, channel or None)
+            except FpgalinkError as exc:
+                raise RobotError(f"board {name}: loading {param.full_name(channel)} = "
+                                 f"{value}: {exc}") from exc
+        for wheel in self.description.wheels:
+            if wheel.board != name:
+                continue
+            pulses = int(await link.get_param("IncSenzRes", wheel.channel))
+            self.resolution[(name, wheel.channel)] = pulses
+            try:
+                self.odometry.set_resolution(name, wheel.channel, pulses)
+            except ValueError as exc:
+                raise RobotError(f"board {name}: {exc}") from None
+        self._streaming_before[name] = await link.get_param("GetDataPeriodical")
+        await link.set_param("GetDataPeriodical", 1)
+
+    async def close(self) -> None:
+        """Disable every board, restore their telemetry setting, close the links."""
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        if self.supervisor.state is State.ENABLED:
+            self._carry_out(self.supervisor.request_disable(self._now()))
+        for remove in self._removers:
+            remove()
+        self._removers.clear()
+        for task in self._tasks:
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        self._tasks.clear()
+        for name, link in self.links.items():
+            before = self._streaming_before.get(name)
+            if before is not None and before != 1 and link.board_alive:
+                with contextlib.suppress(FpgalinkError):
+                    await link.set_param("GetDataPeriodical", before)
+        await self._close_links()
+        for sub in list(self._subs):
+            sub._end()
+        self._subs.clear()
+
+    async def _close_links(self) -> None:
+        await asyncio.gather(*(link.close() for link in self.links.values()),
+                             return_exceptions=True)
+
+    async def __aenter__(self) -> Robot:
+        return await self.start()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    # --- supervision ----------------------------------------------------------------------
+
+    def enable(self) -> None:
+        """Enable the robot, or renew the enable: it must be renewed at least every
+        ``deadman_s`` (0.5 s) or every board is disabled. :class:`RobotStopped` (from
+        :class:`~fpgalink.robot.supervision.NotReady`) when a board is not answering."""
+        self._ensure_started()
+        try:
+            actions = self.supervisor.request_enable(self._now())
+        except NotReady as exc:
+            self._carry_out(exc.actions)
+            raise RobotStopped(str(exc), self.supervisor.last_stop) from None
+        self._carry_out(actions)
+
+    def disable(self) -> None:
+        """Disable every board now (``RD``)."""
+        self._ensure_started()
+        self._carry_out(self.supervisor.request_disable(self._now()))
+
+    @contextlib.asynccontextmanager
+    async def enabled(self, renew_every: float = RENEW_S) -> AsyncIterator[Robot]:
+        """Enabled while the block runs: the deadman is renewed every ``renew_every`` s (so
+        a stalled loop still lets it lapse), and the robot is stopped and disabled on the
+        way out, however the block ends."""
+        self.enable()
+
+        async def renew() -> None:
+            while self.supervisor.state is State.ENABLED:
+                await asyncio.sleep(renew_every)
+                with contextlib.suppress(RobotStopped):
+                    if self.supervisor.state is State.ENABLED:
+                        self.enable()
+
+        task = asyncio.ensure_future(renew())
+        try:
+            yield self
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+            if self.supervisor.state is State.ENABLED:
+                with contextlib.suppress(FpgalinkError):
+                    self.stop()
+                self.disable()
+
+    @property
+    def state(self) -> State:
+        return self.supervisor.state
+
+    @property
+    def last_stop(self) -> SupervisionEvent | None:
+        return self.supervisor.last_stop
+
+    def events(self, maxsize: int = 64) -> Subscription[SupervisionEvent]:
+        """Supervision events (enabled, stopped and why) as an async iterator."""
+        sub: Subscription[SupervisionEvent] = Subscription(maxsize, self._subs.discard)
+        self._subs.add(sub)
+        return sub
+
+    def _carry_out(self, actions: list[Action]) -> None:
+        for action in actions:
+            for link in self.links.values():
+                with contextlib.suppress(FpgalinkError):
+                    if action is Action.ENABLE_ALL:
+                        # Zero first: a board keeps its last references while disabled,
+                        # and must not drive off with them when enabled again.
+                        link.set_references(0.0, 0.0)
+                        link.enable()
+                    elif action is Action.DISABLE_ALL:
+                        link.disable()
+                        link.set_references(0.0, 0.0)
+        if any(a is Action.DISABLE_ALL for a in actions):
+            self.command = None
+        for event in self.supervisor.events():
+            if event.state is State.DISABLED:
+                self._stopped_event.set()
+            for sub in self._subs:
+                sub._push(event)
+        self._arm_timer()
+
+    def _arm_timer(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        deadline = self.supervisor.get_timer()
+        if deadline is not None and self._loop is not None:
+            self._timer = self._loop.call_at(deadline, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._carry_out(self.supervisor.handle_timer(self._now()))
+
+    def _on_link_event(self, name: str, link: Link, event: LinkEvent) -> None:
+        lost = event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
+                              LinkEventKind.CLOSED)
+        if lost:
+            detail = event.detail or event.kind.value.replace("_", " ")
+            self._carry_out(self.supervisor.board_alive(name, False, self._now(), detail))
+        elif link.board_alive:
+            self.supervisor.board_alive(name, True, self._now())
+
+    async def _follow_telemetry(self, name: str, link: Link) -> None:
+        async for sample in link.telemetry(maxsize=4096):
+            self._on_telemetry(name, sample)
+
+    def _on_telemetry(self, name: str, sample: Telemetry) -> None:
+        self.odometry.update(name, sample)
+
+    # --- driving --------------------------------------------------------------------------
+
+    def drive(self, v: float, omega: float) -> WheelCommand:
+        """Drive at body speed ``v`` (m/s) and yaw rate ``omega`` (rad/s, counter-clockwise
+        positive): every board gets its ``RV`` now, in this call. Limits scale the command
+        keeping its curvature; non-finite values raise and nothing is sent;
+        :class:`RobotStopped` unless enabled."""
+        self._ensure_started()
+        command = wheel_command(self.description, v, omega, self.kinematics)
+        if self.supervisor.state is not State.ENABLED:
+            stop = self.supervisor.last_stop
+            raise RobotStopped("the robot is not enabled" + (
+                f" ({stop.describe()})" if stop else ""), stop)
+        for board, (ref_a, ref_b) in command.references.items():
+            self.links[board].set_references(ref_a, ref_b)
+        self.command = command
+        return command
+
+    def stop(self) -> None:
+        """Zero references to every board (still enabled)."""
+        for link in self.links.values():
+            with contextlib.suppress(FpgalinkError):
+                link.set_references(0.0, 0.0)
+        self.command = None
+
+    async def go_to(self, x: float, y: float, theta: float | None = None, *,
+                    timeout: float = 60.0, settings: GoToSettings | None = None,
+                    on_step: Callable[[GoToCommand], None] | None = None) -> Pose:
+        """Drive to (``x``, ``y``) in the odometry frame (and turn to ``theta`` rad, if
+        given) with the seed's position controller. Returns the pose on arrival; raises
+        :class:`GoalTimeout` (robot stopped) when not there within ``timeout`` s, and
+        :class:`RobotStopped` when supervision stops the robot meanwhile. The robot must be
+        enabled, and its enable renewed (:meth:`enabled`) while it drives."""
+        if not (math.isfinite(timeout) and timeout > 0):
+            raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
+        controller = GoTo(x, y, theta, settings or self.goto_settings)
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        self._stopped_event.clear()
+        try:
+            while True:
+                if self.supervisor.state is not State.ENABLED:
+                    stop = self.supervisor.last_stop
+                    raise RobotStopped("go_to stopped: " + (
+                        stop.describe() if stop else "the robot is not enabled"), stop)
+                step = controller.step(self.odometry.pose, loop.time())
+                if on_step is not None:
+                    on_step(step)
+                if controller.done:
+                    self.stop()
+                    if await self._settled(deadline) and controller.arrived(
+                            self.odometry.pose):
+                        return self.odometry.pose
+                    # It rolled out of the tolerance while stopping: go on from here.
+                    controller = GoTo(x, y, theta, controller.settings)
+                    continue
+                if loop.time() > deadline:
+                    self.stop()
+                    raise GoalTimeout(
+                        f"not at ({x:g}, {y:g}) after {timeout:g} s: {step.distance:.2f} m "
+                        f"away, {math.degrees(step.heading_error):.0f}° off, phase "
+                        f"{step.phase.value}")
+                self.drive(step.v, step.omega)
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._stopped_event.wait(), self.control_period)
+        except BaseException:
+            if self.supervisor.state is State.ENABLED:
+                self.stop()
+            raise
+
+    async def _settled(self, deadline: float) -> bool:
+        """Wait until the wheels have stopped (or ``deadline``): an arrival counts at rest."""
+        loop = asyncio.get_running_loop()
+        while loop.time() < deadline:
+            if abs(self.odometry.v) < SETTLED_SPEED and abs(self.odometry.omega) < SETTLED_TURN:
+                return True
+            if self.supervisor.state is not State.ENABLED:
+                return False
+            await asyncio.sleep(self.control_period)
+        return False
+
+    # --- state ----------------------------------------------------------------------------
+
+    @property
+    def pose(self) -> Pose:
+        return self.odometry.pose
+
+    @property
+    def odometry_state(self) -> OdometryState:
+        return self.odometry.state
+
+    def truth(self) -> dict[str, Any] | None:
+        """The true pose when the robot is emulated (``None`` on hardware)."""
+        for link in self.links.values():
+            source = link.get_extra_info(TRUTH_EXTRA)
+            if source is not None:
+                record: dict[str, Any] = source()
+                return record
+        return None
+
+    def _now(self) -> float:
+        loop = self._loop or asyncio.get_running_loop()
+        return loop.time()
+
+    def _ensure_started(self) -> None:
+        if not self._started:
+            raise RobotError("the robot is not started: use `async with robot:` or "
+                             "`await robot.start()`")
+
+    def wheel_resolution(self, board: str, channel: int) -> int:
+        """Encoder pulses per turn, as read from the board at start."""
+        return self.resolution[(board, channel)]
+

@@ -1,0 +1,140 @@
+"""Odometry: from encoder counts (wrap-safe), checked on made-up counts against exact
+geometry and against the emulated robot's true pose."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from fpgalink.protocol import ChannelTelemetry, Telemetry
+from fpgalink.protocol.robot import Pose, seed_robot
+from fpgalink.robot.odometry import Odometry, count_delta
+from tests.support.robotsim import RobotSim
+
+ROBOT = seed_robot().on_surface("ideal")
+COUNTS_PER_TURN = 5000  # IncSenzRes 500
+
+
+def sample(t_us: int, a: int, b: int, speed: float = 0.0) -> Telemetry:
+    return Telemetry(t_us, ChannelTelemetry(a, speed, 0.0, 0, 0.0, 1),
+                     ChannelTelemetry(b, speed, 0.0, 0, 0.0, 1))
+
+
+def odometry(start: int = 0) -> Odometry:
+    odo = Odometry(ROBOT)
+    for board in ("L", "R"):
+        for channel in (1, 2):
+            odo.set_resolution(board, channel, 500)
+    odo.update("L", sample(0, start, start))
+    odo.update("R", sample(0, start, start))
+    return odo
+
+
+def drive_counts(odo: Odometry, left: int, right: int, steps: int, start: int = 0) -> None:
+    """Both sides advance by ``left``/``right`` counts in ``steps`` equal steps."""
+    for k in range(1, steps + 1):
+        l_count = (start + round(left * k / steps) + 2**31) % 2**32 - 2**31
+        r_count = (start + round(right * k / steps) + 2**31) % 2**32 - 2**31
+        odo.update("L", sample(k * 1000, l_count, l_count))
+        odo.update("R", sample(k * 1000, r_count, r_count))
+
+
+def test_count_differences_across_the_i32_wrap() -> None:
+    assert count_delta(-2**31 + 5, 2**31 - 5) == 10
+    assert count_delta(2**31 - 5, -2**31 + 5) == -10
+    assert count_delta(7, 3) == 4
+
+
+@pytest.mark.parametrize("start", [0, 2**31 - 2_000])  # the second crosses the wrap
+def test_a_straight_line_from_counts(start: int) -> None:
+    odo = odometry(start)
+    turns = 2.0 / (math.tau * 0.2)  # 2 m of wheel rim
+    drive_counts(odo, round(turns * COUNTS_PER_TURN), round(turns * COUNTS_PER_TURN), 400,
+                 start)
+    assert odo.pose.x == pytest.approx(2.0, abs=2e-4)
+    assert odo.pose.y == pytest.approx(0.0, abs=1e-9) and odo.pose.theta == pytest.approx(0.0)
+    assert odo.distance == pytest.approx(2.0, abs=2e-4)
+
+
+def test_a_turn_in_place_adds_no_path() -> None:
+    odo = odometry()
+    rim = math.pi / 2 * 0.33  # a quarter turn: each side rolls ω·B/2 · t
+    counts = round(rim / (math.tau * 0.2) * COUNTS_PER_TURN)
+    drive_counts(odo, -counts, counts, 100)
+    assert odo.pose.theta == pytest.approx(math.pi / 2, abs=1e-3)
+    assert math.hypot(odo.pose.x, odo.pose.y) < 1e-9
+    assert odo.distance == pytest.approx(0.0, abs=1e-9)
+
+
+def test_the_covariance_grows_with_distance_and_turning() -> None:
+    odo = odometry()
+    drive_counts(odo, 2000, 2000, 20)
+    after_line = [row[:] for row in odo.covariance]
+    assert after_line[0][0] > 0 and after_line[2][2] > 0
+    drive_counts(odo, -2000, 2000, 20, start=2000)
+    assert odo.covariance[2][2] > after_line[2][2]
+    for i in range(3):  # a covariance stays symmetric with a non-negative diagonal
+        assert odo.covariance[i][i] >= 0
+        for j in range(3):
+            assert odo.covariance[i][j] == pytest.approx(odo.covariance[j][i])
+
+
+def test_odometry_needs_the_boards_resolution_first() -> None:
+    odo = Odometry(ROBOT)
+    with pytest.raises(ValueError, match="resolution"):
+        odo.update("L", sample(0, 0, 0))
+    with pytest.raises(ValueError, match="positive"):
+        odo.set_resolution("L", 1, 0)
+
+
+# --- against the emulator's truth ---------------------------------------------------------------
+
+
+def _errors(sim: RobotSim) -> tuple[float, float]:
+    odo, truth = sim.odometry.pose, sim.truth
+    heading = abs(math.degrees(math.remainder(odo.theta - truth.theta, math.tau)))
+    return math.hypot(odo.x - truth.x, odo.y - truth.y), heading
+
+
+@pytest.mark.parametrize("surface", ["ideal", "gravel"])
+def test_a_two_metre_line_against_the_truth(surface: str) -> None:
+    sim = RobotSim.make(surface)
+    sim.drive(0.2, 0.0)
+    sim.run(10.0)
+    sim.drive(0.0, 0.0)
+    sim.run(1.0)
+    travelled = sim.robot.body.distance
+    assert travelled == pytest.approx(2.0, rel=0.05)
+    position, heading = _errors(sim)
+    assert position <= 0.02 * travelled and heading <= 3.0
+
+
+@pytest.mark.parametrize("surface", ["ideal", "gravel"])
+def test_a_one_metre_square_against_the_truth(surface: str) -> None:
+    sim = RobotSim.make(surface)
+    for x, y in ((1.0, 0.0), (1.0, 1.0), (0.0, 1.0), (0.0, 0.0)):
+        assert sim.go_to(x, y).done
+    travelled = sim.robot.body.distance
+    assert travelled > 3.8
+    position, heading = _errors(sim)
+    assert position <= 0.02 * travelled and heading <= 3.0
+
+
+def test_odometry_with_the_wrong_surface_is_visibly_wrong() -> None:
+    # The check above could pass by accident if odometry copied the truth; with the ideal
+    # χ on gravel the heading is off by the factor the seed measured.
+    sim = RobotSim.make("gravel", odometry_surface="ideal")
+    sim.drive(0.0, math.radians(20))
+    sim.run(4.0)
+    turned_truth = sim.truth.theta
+    turned_odometry = sim.odometry.pose.theta
+    assert turned_odometry / turned_truth == pytest.approx(1.65, rel=0.02)
+
+
+def test_a_pose_to_start_from() -> None:
+    sim = RobotSim.make("ideal", pose=Pose(3.0, -1.0, math.pi / 2))
+    sim.drive(0.2, 0.0)
+    sim.run(2.0)
+    assert sim.odometry.pose.x == pytest.approx(3.0, abs=1e-3)
+    assert sim.odometry.pose.y > -1.0 + 0.3

@@ -1,0 +1,165 @@
+"""The asyncio Robot against the in-process emulated robot (``emu://robot/L``, ``…/R``):
+start-up reads the boards, driving needs the deadman, a lapse or a silent board stops every
+board and says why, recovery does not re-enable, go_to ends in arrival, a timeout or the
+supervision event. Facts about the boards are read from the emulated boards themselves,
+cycle-exact, so the checks hold however slow the machine is."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+from typing import Any
+
+import pytest
+
+from fpgaemu.board import Board
+from fpgaemu.firmware import Firmware
+from fpgaemu.timeline import CLOCK_HZ
+from fpgaemu.uartcommand import EnableCause, EnableChange
+from fpgalink.aio.link import LinkEvent, LinkEventKind
+from fpgalink.protocol.robot import SEED_ROBOT_TOML, parse_robot, seed_robot
+from fpgalink.robot import GoalTimeout, Robot, RobotStopped
+from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
+from tests.support.served import PATIENCE
+from tests.support.waiting import wait_until
+
+pytestmark = pytest.mark.timeout(60)
+
+
+@asynccontextmanager
+async def emulated(query: str = "surface=gravel", **options: Any) -> AsyncIterator[Robot]:
+    description = options.pop("description", seed_robot())
+    ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
+    async with Robot.open(description, ports, **options) as robot:
+        yield robot
+
+
+def board(robot: Robot, name: str) -> Board:
+    found = robot.links[name].get_extra_info("board")
+    assert isinstance(found, Board)
+    return found
+
+
+def firmware(robot: Robot, name: str) -> Firmware:
+    found = board(robot, name).peripherals["firmware"]
+    assert isinstance(found, Firmware)
+    return found
+
+
+def enable_log(robot: Robot, name: str) -> list[EnableChange]:
+    log: list[EnableChange] = []
+    board(robot, name).uartcommand.on_enable_change(log.append)
+    return log
+
+
+async def test_start_loads_the_description_and_reads_the_resolution_back() -> None:
+    description = parse_robot(SEED_ROBOT_TOML.replace("IncSenzRes = 500", "IncSenzRes = 400"))
+    async with emulated(description=description) as robot:
+        assert set(robot.resolution.values()) == {400}
+        for name in ("L", "R"):
+            assert firmware(robot, name).value("IncSenzRes", "A") == 400
+            assert firmware(robot, name).value("GetDataPeriodical") == 1
+        assert robot.state is State.DISABLED
+
+
+async def test_driving_needs_the_enable_and_reaches_both_boards_together() -> None:
+    async with emulated() as robot:
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.drive(0.1, 0.0)
+        async with robot.enabled():
+            command = robot.drive(0.1, math.radians(10))
+            left, right = command.references["L"], command.references["R"]
+
+            def applied() -> bool:
+                return all(
+                    [firmware(robot, n).channels[c].reference for c in (1, 2)]
+                    == pytest.approx(list(refs), rel=1e-6)
+                    for n, refs in (("L", left), ("R", right)))
+
+            await wait_until(applied, PATIENCE, "both boards to hold the references")
+            await wait_until(lambda: robot.pose.x > 0.01, PATIENCE, "the robot to move")
+        # Leaving the block disables: the RD reaches both boards.
+        await wait_until(lambda: not board(robot, "L").global_enable
+                         and not board(robot, "R").global_enable, PATIENCE, "both disabled")
+
+
+async def test_a_deadman_not_renewed_disables_every_board() -> None:
+    async with emulated() as robot:
+        events = robot.events()
+        logs = {n: enable_log(robot, n) for n in ("L", "R")}
+        robot.enable()
+        robot.drive(0.1, 0.0)
+        stopped: list[SupervisionEvent] = []
+        async for event in events:
+            if event.state is State.DISABLED:
+                stopped.append(event)
+                break
+        assert stopped[0].reason is StopReason.DEADMAN
+        for name in ("L", "R"):
+            await wait_until(lambda n=name: logs[n] and not logs[n][-1].enabled,  # type: ignore[misc]
+                             PATIENCE, f"board {name} disabled")
+            assert logs[name][-1].cause is EnableCause.DISABLE  # RD, not its own watchdog
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.drive(0.1, 0.0)
+
+
+async def test_a_silent_board_stops_the_other_at_once_and_never_re_enables() -> None:
+    # L's cable is cut from 2 s to 4 s of emulated time: L hears nothing and says nothing.
+    async with emulated("surface=gravel&fault=L:disconnect=2:2") as robot:
+        logs = {n: enable_log(robot, n) for n in ("L", "R")}
+        noticed: list[LinkEvent] = []
+        robot.links["L"].on_event(lambda e: noticed.append(e)
+                                  if e.kind is LinkEventKind.BOARD_LOST else None)
+        events = robot.events()
+        async with robot.enabled():
+            robot.drive(0.05, 0.0)
+            async for event in events:
+                if event.state is State.DISABLED:
+                    break
+        assert event.reason is StopReason.BOARD_LOST and event.board == "L"
+        assert noticed and event.at - noticed[0].at <= 0.05  # stopped in the same callback
+        await wait_until(lambda: logs["R"] and not logs["R"][-1].enabled, PATIENCE,
+                         "R disabled")
+        assert logs["R"][-1].cause is EnableCause.DISABLE  # the robot's RD
+        # L never heard the RD: its own watchdog stopped it, 300 ms after its last RE.
+        assert logs["L"][-1].cause is EnableCause.WATCHDOG and not logs["L"][-1].enabled
+        for name in ("L", "R"):
+            for channel in board(robot, name).channels.values():
+                assert channel.pwm.applied_duty == 0
+        # L comes back (the cut ends at 4 s); the robot stays disabled until asked.
+        await wait_until(lambda: robot.links["L"].board_alive, PATIENCE, "L back")
+        until = board(robot, "L").now + int(0.5 * CLOCK_HZ)
+        await wait_until(lambda: board(robot, "L").now > until, PATIENCE, "0.5 s more")
+        assert robot.state is State.DISABLED
+        assert not board(robot, "L").global_enable and not board(robot, "R").global_enable
+        robot.enable()  # asked for again: now it enables
+        await wait_until(lambda: board(robot, "L").global_enable
+                         and board(robot, "R").global_enable, PATIENCE, "both enabled")
+        robot.disable()
+
+
+async def test_go_to_arrives() -> None:
+    async with emulated() as robot, robot.enabled():
+        pose = await robot.go_to(0.6, 0.3, timeout=PATIENCE * 3)
+        assert math.hypot(pose.x - 0.6, pose.y - 0.3) < robot.goto_settings.position_tolerance
+
+
+async def test_go_to_times_out_cleanly_with_a_wheel_held_at_zero() -> None:
+    async with emulated("surface=gravel&fault=L:wheel-stuck=A&fault=L:wheel-stuck=B"
+                        ) as robot, robot.enabled():
+        with pytest.raises(GoalTimeout, match=r"not at \(1, 0\) after 3 s"):
+            await robot.go_to(1.0, 0.0, timeout=3.0)
+        assert robot.command is None  # stopped: zero references, on their way
+        await wait_until(lambda: all(c.reference == 0.0 for n in ("L", "R")
+                                     for c in firmware(robot, n).channels.values()),
+                         PATIENCE, "zero references on both boards")
+
+
+async def test_go_to_ends_with_the_supervision_event_that_stopped_it() -> None:
+    async with emulated() as robot:
+        robot.enable()  # and never renewed: the deadman lapses mid-way
+        with pytest.raises(RobotStopped, match="not renewed") as caught:
+            await robot.go_to(5.0, 0.0, timeout=PATIENCE * 3)
+        assert caught.value.event is not None
+        assert caught.value.event.reason is StopReason.DEADMAN
