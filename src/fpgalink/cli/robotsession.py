@@ -1,0 +1,355 @@
+"""What ``drive`` and ``goto`` share: the robot options, opening the robot (the emulated one
+when no port is given), the live view, the path (odometry, and truth when the robot is
+emulated), its plot and its recording."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import functools
+import json
+import math
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
+from urllib.parse import quote
+
+import click
+
+from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import CliError, ExitCode, note
+
+if TYPE_CHECKING:
+    from fpgalink.protocol.robot import RobotDescription
+    from fpgalink.robot.robot import Robot
+
+__all__ = ["PathLog", "RobotRun", "robot_options"]
+
+T = TypeVar("T")
+
+#: How often the path is sampled and the live view refreshed.
+SAMPLE_S = 0.05
+TRUTH_SCHEMA = {
+    "title": "fpgalink.Pose2D", "type": "object",
+    "properties": {"t": {"type": "number"}, "x": {"type": "number"},
+                   "y": {"type": "number"}, "theta": {"type": "number"},
+                   "v": {"type": "number"}, "omega": {"type": "number"}},
+}
+COMMAND_SCHEMA = {
+    "title": "fpgalink.BodyCommand", "type": "object",
+    "properties": {"v": {"type": "number"}, "omega": {"type": "number"},
+                   "left": {"type": "number"}, "right": {"type": "number"},
+                   "scale": {"type": "number"}},
+}
+
+
+def robot_options(func: Callable[..., T]) -> Callable[..., T]:
+    """``--robot FILE``, ``--surface NAME``, ``--truth URL`` and the connection options."""
+    func = connection_options(multi=True, announce=False)(func)
+    for option in reversed([
+        click.option("--robot", "robot_file", type=click.Path(dir_okay=False, path_type=Path),
+                     help="Robot description (TOML; the config file's `robot`; default: the "
+                          "seed's robot)."),
+        click.option("--surface", metavar="NAME",
+                     help="The surface it drives on, for the skid-steer χ (the seed's robot: "
+                          "ideal, gravel, marble)  [default: the description's]"),
+        click.option("--truth", "truth_url", metavar="URL",
+                     help="An emulated robot's truth endpoint (socket://HOST:PORT, printed by "
+                          "fpgaemu serve --robot); built in for the in-process robot."),
+    ]):
+        func = option(func)
+    return func
+
+
+def load_description(conn: ConnectionOptions, robot_file: Path | None,
+                     surface: str | None) -> RobotDescription:
+    from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
+
+    path = robot_file or conn.settings.robot
+    try:
+        description = load_robot(str(path)) if path else seed_robot()
+        if surface is not None:
+            description = description.on_surface(surface)
+    except DescriptionError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+    return description
+
+
+def robot_ports(conn: ConnectionOptions, description: RobotDescription,
+                robot_file: Path | None) -> dict[str, str]:
+    """Board name → URL: the configured ports, or the in-process emulated robot."""
+    settings = conn.settings
+    if settings.emulated:
+        query = f"surface={quote(description.surface)}"
+        path = robot_file or settings.robot
+        if path:
+            query += f"&robot={quote(str(path))}"
+        note(f"no --port given: using the built-in emulated robot (emu://robot/…, surface "
+             f"{description.surface}); it lives only for this command")
+        return {b: f"emu://robot/{b}?{query}" for b in description.boards}
+    given = {e.name: e.url for e in settings.endpoints}
+    missing = [b for b in description.boards if b not in given]
+    if missing:
+        ports = " ".join(f"--port {b}=…" for b in description.boards)
+        raise CliError(f"the robot's boards are {', '.join(description.boards)}; no port "
+                       f"for {', '.join(missing)} (give {ports}, or [ports] in the config "
+                       "file)", ExitCode.BAD_INPUT)
+    return {b: given[b] for b in description.boards}
+
+
+@dataclass
+class PathLog:
+    """The path as it was driven: odometry, and truth when known."""
+
+    t: list[float] = field(default_factory=list)
+    odometry: list[tuple[float, float, float]] = field(default_factory=list)
+    truth: list[tuple[float, float, float] | None] = field(default_factory=list)
+
+    def add(self, t: float, odometry: tuple[float, float, float],
+            truth: tuple[float, float, float] | None) -> None:
+        self.t.append(t)
+        self.odometry.append(odometry)
+        self.truth.append(truth)
+
+    def plot(self, path: Path, title: str, goal: tuple[float, float] | None = None) -> None:
+        figure = new_figure((7, 7))
+        ax = figure.subplots()
+        ax.plot([p[0] for p in self.odometry], [p[1] for p in self.odometry],
+                label="odometry", linewidth=1.5)
+        truth = [p for p in self.truth if p is not None]
+        if truth:
+            ax.plot([p[0] for p in truth], [p[1] for p in truth], "--", label="truth (emulator)",
+                    linewidth=1.2)
+        if self.odometry:
+            ax.plot(*self.odometry[0][:2], "o", color="tab:green", label="start")
+        if goal is not None:
+            ax.plot(*goal, "x", color="tab:red", markersize=10, label="goal")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.set_xlabel("x, m (forward at start)")
+        ax.set_ylabel("y, m (left)")
+        ax.set_title(title)
+        ax.grid(True, alpha=0.3)
+        ax.legend(loc="best", fontsize="small")
+        save_figure(figure, path)
+
+
+class _TruthReader:
+    """The latest line of a served robot's truth endpoint (JSON lines over TCP)."""
+
+    def __init__(self, url: str) -> None:
+        self.url = url
+        self.latest: dict[str, Any] | None = None
+        self._task: asyncio.Task[None] | None = None
+
+    async def start(self) -> None:
+        host, _, port = self.url.removeprefix("socket://").rpartition(":")
+        host = host.strip("[]")
+        try:
+            reader, writer = await asyncio.wait_for(asyncio.open_connection(host, int(port)), 5)
+        except (OSError, ValueError, TimeoutError) as exc:
+            raise CliError(f"--truth {self.url}: cannot connect: {exc}", ExitCode.PORT) from None
+        self._task = asyncio.ensure_future(self._read(reader, writer))
+
+    async def _read(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        try:
+            while line := await reader.readline():
+                with contextlib.suppress(ValueError):
+                    record = json.loads(line)
+                    if isinstance(record, dict):
+                        self.latest = record
+        finally:
+            writer.close()
+
+    async def close(self) -> None:
+        if self._task is not None:
+            self._task.cancel()
+            await asyncio.gather(self._task, return_exceptions=True)
+
+
+class RobotRun:
+    """One command's robot: opened, shown live, its path kept; ``async with``."""
+
+    def __init__(self, conn: ConnectionOptions, robot_file: Path | None, surface: str | None,
+                 truth_url: str | None, plot: Path | None, record: Path | None) -> None:
+        if plot is not None:
+            check_plot_path(plot)
+        if record is not None and (record.is_dir() or not record.parent.is_dir()):
+            raise CliError(f"--record {record}: not a file in an existing directory",
+                           ExitCode.BAD_INPUT)
+        self.conn = conn
+        self.description = load_description(conn, robot_file, surface)
+        self.ports = robot_ports(conn, self.description, robot_file)
+        self.plot_path = plot
+        self.record_path = record
+        self.path = PathLog()
+        self.stop = asyncio.Event()
+        self._truth_reader = _TruthReader(truth_url) if truth_url else None
+        self._sink: Any = None
+        self._started = 0.0
+        self.robot: Robot | None = None
+        self.last_truth: dict[str, Any] | None = None
+
+    @contextlib.asynccontextmanager
+    async def opened(self) -> AsyncIterator[Robot]:
+        from fpgalink.cli.session import install_stop_signals
+        from fpgalink.robot.robot import Robot, RobotError
+
+        install_stop_signals(self.stop)
+        robot = Robot.open(self.description, self.ports, baud=self.conn.baud)
+        try:
+            await robot.start()
+        except RobotError as exc:
+            raise CliError(str(exc), ExitCode.NO_ANSWER if "not answering" in str(exc)
+                           else ExitCode.FAILURE) from None
+        self.robot = robot
+        try:
+            if self._truth_reader is not None:
+                await self._truth_reader.start()
+            if self.record_path is not None:
+                self._open_sink()
+            self._started = time.monotonic()
+            sampler = asyncio.ensure_future(self._sample())
+            try:
+                yield robot
+            finally:
+                sampler.cancel()
+                await asyncio.gather(sampler, return_exceptions=True)
+                self._sample_once()
+        finally:
+            await robot.close()
+            if self._truth_reader is not None:
+                await self._truth_reader.close()
+            if self._sink is not None:
+                self._sink.close()
+
+    def truth(self) -> dict[str, Any] | None:
+        if self._truth_reader is not None:
+            return self._truth_reader.latest
+        return self.robot.truth() if self.robot is not None else None
+
+    def _open_sink(self) -> None:
+        from fpgalink.cli.sinks import McapSink
+
+        assert self.record_path is not None
+        topics = {"/robot/odometry": TRUTH_SCHEMA, "/robot/truth": TRUTH_SCHEMA,
+                  "/robot/command": COMMAND_SCHEMA}
+        try:
+            self._sink = McapSink(self.record_path, list(self.description.boards),
+                                  {"robot": self.description.name,
+                                   "surface": self.description.surface}, topics)
+        except OSError as exc:
+            raise CliError(f"--record {self.record_path}: cannot write: {exc.strerror}",
+                           ExitCode.FAILURE) from None
+
+    async def _sample(self) -> None:
+        while True:
+            self._sample_once()
+            await asyncio.sleep(SAMPLE_S)
+
+    def _sample_once(self) -> None:
+        robot = self.robot
+        if robot is None:
+            return
+        now = time.time()
+        t = time.monotonic() - self._started
+        state = robot.odometry_state
+        pose = state.pose
+        truth = self.truth()
+        if truth is not None:
+            self.last_truth = truth
+        truth_pose = None if truth is None else (truth["x"], truth["y"], truth["theta"])
+        self.path.add(t, (pose.x, pose.y, pose.theta), truth_pose)
+        if self._sink is not None:
+            try:
+                self._sink.add("/robot/odometry", {"t": t, "x": pose.x, "y": pose.y,
+                                                   "theta": pose.theta, "v": state.v,
+                                                   "omega": state.omega}, now)
+                if truth is not None:
+                    self._sink.add("/robot/truth", truth, now)
+                command = robot.command
+                if command is not None:
+                    self._sink.add("/robot/command", {
+                        "v": command.v, "omega": command.omega, "left": command.left_dps,
+                        "right": command.right_dps, "scale": command.scale}, now)
+            except OSError as exc:
+                self._sink = None
+                note(f"--record stopped: {exc.strerror or exc}")
+
+    def view(self, status: str) -> Any:
+        """The live table (rich renderable)."""
+        from rich.table import Table
+
+        robot = self.robot
+        assert robot is not None
+        state = robot.odometry_state
+        table = Table(title=status, title_justify="left")
+        for column in ("", "x m", "y m", "θ deg", "v m/s", "ω deg/s"):
+            table.add_column(column, justify="right" if column else "left")
+        p = state.pose
+        table.add_row("odometry", f"{p.x:.3f}", f"{p.y:.3f}", f"{math.degrees(p.theta):.1f}",
+                      f"{state.v:.3f}", f"{math.degrees(state.omega):.1f}")
+        truth = self.truth()
+        if truth is not None:
+            table.add_row("truth", f"{truth['x']:.3f}", f"{truth['y']:.3f}",
+                          f"{math.degrees(truth['theta']):.1f}", f"{truth['v']:.3f}",
+                          f"{math.degrees(truth['omega']):.1f}")
+        command = robot.command
+        if command is not None:
+            table.add_row("command", "", "", "", f"{command.v:.3f}",
+                          f"{math.degrees(command.omega):.1f}")
+        wheels = Table(title="wheels", title_justify="left")
+        for column in ("wheel", "board", "ref deg/s", "speed deg/s", "pwm", "link"):
+            wheels.add_column(column, justify="left" if column in ("wheel", "board", "link")
+                              else "right")
+        for wheel in self.description.wheels:
+            link = robot.links[wheel.board]
+            latest = link.latest
+            channel = None if latest is None else (latest.a if wheel.channel == 1 else latest.b)
+            wheels.add_row(
+                wheel.name, f"{wheel.board}/{'AB'[wheel.channel - 1]}",
+                "-" if channel is None else f"{channel.reference:.1f}",
+                "-" if channel is None else f"{channel.speed:.1f}",
+                "-" if channel is None else str(channel.pwm),
+                "alive" if link.board_alive else "SILENT")
+        from rich.console import Group
+
+        return Group(table, wheels)
+
+    def summary(self) -> list[str]:
+        robot = self.robot
+        assert robot is not None
+        state = robot.odometry_state
+        p = state.pose
+        lines = [f"odometry: x {p.x:.3f} m, y {p.y:.3f} m, θ {math.degrees(p.theta):.1f}°, "
+                 f"{state.distance:.2f} m travelled"]
+        truth = self.last_truth
+        if truth is not None:
+            error = math.hypot(truth["x"] - p.x, truth["y"] - p.y)
+            lines.append(f"truth:    x {truth['x']:.3f} m, y {truth['y']:.3f} m, θ "
+                         f"{math.degrees(truth['theta']):.1f}° (odometry off by "
+                         f"{error * 100:.1f} cm)")
+        return lines
+
+    def finish(self, title: str, goal: tuple[float, float] | None = None) -> None:
+        if self.plot_path is not None:
+            self.path.plot(self.plot_path, title, goal)
+            note(f"path plot saved to {self.plot_path}")
+        if self.record_path is not None:
+            note(f"recorded the path to {self.record_path}")
+
+
+@contextlib.contextmanager
+def live(run: RobotRun, status: Callable[[], str]) -> Any:
+    """A live view on stderr while the block runs (only on a terminal)."""
+    from rich.console import Console
+    from rich.live import Live
+
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield lambda: None
+        return
+    with Live(console=console, refresh_per_second=10, transient=False) as display:
+        yield functools.partial(lambda: display.update(run.view(status())))
