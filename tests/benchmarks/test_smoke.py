@@ -90,16 +90,18 @@ def test_emulator_quick(tmp_path: Path) -> None:
     config = report["config"]
     assert config["reps"] == 1 and config["emulated_s"] == 1.0
 
-    assert set(report["cases"]) == {"board", "board+host", "board.tm_only"}
+    assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "robot"}
     for key, case in report["cases"].items():
         (rep,) = case["repetitions"]
+        boards = 2 if key == "robot" else 1
         assert rep["periods"] == 1000 and rep["missed"] == 0, key
         assert rep["tm_dropped"] == 0, key
         # Every period queued its TM; the last may still be on the wire when the run ends.
-        assert rep["tm_sent"] == rep["periods"], key
-        assert rep["tm_sent"] - 1 <= rep["tm_finished"] <= rep["tm_sent"], key
+        assert rep["tm_sent"] == rep["periods"] * boards, key
+        assert rep["tm_sent"] - boards <= rep["tm_finished"] <= rep["tm_sent"], key
         assert rep["rv_handled"] == rep["rv_sent"], key
-        assert rep["rv_sent"] == (0 if key == "board.tm_only" else 1000), key
+        expected_rv = {"board.tm_only": 0, "robot": 200}.get(key, 1000)  # robot: 2 × 100
+        assert rep["rv_sent"] == expected_rv, key
         assert case["events"] >= 2 * case["periods"], key  # at least a tick and a TM each
         assert_summary(case["summary"], "x_real_time", "events_per_s", "seconds")
         if key == "board+host":
@@ -109,8 +111,8 @@ def test_emulator_quick(tmp_path: Path) -> None:
         else:
             assert rep["tm_received"] is None, key
 
-    (target,) = report["targets"]
-    assert target["case"] == "board" and isinstance(target["pass"], bool)
+    assert [t["case"] for t in report["targets"]] == ["board", "robot"]
+    assert all(isinstance(t["pass"], bool) for t in report["targets"])
 
 
 @pytest.mark.timeout(TIMEOUT_S + 20)
