@@ -164,3 +164,21 @@ def test_a_non_finite_input_outputs_zero_and_never_enters_the_state(bad: float) 
     # Back to finite inputs: an ordinary controller from rest, not one latched at its limit.
     fresh = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.05))
     assert pid.update(0.0, 0.0, TS) == fresh.update(0.0, 0.0, TS) == 0
+
+
+@pytest.mark.parametrize(("name", "seed"), [("seed-high", (7.11, 23.66, 0.43)),
+                                            ("seed-low", (15.96, 51.51, 1.237))])
+def test_the_shipped_seed_sets_are_the_conversion(name: str, seed: tuple[float, float, float]
+                                                 ) -> None:
+    from importlib import resources
+
+    from fpgalink.protocol.paramfile import parse_parameter_file
+
+    text = (resources.files("fpgalink.parameter_sets") / f"{name}.toml").read_text()
+    values = {p.full_name(c): v for p, c, v in parse_parameter_file(text, name)}
+    expected = seed_tuning(*seed)
+    for channel in "AB":
+        assert values[f"Kp_Wheel_Pid{channel}"] == pytest.approx(expected.kp, rel=1e-6)
+        assert values[f"Ti_Wheel_Pid{channel}"] == pytest.approx(expected.ti, rel=1e-6)
+        assert values[f"Td_Wheel_Pid{channel}"] == pytest.approx(expected.td, rel=1e-6)
+        assert values[f"ActiveController{channel}"] == 0
