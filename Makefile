@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint demo bench clean
+.PHONY: setup test lint demo bench clean iverilog
 
 $(STAMP): pyproject.toml
 	python3 -m venv $(VENV)
@@ -12,11 +12,20 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# Icarus Verilog simulates the reference UART the emulator's is checked against
+# (tests/fpgaemu/test_uart_hdl.py); a Debian package.
+ICARUS := $(shell command -v iverilog 2>/dev/null)
+iverilog:
+ifeq ($(ICARUS),)
+	@if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq iverilog >/dev/null; \
+	else sudo apt-get update -qq && sudo apt-get install -y -qq iverilog >/dev/null; fi
+endif
+
 setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
-test: $(STAMP)
-	@$(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
+test: $(STAMP) iverilog
+	@FPGALINK_REQUIRE_HDL=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
 # The main job on the built-in emulator, no hardware: connect, enable, show the parameters,

@@ -58,6 +58,10 @@ class BoardConfig:
     rx_faults: LineFaults | None = None
     #: board → host line faults (``uartwrite``)
     tx_faults: LineFaults | None = None
+    #: idle cycles ``uartwrite`` leaves after each stop bit when bytes go back to back: 0
+    #: (the seed's uartwrite as modelled: one stop bit exactly), 2 for LiteX's PHY (1,002
+    #: cycles a byte at 1 MBd), 1 for amaranth-stdio's (docs/emulator.md)
+    tx_byte_gap: int = 0
 
 
 class Peripheral(Protocol):
@@ -83,7 +87,8 @@ class Board:
         self.uartread = UartRead(
             self.timeline, self.uartcommand.receive, config.baud, config.rx_faults
         )
-        self.uartwrite = UartWrite(self.timeline, config.baud, config.tx_faults)
+        self.uartwrite = UartWrite(self.timeline, config.baud, config.tx_faults,
+                                   config.tx_byte_gap)
         self.uartsend = UartSend(
             self.timeline, self.blk_mem_gen_tx, self.uartwrite, config.framing
         )

@@ -17,7 +17,7 @@ from fpgaemu.uart import DEFAULT_BAUD
 __all__ = ["EMU_OPTIONS", "board_from_url", "build_board", "parse_emu_options", "seed_option"]
 
 #: The query options an ``emu://`` URL understands.
-EMU_OPTIONS = ("seed", "gear", "fault")
+EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap")
 
 
 def build_board(
@@ -27,15 +27,18 @@ def build_board(
     gear: str = "high",
     settings: dict[str, Any] | None = None,
     faults: list[str] | None = None,
+    tx_byte_gap: int = 0,
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
-    are ``--fault`` specs (docs/reliability.md). ``ValueError`` for anything invalid."""
+    are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
+    byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`). ``ValueError``
+    for anything invalid."""
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
-                         tx_faults=wanted.line("tx"))
+                         tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
     board = Board(config)
     attach_firmware(board, settings or {})
     board.add_peripheral("motors", Motors(gear))
@@ -60,17 +63,15 @@ def seed_option(options: dict[str, list[str]]) -> int:
 
 
 def board_from_url(url: str, baud: int) -> Board:
-    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1`` → a board."""
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2`` → a board (``fault``
+    repeats)."""
     parts = urlsplit(url)
     if parts.scheme != "emu" or parts.netloc or parts.path not in ("", "/"):
         raise ValueError(f"expected emu:// with optional ?{'&'.join(EMU_OPTIONS)} options")
-    options = {k: v[-1] for k, v in parse_qs(parts.query, keep_blank_values=True).items()}
-    unknown = sorted(set(options) - set(EMU_OPTIONS))
-    if unknown:
-        raise ValueError(f"unknown emu:// option(s) {unknown}; known: {list(EMU_OPTIONS)}")
-    try:
-        seed = int(options.get("seed", "0"))
-    except ValueError:
-        raise ValueError(f"emu:// seed must be an integer, got {options['seed']!r}") from None
-    return build_board(baud=baud, seed=seed, gear=options.get("gear", "high"),
-                       faults=[options["fault"]] if "fault" in options else [])
+    options = parse_emu_options(parts.query, EMU_OPTIONS, "emu://")
+    gap_text = options.get("tx_gap", ["0"])[-1]
+    if not gap_text.isdigit():
+        raise ValueError(f"emu:// tx_gap must be a whole number of cycles, got {gap_text!r}")
+    return build_board(baud=baud, seed=seed_option(options),
+                       gear=options.get("gear", ["high"])[-1],
+                       faults=options.get("fault", []), tx_byte_gap=int(gap_text))

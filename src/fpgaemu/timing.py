@@ -73,12 +73,16 @@ class TimingReport:
         """SPEC §7 for the run so far: line utilisation per direction since power-up, slack
         per period (cycles from a TM's last stop bit to the next tick), missed periods."""
         elapsed = board.now - self.started_cycle
-        capacity = elapsed / board.cycles_per_byte if elapsed > 0 else 0.0
+        # Each direction at its own byte spacing (uartwrite may leave a gap after a byte).
+        tx_capacity = elapsed / board.uartwrite.byte_step if elapsed > 0 else 0.0
+        rx_capacity = elapsed / board.uartread.byte_step if elapsed > 0 else 0.0
         return {
             "periods": self.periods,
-            "board_to_host_utilisation": self.tx_wire_bytes / capacity if capacity else 0.0,
+            "board_to_host_utilisation": (
+                self.tx_wire_bytes / tx_capacity if tx_capacity else 0.0
+            ),
             "host_to_board_utilisation": (
-                board.uartread.stats.bytes_received / capacity if capacity else 0.0
+                board.uartread.stats.bytes_received / rx_capacity if rx_capacity else 0.0
             ),
             "median_slack_cycles": self.median_slack,
             "worst_slack_cycles": self.worst_slack,

@@ -12,15 +12,19 @@ one's stop bit has ended. A line idle when a burst arrives starts it at once.
 Fault injection (:class:`LineFaults`, off by default) switches a burst to an exact bit-level
 model: the burst is laid out as bit slots, chosen bits are flipped (by byte and bit index or
 at a bit-error rate from the board's seeded generator), bytes can be lost, duplicated or
-noise bytes inserted (by index or at a rate), the line can be held low (a break) or cut
-(held idle) for windows of time, and a receiver samples the slots: in idle, a low slot
-starts a byte, the next eight are data, the tenth must be high or the byte is a framing
-error (dropped, counted) and the receiver looks for the next start from the slot after. So a
-broken stop bit loses exactly that byte, and a flipped start bit makes the receiver slip
-into the data bits until it resynchronises, as real receivers do. Simplification: a byte
-whose bits run past the end of a burst is completed with idle (high) bits; a slip does not
-carry into the next burst; a break or cut only acts on bytes sent during it (an idle line
-held low produces no bytes here, where a real UART would report one break condition).
+noise bytes inserted (by index or at a rate), and the line can be held low (a break) or cut
+(held idle) for windows of time. The receiver (:class:`SlotReceiver`) is then a function of
+the waveform alone, whatever bursts the sender cut it into: it is LiteX's ``RS232PHYRX`` in
+slot terms (checked against that RTL in ``tests/fpgaemu/test_uart_hdl.py``). It starts a
+byte on a falling edge (high → low), samples each bit once at LiteX's sample points, and
+drops a byte whose stop bit reads low (a framing error, counted); it hunts for the next
+falling edge from mid-stop, so a low stop bit directly followed by a start bit loses that
+start too, and a break gives one framing error however long it lasts. A byte is delivered
+at the end of its stop bit, 46 cycles after LiteX raises ``valid`` (at 1 MBd): a constant
+offset. A byte whose samples run past the end of what has been sent is decided when the
+next burst arrives or, if none does, when its stop bit ends (the line was idle).
+Simplification: a break or cut acts only on bit slots sent during it (an idle line held low
+produces nothing here, where a real receiver would see one falling edge).
 
 Rate-based faults are decided per burst before any bit is laid out, so a burst nothing hits
 still takes the fast path: at a bit-error rate of 1e-4 about 95 % of 55-byte frames do. Each
@@ -48,9 +52,11 @@ __all__ = [
     "ByteRun",
     "LineFaults",
     "LineStats",
+    "SlotReceiver",
     "UartRead",
     "UartWrite",
     "cycles_per_bit",
+    "litex_sample_points",
 ]
 
 DEFAULT_BAUD = 1_000_000
@@ -197,36 +203,184 @@ class _Plan:
         return bool(self.drop or self.dup or self.noise)
 
 
+def litex_sample_points(cycles_per_bit: int) -> tuple[tuple[int, ...], int]:
+    """Where LiteX's ``RS232PHYRX`` samples a frame, in cycles after the falling edge of its
+    start bit: the pad level read for the start bit, the eight data bits and the stop bit
+    (10 points), and the earliest cycle a falling edge can start the next byte (it returns
+    to hunting the cycle after the stop sample and sees an edge 2 cycles late).
+
+    Its 2-FF synchroniser and edge register see the edge 2 cycles late and run from edge +
+    3; a phase accumulator preset to 2³¹ adds ``int(2³²/cpb)`` each cycle and ticks on
+    overflow; each tick samples the synchronised line (the pad 2 cycles earlier). At 100
+    cycles per bit: 52, 152, … 952, and hunting resumes at 955."""
+    word = int(2**32 / cycles_per_bit)
+    cycle, phase, samples = 3, 2**31, []
+    for _ in range(BITS_PER_BYTE):
+        ticks = -(-(2**32 - phase) // word)
+        cycle += ticks
+        phase += ticks * word - 2**32
+        samples.append(cycle - 2)
+    return tuple(samples), cycle + 1 - 2
+
+
+class SlotReceiver:
+    """An 8N1 receiver that is a function of the line's waveform alone (see the module
+    docstring). The waveform is given as bursts of bit slots (:meth:`add`), each starting
+    no earlier than the previous one ended; between bursts the line is idle (high).
+    :meth:`decide` returns the bytes whose samples all lie before a cycle up to which the
+    waveform is known; the rest waits for more waveform or for time to pass."""
+
+    __slots__ = ("_bursts", "_hunt", "_resume", "_samples", "_tail_end", "_tail_level", "bit",
+                 "framing_errors", "on_framing_error")
+
+    def __init__(self, cycles_per_bit: int) -> None:
+        self.bit = cycles_per_bit
+        self._samples, self._resume = litex_sample_points(cycles_per_bit)
+        self._bursts: deque[tuple[int, list[int]]] = deque()
+        self._hunt = 0  #: the earliest cycle a falling edge starts a byte at
+        #: where the slots already forgotten ended, and the level they ended on
+        self._tail_end = -1
+        self._tail_level = 1
+        self.framing_errors = 0
+        #: called with the cycle a dropped byte's stop bit ends (a logic analyser, a test)
+        self.on_framing_error: Callable[[int], None] | None = None
+
+    @property
+    def pending(self) -> bool:
+        """Slots are held that may still start or complete a byte."""
+        return bool(self._bursts)
+
+    def add(self, start: int, slots: list[int]) -> None:
+        self._bursts.append((start, slots))
+
+    def _level(self, cycle: int) -> int:
+        for start, slots in self._bursts:
+            if cycle < start:
+                return 1
+            index = (cycle - start) // self.bit
+            if index < len(slots):
+                return slots[index]
+        return 1
+
+    def _next_edge(self) -> int | None:
+        """The first falling edge at or after the hunting point, in the held slots."""
+        bit = self.bit
+        for number, (start, slots) in enumerate(self._bursts):
+            first = max(0, -(-(self._hunt - start) // bit))
+            for j in range(first, len(slots)):
+                if slots[j]:
+                    continue
+                edge = start + j * bit
+                before = slots[j - 1] if j else (
+                    self._level(edge - 1) if number else self._idle_before(edge))
+                if before:
+                    return edge
+        return None
+
+    def _idle_before(self, edge: int) -> int:
+        return 1 if edge > self._tail_end else self._tail_level
+
+    def decide(self, known_until: int) -> list[tuple[int, int]]:
+        """``(byte, delivery cycle)`` for every byte decided from the waveform known up to
+        ``known_until`` (beyond the held slots and before it, the line is idle)."""
+        out: list[tuple[int, int]] = []
+        bit, samples = self.bit, self._samples
+        while self._bursts:
+            edge = self._next_edge()
+            if edge is None:
+                self._drop_before(self._bursts[-1][0] + len(self._bursts[-1][1]) * bit)
+                break
+            if edge + samples[-1] >= known_until:
+                self._drop_before(edge)
+                break
+            value = 0
+            for k in range(8):
+                if self._level(edge + samples[k + 1]):
+                    value |= 1 << k
+            if self._level(edge + samples[9]):
+                out.append((value, edge + BITS_PER_BYTE * bit))
+            else:
+                self.framing_errors += 1
+                if self.on_framing_error is not None:
+                    self.on_framing_error(edge + BITS_PER_BYTE * bit)
+            self._hunt = edge + self._resume
+            self._drop_before(self._hunt)
+        return out
+
+    def next_decision(self) -> int | None:
+        """The cycle at which a held byte is decided if nothing more is sent: the end of its
+        stop bit; ``None`` when no byte is under way."""
+        edge = self._next_edge()
+        return None if edge is None else edge + BITS_PER_BYTE * self.bit
+
+    def _drop_before(self, cycle: int) -> None:
+        """Forget slots that end before ``cycle`` (keeping what edge detection needs)."""
+        bit = self.bit
+        while self._bursts:
+            start, slots = self._bursts[0]
+            end = start + len(slots) * bit
+            if end > cycle:
+                break
+            self._tail_end, self._tail_level = end, slots[-1] if slots else 1
+            self._bursts.popleft()
+
+    def cut_from(self, cycle: int) -> None:
+        """The sender went away at ``cycle``: slots of bursts that had not begun are gone."""
+        while self._bursts and self._bursts[-1][0] >= cycle:
+            self._bursts.pop()
+
+
+_NO_PLAN = _Plan(set(), set(), {})
+#: a line with no faults, for a clean burst that must go through the slots
+_CLEAN = LineFaults()
+
+
 class _Line:
     """The sender-to-receiver path of one direction: timing, queuing and faults."""
 
     __slots__ = (
+        "_decision",
+        "_last_level",
         "_rng",
         "_rng_drop",
         "_rng_dup",
         "_rng_noise",
         "_timeline",
         "baud",
+        "byte_gap",
+        "byte_step",
         "cycles_per_bit",
         "cycles_per_byte",
         "faults",
         "line_free_at",
         "name",
+        "receiver",
         "stats",
     )
 
     def __init__(
-        self, timeline: Timeline, name: str, baud: int, faults: LineFaults | None
+        self, timeline: Timeline, name: str, baud: int, faults: LineFaults | None,
+        byte_gap: int = 0,
     ) -> None:
+        if byte_gap < 0:
+            raise ValueError(f"byte_gap must be ≥ 0 cycles, got {byte_gap}")
         self._timeline = timeline
         self.name = name
         self.baud = baud
         self.cycles_per_bit = cycles_per_bit(baud)
         self.cycles_per_byte = BITS_PER_BYTE * self.cycles_per_bit
+        #: idle cycles the sender leaves after each byte's stop bit, back to back
+        self.byte_gap = byte_gap
+        #: start-to-start spacing of back-to-back bytes
+        self.byte_step = self.cycles_per_byte + byte_gap
         self.faults = faults
         self.stats = LineStats()
         #: cycle at which the last queued byte's stop bit ends; the line is idle from then.
         self.line_free_at = 0
+        #: the line level at ``line_free_at`` (a burst can end low)
+        self._last_level = 1
+        self.receiver = SlotReceiver(self.cycles_per_bit)
+        self._decision: Any = None
         rng: Any = timeline.rng if faults is not None else (lambda _name: None)
         self._rng = rng(name)
         self._rng_drop = rng(name + ".drop")
@@ -248,11 +402,15 @@ class _Line:
         stats = self.stats
         index = stats.bytes_sent
         stats.bytes_sent += len(data)
+        step = self.byte_step
         if lost:
-            self.line_free_at = start + len(data) * self.cycles_per_byte
+            self.line_free_at = start + len(data) * step - self.byte_gap
+            self._last_level = 1
             stats.dropped_bytes += len(data)
-            return []
+            return self._idle_until(start)
         faults = self.faults
+        plan = _NO_PLAN
+        hits = None
         if faults is not None:
             n = len(data)
             plan = _Plan(
@@ -265,18 +423,28 @@ class _Line:
             )
             if plan or faults.touches(index, index + n):
                 return self._send_bitwise(data, start, index, faults, plan, None)
-            hits = None
             if faults.bit_error_rate > 0.0:
                 # Same draw the bit-level path would make for this burst, made first so a
                 # burst with no hit stays on the fast path.
                 hits = self._rng.random(n * BITS_PER_BYTE) < faults.bit_error_rate
                 if hits.any():
                     return self._send_bitwise(data, start, index, faults, plan, hits)
-            if faults.windows_overlap(start, start + n * self.cycles_per_byte):
+            if faults.windows_overlap(start, start + n * step):
                 return self._send_bitwise(data, start, index, faults, plan, hits)
-        self.line_free_at = start + len(data) * self.cycles_per_byte
+        if self.receiver.pending or (start == self.line_free_at and not self._last_level):
+            # The receiver is mid-byte, or the line is still low from the last burst: the
+            # first start bit is not a clean edge, so the slots decide.
+            return self._send_bitwise(data, start, index, faults or _CLEAN, plan, hits)
+        self.line_free_at = start + len(data) * step - self.byte_gap
+        self._last_level = 1
         stats.bytes_received += len(data)
-        return [ByteRun(data, start + self.cycles_per_byte, self.cycles_per_byte)]
+        return [ByteRun(data, start + self.cycles_per_byte, step)]
+
+    def _idle_until(self, start: int) -> list[ByteRun]:
+        """The line idles (high) from ``start``: whatever the receiver held is decided."""
+        if not self.receiver.pending:
+            return []
+        return self._decided(start)
 
     def _send_bitwise(
         self, data: bytes, start: int, index: int, faults: LineFaults, plan: _Plan,
@@ -314,44 +482,64 @@ class _Line:
             for slot in hits.nonzero()[0].tolist():
                 slots[slot] ^= 1
                 stats.bits_flipped += 1
-        self._apply_windows(slots, start, faults)
-        self.line_free_at = start + len(slots) * self.cycles_per_bit
-        # The receiver: idle until a low slot, then 8 data slots and a stop slot.
-        received: list[tuple[int, int]] = []
-        n = len(slots)
-        pos = 0
-        while pos < n:
-            if slots[pos]:
-                pos += 1
-                continue
-            value = 0
-            for k in range(8):
-                slot = pos + 1 + k
-                if slot >= n or slots[slot]:
-                    value |= 1 << k
-            stop = pos + BITS_PER_BYTE - 1
-            if stop >= n or slots[stop]:
-                received.append((value, pos + BITS_PER_BYTE))
-            else:
-                stats.framing_errors += 1
-            pos += BITS_PER_BYTE
-        stats.bytes_received += len(received)
-        # Regroup into runs of evenly spaced bytes.
         bit = self.cycles_per_bit
+        if self.byte_gap:
+            # Each wire byte on its own, ``byte_step`` apart: the gap is idle line.
+            at = start
+            for first in range(0, len(slots), BITS_PER_BYTE):
+                piece = slots[first:first + BITS_PER_BYTE]
+                self._apply_windows(piece, at, faults)
+                self.receiver.add(at, piece)
+                at += self.byte_step
+            self.line_free_at = at - self.byte_gap
+        else:
+            self._apply_windows(slots, start, faults)
+            self.receiver.add(start, slots)
+            self.line_free_at = start + len(slots) * bit
+        self._last_level = slots[-1] if slots else 1
+        return self._decided(self.line_free_at)
+
+    def _decided(self, known_until: int) -> list[ByteRun]:
+        """What the receiver can decide with the waveform known up to ``known_until``, as
+        runs of evenly spaced bytes; a byte still under way is decided later (when the next
+        burst arrives, or at the end of its stop bit)."""
+        receiver = self.receiver
+        before = receiver.framing_errors
+        received = receiver.decide(known_until)
+        self.stats.framing_errors += receiver.framing_errors - before
+        self.stats.bytes_received += len(received)
+        self._schedule_decision()
         runs: list[ByteRun] = []
         group = bytearray()
-        group_first = prev_end = -1
-        for value, end_slot in received:
-            if group and end_slot != prev_end + BITS_PER_BYTE:
-                runs.append(ByteRun(bytes(group), start + group_first * bit, self.cycles_per_byte))
+        first = previous = -1
+        for value, done in received:
+            if group and done != previous + self.byte_step:
+                runs.append(ByteRun(bytes(group), first, self.byte_step))
                 group.clear()
             if not group:
-                group_first = end_slot
+                first = done
             group.append(value)
-            prev_end = end_slot
+            previous = done
         if group:
-            runs.append(ByteRun(bytes(group), start + group_first * bit, self.cycles_per_byte))
+            runs.append(ByteRun(bytes(group), first, self.byte_step))
         return runs
+
+    def _schedule_decision(self) -> None:
+        if self._decision is not None:
+            self._decision.cancel()
+            self._decision = None
+        due = self.receiver.next_decision()
+        if due is not None:
+            self._decision = self._timeline.schedule(max(due, self._timeline.now),
+                                                     self._decide_now)
+
+    def _decide_now(self, cycle: int) -> None:
+        """Nothing more was sent: the line idled, and a held byte is decided."""
+        self._decision = None
+        self._deliver(self._decided(cycle))
+
+    def _deliver(self, runs: list[ByteRun]) -> None:
+        raise NotImplementedError  # each direction hands runs on its own way
 
     def _apply_windows(self, slots: list[int], start: int, faults: LineFaults) -> None:
         """Force the slots sent inside stuck windows low and inside cut windows high. A
@@ -392,9 +580,12 @@ class UartRead(_Line):
         last byte's stop bit ends."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        for run in self._send(bytes(data), cycle):
-            self.sink(run)
+        self._deliver(self._send(bytes(data), cycle))
         return self.line_free_at
+
+    def _deliver(self, runs: list[ByteRun]) -> None:
+        for run in runs:
+            self.sink(run)
 
 
 class _Draining:
@@ -415,9 +606,10 @@ class UartWrite(_Line):
     __slots__ = ("_listeners", "_pending")
 
     def __init__(
-        self, timeline: Timeline, baud: int = DEFAULT_BAUD, faults: LineFaults | None = None
+        self, timeline: Timeline, baud: int = DEFAULT_BAUD, faults: LineFaults | None = None,
+        byte_gap: int = 0,
     ) -> None:
-        super().__init__(timeline, "uartwrite", baud, faults)
+        super().__init__(timeline, "uartwrite", baud, faults, byte_gap)
         self._pending: deque[_Draining] = deque()
         self._listeners: list[Callable[[ByteRun], None]] = []
 
@@ -433,11 +625,14 @@ class UartWrite(_Line):
         it occupies the line but the host never sees it."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        for run in self._send(bytes(data), cycle, lost):
+        self._deliver(self._send(bytes(data), cycle, lost))
+        return self.line_free_at
+
+    def _deliver(self, runs: list[ByteRun]) -> None:
+        for run in runs:
             self._pending.append(_Draining(run))
             for listener in self._listeners:
                 listener(run)
-        return self.line_free_at
 
     def read_completed(self, cycle: int | None = None) -> bytes:
         """Drain the bytes whose stop bit has ended by ``cycle`` (default now)."""
