@@ -28,12 +28,14 @@ def build_board(
     settings: dict[str, Any] | None = None,
     faults: list[str] | None = None,
     tx_byte_gap: int = 0,
+    current_noise_a: float = 0.0,
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
-    byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`). ``ValueError``
-    for anything invalid."""
+    byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded). ``ValueError`` for
+    anything invalid."""
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     wanted = parse_faults(faults or [])
@@ -41,7 +43,7 @@ def build_board(
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
     board = Board(config)
     attach_firmware(board, settings or {})
-    board.add_peripheral("motors", Motors(gear))
+    board.add_peripheral("motors", Motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())
     return board
 

@@ -31,10 +31,28 @@ import math
 
 from fpgaemu.timeline import CLOCK_HZ
 
-__all__ = ["SPEED_TIMEOUT_CYCLES", "QuadratureEncoder"]
+__all__ = ["SPEED_TIMEOUT_CYCLES", "QuadratureEncoder", "SpeedReader"]
 
 #: An edge older than this is no reference for a speed measurement (1 s at 100 MHz).
 SPEED_TIMEOUT_CYCLES = CLOCK_HZ
+
+
+class SpeedReader:
+    """A second M/T speed measurement on the same counter, with its own window: the FPGA's
+    hardware controller reads speed at its own rate, and must not shorten the window the
+    firmware's reading at the timer tick covers."""
+
+    __slots__ = ("_encoder", "count", "cycle", "speed")
+
+    def __init__(self, encoder: QuadratureEncoder) -> None:
+        self._encoder = encoder
+        self.count = 0
+        self.cycle: int | None = None
+        self.speed = 0.0
+
+    def sample(self, now: int) -> float:
+        """The M/T reading at ``now`` over this reader's window (deg/s, counting direction)."""
+        return self._encoder._measure(self, now)
 
 
 class QuadratureEncoder:
@@ -45,11 +63,17 @@ class QuadratureEncoder:
         self._count = 0  #: physical count (before the direction setting)
         self._angle_offset = self._half_count()
         self._last_edge_cycle: int | None = None
-        self._window_count = 0
-        self._window_cycle: int | None = None  #: the reference edge; None: none yet
-        self._speed_dps = 0.0
         self._angle = 0.0  #: the wheel angle last followed, deg
         self.edges = 0  #: every edge seen (unsigned)
+        #: the firmware's window first; a hardware controller may add its own
+        self._firmware = SpeedReader(self)
+        self._readers: list[SpeedReader] = [self._firmware]
+
+    def reader(self) -> SpeedReader:
+        """A speed measurement of its own (see :class:`SpeedReader`)."""
+        reader = SpeedReader(self)
+        self._readers.append(reader)
+        return reader
 
     def configure(self, pulses_per_turn: int, direction: int) -> None:
         """New resolution or direction: the count restarts from the wheel's present angle
@@ -58,10 +82,9 @@ class QuadratureEncoder:
         self.direction = direction
         self._angle_offset = self._angle + self._half_count()
         self._count = 0
-        self._window_count = 0
-        self._window_cycle = None
         self._last_edge_cycle = None
-        self._speed_dps = 0.0
+        for reader in self._readers:
+            reader.count, reader.cycle, reader.speed = 0, None, 0.0
 
     def _half_count(self) -> float:
         """Minus half a count in degrees (0 without an encoder)."""
@@ -89,11 +112,12 @@ class QuadratureEncoder:
         up = n1 > n0
         previous = self._last_edge_cycle
         first = crossing(n0 + 1 if up else n0)
-        if (self._window_cycle is None or previous is None
-                or first - previous > SPEED_TIMEOUT_CYCLES):
-            # No usable reference edge: the first edge of this stretch becomes it.
-            self._window_cycle = first
-            self._window_count = n0 + 1 if up else n0 - 1
+        stale = previous is None or first - previous > SPEED_TIMEOUT_CYCLES
+        for reader in self._readers:
+            if reader.cycle is None or stale:
+                # No usable reference edge: the first edge of this stretch becomes it.
+                reader.cycle = first
+                reader.count = n0 + 1 if up else n0 - 1
         # The last boundary crossed: moving up it is where the count became n1, moving down
         # where it left n1 + 1.
         self._last_edge_cycle = crossing(n1 if up else n1 + 1)
@@ -106,25 +130,29 @@ class QuadratureEncoder:
         return value - (1 << 32) if value & 0x8000_0000 else value
 
     def sample_speed(self, now: int) -> float:
-        """The M/T speed reading at ``now`` (deg/s, in the counting direction)."""
+        """The M/T speed reading at ``now`` (deg/s, in the counting direction): the
+        firmware's, over the window since its previous reading."""
+        return self._measure(self._firmware, now)
+
+    def _measure(self, reader: SpeedReader, now: int) -> float:
+        """:meth:`sample_speed` over ``reader``'s window."""
         if self.counts_per_turn <= 0:
             return 0.0
         deg_per_count = 360.0 / self.counts_per_turn
         last = self._last_edge_cycle
-        reference = self._window_cycle
-        if last is None or reference is None:
-            self._speed_dps = 0.0
-        elif last > reference:
-            edges = self._count - self._window_count
-            self._speed_dps = edges * deg_per_count * CLOCK_HZ / (last - reference)
-            self._window_count = self._count
-            self._window_cycle = last
+        if last is None or reader.cycle is None:
+            reader.speed = 0.0
+        elif last > reader.cycle:
+            edges = self._count - reader.count
+            reader.speed = edges * deg_per_count * CLOCK_HZ / (last - reader.cycle)
+            reader.count = self._count
+            reader.cycle = last
         else:
             since = now - last
             if since > SPEED_TIMEOUT_CYCLES:
-                self._speed_dps = 0.0
+                reader.speed = 0.0
             elif since > 0:
                 bound = deg_per_count * CLOCK_HZ / since
-                if abs(self._speed_dps) > bound:
-                    self._speed_dps = math.copysign(bound, self._speed_dps)
-        return self._speed_dps * self.direction
+                if abs(reader.speed) > bound:
+                    reader.speed = math.copysign(bound, reader.speed)
+        return reader.speed * self.direction

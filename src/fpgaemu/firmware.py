@@ -9,9 +9,22 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
 * ``E`` every 300 ms, enabled or not.
 * ``global_enable`` falling (``RD`` or watchdog): integrators reset, references cleared.
 
-Controller modes (parameter 4): 0 (software speed PID) and 1 (hardware speed PID: the same
-control law, computed by the FPGA module at the timer tick) are modelled; 2 and 3 (current
-PID) are refused with ``PN`` 3, since current control is not modelled.
+Controller modes (parameter 4, per channel):
+
+* 0 — software speed PID at each timer tick (parameters 8–10, PWM counts per deg/s);
+* 1 — hardware speed PID: the same gains, computed by the FPGA's controller module
+  (:mod:`fpgaemu.hwcontrol`) in fixed point at 10 kHz, independent of the timer;
+* 2 — software current PID at each timer tick: ``RV`` carries torque (N·m), the current
+  reference is torque / ``TorqueCoef``, and the firmware's own current-loop gains
+  (:data:`SW_CURRENT_KP`, Ti = max(L/R, the timer period)) drive the duty;
+* 3 — hardware current PID: the module's current loop (:data:`HW_CURRENT_KP`, Ti = L/R)
+  at 10 kHz on the Hall sensor's reading.
+
+The current-loop gains are the firmware's, not parameters (SPEC §5 has gains for the speed
+loop only), derived from the motor's electrical model. Changing a channel's controller
+while enabled is allowed: that channel's reference clears to 0 (a speed and a torque are
+not the same thing) and the new controller starts from rest. ``TM`` reports the reference
+in the mode's unit and bit 2 when the active controller's output is clamped.
 
 Power-up values come from the parameter table's ``default`` column.
 """
@@ -25,7 +38,10 @@ from typing import Any
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
-from fpgaemu.pid import PidGains, SpeedPid
+from fpgaemu.hwcontrol import HardwareController, LoopInput
+from fpgaemu.motor import MotorConstants
+from fpgaemu.pid import Pid, PidGains
+from fpgaemu.pwm import MAX_DUTY
 from fpgaemu.timeline import CLOCK_HZ, ms, us
 from fpgaemu.timing import TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
@@ -57,17 +73,27 @@ from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
 __all__ = ["Firmware", "FirmwareStats", "attach_firmware"]
 
 ALIVE_PERIOD_CYCLES = ms(300)
-#: controller modes the emulated firmware runs
-SUPPORTED_CONTROLLERS = (0, 1)
+SPEED_SW, SPEED_HW, CURRENT_SW, CURRENT_HW = 0, 1, 2, 3  #: ActiveController values
+HARDWARE_MODES = (SPEED_HW, CURRENT_HW)
+_MOTOR = MotorConstants()
+#: Duty (PWM counts) to current (A) at stall, the current loop's plant gain.
+_AMPS_PER_COUNT = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
+_ELECTRICAL_TAU = _MOTOR.inductance_h / _MOTOR.resistance_ohm
+#: Current-loop gains, PWM counts per A: a loop gain of 0.5 per tick in software (stable at
+#: any timer period), 2 in hardware (crossover ≈ 2,000 rad/s at 10 kHz).
+SW_CURRENT_KP = 0.5 / _AMPS_PER_COUNT
+HW_CURRENT_KP = 2.0 / _AMPS_PER_COUNT
 
 
 class Channel:
-    """The software's state for one motor channel: its controller, reference and the
-    latest samples of its inputs."""
+    """The software's state for one motor channel: its controllers, reference and the
+    latest samples of its inputs (and, once attached, the FPGA controller module)."""
 
     def __init__(self, gains: PidGains) -> None:
-        self.pid = SpeedPid(gains)
-        self.reference = 0.0
+        self.pid = Pid(gains)
+        self.current_pid = Pid(PidGains(SW_CURRENT_KP, _ELECTRICAL_TAU, 0.0))
+        self.hardware: HardwareController | None = None
+        self.reference = 0.0  #: deg/s, or N·m under current control
         self.speed = 0.0
         self.current = 0.0
         self.position = 0
@@ -135,6 +161,9 @@ class Firmware:
             if error is not None:
                 raise ValueError(f"initial {name} = {value!r}: {NackReason(error).text}")
             self._apply(param, channel, _stored(param, value))
+        for code, ch in self.channels.items():
+            ch.hardware = HardwareController(board, board.channels[code])
+            self._configure_hardware(code)
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.schedule(now + ALIVE_PERIOD_CYCLES, self._on_alive)
@@ -198,8 +227,9 @@ class Firmware:
             # malformed message is: nothing a broken host sends may reach a controller.
             if math.isfinite(message.ref_a) and math.isfinite(message.ref_b):
                 self.stats.references += 1
-                self.channels[CHANNEL_A].reference = message.ref_a
-                self.channels[CHANNEL_B].reference = message.ref_b
+                for code, value in ((CHANNEL_A, message.ref_a), (CHANNEL_B, message.ref_b)):
+                    self.channels[code].reference = value
+                    self._write_hardware_reference(code)
             else:
                 self.stats.invalid_references += 1
         elif isinstance(message, Malformed):
@@ -220,8 +250,6 @@ class Firmware:
         if isinstance(value, float) and not math.isfinite(value):
             return NackReason.OUT_OF_RANGE
         if not param.in_range(value):
-            return NackReason.OUT_OF_RANGE
-        if param.id == 4 and value not in SUPPORTED_CONTROLLERS:
             return NackReason.OUT_OF_RANGE
         return None
 
@@ -263,8 +291,11 @@ class Firmware:
             self.board.timer.set_period_ms(int(value))
         elif param.scope is Scope.CHANNEL:
             ch = self.channels[channel]
-            if param.id == 5:
-                ch.pid.limit = int(value)
+            if param.id == 4:
+                self._change_controller(channel)
+            elif param.id == 5:
+                ch.pid.limit = ch.current_pid.limit = int(value)
+                self._configure_hardware(channel)
             elif param.id in (6, 7):
                 board = self.board
                 board.settle(board.now)  # the count restarts from the wheel's angle now
@@ -273,16 +304,64 @@ class Firmware:
                 )
             elif param.id in (8, 9, 10):
                 ch.pid.gains = self._gains(channel)
+                self._configure_hardware(channel)
+            elif param.id == 3:
+                self._write_hardware_reference(channel)
 
     # --- the control loop -----------------------------------------------------------------
 
+    def mode(self, code: int) -> int:
+        return int(self.values[(4, code)])
+
+    def _current_reference(self, code: int) -> float:
+        """The current (A) a torque reference (N·m) asks for."""
+        return self.channels[code].reference / float(self.values[(3, code)])
+
+    def _configure_hardware(self, code: int) -> None:
+        hardware = self.channels[code].hardware
+        if hardware is None:
+            return
+        limit = int(self.values[(5, code)])
+        if self.mode(code) == CURRENT_HW:
+            hardware.configure(LoopInput.CURRENT,
+                               PidGains(HW_CURRENT_KP, _ELECTRICAL_TAU, 0.0), limit)
+        else:
+            hardware.configure(LoopInput.SPEED, self._gains(code), limit)
+        self._write_hardware_reference(code)
+
+    def _write_hardware_reference(self, code: int) -> None:
+        ch = self.channels[code]
+        if ch.hardware is not None:
+            ch.hardware.write_reference(self._current_reference(code)
+                                        if self.mode(code) == CURRENT_HW else ch.reference)
+
+    def _change_controller(self, code: int) -> None:
+        """A new controller for the channel: from rest, at reference 0, also while enabled."""
+        ch = self.channels[code]
+        ch.reference = 0.0
+        ch.pid.reset()
+        ch.current_pid.reset()
+        if ch.hardware is None:
+            return
+        ch.hardware.stop()
+        self._configure_hardware(code)
+        if self._enabled and self.mode(code) in HARDWARE_MODES:
+            ch.hardware.start(self.board.now)
+
     def _on_enable(self, change: EnableChange) -> None:
         self._enabled = change.enabled
-        if not change.enabled:
-            for code, ch in self.channels.items():
-                ch.pid.reset()
-                ch.reference = 0.0
-                self.board.channels[code].pwm.write_duty(0, change.cycle)
+        for code, ch in self.channels.items():
+            if change.enabled:
+                if ch.hardware is not None and self.mode(code) in HARDWARE_MODES:
+                    ch.hardware.start(change.cycle)
+                continue
+            if ch.hardware is not None:
+                ch.hardware.stop()
+            ch.pid.reset()
+            ch.current_pid.reset()
+            ch.reference = 0.0
+            self._write_hardware_reference(code)
+            self.board.channels[code].pwm.write_duty(0, change.cycle)
 
     def _on_tick(self, cycle: int) -> None:
         board = self.board
@@ -294,12 +373,26 @@ class Firmware:
             ch.speed = io.encoder.sample_speed(cycle)
             ch.position = io.encoder.position
             ch.current = io.current_a
-            if self._enabled and self.values[(4, code)] in SUPPORTED_CONTROLLERS:
-                io.pwm.write_duty(ch.pid.update(ch.reference, ch.speed, dt), cycle)
-            else:
+            mode = self.mode(code)
+            if not self._enabled:
                 ch.pid.reset()
+                ch.current_pid.reset()
                 io.pwm.write_duty(0, cycle)
-            saturated[code] = ch.pid.saturated
+                saturated[code] = False
+            elif mode == SPEED_SW:
+                io.pwm.write_duty(ch.pid.update(ch.reference, ch.speed, dt), cycle)
+                saturated[code] = ch.pid.saturated
+            elif mode == CURRENT_SW:
+                pid = ch.current_pid
+                # Ti no shorter than the period: the loop stays stable at any timer period.
+                if pid.gains.ti != max(_ELECTRICAL_TAU, dt):
+                    pid.gains = PidGains(SW_CURRENT_KP, max(_ELECTRICAL_TAU, dt), 0.0)
+                io.pwm.write_duty(pid.update(self._current_reference(code), ch.current, dt),
+                                  cycle)
+                saturated[code] = pid.saturated
+            else:  # the FPGA module runs the loop; the software only reports
+                assert ch.hardware is not None
+                saturated[code] = ch.hardware.saturated
         self.timing.periods += 1
         if self.values[(2, BOARD)] == 1:
             sample = Telemetry(

@@ -33,9 +33,16 @@ Scaling: the identification's negative sign is the encoder's counting direction;
 speed is positive for positive duty. Full duty (32760) gives 90 deg/s in high gear; low
 gear keeps the identified ratio of DC gains (0.349), so about 31 deg/s at full duty.
 
-Current: a DC motor behind the 1:70 gearbox, i = (V·duty − k_e·ω_motor)/R, plus the current
-that carries a load torque. A load torque acts as an input disturbance in the same units;
-a stalled wheel holds speed 0 and draws the stall current.
+Current: the winding of a DC motor behind the 1:70 gearbox, L·di/dt = V·duty − k_e·ω_motor −
+R·i, integrated exactly over each step with the step's mean speed (R = 1 Ω, L = 1 mH: an
+electrical time constant of 1 ms, a pole at 1,000 rad/s that the seed's identification at
+Ts = 0.05 s — Nyquist 63 rad/s — could not have seen, so the identified speed response is
+untouched; k_e puts the back-EMF at 90 % of the supply at full speed, which leaves 2.4 A of
+friction current at full duty). The current does not feed back into the speed plant: the
+identified response from duty to speed already contains the motor's dynamics. A load
+torque acts as an input disturbance in the same units; a stalled wheel holds speed 0 and
+its current rises to V·duty/R. The Hall sensor reads the current, with optional seeded
+Gaussian noise (``Motors(current_noise_a=…)``).
 
 :class:`Motors` attaches the two wheels to a board: each channel's PWM output drives its
 wheel, the wheel turns that channel's encoder, the Hall sensor reads the motor current.
@@ -47,8 +54,9 @@ edges follow the wheel closely.
 from __future__ import annotations
 
 import cmath
+import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from fpgaemu.timeline import CLOCK_HZ, ms
 
@@ -88,6 +96,7 @@ class MotorConstants:
 
     supply_v: float = 24.0
     resistance_ohm: float = 1.0
+    inductance_h: float = 1e-3
     #: back-EMF constant; 90 % of the supply at full wheel speed leaves 2.4 A of friction
     #: current at full duty
     ke_v_s_per_rad: float = 0.9 * 24.0 / (GEAR_RATIO * MAX_SPEED_HIGH_DPS * cmath.pi / 180)
@@ -201,7 +210,9 @@ class WheelPlant:
         self.load_torque_nm = 0.0  #: at the wheel; positive opposes positive speed
         self.stalled = False
         self.angle_deg = 0.0
+        self.current = 0.0  #: A, the winding current (the state)
         self._cache: dict[float, list[tuple[complex, complex, complex, complex]]] = {}
+        self._decay: dict[float, float] = {}
 
     @property
     def speed_dps(self) -> float:
@@ -214,10 +225,21 @@ class WheelPlant:
 
     @property
     def current_a(self) -> float:
+        return self.current
+
+    def _follow_current(self, dt: float, mean_speed_dps: float) -> None:
+        """The winding current over ``dt`` with the duty held and the wheel at its mean
+        speed: exact for a first-order circuit with constant input."""
         m = self.motor
+        decay = self._decay.get(dt)
+        if decay is None:
+            decay = math.exp(-dt * m.resistance_ohm / m.inductance_h)
+            if len(self._decay) < 64:
+                self._decay[dt] = decay
         volts = m.supply_v * self.duty / MAX_DUTY
-        omega_motor = self.speed_dps * cmath.pi / 180 * GEAR_RATIO
-        return (volts - m.ke_v_s_per_rad * omega_motor) / m.resistance_ohm
+        omega_motor = math.radians(mean_speed_dps) * GEAR_RATIO
+        steady = (volts - m.ke_v_s_per_rad * omega_motor) / m.resistance_ohm
+        self.current = steady + (self.current - steady) * decay
 
     def _input(self) -> float:
         # A load torque is the duty it would take to hold it at stall.
@@ -243,6 +265,7 @@ class WheelPlant:
         if dt <= 0:
             return angle0, speed0
         if self.stalled:
+            self._follow_current(dt, 0.0)
             return angle0, 0.0
         u = self._input()
         x = self._x
@@ -254,6 +277,7 @@ class WheelPlant:
             angle_gain += (angle_from_state * xi + angle_from_input * u).real
             x[i] = e * xi + gain * u
         self.angle_deg += angle_gain
+        self._follow_current(dt, angle_gain / dt)
         return angle0, speed0
 
     def stall(self, stalled: bool = True) -> None:
@@ -278,15 +302,21 @@ class Motors:
     """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
     current sensors (a board peripheral)."""
 
-    def __init__(self, gear: str = "high") -> None:
+    def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
+        if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
+            raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
         self.gear = gear
+        self.current_noise_a = current_noise_a
         self.wheels: dict[int, WheelPlant] = {}
         self._board: Board | None = None
         self._cycle = 0
+        self._noise: Any = None
 
     def attach(self, board: Board) -> None:
         self._board = board
         self._cycle = board.now
+        if self.current_noise_a > 0:
+            self._noise = board.timeline.rng("hall")
         for code, io in board.channels.items():
             self.wheels[code] = WheelPlant(self.gear)
             io.pwm.on_change(self.advance_to)
@@ -303,5 +333,6 @@ class Motors:
             io = channels[code]
             wheel.duty = io.pwm.applied_duty
             turn(wheel, io.encoder, start, cycle)
-            io.current_a = wheel.current_a
+            io.current_a = wheel.current if self._noise is None else (
+                wheel.current + float(self._noise.normal(0.0, self.current_noise_a)))
         self._cycle = cycle

@@ -1,4 +1,6 @@
-"""The firmware's software speed PID, one per channel (seed §3.3; SPEC §5 parameters 8–10).
+"""The firmware's software PID, one per channel and loop (seed §3.3): the speed loop with
+SPEC §5 parameters 8–10 (PWM counts per deg/s), and the current loop of ``ActiveController``
+2 with the firmware's own gains (PWM counts per A; :mod:`fpgaemu.firmware`).
 
 Parallel form in the seed's parameters: u = Kp·(e + (1/Ti)∫e dt + Td·de/dt), with
 * the derivative taken on the measurement (a reference step does not kick the output) and
@@ -10,7 +12,7 @@ Parallel form in the seed's parameters: u = Kp·(e + (1/Ti)∫e dt + Td·de/dt),
 * a non-finite reference or measurement (a broken sensor, a bug upstream) outputs 0 and
   resets the state, so no NaN or infinity ever enters the integrator — where a NaN would
   make every later comparison with the clamp false and latch the output at its limit.
-Units: error in deg/s, output in PWM counts (32760 = 100 %).
+Units: error in deg/s (or A), output in PWM counts (32760 = 100 %).
 """
 
 from __future__ import annotations
@@ -18,19 +20,19 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-__all__ = ["PidGains", "SpeedPid"]
+__all__ = ["Pid", "PidGains"]
 
 DERIVATIVE_FILTER_N = 10.0
 
 
 @dataclass(frozen=True, slots=True)
 class PidGains:
-    kp: float  #: PWM counts per deg/s
+    kp: float  #: PWM counts per deg/s (per A in a current loop)
     ti: float  #: s
     td: float  #: s
 
 
-class SpeedPid:
+class Pid:
     def __init__(self, gains: PidGains, limit: int = 32760) -> None:
         self.gains = gains
         self.limit = limit

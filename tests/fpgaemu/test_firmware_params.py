@@ -103,7 +103,7 @@ OUT_OF_RANGE: dict[int, list[int | float]] = {
     1: [0, -1, 1001, 2**31 - 1, -(2**31)],
     2: [-1, 2, 100],
     3: [0.0, -0.0, -1e-30, -5.0, math.nan, math.inf, -math.inf],
-    4: [-1, 4, 100, 2, 3],  # 2 and 3 (current PID) are refused: not modelled
+    4: [-1, 4, 100],
     5: [-1, 32761, 65535],
     6: [-1, 65536, 2**31 - 1],
     7: [0, 2, -2, 100],
@@ -115,7 +115,7 @@ IN_RANGE_EDGES: dict[int, list[int | float]] = {
     1: [1, 1000],
     2: [0, 1],
     3: [1e-30, 1e30],
-    4: [0, 1],
+    4: [0, 1, 2, 3],  # every mode: speed and current, software and hardware
     5: [0, 32760],
     6: [0, 65535],
     7: [-1, 1],
@@ -170,7 +170,7 @@ def test_range_edges_are_accepted_and_echoed(host: Host, param: Param) -> None:
         ((4, 1, 2, 3.0), NackReason.WRONG_TYPE),
         ((3, 1, 1, 0), NackReason.WRONG_TYPE),
         # only out of range left
-        ((4, 2, 1, 3), NackReason.OUT_OF_RANGE),
+        ((4, 2, 1, 4), NackReason.OUT_OF_RANGE),
     ],
 )
 def test_check_order_first_failure_answers(

@@ -2,10 +2,13 @@
 parameter sets and gets, garbage, a timer-period change, a watchdog lapse, re-enable, RD),
 and every byte the board put on its TX pin with the cycle its stop bit ended.
 
-Recorded before the house was restructured (the one change since: the power-up PID runs
-on the float32 value the board stores, Ti 0.23999999 s, as it reports it) and required
-unchanged by every change that is not meant to change behaviour — the restructure, and
-every speed-up. A digest keeps the test small; on a mismatch the first diverging byte is
+Recorded before the house was restructured and required unchanged by every change that is
+not meant to change behaviour — the restructure, and every speed-up. Changes that were
+meant to: the power-up PID runs on the float32 value the board stores (Ti 0.23999999 s, as
+it reports it); then the fidelity work (2026-11-22) — the motor winding's inductance makes
+the reported current lag the duty, and ActiveController 3, which the scenario sets on
+channel B, is now run (the hardware current loop) instead of refused. The speed-ups of the
+performance work came after that and keep this trace. A digest keeps the test small; on a mismatch the first diverging byte is
 reported, and the scenario can be rerun against an older checkout to compare.
 """
 
@@ -18,8 +21,8 @@ from fpgaemu import build_board, ms
 from fpgaemu.board import Board
 from fpgalink.protocol import encode_frame
 
-GOLDEN_BYTES = 146_465
-GOLDEN_SHA256 = "b1546b3492ec41455ab174b0c8d9ee46c4283e06c946696a9927930e371dddbd"
+GOLDEN_BYTES = 146_471
+GOLDEN_SHA256 = "65cd7bb116c2e52f4facc05bfa5ebb598957d86fdb32d0774c5bad20cc9c6c21"
 
 
 def _counted(msg_id: bytes, counter: int, body: bytes) -> bytes:

@@ -127,7 +127,11 @@ def test_current_follows_the_dc_motor_equation() -> None:
     plant = WheelPlant()
     motor = plant.motor
     plant.duty = MAX_DUTY
-    assert plant.current_a == pytest.approx(motor.supply_v / motor.resistance_ohm)  # at rest
+    assert plant.current_a == 0.0  # the winding's current cannot jump
+    tau = motor.inductance_h / motor.resistance_ohm
+    plant.advance(tau)  # one time constant at (almost) rest: 1 − 1/e of the stall current
+    stall = motor.supply_v / motor.resistance_ohm
+    assert plant.current_a == pytest.approx(stall * (1 - math.exp(-1)), rel=0.01)
     run(plant, MAX_DUTY, 4.0)
     # 90 % of the supply as back-EMF at full speed: 2.4 A of no-load current.
     assert plant.current_a == pytest.approx(0.1 * motor.supply_v / motor.resistance_ohm,
@@ -270,6 +274,7 @@ def test_stalled_wheel_reads_speed_0_and_draws_the_stall_current() -> None:
     assert plant.current_a == pytest.approx(stall_current)
     assert stall_current == 24.0
     plant.duty = MAX_DUTY // 2
+    plant.advance(0.05)  # 50 electrical time constants
     assert plant.current_a == pytest.approx(stall_current * (MAX_DUTY // 2) / MAX_DUTY)
 
 
@@ -314,3 +319,24 @@ def test_board_loop_rejects_a_load_torque_with_more_duty() -> None:
     assert last.a.speed == pytest.approx(45.0, rel=0.01)  # then the integrator recovers it
     assert last.a.pwm - duty_free == pytest.approx(0.25 * MAX_DUTY, rel=0.02)
     assert last.a.current > host.telemetry[mark - 1].a.current
+
+
+def test_hall_sensor_noise_is_optional_seeded_and_of_the_asked_size() -> None:
+    from fpgaemu import build_board
+
+    def readings(seed: int, noise: float) -> list[float]:
+        board = build_board(seed=seed, current_noise_a=noise)
+        out = []
+        for k in range(1, 2001):
+            board.run_until(k * 10_000)
+            board.settle(board.now)
+            out.append(board.channels[1].current_a)
+        return out
+
+    quiet = readings(1, 0.0)
+    assert set(quiet) == {0.0}  # at rest, no noise: exactly zero
+    noisy = readings(1, 0.05)
+    assert noisy == readings(1, 0.05) and noisy != readings(2, 0.05)
+    mean = sum(noisy) / len(noisy)
+    spread = (sum((x - mean) ** 2 for x in noisy) / len(noisy)) ** 0.5
+    assert abs(mean) < 0.01 and spread == pytest.approx(0.05, rel=0.1)

@@ -11,7 +11,7 @@ import math
 import pytest
 
 from fpgaemu.motor import GEARS
-from fpgaemu.pid import PidGains, SpeedPid
+from fpgaemu.pid import Pid, PidGains
 from fpgalink.protocol import float32
 from tests.support.plant import DEFAULT_GAINS, step_response
 
@@ -19,7 +19,7 @@ TS = 0.001
 
 
 def test_proportional_and_integral_action() -> None:
-    pid = SpeedPid(PidGains(kp=100.0, ti=0.5, td=0.0))
+    pid = Pid(PidGains(kp=100.0, ti=0.5, td=0.0))
     first = pid.update(10.0, 0.0, TS)
     assert first == round(100 * 10 + 100 * TS / 0.5 * 10)
     for _ in range(499):
@@ -30,15 +30,15 @@ def test_proportional_and_integral_action() -> None:
 
 
 def test_output_clamp_and_saturated_flag() -> None:
-    pid = SpeedPid(PidGains(kp=1000.0, ti=0.2, td=0.0), limit=8000)
+    pid = Pid(PidGains(kp=1000.0, ti=0.2, td=0.0), limit=8000)
     assert pid.update(45.0, 0.0, TS) == 8000 and pid.saturated
     assert pid.update(-45.0, 0.0, TS) == -8000 and pid.saturated
-    zero = SpeedPid(PidGains(kp=1000.0, ti=0.2, td=0.0), limit=0)
+    zero = Pid(PidGains(kp=1000.0, ti=0.2, td=0.0), limit=0)
     assert zero.update(45.0, 0.0, TS) == 0
 
 
 def test_anti_windup_keeps_the_integrator_out_of_a_long_saturation() -> None:
-    pid = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.0), limit=32760)
+    pid = Pid(PidGains(kp=500.0, ti=0.2, td=0.0), limit=32760)
     for _ in range(3000):  # 3 s pinned at the limit
         pid.update(200.0, 0.0, TS)
     assert abs(pid.integral) < 32760
@@ -47,7 +47,7 @@ def test_anti_windup_keeps_the_integrator_out_of_a_long_saturation() -> None:
 
 
 def test_derivative_acts_on_the_measurement_not_the_reference() -> None:
-    pid = SpeedPid(PidGains(kp=100.0, ti=1e9, td=0.1))
+    pid = Pid(PidGains(kp=100.0, ti=1e9, td=0.1))
     pid.update(0.0, 0.0, TS)
     step = pid.update(50.0, 0.0, TS)  # reference step: no derivative kick
     assert step == pytest.approx(100 * 50, abs=1)
@@ -56,17 +56,17 @@ def test_derivative_acts_on_the_measurement_not_the_reference() -> None:
 
 
 def test_reset_clears_the_state() -> None:
-    pid = SpeedPid(PidGains(kp=100.0, ti=0.1, td=0.05))
+    pid = Pid(PidGains(kp=100.0, ti=0.1, td=0.05))
     for _ in range(100):
         pid.update(30.0, 5.0, TS)
     pid.reset()
-    fresh = SpeedPid(PidGains(kp=100.0, ti=0.1, td=0.05))
+    fresh = Pid(PidGains(kp=100.0, ti=0.1, td=0.05))
     assert pid.update(30.0, 5.0, TS) == fresh.update(30.0, 5.0, TS)
     assert pid.integral == fresh.integral and not pid.saturated
 
 
 def test_changing_gains_does_not_bump_the_output() -> None:
-    pid = SpeedPid(PidGains(kp=100.0, ti=0.2, td=0.0))
+    pid = Pid(PidGains(kp=100.0, ti=0.2, td=0.0))
     for _ in range(300):
         out = pid.update(20.0, 20.0, TS)  # zero error: output is the integral alone
     pid.integral = 5000.0
@@ -155,14 +155,14 @@ def test_default_gains_are_the_documented_ones() -> None:
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf])
 def test_a_non_finite_input_outputs_zero_and_never_enters_the_state(bad: float) -> None:
-    pid = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.05))
+    pid = Pid(PidGains(kp=500.0, ti=0.2, td=0.05))
     for _ in range(50):
         pid.update(30.0, 10.0, TS)
     assert pid.update(bad, 10.0, TS) == 0
     assert pid.update(30.0, bad, TS) == 0
     assert pid.integral == 0.0 and not pid.saturated
     # Back to finite inputs: an ordinary controller from rest, not one latched at its limit.
-    fresh = SpeedPid(PidGains(kp=500.0, ti=0.2, td=0.05))
+    fresh = Pid(PidGains(kp=500.0, ti=0.2, td=0.05))
     assert pid.update(0.0, 0.0, TS) == fresh.update(0.0, 0.0, TS) == 0
 
 

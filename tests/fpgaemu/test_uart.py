@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -184,7 +186,7 @@ def _received(data: bytes, faults: LineFaults, cuts: list[int]) -> tuple[
     framing errors, once the line has idled."""
     line, runs = collect(faults)
     edges = [0, *sorted(set(cuts)), len(data)]
-    for a, b in zip(edges, edges[1:]):
+    for a, b in itertools.pairwise(edges):
         if b > a:
             line.transmit(data[a:b], 0)
     line._timeline.run_until(line.line_free_at + 20_000)
@@ -220,7 +222,7 @@ def test_the_receiver_is_a_function_of_the_slots(slots: list[int], cuts: list[in
 
     whole = receive([(0, slots)])
     edges = [0, *sorted({c for c in cuts if c < len(slots)}), len(slots)]
-    pieces = [(a * 100, slots[a:b]) for a, b in zip(edges, edges[1:]) if b > a]
+    pieces = [(a * 100, slots[a:b]) for a, b in itertools.pairwise(edges) if b > a]
     assert receive(pieces) == whole
     # An idle stretch may as well be a pause between two writes.
     spaced: list[tuple[int, list[int]]] = []

@@ -12,6 +12,7 @@ Icarus Verilog or litex the tests skip, unless ``FPGALINK_REQUIRE_HDL=1`` (set b
 
 from __future__ import annotations
 
+import itertools
 import os
 import random
 from pathlib import Path
@@ -147,15 +148,15 @@ def test_other_rates_match_litex(tmp_path: Path) -> None:
 def test_back_to_back_transmit_spacing_with_litexs_gap(hdl: HdlUart) -> None:
     data = bytes([0x00, 0xFF, 0x55, 0x01, 0x80])
     starts = hdl.transmit_starts(data)
-    assert [b - a for a, b in zip(starts, starts[1:])] == [1002] * (len(data) - 1)
+    assert [b - a for a, b in itertools.pairwise(starts)] == [1002] * (len(data) - 1)
     line = UartWrite(Timeline(0), byte_gap=2)
     line.transmit(data, 0)
     line._timeline.run_until(20_000)
     ends = [cycle for _, cycle in line.read_completed_timed()]
-    assert [b - a for a, b in zip(ends, ends[1:])] == [1002] * (len(data) - 1)
+    assert [b - a for a, b in itertools.pairwise(ends)] == [1002] * (len(data) - 1)
     # and the default, the seed's uartwrite as modelled: stop bits of exactly one bit
     plain = UartWrite(Timeline(0))
     plain.transmit(data, 0)
     plain._timeline.run_until(20_000)
     ends = [cycle for _, cycle in plain.read_completed_timed()]
-    assert [b - a for a, b in zip(ends, ends[1:])] == [1000] * (len(data) - 1)
+    assert [b - a for a, b in itertools.pairwise(ends)] == [1000] * (len(data) - 1)

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 
 from fpgaemu.encoder import QuadratureEncoder
 from fpgaemu.motor import WheelPlant, turn
-from fpgaemu.pid import PidGains, SpeedPid
+from fpgaemu.pid import Pid, PidGains
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink.protocol import float32, lookup
 
@@ -57,7 +57,7 @@ def step_response(reference: float, gains: PidGains = DEFAULT_GAINS, period_ms: 
     """0 → ``reference`` deg/s at t = 0 with the speed PID closed through the encoder."""
     plant = WheelPlant(gear)
     encoder = QuadratureEncoder(pulses_per_turn)
-    pid = SpeedPid(gains, limit)
+    pid = Pid(gains, limit)
     period = period_ms * CLOCK_HZ // 1000
     run = StepRun(reference, period / CLOCK_HZ)
     cycle = 0
