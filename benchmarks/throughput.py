@@ -50,7 +50,6 @@ from benchmarks._common import (
     time_once,
     write_results,
 )
-from fpgaemu.serve import TICK_S as EMULATOR_TICK_S
 from fpgalink import Connection, Role, open_link
 from fpgalink.aio import Link
 from fpgalink.protocol import (
@@ -694,7 +693,7 @@ def _paced_result(config: BenchConfig, boards: int, reps: list[dict[str, Any]],
             "arrival (host monotonic clock, at the subscriber) minus the TM's t_us, minus the "
             "minimum of that difference over the run per board"),
         "latency_offset_s": offsets,
-        "emulator_tick_s": EMULATOR_TICK_S,
+        "emulator_pacing": "deadlines (no fixed tick)",
         "emulator_stderr": emulator_said,
         "repetitions": reps,
         "summary": summary,
@@ -915,7 +914,6 @@ def print_report(report: dict[str, Any]) -> None:
     tm_wire = first["summary"]["boards"][first["board_names"][0]]["tm_wire_bytes_mean"]
     tm_wire_us = (None if tm_wire is None
                   else tm_wire["median"] / bytes_per_second(cfg["baud"]) * 1e6)
-    tick = first.get("emulator_tick_s")
     # A section's name only on its first row, so the table reads as groups.
     for i in range(len(rows) - 1, 0, -1):
         if rows[i][0] == rows[i - 1][0]:
@@ -947,10 +945,8 @@ def print_report(report: dict[str, Any]) -> None:
         "the host stamps arrival at the subscriber. The emulator is paced to the wall clock "
         "from its own start, an instant not known here, so latency is arrival − t_us minus the "
         "minimum of that over the run (per board): the fastest sample counts as 0, though it "
-        f"too spent at least its frame's wire time (~{_num(tm_wire_us)} µs) on the line."
-        + (f" The emulator hands TX bytes to its pty every {_num(tick * 1000)} ms, so up to "
-           "that much of the spread is the emulator's pacing, not the link's."
-           if tick else ""),
+        f"too spent at least its frame's wire time (~{_num(tm_wire_us)} µs) on the line. The "
+        "emulator hands each frame to its pty when its last stop bit ends.",
     ]
     for sec in ("paced_1_board", "paced_2_boards"):
         said = report[sec]["emulator_stderr"]

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
+import selectors
 import signal
 import sys
 from collections.abc import Callable
@@ -224,8 +225,16 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
                               settings, faults)
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
-    code = asyncio.run(_serve(use_pty, host, port, paced, links, truth))
+    with asyncio.Runner(loop_factory=_precise_loop) as runner:
+        code = runner.run(_serve(use_pty, host, port, paced, links, truth))
     sys.exit(code)
+
+
+def _precise_loop() -> asyncio.AbstractEventLoop:
+    """An event loop whose timers wake on time to the microsecond: epoll and poll round a
+    wait up to whole milliseconds, which would put every reply a millisecond late; select()
+    does not, and serve watches only a few descriptors."""
+    return asyncio.SelectorEventLoop(selectors.SelectSelector())
 
 
 def _robot(value: dict[str, Any]) -> RobotDescription:

@@ -105,6 +105,7 @@ class Board:
         self.uartcommand.on_enable_change(self._gate_pwm)
         self.peripherals: dict[str, Peripheral] = {}
         self._settlers: list[Callable[[int], None]] = []
+        self._skippable: Callable[[], EventHandle | None] | None = None
 
     def _gate_pwm(self, change: EnableChange) -> None:
         for io in self.channels.values():
@@ -129,6 +130,17 @@ class Board:
         """Bring every lazily integrated model up to ``cycle`` before inputs are sampled."""
         for settler in self._settlers:
             settler(cycle)
+
+    def set_skippable(self, source: Callable[[], EventHandle | None]) -> None:
+        """``source()`` names a scheduled event that will change nothing observable (the
+        firmware's next tick while the board is quiescent), or ``None``."""
+        self._skippable = source
+
+    def next_deadline(self) -> int | None:
+        """The cycle of the next event that may change something a host could see (an event
+        known to change nothing is not counted), or ``None`` when nothing is scheduled."""
+        skip = self._skippable() if self._skippable is not None else None
+        return self.timeline.next_deadline_except(skip)
 
     # --- time -----------------------------------------------------------------------------
 

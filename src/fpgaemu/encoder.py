@@ -129,6 +129,15 @@ class QuadratureEncoder:
         value = (self._count * self.direction) & 0xFFFF_FFFF
         return value - (1 << 32) if value & 0x8000_0000 else value
 
+    @property
+    def settled(self) -> bool:
+        """The firmware's reading is 0 and stays 0 while no edge comes: sampling again
+        would change nothing."""
+        reader = self._firmware
+        return reader.speed == 0.0 and (self._last_edge_cycle is None
+                                        or reader.cycle is None
+                                        or self._last_edge_cycle <= reader.cycle)
+
     def sample_speed(self, now: int) -> float:
         """The M/T speed reading at ``now`` (deg/s, in the counting direction): the
         firmware's, over the window since its previous reading."""

@@ -280,6 +280,14 @@ class WheelPlant:
         self._follow_current(dt, angle_gain / dt)
         return angle0, speed0
 
+    @property
+    def at_rest(self) -> bool:
+        """Exactly still, unpowered and unloaded: advancing changes nothing at all (true
+        from power-up until driven; after being driven, once its motion has decayed to
+        exactly zero)."""
+        return (self.duty == 0 and self.current == 0.0 and self.load_torque_nm == 0.0
+                and not (self._x[0] or self._x[1] or self._x[2]))
+
     def stall(self, stalled: bool = True) -> None:
         """Block the wheel (or free it): a blocked wheel's dynamics restart from rest."""
         self.stalled = stalled
@@ -321,6 +329,11 @@ class Motors:
             self.wheels[code] = WheelPlant(self.gear)
             io.pwm.on_change(self.advance_to)
         board.on_settle(self.advance_to)
+
+    @property
+    def at_rest(self) -> bool:
+        """Every wheel exactly still, unpowered and unloaded (see :attr:`WheelPlant.at_rest`)."""
+        return all(wheel.at_rest for wheel in self.wheels.values())
 
     def advance_to(self, cycle: int) -> None:
         """Integrate both wheels up to ``cycle`` with the duty their PWM applies now."""

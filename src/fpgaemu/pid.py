@@ -47,6 +47,12 @@ class Pid:
         self._last_measurement = None
         self.saturated = False
 
+    @property
+    def at_rest(self) -> bool:
+        """Reset: no state that the next update would carry."""
+        return (self.integral == 0.0 and self._derivative == 0.0
+                and self._last_measurement is None and not self.saturated)
+
     def update(self, reference: float, measurement: float, dt: float) -> int:
         """One controller period; returns the duty command."""
         if not (math.isfinite(reference) and math.isfinite(measurement)):

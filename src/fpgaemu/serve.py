@@ -4,8 +4,11 @@ in-process asyncio transport for ``emu://``, all paced to the wall clock.
 A pty does not enforce a baud rate, so the pacing is ours: the board's cycle count follows
 real time, host bytes enter ``uartread`` at the cycle they arrived (queuing at line rate
 behind earlier ones, as on a wire), and TX bytes are handed out when their stop bit has
-ended in emulated time. If the process is starved of CPU the board falls behind real time;
-it then catches up in bounded slices, loses nothing, and the lag is reported.
+ended in emulated time. The serving loop sleeps until the board's next deadline — the next
+event that may change something a host could see, or the next TX byte's stop bit — or until
+host bytes arrive; an idle board is not woken for timer ticks that change nothing. If the
+process is starved of CPU the board falls behind real time; it then catches up in bounded
+slices, loses nothing, and the lag (how late a deadline was met) is reported.
 """
 
 from __future__ import annotations
@@ -38,13 +41,12 @@ __all__ = [
     "open_emulated_transport",
 ]
 
-#: How often the serving loop advances the boards. 1 ms keeps TX bursts near line rate
-#: (100 bytes per tick at 1 MBd) without costing much when idle.
-TICK_S = 0.001
 #: Longest slice of emulated time run in one go while catching up, so I/O stays served.
 CATCH_UP_SLICE_S = 0.05
-#: Behind real time by more than this counts as lag.
+#: A deadline met later than this counts as lag.
 LAG_THRESHOLD_S = 0.005
+#: The longest the serving loop sleeps without a deadline (a safety net, not a tick).
+MAX_SLEEP_S = 1.0
 
 
 #: The USB-UART's buffer toward the board (the CmodA7's FT2232H holds 4 KiB per channel).
@@ -56,11 +58,22 @@ HOST_FIFO_BYTES = 4096
 
 @dataclass(slots=True)
 class LagReport:
-    """How far the board fell behind the wall clock."""
+    """How far the board fell behind the wall clock: how late its deadlines were met."""
 
     lag_events: int = 0
     worst_lag_s: float = 0.0
     current_lag_s: float = 0.0
+    _lagging: bool = False
+
+    def observe(self, late_s: float) -> None:
+        self.current_lag_s = max(0.0, late_s)
+        if self.current_lag_s > LAG_THRESHOLD_S:
+            if not self._lagging:
+                self.lag_events += 1
+                self._lagging = True
+            self.worst_lag_s = max(self.worst_lag_s, self.current_lag_s)
+        else:
+            self._lagging = False
 
 
 @dataclass
@@ -73,7 +86,7 @@ class PacedBoard:
 
     def __post_init__(self) -> None:
         self._origin = self.clock() - self.board.now / CLOCK_HZ
-        self._lagging = False
+        self._due: int | None = None  #: the deadline the last wake-up was for
         #: host bytes dropped because the host wrote faster than the line carries them
         self.dropped_rx = 0
 
@@ -108,20 +121,31 @@ class PacedBoard:
         """Run the board up to ``now`` (in slices while catching up) and return the TX bytes
         whose stop bit ended by then."""
         target = self.target_cycle(now)
-        slice_cycles = int(CATCH_UP_SLICE_S * CLOCK_HZ)
-        behind = (target - self.board.now) / CLOCK_HZ
-        self.lag.current_lag_s = max(0.0, behind - TICK_S)
-        if self.lag.current_lag_s > LAG_THRESHOLD_S:
-            if not self._lagging:
-                self.lag.lag_events += 1
-                self._lagging = True
-            self.lag.worst_lag_s = max(self.lag.worst_lag_s, self.lag.current_lag_s)
-        else:
-            self._lagging = False
-        step_to = min(target, self.board.now + slice_cycles)
+        if self._due is not None and target >= self._due:
+            self.lag.observe((target - self._due) / CLOCK_HZ)
+            self._due = None
+        step_to = target
+        deadline = self.board.next_deadline()
+        if deadline is not None and deadline <= target:
+            # Work to do on the way: in slices, so I/O is served while catching up. (Up to
+            # the next deadline there are only ticks that change nothing: no slicing.)
+            step_to = min(target, max(deadline, self.board.now
+                                      + int(CATCH_UP_SLICE_S * CLOCK_HZ)))
         if step_to > self.board.now:
             self.board.run_until(step_to)
         return self.board.read_host_bytes()
+
+    def next_wake(self) -> float | None:
+        """When :meth:`advance` next has something to do (monotonic seconds): the board's
+        next deadline (now, if it is already past: catching up) or the end of the frame now
+        on its TX pin; ``None`` when nothing is scheduled at all."""
+        return self._wake_at(self.board.next_deadline(), self.board.uartwrite.next_completion)
+
+    def _wake_at(self, *cycles: int | None) -> float | None:
+        due = min((c for c in cycles if c is not None), default=None)
+        self._due = due
+        # One cycle past the deadline: a float round trip must not land a cycle short.
+        return None if due is None else self._origin + (due + 1) / CLOCK_HZ
 
 
 #: ``transport.get_extra_info(TRUTH_EXTRA)`` on an emulated robot's board: a function that
@@ -141,7 +165,7 @@ class PacedRobot:
         self.clock = clock
         self.lag = LagReport()
         self._origin = clock() - robot.now / CLOCK_HZ
-        self._lagging = False
+        self._due: int | None = None
         self._sides: dict[str, RobotSide] = {}
         self._open: set[str] = set()
         self.on_release: Callable[[], None] | None = None
@@ -170,18 +194,24 @@ class PacedRobot:
     def advance(self, now: float | None = None) -> None:
         """Boards and body up to ``now``, in bounded slices while catching up."""
         target = self.target_cycle(now)
-        behind = (target - self.robot.now) / CLOCK_HZ
-        self.lag.current_lag_s = max(0.0, behind - TICK_S)
-        if self.lag.current_lag_s > LAG_THRESHOLD_S:
-            if not self._lagging:
-                self.lag.lag_events += 1
-                self._lagging = True
-            self.lag.worst_lag_s = max(self.lag.worst_lag_s, self.lag.current_lag_s)
-        else:
-            self._lagging = False
+        if self._due is not None and target >= self._due:
+            self.lag.observe((target - self._due) / CLOCK_HZ)
+            self._due = None
+        # The body moves with the wheels in 1 ms steps: always sliced.
         step_to = min(target, self.robot.now + int(CATCH_UP_SLICE_S * CLOCK_HZ))
         if step_to > self.robot.now:
             self.robot.run_until(step_to)
+
+    def next_wake(self) -> float | None:
+        """:meth:`PacedBoard.next_wake` over every board of the robot (the body moves
+        with them and needs no wake-up of its own)."""
+        if self.robot.now < self.target_cycle() - int(CATCH_UP_SLICE_S * CLOCK_HZ):
+            return self.clock()
+        cycles = [c for board in self.robot.boards.values()
+                  for c in (board.next_deadline(), board.uartwrite.next_completion)
+                  if c is not None]
+        self._due = min(cycles, default=None)
+        return None if self._due is None else self._origin + (self._due + 1) / CLOCK_HZ
 
     def truth_record(self) -> dict[str, float | str]:
         state = self.robot.truth()
@@ -205,31 +235,57 @@ class RobotSide(PacedBoard):
         self.robot.advance(now)
         return self.board.read_host_bytes()
 
+    def next_wake(self) -> float | None:
+        return self.robot.next_wake()
+
     def release(self) -> None:
         self.robot.release(self.name)
 
 
-class _Ticker:
-    """Calls ``tick()`` every TICK_S on the running loop until stopped."""
+class _Pacer:
+    """Runs ``tick()`` (advance the board, hand out its bytes) whenever the board has a
+    deadline, and when :meth:`poke` says host bytes arrived — never on a fixed beat."""
 
-    def __init__(self, tick: Callable[[], None]) -> None:
+    def __init__(self, tick: Callable[[], None], next_wake: Callable[[], float | None]
+                 ) -> None:
         self._tick = tick
-        self._task: asyncio.Task[None] | None = None
+        self._next_wake = next_wake
+        self._timer: asyncio.TimerHandle | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self.wakeups = 0
 
     def start(self) -> None:
-        self._task = asyncio.ensure_future(self._run())
+        self._loop = asyncio.get_running_loop()
+        self._wake()
 
-    async def _run(self) -> None:
-        while True:
-            self._tick()
-            await asyncio.sleep(TICK_S)
+    def poke(self) -> None:
+        """Something changed (host bytes arrived): the next deadline may be sooner."""
+        if self._loop is not None:
+            self._arm()
+
+    def _wake(self) -> None:
+        self._timer = None
+        self.wakeups += 1
+        self._tick()
+        self._arm()
+
+    def _arm(self) -> None:
+        loop = self._loop
+        assert loop is not None
+        at = self._next_wake()
+        now = loop.time()
+        at = now + MAX_SLEEP_S if at is None else min(at, now + MAX_SLEEP_S)
+        if self._timer is not None:
+            if self._timer.when() <= at:
+                return
+            self._timer.cancel()
+        self._timer = loop.call_at(at, self._wake)
 
     async def stop(self) -> None:
-        if self._task is not None:
-            self._task.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._task
-            self._task = None
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._loop = None
 
 
 # --- pty --------------------------------------------------------------------------------------
@@ -255,15 +311,16 @@ class PtyEndpoint:
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
-        self._ticker = _Ticker(self._tick)
+        self.pacer = _Pacer(self._tick, paced.next_wake)
         self._pending_out = bytearray()
+        self._writing = False
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         #: TX bytes lost because nobody read the pty for longer than the backlog holds
         self.dropped_tx = 0
 
     def start(self) -> None:
         asyncio.get_running_loop().add_reader(self._master, self._readable)
-        self._ticker.start()
+        self.pacer.start()
 
     def _readable(self) -> None:
         try:
@@ -273,11 +330,15 @@ class PtyEndpoint:
         except OSError:
             return  # no reader on the slave side right now; the board keeps running
         self.paced.host_write(data)
+        self.pacer.poke()
 
     def _tick(self) -> None:
         out = self.paced.advance()
         if out:
             self._pending_out += out
+        self._flush()
+
+    def _flush(self) -> None:
         if self._pending_out:
             try:
                 written = os.write(self._master, self._pending_out)
@@ -290,9 +351,20 @@ class PtyEndpoint:
                 # rather than blocking the board.
                 del self._pending_out[:excess]
                 self.dropped_tx += excess
+        # Bytes left over go out when the pty has room, not on the next deadline.
+        loop = asyncio.get_running_loop()
+        if self._pending_out and not self._writing:
+            loop.add_writer(self._master, self._flush)
+            self._writing = True
+        elif not self._pending_out and self._writing:
+            loop.remove_writer(self._master)
+            self._writing = False
 
     async def close(self) -> None:
-        await self._ticker.stop()
+        await self.pacer.stop()
+        if self._writing:
+            with contextlib.suppress(Exception):
+                asyncio.get_running_loop().remove_writer(self._master)
         with contextlib.suppress(Exception):
             asyncio.get_running_loop().remove_reader(self._master)
         for fd in (self._master, self._slave):
@@ -316,7 +388,7 @@ class TcpEndpoint:
         self.port = port
         self._server: asyncio.Server | None = None
         self._writer: asyncio.StreamWriter | None = None
-        self._ticker = _Ticker(self._tick)
+        self.pacer = _Pacer(self._tick, paced.next_wake)
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         self._closing = False
         self._free = asyncio.Event()
@@ -331,7 +403,7 @@ class TcpEndpoint:
 
     async def start(self) -> None:
         await self._listen()
-        self._ticker.start()
+        self.pacer.start()
 
     async def _listen(self) -> None:
         # A backlog of one: while a host is served the port stops listening, and the kernel
@@ -359,6 +431,7 @@ class TcpEndpoint:
         try:
             while data := await reader.read(65536):
                 self.paced.host_write(data)
+                self.pacer.poke()
         except (ConnectionError, OSError, asyncio.CancelledError):
             pass
         finally:
@@ -381,7 +454,7 @@ class TcpEndpoint:
 
     async def close(self) -> None:
         self._closing = True
-        await self._ticker.stop()
+        await self.pacer.stop()
         if self._writer is not None:
             self._writer.close()
         if self._server is not None:
@@ -456,8 +529,8 @@ class EmulatedTransport(asyncio.Transport):
         self.paced = paced
         self._protocol = protocol
         self._closing = False
-        self._ticker = _Ticker(self._tick)
-        self._ticker.start()
+        self.pacer = _Pacer(self._tick, paced.next_wake)
+        self.pacer.start()
 
     def _tick(self) -> None:
         out = self.paced.advance()
@@ -467,6 +540,7 @@ class EmulatedTransport(asyncio.Transport):
     def write(self, data: bytes | bytearray | memoryview) -> None:
         if not self._closing:
             self.paced.host_write(bytes(data))
+            self.pacer.poke()
 
     def is_closing(self) -> bool:
         return self._closing
@@ -476,7 +550,7 @@ class EmulatedTransport(asyncio.Transport):
             return
         self._closing = True
         loop = asyncio.get_running_loop()
-        self._stopping = loop.create_task(self._ticker.stop())
+        self._stopping = loop.create_task(self.pacer.stop())
         loop.call_soon(self._protocol.connection_lost, None)
         if isinstance(self.paced, RobotSide):
             self.paced.release()

@@ -124,6 +124,20 @@ class Timeline:
             heapq.heappop(heap)
         return heap[0][0] if heap else None
 
+    def next_deadline_except(self, skippable: EventHandle | None) -> int | None:
+        """:attr:`next_deadline`, not counting ``skippable`` (an event known to change
+        nothing observable, such as a quiescent board's timer tick): a scan of the pending
+        events, which are few."""
+        if skippable is None:
+            return self.next_deadline
+        best: int | None = None
+        for at, _, _, handle in self._heap:
+            if handle is skippable or handle.cancelled:
+                continue
+            if best is None or at < best:
+                best = at
+        return best
+
     # --- running --------------------------------------------------------------------------
 
     def run_until(self, cycle: int) -> None:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
-from fpgaemu.timeline import Timeline, ms
+from fpgaemu.timeline import EventHandle, Timeline, ms
 
 __all__ = ["Timer"]
 
@@ -18,6 +18,7 @@ class Timer:
         self._timeline = timeline
         self.period_cycles = self._cycles(period_ms)
         self.next_tick: int | None = None
+        self.handle: EventHandle | None = None  #: the scheduled next interrupt
         self.ticks = 0
         self._handlers: list[Callable[[int], None]] = []
 
@@ -36,7 +37,7 @@ class Timer:
     def start(self, now: int) -> None:
         """Start counting: the first interrupt comes one period after ``now``."""
         self.next_tick = now + self.period_cycles
-        self._timeline.schedule(self.next_tick, self._fire)
+        self.handle = self._timeline.schedule(self.next_tick, self._fire)
 
     def _fire(self, cycle: int) -> None:
         self.ticks += 1
@@ -45,4 +46,4 @@ class Timer:
         # Reloaded after the handlers: a period written during this interrupt counts from
         # this tick on.
         self.next_tick = cycle + self.period_cycles
-        self._timeline.schedule(self.next_tick, self._fire)
+        self.handle = self._timeline.schedule(self.next_tick, self._fire)

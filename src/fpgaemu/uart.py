@@ -634,6 +634,13 @@ class UartWrite(_Line):
             for listener in self._listeners:
                 listener(run)
 
+    @property
+    def next_completion(self) -> int | None:
+        """The cycle the run of bytes now on the wire completes (its last stop bit), or
+        ``None``: a reader that waits for whole runs (frames) wakes once per frame."""
+        pending = self._pending
+        return pending[0].run.last if pending else None
+
     def read_completed(self, cycle: int | None = None) -> bytes:
         """Drain the bytes whose stop bit has ended by ``cycle`` (default now)."""
         at = self._timeline.now if cycle is None else cycle

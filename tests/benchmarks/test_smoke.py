@@ -139,8 +139,15 @@ def test_link_quick(tmp_path: Path) -> None:
                 "cpu_us_per_tm", "host_cpu_s", "idle_wakeup_cpu_us"):
         assert tm[key] >= 0, key
 
+    batched = report["telemetry_batched"]
+    assert batched["received"] > 0 and batched["read_latency_s"] == 0.01
+    assert batched["listener_received"] == batched["received"]
+    assert batched["received"] + batched["missing_counters"] == batched["counter_span"]
+    assert batched["set_param_while_batching_us"] > 0
+
     assert {t["name"] for t in report["targets"]} == {
-        "tm.lost", "tm.cpu_us_per_tm", "tm.cpu_us_per_tm_above_idle"}
+        "tm.lost", "tm.cpu_us_per_tm", "tm.cpu_us_per_tm_above_idle", "tm_batched.lost",
+        "tm_batched.cpu_us_per_tm", "set_param.p50_us", "set_param.p99_us"}
     for target in report["targets"]:
         assert isinstance(target["pass"], bool) and isinstance(target["required"], bool)
 

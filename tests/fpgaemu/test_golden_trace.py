@@ -8,8 +8,9 @@ meant to: the power-up PID runs on the float32 value the board stores (Ti 0.2399
 it reports it); then the fidelity work (2026-11-22) — the motor winding's inductance makes
 the reported current lag the duty, and ActiveController 3, which the scenario sets on
 channel B, is now run (the hardware current loop) instead of refused. The speed-ups of the
-performance work came after that and keep this trace. A digest keeps the test small; on a mismatch the first diverging byte is
-reported, and the scenario can be rerun against an older checkout to compare.
+performance work came after that and keep this trace. A digest keeps the test small; on a
+mismatch the first diverging byte is reported, and the scenario can be rerun against an
+older checkout to compare.
 """
 
 from __future__ import annotations

@@ -1,7 +1,10 @@
 """PacedBoard under CPU starvation: it falls behind the wall clock, catches up in bounded
-slices without losing a byte, and reports the lag. Driven by a fake clock: no sleeping."""
+slices without losing a byte, and reports the lag (how late a deadline was met); its
+deadlines skip what changes nothing. Driven by a fake clock: no sleeping."""
 
 from __future__ import annotations
+
+import pytest
 
 from fpgaemu.build import build_board
 from fpgaemu.serve import CATCH_UP_SLICE_S, HOST_FIFO_BYTES, PacedBoard
@@ -18,6 +21,9 @@ def test_starved_board_catches_up_without_losing_bytes_and_reports_lag() -> None
     received = bytearray()
 
     def tick(dt: float) -> None:
+        # What the serving loop does: ask for the next deadline, sleep (here: dt, however
+        # late that is), advance.
+        paced.next_wake()
         now[0] += dt
         received.extend(paced.advance())
 
@@ -67,3 +73,41 @@ def test_a_departed_hosts_bytes_are_discarded() -> None:
     assert paced.board.uartread.stats.dropped_bytes == lost
     # The next host starts on an idle line.
     assert paced.host_write(b"w" * 10) == 10
+
+
+def test_an_idle_board_has_no_deadline_for_its_quiescent_ticks() -> None:
+    # Disabled, no telemetry, wheels still: the timer ticks change nothing, so the next
+    # thing a host could see is the board's E, every 300 ms — not the next 1 ms tick.
+    now = [10.0]
+    paced = PacedBoard(build_board(), clock=lambda: now[0])
+    start = now[0]
+    wake = paced.next_wake()
+    assert wake is not None and wake - now[0] == pytest.approx(0.3, abs=1e-6)
+    wakeups, out = 0, b""
+    while not out:  # wake only at the deadlines the board names
+        wake = paced.next_wake()
+        assert wake is not None
+        now[0] = wake
+        out = paced.advance()
+        wakeups += 1
+    assert out == b"SEP" and wakeups == 2  # E starts; its 3 bytes end 30 µs later
+    assert now[0] - start == pytest.approx(0.30003, abs=1e-6)
+    assert paced.board.peripherals["firmware"].timing.periods == 300  # ticks all counted
+    # Telemetry on: now every tick matters.
+    paced.host_write(sent(ParamSet(2, 0, 1, 1), Connection(baud=None)))
+    now[0] += 0.01
+    paced.advance()
+    wake = paced.next_wake()
+    assert wake is not None and wake - now[0] <= 0.001
+
+
+def test_skipping_quiescent_ticks_changes_nothing() -> None:
+    """The reference model: the same traffic with every tick run in full."""
+    from tests.fpgaemu.test_golden_trace import digest, trace
+
+    fast, full = build_board(), build_board()
+    firmware = full.peripherals["firmware"]
+    firmware.skip_quiescent_ticks = False  # type: ignore[attr-defined]
+    assert digest(trace(fast)) == digest(trace(full))
+    assert fast.peripherals["firmware"].timing.periods == \
+        firmware.timing.periods  # type: ignore[attr-defined]

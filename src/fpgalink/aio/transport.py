@@ -135,6 +135,10 @@ async def _open_serial(
         raise PortError(f"cannot open serial port {url}: {exc}") from exc
 
 
+#: Bytes one read may take from a serial port (a pty holds up to 64 KiB).
+READ_CHUNK = 65536
+
+
 @functools.cache
 def _loop_serial_class() -> Any:
     """pyserial's POSIX port with a read made for an event loop. The transport reads only
@@ -151,7 +155,9 @@ def _loop_serial_class() -> Any:
             if not self.is_open:
                 raise serial.PortNotOpenError()
             try:
-                data = os.read(self.fd, size)
+                # Everything waiting, not just what the transport asks for (1,024 bytes):
+                # a link that batches reads must find its whole batch in one call.
+                data = os.read(self.fd, max(size, READ_CHUNK))
             except BlockingIOError:
                 return b""
             except OSError as exc:
