@@ -16,6 +16,8 @@ Cases:
   every ``TM`` the board finished sending is checked received or counted lost (none may be);
 * ``board.tm_only``: no ``RV`` stream (references set once): the timer, controllers and
   ``TM`` alone, to show what the 1 kHz ``RV`` traffic adds;
+* ``board.idle``: a board left alone (telemetry off, nothing received, wheels still): its
+  timer ticks change nothing and run as a count only, so an idle board is nearly free;
 * ``robot``: the emulated robot (``fpgaemu.robot.EmulatedRobot``): boards L and R and the
   body their four wheels move, 1 kHz ``TM`` from both, ``RV`` to both every 10 ms (a gentle
   arc: 0.1 m/s, 10 deg/s), ``RE`` every 100 ms; the emulator's cost, as ``board``.
@@ -160,6 +162,27 @@ def scenario(seconds: float, *, decode: bool, rv_stream: bool) -> Callable[[], O
     return run
 
 
+def idle_scenario(seconds: float) -> Callable[[], Outcome]:
+    """A board nobody talks to."""
+    board = fpgaemu.build_board(baud=BAUD)
+    firmware = board.peripherals["firmware"]
+    assert isinstance(firmware, Firmware)
+    end = round(seconds * 1000) * MS
+
+    def run() -> Outcome:
+        seq0 = board.timeline._seq
+        board.run_until(end)
+        timing, stats = firmware.timing, firmware.stats
+        return Outcome(
+            emulated_s=end / CLOCK_HZ, events=board.timeline._seq - seq0,
+            periods=timing.periods, missed=timing.missed_count,
+            tm_wire_bytes=timing.tx_wire_bytes, speed_a=0.0, speed_b=0.0,
+            tm_sent=stats.telemetry_sent, tm_finished=timing.tm_finished,
+            tm_dropped=stats.telemetry_dropped, rv_sent=0, rv_handled=stats.references)
+
+    return run
+
+
 ROBOT_COMMAND = (0.1, 0.17453292519943295)  #: 0.1 m/s, 10 deg/s
 ROBOT_RV_EVERY_MS = 10
 
@@ -220,6 +243,7 @@ class Case:
     decode: bool
     rv_stream: bool
     robot: bool = False
+    idle: bool = False
     seconds: list[float] = field(default_factory=list)
     outcomes: list[Outcome] = field(default_factory=list)
 
@@ -231,7 +255,10 @@ class Case:
         if outcome.missed or outcome.tm_dropped:
             problems.append(f"{outcome.missed} periods missed their TM "
                             f"({outcome.tm_dropped} not queued)")
-        if self.robot:
+        if self.idle:
+            if outcome.tm_sent:
+                problems.append(f"an idle board sent {outcome.tm_sent} TM")
+        elif self.robot:
             if outcome.emulated_s >= 1.0 and outcome.speed_b <= 0.05:
                 problems.append(f"the body moved only {outcome.speed_b:.3f} m")
         elif outcome.emulated_s >= 1.0 and not (
@@ -283,15 +310,20 @@ CASES = (
     ("board", "board alone, RV every 1 ms + RE every 100 ms, TM every 1 ms", False, True),
     ("board+host", "as board, every frame decoded by fpgalink.Connection", True, True),
     ("board.tm_only", "as board without the RV stream (references set once)", False, False),
+    ("board.idle", "board left alone: telemetry off, nothing received", False, False),
     ("robot", "robot: boards L+R and the body, TM every 1 ms each, RV every 10 ms", False,
      True),
 )
+TARGET_IDLE_X_REAL_TIME = 300.0
+#: the idle case runs this many times longer, so its wall time is measurable
+IDLE_STRETCH = 10
 TARGET_ROBOT_X_REAL_TIME = 20.0  #: the robot case (two boards and the body)
 
 
 def _targets(cases: dict[str, Case]) -> list[dict[str, Any]]:
     targets = []
-    for key, threshold in (("board", TARGET_X_REAL_TIME), ("robot", TARGET_ROBOT_X_REAL_TIME)):
+    for key, threshold in (("board", TARGET_X_REAL_TIME), ("board.idle", TARGET_IDLE_X_REAL_TIME),
+                           ("robot", TARGET_ROBOT_X_REAL_TIME)):
         measured = cases[key].summary()["x_real_time"]["median"]
         targets.append({
             "case": key,
@@ -348,12 +380,17 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--reps must be ≥ 1 and --seconds ≥ 0.01")
 
     started = time.perf_counter()
-    cases = [Case(key, text, decode, rv, robot=key == "robot") for key, text, decode, rv in CASES]
+    cases = [Case(key, text, decode, rv, robot=key == "robot", idle=key == "board.idle")
+             for key, text, decode, rv in CASES]
     # Reps interleave the cases, so a slow spell on the machine spreads over all of them.
     for rep in range(reps):
         for case in cases:
-            run = robot_scenario(seconds) if case.robot else scenario(
-                seconds, decode=case.decode, rv_stream=case.rv_stream)
+            if case.robot:
+                run = robot_scenario(seconds)
+            elif case.idle:
+                run = idle_scenario(seconds * IDLE_STRETCH)
+            else:
+                run = scenario(seconds, decode=case.decode, rv_stream=case.rv_stream)
             wall, outcome = time_once(run)
             case.check(outcome)
             case.seconds.append(wall)

@@ -90,7 +90,11 @@ def test_emulator_quick(tmp_path: Path) -> None:
     config = report["config"]
     assert config["reps"] == 1 and config["emulated_s"] == 1.0
 
-    assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "robot"}
+    assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "board.idle",
+                                    "robot"}
+    idle = report["cases"].pop("board.idle")
+    (rep,) = idle["repetitions"]
+    assert rep["periods"] == 10_000 and rep["tm_sent"] == 0 and rep["missed"] == 0
     for key, case in report["cases"].items():
         (rep,) = case["repetitions"]
         boards = 2 if key == "robot" else 1
@@ -111,7 +115,7 @@ def test_emulator_quick(tmp_path: Path) -> None:
         else:
             assert rep["tm_received"] is None, key
 
-    assert [t["case"] for t in report["targets"]] == ["board", "robot"]
+    assert [t["case"] for t in report["targets"]] == ["board", "board.idle", "robot"]
     assert all(isinstance(t["pass"], bool) for t in report["targets"])
 
 
