@@ -6,10 +6,12 @@ PYTEST_ARGS ?=
 
 .PHONY: setup test lint demo bench clean iverilog
 
-$(STAMP): pyproject.toml
+# The ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags) is part of the test set-up: its
+# transitive pins are in ros2-constraints.txt.
+$(STAMP): pyproject.toml ros2-constraints.txt
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev]'
+	$(PY) -m pip install --quiet -e '.[dev,ros2]' -c ros2-constraints.txt
 	touch $(STAMP)
 
 # Icarus Verilog simulates the reference UART the emulator's is checked against
@@ -25,7 +27,7 @@ setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
 test: $(STAMP) iverilog
-	@FPGALINK_REQUIRE_HDL=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
+	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
 # The main job on the built-in emulator, no hardware: connect, enable, show the parameters,

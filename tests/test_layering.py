@@ -56,7 +56,7 @@ def test_the_protocol_stands_on_nothing_else(where: str, path: Path) -> None:
     assert not names & {"asyncio", "time", "socket", "serial", "os"}, where
 
 
-SANS_IO = ("fpgalink.connection", "fpgalink.events", "fpgalink.errors")
+SANS_IO = ("fpgalink.connection", "fpgalink.events", "fpgalink.errors", "fpgalink.boardclock")
 
 
 @pytest.mark.parametrize(("where", "path"),
@@ -83,6 +83,29 @@ def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path)
     if not where.endswith("robot/robot.py"):  # the sans-I/O parts: no I/O, no clock
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
         assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.cli"))
+def test_the_cli_never_imports_the_ros2_node(where: str, path: Path) -> None:
+    # Both stand on the robot; a recording in rosbag2 form uses rosbags, not the node.
+    assert not {n for n in imports_of(path) if within(n, "fpgalink.ros2", "rclpy")}, where
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.ros2"))
+def test_the_ros2_node_stands_on_the_robot_and_below(where: str, path: Path) -> None:
+    above = {n for n in first_party(imports_of(path)) if within(n, "fpgalink.cli")}
+    assert not above, f"{where} imports {sorted(above)}"
+
+
+@pytest.mark.parametrize(("where", "path"),
+                         [m for package in ("fpgalink.protocol", "fpgalink.connection",
+                                            "fpgalink.aio", "fpgalink.robot")
+                          for m in modules(package)])
+def test_only_the_ros2_package_knows_ros(where: str, path: Path) -> None:
+    ros = {n for n in imports_of(path)
+           if n.split(".")[0] in ("rclpy", "rosbags") or n.endswith("_msgs")
+           or n.split(".")[0].endswith("_msgs")}
+    assert not ros, f"{where} imports {sorted(ros)}"
 
 
 @pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgalink.robot",

@@ -132,6 +132,7 @@ class Firmware:
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
+        self.last_tick = 0  #: the cycle of the last timer interrupt
 
     def _gains(self, code: int) -> PidGains:
         values = self.values
@@ -391,6 +392,7 @@ class Firmware:
             else None
 
     def _on_tick(self, cycle: int) -> None:
+        self.last_tick = cycle
         if self.skip_quiescent_ticks and self.quiescent:  # what a full tick would do, no more
             self.timing.periods += 1
             return

@@ -27,6 +27,9 @@ from fpgaemu.board import Board
 from fpgaemu.build import board_from_url
 from fpgaemu.robot import EmulatedRobot, robot_from_options, robot_from_url
 from fpgaemu.timeline import CLOCK_HZ
+from fpgalink.protocol import PARAMETERS
+
+PARAMETERS_BY_ID = {p.id: p for p in PARAMETERS}
 
 __all__ = [
     "TRUTH_EXTRA",
@@ -213,11 +216,38 @@ class PacedRobot:
         self._due = min(cycles, default=None)
         return None if self._due is None else self._origin + (self._due + 1) / CLOCK_HZ
 
-    def truth_record(self) -> dict[str, float | str]:
+    def truth_record(self) -> dict[str, Any]:
+        """The body's true state, and each board as the emulator sees it (for tests and
+        tools that check what a host reports against what happened)."""
         state = self.robot.truth()
         return {"t": state.t, "x": state.pose.x, "y": state.pose.y,
                 "theta": state.pose.theta, "v": state.v, "omega": state.omega,
-                "distance": state.distance, "surface": state.surface}
+                "distance": state.distance, "surface": state.surface,
+                "boards": {name: _board_record(board)
+                           for name, board in self.robot.boards.items()}}
+
+
+def _board_record(board: Board) -> dict[str, Any]:
+    """A board's state for the truth stream: the last tick (as its TM stamps it), the
+    speeds the firmware sampled then (what that TM carries, before float32 rounding), the
+    PWM applied now (global_enable gates it in logic: 0 from the cycle enable fell), the
+    enable, when the last RE arrived and when and why enable last fell, the parameters."""
+    firmware: Any = board.peripherals["firmware"]
+    enable_cycle = board.uartcommand.last_enable_cycle
+    disable = board.uartcommand.last_disable
+    return {
+        "t_us": (firmware.last_tick // 100) & 0xFFFF_FFFF,
+        "speed_a": firmware.channels[1].speed, "speed_b": firmware.channels[2].speed,
+        "pwm_a": board.channels[1].pwm.applied_duty,
+        "pwm_b": board.channels[2].pwm.applied_duty,
+        "enabled": board.global_enable,
+        "now_s": board.now / CLOCK_HZ,
+        "last_re_s": None if enable_cycle is None else enable_cycle / CLOCK_HZ,
+        "disabled_s": None if disable is None else disable[0] / CLOCK_HZ,
+        "disabled_by": None if disable is None else disable[1].value,
+        "params": {PARAMETERS_BY_ID[pid].full_name(ch): value
+                   for (pid, ch), value in firmware.values.items()},
+    }
 
 
 class RobotSide(PacedBoard):

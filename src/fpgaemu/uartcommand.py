@@ -141,6 +141,10 @@ class UartCommand:
         self.length = 0
         self.global_enable = False
         self.watchdog_deadline: int | None = None
+        #: the STOP cycle of the last RE received (None: none yet)
+        self.last_enable_cycle: int | None = None
+        #: the cycle global_enable last fell, and why (None: it has not)
+        self.last_disable: tuple[int, EnableCause] | None = None
         #: Fault hook: called with (content, cycle) at each complete frame, direct commands
         #: included; returning False loses the frame as if its STOP had never arrived.
         self.frame_filter: FrameFilter | None = None
@@ -400,6 +404,7 @@ class UartCommand:
     # --- global_enable --------------------------------------------------------------------
 
     def _rearm_watchdog(self, cycle: int) -> None:
+        self.last_enable_cycle = cycle
         if self._watchdog is not None:
             self._watchdog.cancel()
         self.watchdog_deadline = cycle + self.watchdog_cycles
@@ -418,4 +423,6 @@ class UartCommand:
     def _set_enable(self, level: bool, cycle: int, cause: EnableCause) -> None:
         if level != self.global_enable:
             self.global_enable = level
+            if not level:
+                self.last_disable = (cycle, cause)
             self._due.append(EnableChange(cycle, level, cause))

@@ -278,6 +278,7 @@ class Connection:
         self.latest_telemetry: Telemetry | None = None
         self.liveness = Liveness.UNKNOWN
         self.enabled = False  #: we send ``RE`` every heartbeat interval
+        self.baud = baud  #: the line's bit rate (None: not known, no pacing)
         self._byte_time = byte_time_s(baud) if baud is not None else 0.0
         self._decoder = FrameDecoder(framing)
         self._send_counter = SendCounter()

@@ -88,6 +88,7 @@ def test_the_hardware_loops_react_between_timer_ticks(mode: int,
     host = streaming_host(mode, period_ms=10)  # ticks 10 ms apart
     # An RV that arrives 1 ms after a tick: where is the duty 5 ms later, before the next?
     next_tick = host.timer.next_tick
+    assert next_tick is not None
     host.run_to(next_tick + ms(1))
     duty_before = host.io(1).pwm.duty_register
     host.references(40.0 if mode < 2 else 1.0, 0.0)

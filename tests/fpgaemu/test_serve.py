@@ -4,6 +4,8 @@ deadlines skip what changes nothing. Driven by a fake clock: no sleeping."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import pytest
 
 from fpgaemu.build import build_board
@@ -92,7 +94,8 @@ def test_an_idle_board_has_no_deadline_for_its_quiescent_ticks() -> None:
         wakeups += 1
     assert out == b"SEP" and wakeups == 2  # E starts; its 3 bytes end 30 µs later
     assert now[0] - start == pytest.approx(0.30003, abs=1e-6)
-    assert paced.board.peripherals["firmware"].timing.periods == 300  # ticks all counted
+    firmware: Any = paced.board.peripherals["firmware"]
+    assert firmware.timing.periods == 300  # ticks all counted
     # Telemetry on: now every tick matters.
     paced.host_write(sent(ParamSet(2, 0, 1, 1), Connection(baud=None)))
     now[0] += 0.01
@@ -106,8 +109,8 @@ def test_skipping_quiescent_ticks_changes_nothing() -> None:
     from tests.fpgaemu.test_golden_trace import digest, trace
 
     fast, full = build_board(), build_board()
-    firmware = full.peripherals["firmware"]
-    firmware.skip_quiescent_ticks = False  # type: ignore[attr-defined]
+    firmware: Any = full.peripherals["firmware"]
+    firmware.skip_quiescent_ticks = False
     assert digest(trace(fast)) == digest(trace(full))
-    assert fast.peripherals["firmware"].timing.periods == \
-        firmware.timing.periods  # type: ignore[attr-defined]
+    fast_firmware: Any = fast.peripherals["firmware"]
+    assert fast_firmware.timing.periods == firmware.timing.periods

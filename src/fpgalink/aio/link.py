@@ -647,10 +647,11 @@ class Link:
             return
         self._transport = None
         self._protocol = None
-        reason = f"{self.name}: port lost ({exc or 'closed by the other end'})"
+        cause = str(exc or "closed by the other end")
+        reason = f"{self.name}: port lost ({cause})"
         self.connection.port_lost(self._now(), reason)
         self._process()
-        self._emit(LinkEventKind.PORT_LOST, reason)
+        self._emit(LinkEventKind.PORT_LOST, cause)
         if self.reconnect:
             self.state = LinkState.RECONNECTING
             self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())

@@ -27,7 +27,7 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "monitor": ("fpgalink.cli.monitor", "monitor",
                 "Watch telemetry of both channels and the link's health, live."),
     "record": ("fpgalink.cli.record", "record",
-               "Record telemetry, parameter changes and link events into FILE."),
+               "Record telemetry, parameter changes and link events into FILE (or a rosbag2)."),
     "step": ("fpgalink.cli.step", "step",
              "Step the speed reference of one channel and measure the response."),
     "send": ("fpgalink.cli.send", "send",

@@ -13,7 +13,7 @@ import click
 
 from fpgalink.cli.options import ConnectionOptions
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
-from fpgalink.cli.robotsession import RobotRun, live, robot_options
+from fpgalink.cli.robotsession import RobotRun, live, robot_options, rosbag_option
 from fpgalink.cli.session import run, stop_exit_code, wait_or_stop
 
 __all__ = ["drive"]
@@ -30,9 +30,10 @@ __all__ = ["drive"]
               help="Save the path (odometry, and truth when emulated) to a .png/.svg/.pdf.")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
               help="Record odometry, truth and commands into an MCAP file.")
+@rosbag_option
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
-          record: Path | None, robot_file: Path | None, surface: str | None,
+          record: Path | None, rosbag: Path | None, robot_file: Path | None, surface: str | None,
           truth_url: str | None, conn: ConnectionOptions) -> int:
     """Drive the robot at --v and --omega, holding the deadman, with a live view.
 
@@ -40,7 +41,7 @@ def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
     down keeping its curvature. Ends after --for seconds or on Ctrl-C, stopped and disabled.
     Exit 7 when supervision stopped it (a board went silent).
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
     code = run(_drive(session, speed, math.radians(omega), duration))
     for line in session.summary():
         echo_out(line)

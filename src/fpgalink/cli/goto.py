@@ -11,7 +11,7 @@ import click
 
 from fpgalink.cli.options import ConnectionOptions
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
-from fpgalink.cli.robotsession import RobotRun, live, robot_options
+from fpgalink.cli.robotsession import RobotRun, live, robot_options, rosbag_option
 from fpgalink.cli.session import run, stop_exit_code
 
 __all__ = ["goto"]
@@ -31,9 +31,10 @@ __all__ = ["goto"]
               help="Save the path (odometry, and truth when emulated) to a .png/.svg/.pdf.")
 @click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
               help="Record odometry, truth and commands into an MCAP file.")
+@rosbag_option
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
-         plot: Path | None, record: Path | None, robot_file: Path | None,
+         plot: Path | None, record: Path | None, rosbag: Path | None, robot_file: Path | None,
          surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
     """Drive the robot to X Y (m, in the odometry frame of the start) and stop there.
 
@@ -41,7 +42,7 @@ def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: 
     stops within --tolerance (then turns to --theta if given). Exit 0 on arrival, 6 when not
     there within --time-limit, 7 when supervision stopped the robot, 130 on Ctrl-C.
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
     target = f"({x:g}, {y:g})" + ("" if theta is None else f", θ {theta:g}°")
     try:
         code = run(_goto(session, x, y, None if theta is None else math.radians(theta),

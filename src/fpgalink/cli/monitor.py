@@ -197,7 +197,7 @@ async def _stream(session: BoardSession, sub: Subscription[Telemetry],
         async for sample in sub:
             row = {"board": name, **{k: compact(v) for k, v in
                                      telemetry_row(sample, 0.0).items()}}
-            row["timestamp"] = round(session.clock.seconds(sample.t_us), 6)
+            row["timestamp"] = round(session.clock.seconds(sample.t_us, time.time()), 6)
             write(row)
             if len(sub) == 0:  # flush per burst, not per line
                 sys.stdout.flush()

@@ -31,6 +31,7 @@ __all__ = [
     "EMULATOR_URL",
     "ConnectionOptions",
     "Endpoint",
+    "announce_emulator",
     "connection_options",
     "global_connection_options",
     "parse_ports",
@@ -147,6 +148,13 @@ class ConnectionOptions:
                  "--port /tmp/fpga")
 
 
+def announce_emulator(conn: ConnectionOptions) -> None:
+    """Say on stderr when no port is configured and the built-in emulator stands in."""
+    if conn.settings.sources["port"] == DEFAULT:
+        note(f"no --port given (nor FPGALINK_PORT or a config file): using the built-in "
+             f"emulator {EMULATOR_URL}")
+
+
 def connection_options(*, multi: bool = False, announce: bool = True
                        ) -> Callable[[Callable[..., T]], Callable[..., T]]:
     """Add the connection options to a command; it receives ``conn``. Options given before
@@ -161,9 +169,8 @@ def connection_options(*, multi: bool = False, announce: bool = True
             before = root.obj if isinstance(root.obj, dict) else {}
             settings = resolve_settings(given, before)
             conn = ConnectionOptions(settings)
-            if announce and settings.sources["port"] == DEFAULT:
-                note(f"no --port given (nor FPGALINK_PORT or a config file): using the "
-                     f"built-in emulator {EMULATOR_URL}")
+            if announce:
+                announce_emulator(conn)
             if not multi:
                 conn.single  # noqa: B018 - validates: one board only
             return func(*args, conn=conn, **kwargs)

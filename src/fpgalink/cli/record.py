@@ -13,8 +13,9 @@ from typing import Any
 import click
 
 from fpgalink.aio.link import Stamped, Subscription
-from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.options import ConnectionOptions, announce_emulator, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, note
+from fpgalink.cli.robotsession import description_options
 from fpgalink.cli.session import (
     BoardSession,
     check_boards_answered,
@@ -56,17 +57,25 @@ def _parameter_record(message: Parsed) -> dict[str, Any] | None:
 
 
 @click.command(epilog=EXIT_CODES_HELP)
-@click.argument("file", type=click.Path(dir_okay=False, writable=True, path_type=Path))
+@click.argument("file", required=False,
+                type=click.Path(dir_okay=False, writable=True, path_type=Path))
 @click.option("--duration", type=FiniteRange(min=0, min_open=True, max=1e7),
               help="Stop after S seconds (default: until Ctrl-C).")
 @click.option("--csv", "as_csv", is_flag=True,
               help="Write telemetry as CSV instead of MCAP.")
 @click.option("--passive", is_flag=True,
               help="Only listen: no parameter snapshot, GetDataPeriodical left alone.")
-@connection_options(multi=True)
-def record(file: Path, duration: float | None, as_csv: bool, passive: bool,
-           conn: ConnectionOptions) -> int:
-    """Record telemetry, parameter changes and link events into FILE.
+@click.option("--rosbag2", "rosbag", metavar="DIR",
+              type=click.Path(file_okay=False, path_type=Path),
+              help="Instead of FILE: the robot (both boards) into a new rosbag2 DIR — "
+                   "joint_states, odom, diagnostics, and truth when emulated (MCAP, CDR; "
+                   "needs the ros2 extra's rosbags).")
+@description_options
+@connection_options(multi=True, announce=False)
+def record(file: Path | None, duration: float | None, as_csv: bool, passive: bool,
+           rosbag: Path | None, robot_file: Path | None, surface: str | None,
+           truth_url: str | None, conn: ConnectionOptions) -> int:
+    """Record telemetry, parameter changes and link events into FILE (or a rosbag2).
 
     FILE is MCAP (JSON Schema + JSON), or CSV of the telemetry alone with --csv. Topics per
     board NAME: /board/NAME/telemetry (flat numeric fields: timestamp, t_us, a_speed, b_pwm
@@ -75,7 +84,24 @@ def record(file: Path, duration: float | None, as_csv: bool, passive: bool,
     Each message's log_time is when the host received it, its publish_time the board's
     sample time on the host clock. Ctrl-C stops cleanly: the file is closed and valid
     (exit 130). A full disk stops the recording with the file complete so far (exit 1).
+
+    --rosbag2 DIR records the robot as the ROS 2 node publishes it (topics /joint_states,
+    /odom, /diagnostics, /truth; docs/ros2.md): the robot description's boards (--robot,
+    --surface; with no --port, the emulated robot), not enabled or driven (drive and goto
+    take --rosbag2 too).
     """
+    if rosbag is not None:
+        if file is not None or as_csv or passive:
+            raise CliError("--rosbag2 DIR records the robot on its own: no FILE, --csv or "
+                           "--passive with it", ExitCode.BAD_INPUT)
+        return _record_rosbag(conn, rosbag, duration, robot_file, surface, truth_url)
+    if file is None:
+        raise CliError("give FILE (MCAP, or CSV with --csv), or --rosbag2 DIR",
+                       ExitCode.BAD_INPUT)
+    if robot_file is not None or surface is not None or truth_url is not None:
+        raise CliError("--robot, --surface and --truth go with --rosbag2 DIR",
+                       ExitCode.BAD_INPUT)
+    announce_emulator(conn)
     if file.exists() and file.is_dir():
         raise CliError(f"{file} is a directory", ExitCode.BAD_INPUT)
     if not file.parent.is_dir():
@@ -164,6 +190,26 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
          f"{elapsed:.1f} s to {path}")
     check_boards_answered(sessions, started)
     return stop_exit_code(stop)
+
+
+def _record_rosbag(conn: ConnectionOptions, path: Path, duration: float | None,
+                   robot_file: Path | None, surface: str | None,
+                   truth_url: str | None) -> int:
+    from fpgalink.cli.robotsession import RobotRun
+
+    session = RobotRun(conn, robot_file, surface, truth_url, None, None, path)
+
+    async def recording() -> int:
+        async with session.opened():
+            await wait_or_stop(session.stop, duration)
+        return stop_exit_code(session.stop)
+
+    started = time.monotonic()
+    code = run(recording())
+    if session.bag is not None:
+        note(f"recorded {session.bag.messages} ROS messages in "
+             f"{time.monotonic() - started:.1f} s to the bag {path}")
+    return code
 
 
 def _tap_parameters(session: BoardSession, write: Any) -> None:

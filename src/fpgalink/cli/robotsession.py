@@ -18,20 +18,27 @@ from urllib.parse import quote
 
 import click
 
+from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import CliError, ExitCode, note
 
 if TYPE_CHECKING:
+    from fpgalink.cli.rosbag import RosbagWriter
     from fpgalink.protocol.robot import RobotDescription
+    from fpgalink.robot.joints import SampleSets
     from fpgalink.robot.robot import Robot
 
-__all__ = ["PathLog", "RobotRun", "robot_options"]
+__all__ = ["PathLog", "RobotRun", "description_options", "robot_options", "rosbag_option"]
 
 T = TypeVar("T")
 
 #: How often the path is sampled and the live view refreshed.
 SAMPLE_S = 0.05
+#: The bag's /truth at most this often (a path plot's resolution, not the wheels').
+BAG_TRUTH_PERIOD_S = 0.01
+#: How often the bag's disk is checked for room (diagnostics go out every fourth check).
+BAG_ROOM_CHECK_S = 0.25
 TRUTH_SCHEMA = {
     "title": "fpgalink.Pose2D", "type": "object",
     "properties": {"t": {"type": "number"}, "x": {"type": "number"},
@@ -48,7 +55,19 @@ COMMAND_SCHEMA = {
 
 def robot_options(func: Callable[..., T]) -> Callable[..., T]:
     """``--robot FILE``, ``--surface NAME``, ``--truth URL`` and the connection options."""
-    func = connection_options(multi=True, announce=False)(func)
+    return description_options(connection_options(multi=True, announce=False)(func))
+
+
+def rosbag_option(func: Callable[..., T]) -> Callable[..., T]:
+    return click.option(
+        "--rosbag2", "rosbag", type=click.Path(file_okay=False, path_type=Path),
+        metavar="DIR", help="Also record joint_states, odom, diagnostics (and truth when "
+        "emulated) into a new rosbag2 DIR (MCAP, CDR), as the ROS 2 node publishes them. "
+        "Needs the ros2 extra's rosbags.")(func)
+
+
+def description_options(func: Callable[..., T]) -> Callable[..., T]:
+    """``--robot FILE``, ``--surface NAME``, ``--truth URL``."""
     for option in reversed([
         click.option("--robot", "robot_file", type=click.Path(dir_okay=False, path_type=Path),
                      help="Robot description (TOML; the config file's `robot`; default: the "
@@ -173,17 +192,25 @@ class RobotRun:
     """One command's robot: opened, shown live, its path kept; ``async with``."""
 
     def __init__(self, conn: ConnectionOptions, robot_file: Path | None, surface: str | None,
-                 truth_url: str | None, plot: Path | None, record: Path | None) -> None:
+                 truth_url: str | None, plot: Path | None, record: Path | None,
+                 rosbag: Path | None = None) -> None:
         if plot is not None:
             check_plot_path(plot)
         if record is not None and (record.is_dir() or not record.parent.is_dir()):
             raise CliError(f"--record {record}: not a file in an existing directory",
+                           ExitCode.BAD_INPUT)
+        if rosbag is not None and (rosbag.exists() or not rosbag.parent.is_dir()):
+            raise CliError(f"--rosbag2 {rosbag}: must be a new directory in an existing one",
                            ExitCode.BAD_INPUT)
         self.conn = conn
         self.description = load_description(conn, robot_file, surface)
         self.ports = robot_ports(conn, self.description, robot_file)
         self.plot_path = plot
         self.record_path = record
+        self.rosbag_path = rosbag
+        self.bag: RosbagWriter | None = None
+        #: what stopped the recording early (a full disk, a write error), for the exit
+        self.failure_reason: str | None = None
         self.path = PathLog()
         self.stop = asyncio.Event()
         self._truth_reader = _TruthReader(truth_url) if truth_url else None
@@ -210,13 +237,18 @@ class RobotRun:
                 await self._truth_reader.start()
             if self.record_path is not None:
                 self._open_sink()
+            tasks = []
+            if self.rosbag_path is not None:
+                self._open_bag(robot)
+                tasks = self._bag_tasks(robot)
             self._started = time.monotonic()
-            sampler = asyncio.ensure_future(self._sample())
+            tasks.append(asyncio.ensure_future(self._sample()))
             try:
                 yield robot
             finally:
-                sampler.cancel()
-                await asyncio.gather(sampler, return_exceptions=True)
+                for task in tasks:
+                    task.cancel()
+                await asyncio.gather(*tasks, return_exceptions=True)
                 self._sample_once()
         finally:
             await robot.close()
@@ -224,6 +256,14 @@ class RobotRun:
                 await self._truth_reader.close()
             if self._sink is not None:
                 self._sink.close()
+            if self.bag is not None:
+                self.bag.close()
+        if self.failure_reason is not None and self.bag is not None:  # closed: complete
+            complete = ("which is complete up to there" if self.failure_reason.startswith(
+                "the disk is full") else "whose last chunk may be damaged")
+            raise CliError(f"--rosbag2 {self.rosbag_path}: {self.failure_reason}; recording "
+                           f"stopped with {self.bag.messages} messages in the bag, "
+                           f"{complete}", ExitCode.FAILURE)
 
     def truth(self) -> dict[str, Any] | None:
         if self._truth_reader is not None:
@@ -243,6 +283,83 @@ class RobotRun:
         except OSError as exc:
             raise CliError(f"--record {self.record_path}: cannot write: {exc.strerror}",
                            ExitCode.FAILURE) from None
+
+    # --- rosbag2 --------------------------------------------------------------------------
+
+    def _open_bag(self, robot: Robot) -> None:
+        from fpgalink.cli.rosbag import RosbagWriter
+
+        assert self.rosbag_path is not None
+        self.bag = RosbagWriter(
+            self.rosbag_path, self.description, truth=self.truth() is not None,
+            metadata={"robot": self.description.name, "surface": self.description.surface,
+                      "ports": " ".join(f"{b}={u}" for b, u in self.ports.items()),
+                      "clocks": "bag time: host receive time; header stamps: the boards' "
+                                "sample times on the host clock"})
+
+    def _bag_failed(self, reason: str | OSError) -> None:
+        """Stop: the command ends, the bag is closed, then the reason is the error."""
+        if self.failure_reason is None:
+            self.failure_reason = reason if isinstance(reason, str) else (
+                f"cannot write: {reason.strerror or reason}")
+        self.stop.set()
+
+    def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:
+        from fpgalink.robot.joints import SampleSets
+
+        sets = SampleSets(robot.description.boards)
+        clocks = {board: BoardClock() for board in robot.description.boards}
+        return [*(asyncio.ensure_future(self._bag_telemetry(robot, name, sets, clocks))
+                  for name in robot.description.boards),
+                asyncio.ensure_future(self._bag_diagnostics(robot))]
+
+    async def _bag_telemetry(self, robot: Robot, name: str, sets: SampleSets,
+                             clocks: dict[str, BoardClock]) -> None:
+        bag = self.bag
+        assert bag is not None
+        boards = robot.description.boards
+        last_truth = -math.inf
+        loop = asyncio.get_running_loop()
+        to_epoch_ns = time.time_ns() - round(loop.time() * 1e9)
+        async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
+            complete = sets.add(name, sample, received)
+            if complete is None:
+                continue
+            now_ns = round(received * 1e9) + to_epoch_ns  # when the host received it
+            stamp_ns = clocks[boards[0]].ns(complete[boards[0]].t_us, now_ns)
+            for board in boards[1:]:
+                clocks[board].ns(complete[board].t_us, now_ns)
+            states = robot.joint_states(complete)
+            try:
+                if states is not None:
+                    bag.joint_states(states, stamp_ns, now_ns)
+                bag.odometry(robot.odometry_state, stamp_ns, now_ns)
+                if received - last_truth >= BAG_TRUTH_PERIOD_S:
+                    truth = self.truth()
+                    if truth is not None:
+                        bag.truth(truth, now_ns, now_ns)
+                        last_truth = received
+            except OSError as exc:
+                self._bag_failed(exc)
+                return
+
+    async def _bag_diagnostics(self, robot: Robot) -> None:
+        bag = self.bag
+        assert bag is not None
+        ticks = 0
+        while True:
+            await asyncio.sleep(BAG_ROOM_CHECK_S)
+            if not bag.room_left():
+                self._bag_failed("the disk is full")
+                return
+            ticks += 1
+            if ticks % round(1.0 / BAG_ROOM_CHECK_S) == 0:
+                now_ns = time.time_ns()
+                try:
+                    bag.diagnostics(robot.health(), now_ns, now_ns)
+                except OSError as exc:
+                    self._bag_failed(exc)
+                    return
 
     async def _sample(self) -> None:
         while True:
@@ -339,6 +456,8 @@ class RobotRun:
             note(f"path plot saved to {self.plot_path}")
         if self.record_path is not None:
             note(f"recorded the path to {self.record_path}")
+        if self.bag is not None:
+            note(f"recorded {self.bag.messages} ROS messages to the bag {self.rosbag_path}")
 
 
 @contextlib.contextmanager

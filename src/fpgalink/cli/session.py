@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
 from fpgalink.aio.link import Link, LinkEventKind, LinkState
+from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
 from fpgalink.cli.output import CliError, ExitCode, classify, note
 from fpgalink.errors import FpgalinkError
@@ -33,7 +34,6 @@ from fpgalink.protocol import (
 __all__ = [
     "CHANNEL_FIELDS",
     "TELEMETRY_FIELDS",
-    "BoardClock",
     "BoardSession",
     "Streaming",
     "check_boards_answered",
@@ -131,32 +131,6 @@ TELEMETRY_FIELDS = (
 _UNITS = {"position": "encoder counts", "speed": "deg/s", "current": "A",
           "pwm": "duty, ±32760 = ±100 %", "ref": "reference (deg/s or N·m)",
           "flags": "bit0 enable, bit1 end-stop, bit2 saturated"}
-
-_WRAP = 1 << 32  #: t_us is a u32 of microseconds: it wraps every ~71.6 minutes
-
-
-@dataclass
-class BoardClock:
-    """Board time (``t_us``, wrapping) → host epoch seconds.
-
-    Anchored to the host clock at the first sample, then advanced by board time, so samples
-    that arrive in one burst still get their true spacing. A backward jump of less than half
-    the counter is a board restart (re-anchor); more is a wrap."""
-
-    anchor: float | None = None
-    _origin_us: int = 0
-    _last_us: int = 0
-    _base_us: int = 0
-
-    def seconds(self, t_us: int, host_now: float | None = None) -> float:
-        if self.anchor is None or (t_us < self._last_us and self._last_us - t_us < _WRAP // 2):
-            self.anchor = time.time() if host_now is None else host_now
-            self._origin_us, self._base_us = t_us, 0
-        elif t_us < self._last_us:
-            self._base_us += _WRAP
-        self._last_us = t_us
-        return self.anchor + (self._base_us + t_us - self._origin_us) / 1e6
-
 
 def json_safe(row: dict[str, Any]) -> dict[str, Any]:
     """JSON has no NaN or infinity: a non-finite number (a board can send one) is written as

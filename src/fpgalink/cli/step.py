@@ -13,10 +13,11 @@ from typing import Any
 import click
 from rich.table import Table
 
+from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, table_console
-from fpgalink.cli.session import BoardClock, Streaming, run
+from fpgalink.cli.session import Streaming, run
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]

@@ -48,6 +48,22 @@ class OdometryState:
     distance: float  #: m travelled (path length)
     turned: float  #: rad turned (absolute)
 
+    #: What a 6×6 (x, y, z, roll, pitch, yaw) covariance says of what planar odometry does
+    #: not estimate: a large variance, as REP-145 asks, not a zero that claims certainty.
+    UNESTIMATED_VARIANCE = 1e6
+
+    def covariance_6x6(self) -> list[float]:
+        """The pose covariance row-major over (x, y, z, roll, pitch, yaw), as ROS's
+        ``PoseWithCovariance`` carries it."""
+        out = [0.0] * 36
+        index = (0, 1, 5)  # x, y, θ → x, y, yaw
+        for i, row in enumerate(index):
+            for j, col in enumerate(index):
+                out[row * 6 + col] = self.covariance[i][j]
+        for unestimated in (2, 3, 4):
+            out[unestimated * 7] = self.UNESTIMATED_VARIANCE
+        return out
+
 
 class Odometry:
     """Feed it each board's telemetry (:meth:`update`); read :attr:`pose`, :attr:`state`.

@@ -18,10 +18,13 @@ from typing import Any
 
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open_link
 from fpgalink.errors import FpgalinkError
+from fpgalink.events import Event, RequestDone
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription
 from fpgalink.robot.drive import WheelCommand, wheel_command
 from fpgalink.robot.goto import GoTo, GoToCommand, GoToSettings
+from fpgalink.robot.health import Status, WireUse, board_status, supervision_status
+from fpgalink.robot.joints import JointStates, joint_states
 from fpgalink.robot.odometry import Odometry, OdometryState
 from fpgalink.robot.supervision import (
     DEADMAN_S,
@@ -85,7 +88,13 @@ class Robot:
         self.odometry = Odometry(description, self.kinematics)
         self.supervisor = Supervisor(description.boards, deadman_s)
         self.command: WheelCommand | None = None
+        #: encoder pulses per turn and TorqueCoef (N·m/A) per (board, channel), read from
+        #: the boards at start and followed through every confirmed change
         self.resolution: dict[tuple[str, int], int] = {}
+        self.torque_coef: dict[tuple[str, int], float] = {}
+        #: each board's latest telemetry sample
+        self.latest: dict[str, Telemetry] = {}
+        self._wire = {name: WireUse(link.connection.baud) for name, link in self.links.items()}
         self._tasks: list[asyncio.Task[None]] = []
         self._removers: list[Callable[[], None]] = []
         self._subs: set[Subscription[SupervisionEvent]] = set()
@@ -123,6 +132,8 @@ class Robot:
             # Synchronously: the other boards get RD in the very callback that notices.
             self._removers.append(link.on_event(functools.partial(self._on_link_event, name,
                                                                   link)))
+            self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
+                                                                      name)))
         self._started = True
         return self
 
@@ -148,11 +159,12 @@ class Robot:
             if wheel.board != name:
                 continue
             pulses = int(await link.get_param("IncSenzRes", wheel.channel))
-            self.resolution[(name, wheel.channel)] = pulses
             try:
-                self.odometry.set_resolution(name, wheel.channel, pulses)
+                self._set_resolution(name, wheel.channel, pulses)
             except ValueError as exc:
                 raise RobotError(f"board {name}: {exc}") from None
+            self.torque_coef[(name, wheel.channel)] = float(
+                await link.get_param("TorqueCoef", wheel.channel))
         self._streaming_before[name] = await link.get_param("GetDataPeriodical")
         await link.set_param("GetDataPeriodical", 1)
 
@@ -286,7 +298,8 @@ class Robot:
         lost = event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
                               LinkEventKind.CLOSED)
         if lost:
-            detail = event.detail or event.kind.value.replace("_", " ")
+            what = event.kind.value.replace("_", " ")
+            detail = f"{what} ({event.detail})" if event.detail else what
             self._carry_out(self.supervisor.board_alive(name, False, self._now(), detail))
         elif link.board_alive:
             self.supervisor.board_alive(name, True, self._now())
@@ -296,7 +309,23 @@ class Robot:
             self._on_telemetry(name, sample)
 
     def _on_telemetry(self, name: str, sample: Telemetry) -> None:
+        self.latest[name] = sample
         self.odometry.update(name, sample)
+
+    def _set_resolution(self, board: str, channel: int, pulses: int) -> None:
+        self.odometry.set_resolution(board, channel, pulses)
+        self.resolution[(board, channel)] = pulses
+
+    def _on_confirmed(self, board: str, event: Event) -> None:
+        """A parameter set through this robot's links changed a wheel's encoder resolution
+        or torque coefficient: odometry and joint states follow the board."""
+        if not isinstance(event, RequestDone) or (board, event.channel) not in self.resolution:
+            return
+        if event.param.name == "IncSenzRes":
+            with contextlib.suppress(ValueError):  # 0 pulses: odometry keeps the last
+                self._set_resolution(board, event.channel, int(event.value))
+        elif event.param.name == "TorqueCoef":
+            self.torque_coef[(board, event.channel)] = float(event.value)
 
     # --- driving --------------------------------------------------------------------------
 
@@ -388,6 +417,30 @@ class Robot:
     @property
     def odometry_state(self) -> OdometryState:
         return self.odometry.state
+
+    def joint_states(self, samples: Mapping[str, Telemetry] | None = None
+                     ) -> JointStates | None:
+        """The four wheels from each board's latest sample, or from ``samples`` (board →
+        sample; ``None`` until every board has one): rad, rad/s, N·m, forward-positive."""
+        return joint_states(self.description, self.latest if samples is None else samples,
+                            {key: 10 * pulses for key, pulses in self.resolution.items()},
+                            self.torque_coef)
+
+    def health(self, now: float | None = None) -> list[Status]:
+        """One status per board and one for supervision. Wire use is measured between
+        calls (``now`` on the loop's clock; default: now)."""
+        now = self._now() if now is None else now
+        statuses = []
+        for name, link in self.links.items():
+            stats = link.stats
+            latest = self.latest.get(name)
+            statuses.append(board_status(
+                name, link.url, alive=link.board_alive,
+                enabled=bool(latest is not None and latest.a.enabled),
+                stats=stats,
+                wire=self._wire[name].update(now, stats.bytes_received, stats.bytes_sent)))
+        statuses.append(supervision_status(self.supervisor.state, self.supervisor.last_stop))
+        return statuses
 
     def truth(self) -> dict[str, Any] | None:
         """The true pose when the robot is emulated (``None`` on hardware)."""

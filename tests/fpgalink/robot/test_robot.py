@@ -63,6 +63,35 @@ async def test_start_loads_the_description_and_reads_the_resolution_back() -> No
         assert robot.state is State.DISABLED
 
 
+async def test_a_confirmed_change_of_resolution_or_torque_coefficient_is_followed() -> None:
+    async with emulated() as robot:
+        assert robot.torque_coef[("L", 1)] == firmware(robot, "L").value("TorqueCoef", "A")
+        await robot.links["L"].set_param("IncSenzRes", 250, 1)
+        await robot.links["R"].set_param("TorqueCoef", 0.5, 2)
+        assert robot.resolution[("L", 1)] == 250 and robot.resolution[("L", 2)] == 500
+        assert robot.torque_coef[("R", 2)] == 0.5
+        # Odometry and joint states read the new resolution: half the counts per turn.
+        await wait_until(lambda: robot.joint_states() is not None, PATIENCE, "samples")
+        sample = robot.latest["L"]
+        states = robot.joint_states()
+        assert states is not None
+        assert states.position[0] == pytest.approx(math.tau * sample.a.position / 2500)
+        assert states.position[1] == pytest.approx(math.tau * sample.b.position / 5000)
+
+
+async def test_health_says_each_board_and_the_supervision_state() -> None:
+    async with emulated() as robot:
+        first = robot.health()
+        assert [s.name for s in first] == ["board L", "board R", "supervision"]
+        assert [s.level for s in first] == [0, 0, 0]
+        assert dict(first[0].values)["wire use board to host"] == ""
+        await wait_until(lambda: robot.links["L"].stats.telemetry_received > 50, PATIENCE,
+                         "telemetry")
+        second = dict(robot.health()[0].values)
+        assert second["wire use board to host"].endswith(" %")
+        assert float(second["wire use board to host"].split()[0]) > 0
+
+
 async def test_driving_needs_the_enable_and_reaches_both_boards_together() -> None:
     async with emulated() as robot:
         with pytest.raises(RobotStopped, match="not enabled"):

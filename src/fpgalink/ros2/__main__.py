@@ -1,0 +1,148 @@
+"""``fpgalink-ros2``: the robot as the ROS 2 node ``fpgalink``.
+
+    fpgalink-ros2 [--robot robot.toml] [--surface gravel] [--port L=URL --port R=URL]
+                  [--baud 1000000] [--ros-args -r __ns:=/robot -p joint_state_rate:=200]
+
+With no port it runs against the emulated robot in this process (``emu://robot/L``, ``R``),
+as the CLI does. Standard ROS arguments go after ``--ros-args``; this command's own options
+go before it (or after a ``--`` that ends the ROS arguments).
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import signal
+import sys
+from urllib.parse import quote
+
+from fpgalink.ros2 import ROS2_INSTALL_HINT, available
+
+PROG = "fpgalink-ros2"
+
+
+def _fail(message: str, code: int = 2) -> None:
+    print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
+    sys.exit(code)
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog=PROG, description="The robot as the ROS 2 node 'fpgalink': joint_states, odom, "
+        "diagnostics, cmd_vel, wheel_refs, goal_pose, enable, and the boards' parameters.",
+        epilog="ROS arguments go after --ros-args (-r __ns:=/robot, -p joint_state_rate:=200, "
+        "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.")
+    parser.add_argument("--robot", metavar="FILE", help="robot description (TOML); default: "
+                        "the seed's robot")
+    parser.add_argument("--surface", metavar="NAME", help="the surface the robot is on "
+                        "(its skid-steer chi)")
+    parser.add_argument("--port", action="append", default=[], metavar="NAME=URL",
+                        help="a board's port, once per board (default: the emulated robot)")
+    parser.add_argument("--baud", type=int, default=1_000_000,
+                        help="the boards' line rate (default 1000000)")
+    return parser
+
+
+#: Exit codes: 0 stopped by a signal, 2 usage, 3 ROS 2 not installed, 4 boards not reached.
+EXIT_NO_ROS2 = 3
+EXIT_BOARDS = 4
+
+
+def main(argv: list[str] | None = None) -> None:
+    argv = list(sys.argv if argv is None else argv)
+    before_ros = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
+    if "-h" in before_ros or "--help" in before_ros:
+        _parser().print_help()
+        print(f"\nROS 2: {ROS2_INSTALL_HINT}.")
+        sys.exit(0)
+    if not available():
+        _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
+    import rclpy
+    from rclpy.utilities import remove_ros_args
+
+    try:
+        own = remove_ros_args(argv)[1:]
+    except Exception as exc:  # rclpy's own error for unknown ROS arguments
+        _fail(f"{exc} (this command's options go before --ros-args, or after a --)")
+    options = _parser().parse_args(own)
+    from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
+
+    try:
+        description = load_robot(options.robot) if options.robot else seed_robot()
+        if options.surface:
+            description = description.on_surface(options.surface)
+    except DescriptionError as exc:
+        _fail(str(exc))
+    ports: dict[str, str] = {}
+    for item in options.port:
+        name, sep, url = item.partition("=")
+        if not sep or not url:
+            _fail(f"--port {item!r}: expected NAME=URL, one per board "
+                  f"({', '.join(description.boards)})")
+        ports[name] = url
+    if not ports:
+        query = f"surface={quote(description.surface)}" + (
+            f"&robot={quote(options.robot)}" if options.robot else "")
+        ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
+    elif set(ports) != set(description.boards):
+        _fail(f"the robot's boards are {', '.join(description.boards)}; give --port for "
+              f"each (got {', '.join(sorted(ports))})")
+    rclpy.init(args=argv)
+    try:
+        code = asyncio.run(_run(description, ports, options.baud))
+    finally:
+        with contextlib.suppress(Exception):
+            rclpy.shutdown()
+    sys.exit(code)
+
+
+async def _run(description: object, ports: dict[str, str], baud: int) -> int:
+    from rclpy.node import Node
+
+    from fpgalink.errors import FpgalinkError
+    from fpgalink.protocol.robot import RobotDescription
+    from fpgalink.robot import Robot, RobotError
+    from fpgalink.ros2.node import NODE_NAME, RosBridge, spin_in_thread
+
+    assert isinstance(description, RobotDescription)
+    loop = asyncio.get_running_loop()
+    stop = asyncio.Event()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        loop.add_signal_handler(sig, stop.set)
+    robot = Robot.open(description, ports, baud=baud)
+    try:
+        await robot.start()
+    except (RobotError, FpgalinkError) as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+        return EXIT_BOARDS
+    node = Node(NODE_NAME, start_parameter_services=False)
+    try:
+        bridge = RosBridge(robot, node, loop)
+        await bridge.declare_board_parameters()
+        bridge.serve_parameters()
+        executor, thread = spin_in_thread(node)
+        bridge.executor = executor
+        node.get_logger().info(
+            f"up: boards {', '.join(f'{b}={u}' for b, u in ports.items())}"
+            + (" (emulated robot)" if robot.truth() is not None else ""))
+        running = asyncio.ensure_future(bridge.run())
+        waiting = asyncio.ensure_future(stop.wait())
+        await asyncio.wait({running, waiting}, return_when=asyncio.FIRST_COMPLETED)
+        for task in (running, waiting):
+            task.cancel()
+        await asyncio.gather(running, waiting, return_exceptions=True)
+        executor.shutdown(timeout_sec=1.0)
+        thread.join(timeout=2.0)
+    except FpgalinkError as exc:
+        print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+        return EXIT_BOARDS
+    finally:
+        await robot.close()
+        with contextlib.suppress(Exception):
+            node.destroy_node()
+    return 0
+
+
+if __name__ == "__main__":
+    main()

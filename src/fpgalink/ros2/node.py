@@ -1,0 +1,532 @@
+"""The robot on ROS 2: one node, ``fpgalink``, over a started :class:`~fpgalink.robot.Robot`.
+
+Threads: asyncio owns the main thread (the boards' links, the robot, the publishing loops);
+rclpy's executor spins in one background thread. A subscription's callback hands its
+message to the asyncio loop (``call_soon_threadsafe``); publishers are called from the
+loop. Parameter sets are coroutines the executor awaits while the asyncio loop talks to
+the board, so a set reports success only after the board's echo matched.
+
+Topics (relative names, so ``--ros-args -r __ns:=/robot`` and remaps work): see
+docs/ros2.md. ROS parameters: the node's own (``joint_state_rate``, ``cmd_vel_timeout``,
+``goal_tolerance``, ``odom_frame``, ``base_frame``) and every board parameter as
+``BOARD.NAME`` or ``BOARD.NAME.CHANNEL`` (``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import dataclasses
+import functools
+import math
+import threading
+import time
+import weakref
+from collections.abc import Callable
+from typing import Any
+
+import rclpy
+import rclpy.task
+from builtin_interfaces.msg import Time as TimeMsg
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from geometry_msgs.msg import PoseStamped, Twist
+from nav_msgs.msg import Odometry
+from rcl_interfaces.msg import (
+    FloatingPointRange,
+    IntegerRange,
+    ParameterDescriptor,
+    ParameterType,
+    SetParametersResult,
+)
+from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.executors import SingleThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.parameter_service import ParameterService
+from rclpy.qos import QoSProfile, qos_profile_parameters, qos_profile_sensor_data
+from sensor_msgs.msg import JointState
+from std_msgs.msg import Bool
+
+from fpgalink.aio.link import LinkEvent, LinkEventKind
+from fpgalink.boardclock import BoardClock
+from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import PARAMETERS, Param, ParamType, Telemetry
+from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, channel_name
+from fpgalink.protocol.robot import WHEEL_NAMES
+from fpgalink.robot import GoalTimeout, Robot, RobotStopped
+from fpgalink.robot.health import Status
+from fpgalink.robot.joints import SampleSets
+from fpgalink.robot.supervision import State, StopReason
+
+__all__ = ["NODE_NAME", "RosBridge", "board_parameter_name", "spin_in_thread"]
+
+NODE_NAME = "fpgalink"
+DIAGNOSTICS_PERIOD_S = 1.0
+#: Twist/JointState references older than this bring the wheels to rest (a parameter).
+DEFAULT_CMD_TIMEOUT_S = 0.5
+
+
+def board_parameter_name(board: str, param: Param, channel: int) -> str:
+    """``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``."""
+    if param.scope is Scope.BOARD:
+        return f"{board}.{param.name}"
+    return f"{board}.{param.name}.{channel_name(channel)}"
+
+
+def _descriptor(param: Param, board: str) -> ParameterDescriptor:
+    descriptor = ParameterDescriptor(
+        description=f"board {board}: {param.description}"
+        + (f" ({param.unit})" if param.unit else ""),
+        additional_constraints=f"{param.range_text}; confirmed by the board's echo",
+    )
+    if param.type is ParamType.INT:
+        descriptor.type = ParameterType.PARAMETER_INTEGER
+        if param.allowed is None:
+            descriptor.integer_range = [IntegerRange(
+                from_value=int(param.minimum), to_value=int(param.maximum), step=1)]
+    else:
+        descriptor.type = ParameterType.PARAMETER_DOUBLE
+        if math.isfinite(param.maximum):
+            descriptor.floating_point_range = [FloatingPointRange(
+                from_value=float(param.minimum), to_value=float(param.maximum), step=0.0)]
+    return descriptor
+
+
+def _time_msg(ns: int) -> TimeMsg:
+    return TimeMsg(sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000)
+
+
+def spin_in_thread(node: Node) -> tuple[SingleThreadedExecutor, threading.Thread]:
+    """rclpy's executor in a daemon thread (asyncio keeps the main one)."""
+    executor = SingleThreadedExecutor()
+    executor.add_node(node)
+
+    def spin() -> None:
+        with contextlib.suppress(rclpy.executors.ExternalShutdownException):
+            executor.spin()
+
+    thread = threading.Thread(target=spin, name="rclpy-spin", daemon=True)
+    thread.start()
+    return executor, thread
+
+
+def _rclpy_future(future: concurrent.futures.Future[Any],
+                  executor: Any) -> rclpy.task.Future:
+    """An rclpy future completed by ``future`` (from another thread), for ``await`` in an
+    executor coroutine. The no-op done callback makes a completion wake the executor."""
+    result = rclpy.task.Future(executor=executor)
+    result.add_done_callback(lambda _done: None)
+
+    def done(origin: concurrent.futures.Future[Any]) -> None:
+        error = origin.exception()
+        if error is not None:
+            result.set_exception(error)
+        else:
+            result.set_result(origin.result())
+
+    future.add_done_callback(done)
+    return result
+
+
+class _BoardParameterService(ParameterService):
+    """rclpy's six parameter services, with ``set_parameters`` a coroutine that sets a
+    board parameter on the board first and reports success only when the echo matched.
+    All in a reentrant group, so reading parameters does not wait behind a pending set."""
+
+    def __init__(self, node: Node, bridge: RosBridge) -> None:
+        from rcl_interfaces.srv import (
+            DescribeParameters,
+            GetParameters,
+            GetParameterTypes,
+            ListParameters,
+            SetParameters,
+            SetParametersAtomically,
+        )
+
+        self._node_weak_ref = weakref.ref(node)
+        self._bridge = bridge
+        group = ReentrantCallbackGroup()
+        for kind, suffix, callback in (
+            (DescribeParameters, "describe_parameters", self._describe_parameters_callback),
+            (GetParameters, "get_parameters", self._get_parameters_callback),
+            (GetParameterTypes, "get_parameter_types", self._get_parameter_types_callback),
+            (ListParameters, "list_parameters", self._list_parameters_callback),
+            (SetParameters, "set_parameters", self._set_parameters_callback),
+            (SetParametersAtomically, "set_parameters_atomically",
+             self._set_parameters_atomically_callback),
+        ):
+            node.create_service(kind, f"{node.get_name()}/{suffix}", callback,
+                                qos_profile=qos_profile_parameters, callback_group=group)
+
+    async def _set_parameters_callback(self, request: Any, response: Any) -> Any:
+        for message in request.parameters:
+            try:  # an exception escaping here would stop the executor's thread
+                parameter = Parameter.from_parameter_msg(message)
+                result = await self._bridge.set_parameter(parameter)
+            except Exception as exc:  # reported to the caller, never raised
+                result = SetParametersResult(successful=False, reason=f"internal error: {exc}")
+            response.results.append(result)
+        return response
+
+    def _set_parameters_atomically_callback(self, request: Any, response: Any) -> Any:
+        response.result = SetParametersResult(
+            successful=False, reason="set board parameters one at a time (set_parameters): "
+            "each is confirmed by its board")
+        return response
+
+
+class RosBridge:
+    """The node and what it does. Build it on the asyncio loop after the robot started,
+    then ``await bridge.run()`` until cancelled."""
+
+    def __init__(self, robot: Robot, node: Node, loop: asyncio.AbstractEventLoop,
+                 executor: Any = None) -> None:
+        self.robot = robot
+        self.node = node
+        self.loop = loop
+        self.executor = executor
+        self.log = node.get_logger()
+        self._board_params: dict[str, tuple[str, Param, int]] = {}
+        self._clocks = {board: BoardClock() for board in robot.description.boards}
+        self._last_command_at: float | None = None
+        self._command_is_zero = True
+        self._goal: asyncio.Task[None] | None = None
+        self._tasks: list[asyncio.Task[Any]] = []
+        self._removers: list[Callable[[], None]] = []
+        self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0}
+        self._declare_node_parameters()
+        self._read_node_parameters()
+        self._sets = SampleSets(robot.description.boards, self._publish_period)
+        sensor: QoSProfile = qos_profile_sensor_data
+        self.joint_pub = node.create_publisher(JointState, "joint_states", sensor)
+        self.odom_pub = node.create_publisher(Odometry, "odom", 10)
+        self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", 10)
+        self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
+                          if robot.truth() is not None else None)
+        node.create_subscription(Twist, "cmd_vel", self._threadsafe(self._on_cmd_vel), 10)
+        node.create_subscription(JointState, "wheel_refs",
+                                 self._threadsafe(self._on_wheel_refs), 10)
+        node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
+        node.create_subscription(Bool, "enable", self._threadsafe(self._on_enable), 10)
+
+    # --- parameters -----------------------------------------------------------------------
+
+    def serve_parameters(self) -> None:
+        """Answer the parameter services (the node was made with
+        ``start_parameter_services=False``), board parameters confirmed by the board."""
+        _BoardParameterService(self.node, self)
+
+    def _declare_node_parameters(self) -> None:
+        node = self.node
+
+        def double(name: str, default: float, low: float, high: float, text: str) -> None:
+            node.declare_parameter(name, default, ParameterDescriptor(
+                type=ParameterType.PARAMETER_DOUBLE, description=text,
+                floating_point_range=[FloatingPointRange(from_value=low, to_value=high,
+                                                         step=0.0)]))
+
+        double("joint_state_rate", 100.0, 1.0, 1000.0,
+               "joint_states and odom per second, Hz (at most the telemetry rate)")
+        double("cmd_vel_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
+               "a cmd_vel or wheel_refs older than this brings the wheels to rest, s")
+        double("goal_tolerance", 0.05, 0.005, 10.0, "goal_pose reached within this, m")
+        for name, default in (("odom_frame", "odom"), ("base_frame", "base_link")):
+            node.declare_parameter(name, default, ParameterDescriptor(
+                type=ParameterType.PARAMETER_STRING, description=f"frame id: {name}"))
+
+    def _value(self, name: str) -> Any:
+        return self._node_values[name]
+
+    def _read_node_parameters(self) -> None:
+        """Cache the node's own parameters (read per message at up to 1 kHz)."""
+        self._node_values = {name: self.node.get_parameter(name).value for name in (
+            "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
+            "base_frame")}
+        self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
+        if hasattr(self, "_sets"):
+            self._sets.min_period = self._publish_period
+
+    async def declare_board_parameters(self) -> None:
+        """Every board parameter as a ROS parameter, its value read from the board; a value
+        given with ``--ros-args -p`` is set on the board (and must be confirmed)."""
+        for board, link in self.robot.links.items():
+            values = await link.read_params()
+            for param in PARAMETERS:
+                channels = (0,) if param.scope is Scope.BOARD else (CHANNEL_A, CHANNEL_B)
+                for channel in channels:
+                    name = board_parameter_name(board, param, channel)
+                    on_board = values[(param.id, channel)]
+                    self._board_params[name] = (board, param, channel)
+                    declared = self.node.declare_parameter(
+                        name, on_board, _descriptor(param, board)).value
+                    if declared != on_board:  # an override from the command line
+                        confirmed = await link.set_param(param.id, declared, channel or None)
+                        self.node.set_parameters([Parameter(name, value=confirmed)])
+
+    async def set_parameter(self, parameter: Parameter) -> SetParametersResult:
+        """One parameter from a ``set_parameters`` call (on the executor's thread)."""
+        name = parameter.name
+        target = self._board_params.get(name)
+        if target is None:
+            if not self.node.has_parameter(name):
+                return SetParametersResult(successful=False,
+                                           reason=f"no parameter {name!r}")
+            result = self.node.set_parameters([parameter])[0]
+            self.loop.call_soon_threadsafe(self._read_node_parameters)
+            return result
+        board, param, channel = target
+        value = parameter.value
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return SetParametersResult(successful=False, reason=(
+                f"{name} takes a {param.type.name.lower()} ({param.range_text}), "
+                f"got {value!r}"))
+        future = asyncio.run_coroutine_threadsafe(
+            self._set_on_board(board, param, channel, value), self.loop)
+        reason, confirmed = await _rclpy_future(future, self.executor)
+        if reason is not None:
+            return SetParametersResult(successful=False, reason=reason)
+        committed = Parameter(name, value=confirmed if param.type is ParamType.INT
+                              else float(confirmed))
+        return self.node.set_parameters([committed])[0]
+
+    async def _set_on_board(self, board: str, param: Param, channel: int,
+                            value: int | float) -> tuple[str | None, int | float]:
+        try:
+            confirmed = await self.robot.links[board].set_param(param.id, value,
+                                                                channel or None)
+        except FpgalinkError as exc:
+            return f"board {board}: {exc}", value
+        return None, confirmed
+
+    # --- subscriptions (messages arrive on the executor's thread) ------------------------
+
+    def _threadsafe(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
+        def forward(message: Any) -> None:
+            self.loop.call_soon_threadsafe(handler, message)
+        return forward
+
+    def _on_cmd_vel(self, message: Twist) -> None:
+        v, omega = float(message.linear.x), float(message.angular.z)
+        if not (math.isfinite(v) and math.isfinite(omega)):
+            self.log.warning(f"cmd_vel ignored: not finite ({v}, {omega})")
+            return
+        self._cancel_goal()
+        self._command(lambda: self.robot.drive(v, omega), v == 0.0 and omega == 0.0)
+
+    def _on_wheel_refs(self, message: JointState) -> None:
+        names = list(message.name)
+        values = list(message.velocity) or list(message.effort)
+        torque = not message.velocity and bool(message.effort)
+        if len(values) != len(names) or not names:
+            self.log.warning("wheel_refs ignored: give one velocity (rad/s) or effort (N·m) "
+                             "per named joint")
+            return
+        unknown = sorted(set(names) - set(WHEEL_NAMES))
+        if unknown or not all(math.isfinite(v) for v in values):
+            self.log.warning(f"wheel_refs ignored: joints {WHEEL_NAMES}, finite values "
+                             f"(got {names}, {values})")
+            return
+        wanted = dict(zip(names, values, strict=True))
+        description = self.robot.description
+        references: dict[str, list[float]] = {b: [0.0, 0.0] for b in description.boards}
+        for wheel in description.wheels:
+            value = wanted.get(wheel.name, 0.0) * wheel.forward
+            references[wheel.board][wheel.channel - 1] = value if torque else \
+                math.degrees(value)
+
+        def send() -> None:
+            if self.robot.state is not State.ENABLED:
+                raise RobotStopped("the robot is not enabled")
+            for board, (ref_a, ref_b) in references.items():
+                self.robot.links[board].set_references(ref_a, ref_b)
+
+        self._cancel_goal()
+        self._command(send, all(v == 0.0 for v in values))
+
+    def _command(self, send: Callable[[], object], zero: bool) -> None:
+        try:
+            send()
+        except RobotStopped as exc:
+            self._throttled_warning(f"command ignored: {exc} (publish true on enable)")
+            return
+        except FpgalinkError as exc:
+            self.log.warning(f"command ignored: {exc}")
+            return
+        self._last_command_at = self.loop.time()
+        self._command_is_zero = zero
+
+    _last_warning = 0.0
+
+    def _throttled_warning(self, text: str) -> None:
+        now = time.monotonic()
+        if now - self._last_warning > 2.0:
+            self._last_warning = now
+            self.log.warning(text)
+
+    def _on_enable(self, message: Bool) -> None:
+        if message.data:
+            try:
+                self.robot.enable()
+            except RobotStopped as exc:
+                self._throttled_warning(f"enable refused: {exc}")
+        elif self.robot.state is State.ENABLED:
+            self.robot.disable()
+
+    def _on_goal(self, message: PoseStamped) -> None:
+        frame = self._value("odom_frame")
+        if message.header.frame_id and message.header.frame_id != frame:
+            self.log.warning(f"goal_pose in frame {message.header.frame_id!r} taken as "
+                             f"{frame!r} (this node knows only its odometry)")
+        p, q = message.pose.position, message.pose.orientation
+        yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
+        has_heading = not (q.x == q.y == q.z == 0.0 and q.w in (0.0, 1.0))
+        self._cancel_goal()
+        self._goal = asyncio.ensure_future(self._go_to(p.x, p.y, yaw if has_heading else None))
+
+    async def _go_to(self, x: float, y: float, theta: float | None) -> None:
+        settings = dataclasses.replace(self.robot.goto_settings,
+                                       position_tolerance=float(self._value("goal_tolerance")))
+        self.log.info(f"goal ({x:.2f}, {y:.2f}): going")
+        try:
+            pose = await self.robot.go_to(x, y, theta, timeout=120.0, settings=settings)
+            self.log.info(f"goal reached: ({pose.x:.3f}, {pose.y:.3f})")
+        except (GoalTimeout, RobotStopped) as exc:
+            self.log.warning(f"goal abandoned: {exc}")
+        except FpgalinkError as exc:
+            self.log.error(f"goal failed: {exc}")
+
+    def _cancel_goal(self) -> None:
+        if self._goal is not None and not self._goal.done():
+            self._goal.cancel()
+        self._goal = None
+
+    # --- running --------------------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Publish and supervise until cancelled."""
+        for board, link in self.robot.links.items():
+            self._removers.append(link.on_event(functools.partial(self._log_link_event, board)))
+            self._tasks.append(asyncio.ensure_future(self._follow(board, link)))
+        self._tasks += [asyncio.ensure_future(self._diagnostics_loop()),
+                        asyncio.ensure_future(self._command_watchdog()),
+                        asyncio.ensure_future(self._supervision_log())]
+        try:
+            await asyncio.gather(*self._tasks)
+        finally:
+            for task in self._tasks:
+                task.cancel()
+            await asyncio.gather(*self._tasks, return_exceptions=True)
+            for remove in self._removers:
+                remove()
+            self._cancel_goal()
+
+    def _log_link_event(self, board: str, event: LinkEvent) -> None:
+        text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
+            f" ({event.detail})" if event.detail else "")
+        if event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST):
+            self.log.error(text)
+        elif event.kind is not LinkEventKind.CLOSED:
+            self.log.info(text)
+
+    async def _follow(self, board: str, link: Any) -> None:
+        # A set of samples (one per board) goes out as soon as it is complete, never
+        # faster than joint_state_rate (fpgalink.robot.joints.SampleSets).
+        async for sample in link.telemetry(maxsize=4096):
+            complete = self._sets.add(board, sample, self.loop.time())
+            if complete is not None:
+                stamp_ns = self._publish_joints(complete)
+                if stamp_ns is not None:
+                    self._publish_odometry(stamp_ns)
+
+    async def _supervision_log(self) -> None:
+        async for event in self.robot.events():
+            if event.reason is None:
+                self.log.info("robot enabled")
+            elif event.reason is StopReason.REQUESTED:
+                self.log.info("robot disabled")
+            else:
+                self.log.warning(f"robot {event.describe()}")
+
+    def _publish_joints(self, samples: dict[str, Telemetry]) -> int | None:
+        """joint_states from one set of samples, stamped with the first board's sample time
+        on the ROS clock; returns the stamp (ns)."""
+        states = self.robot.joint_states(samples)
+        if states is None:
+            return None
+        now_ns = self.node.get_clock().now().nanoseconds
+        boards = self.robot.description.boards
+        stamp_ns = self._clocks[boards[0]].ns(samples[boards[0]].t_us, now_ns)
+        for board in boards[1:]:
+            self._clocks[board].ns(samples[board].t_us, now_ns)
+        message = JointState()
+        message.header.stamp = _time_msg(stamp_ns)
+        message.name = list(states.names)
+        message.position = list(states.position)
+        message.velocity = list(states.velocity)
+        message.effort = list(states.effort)
+        self.joint_pub.publish(message)
+        self.published["joint_states"] += 1
+        return stamp_ns
+
+    def _publish_odometry(self, stamp_ns: int) -> None:
+        """odom at the same stamp (the robot's odometry has integrated those samples)."""
+        state = self.robot.odometry_state
+        message = Odometry()
+        message.header.stamp = _time_msg(stamp_ns)
+        message.header.frame_id = str(self._value("odom_frame"))
+        message.child_frame_id = str(self._value("base_frame"))
+        _pose_into(message, state.pose.x, state.pose.y, state.pose.theta)
+        message.twist.twist.linear.x = state.v
+        message.twist.twist.angular.z = state.omega
+        message.pose.covariance = state.covariance_6x6()
+        self.odom_pub.publish(message)
+        self.published["odom"] += 1
+        truth = self.robot.truth()
+        if truth is not None and self.truth_pub is not None:
+            true = Odometry()
+            true.header = message.header
+            true.child_frame_id = message.child_frame_id
+            _pose_into(true, truth["x"], truth["y"], truth["theta"])
+            true.twist.twist.linear.x = float(truth["v"])
+            true.twist.twist.angular.z = float(truth["omega"])
+            self.truth_pub.publish(true)
+
+    async def _command_watchdog(self) -> None:
+        while True:
+            timeout = float(self._value("cmd_vel_timeout"))
+            await asyncio.sleep(min(0.05, timeout / 4))
+            at = self._last_command_at
+            if (at is not None and not self._command_is_zero
+                    and self.loop.time() - at > timeout
+                    and (self._goal is None or self._goal.done())):
+                self.log.warning(f"no cmd_vel or wheel_refs for {timeout:g} s: wheels to rest")
+                with contextlib.suppress(FpgalinkError):
+                    self.robot.stop()
+                self._command_is_zero = True
+
+    async def _diagnostics_loop(self) -> None:
+        while True:
+            await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
+            self.diag_pub.publish(self.diagnostics(self.loop.time()))
+            self.published["diagnostics"] += 1
+
+    def diagnostics(self, now: float) -> DiagnosticArray:
+        array = DiagnosticArray()
+        array.header.stamp = self.node.get_clock().now().to_msg()
+        array.status = [diagnostic_status(status) for status in self.robot.health(now)]
+        return array
+
+
+def diagnostic_status(status: Status) -> DiagnosticStatus:
+    return DiagnosticStatus(level=bytes([status.level]), name=f"{NODE_NAME}: {status.name}",
+                            message=status.message, hardware_id=status.hardware_id,
+                            values=[KeyValue(key=k, value=v) for k, v in status.values])
+
+
+def _pose_into(message: Odometry, x: float, y: float, theta: float) -> None:
+    message.pose.pose.position.x = float(x)
+    message.pose.pose.position.y = float(y)
+    message.pose.pose.orientation.z = math.sin(theta / 2.0)
+    message.pose.pose.orientation.w = math.cos(theta / 2.0)
+
