@@ -47,6 +47,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.emulator
 	$(PY) -m benchmarks.link
 	$(PY) -m benchmarks.throughput
+	$(PY) -m benchmarks.ros2
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist

@@ -229,7 +229,7 @@ class PacedRobot:
 
 def _board_record(board: Board) -> dict[str, Any]:
     """A board's state for the truth stream: the last tick (as its TM stamps it), the
-    speeds the firmware sampled then (what that TM carries, before float32 rounding), the
+    speeds and encoder counts the firmware sampled then (what that TM carries), the
     PWM applied now (global_enable gates it in logic: 0 from the cycle enable fell), the
     enable, when the last RE arrived and when and why enable last fell, the parameters."""
     firmware: Any = board.peripherals["firmware"]
@@ -238,6 +238,8 @@ def _board_record(board: Board) -> dict[str, Any]:
     return {
         "t_us": (firmware.last_tick // 100) & 0xFFFF_FFFF,
         "speed_a": firmware.channels[1].speed, "speed_b": firmware.channels[2].speed,
+        "position_a": firmware.channels[1].position,
+        "position_b": firmware.channels[2].position,
         "pwm_a": board.channels[1].pwm.applied_duty,
         "pwm_b": board.channels[2].pwm.applied_duty,
         "enabled": board.global_enable,
@@ -501,7 +503,9 @@ TRUTH_PERIOD_S = 0.02
 class TruthEndpoint:
     """The emulated body's true state for any number of readers on a TCP port: one JSON
     object per line every :data:`TRUTH_PERIOD_S` (``t x y theta v omega distance surface``;
-    metres, radians, seconds of emulated time). Read-only; what a reader sends is ignored."""
+    metres, radians, seconds of emulated time; ``boards``: each board's state, see
+    :func:`_board_record`; ``host_time``: the host's epoch time the boards were advanced to,
+    so board time maps onto the host clock). Read-only; what a reader sends is ignored."""
 
     def __init__(self, robot: PacedRobot, host: str, port: int) -> None:
         self.robot = robot
@@ -527,7 +531,9 @@ class TruthEndpoint:
         try:
             while not writer.is_closing():
                 self.robot.advance()
-                line = json.dumps(self.robot.truth_record(), separators=(",", ":"))
+                record = self.robot.truth_record()
+                record["host_time"] = time.time()  # the boards caught up with this instant
+                line = json.dumps(record, separators=(",", ":"))
                 writer.write(line.encode() + b"\n")
                 if writer.transport.get_write_buffer_size() > 1 << 20:
                     break  # a reader that does not read is let go

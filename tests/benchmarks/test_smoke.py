@@ -209,3 +209,37 @@ def test_throughput_quick(tmp_path: Path) -> None:
 
     limit = report["payload_limit"]
     assert 0 < limit["largest_payload_bytes_all_escaped"] < limit["largest_payload_bytes"]
+
+
+def _ros2_missing() -> str | None:
+    import importlib.util
+
+    if importlib.util.find_spec("rclpy") is None:
+        return "rclpy is not installed (the ros2 extra)"
+    from tests.ros2.test_ros2 import NETNS
+
+    probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
+    return None if probe.returncode == 0 else f"no network namespace: {probe.stderr.strip()}"
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_ros2_quick(tmp_path: Path) -> None:
+    import os
+
+    missing = _ros2_missing()
+    if missing is not None:
+        if os.environ.get("FPGALINK_REQUIRE_ROS2") == "1":
+            pytest.fail(missing)
+        pytest.skip(missing)
+    _, report = run_quick("ros2", tmp_path)
+    results = report["results"]
+    assert [r["rate_hz"] for r in results] == [100.0, 1000.0]
+    for result in results:
+        assert result["messages"] > 0
+        # Never faster than the rate asked for (a slow machine may deliver fewer).
+        assert result["messages"] <= result["rate_hz"] * (result["window_s"] + 0.1)
+        assert set(result["cpu_percent"]) == {"node", "serve", "peer"}
+        # The stamps were tied to board ticks with no pairing in disagreement.
+        assert result["matched"] > 0 and result["mismatched"] == 0
+        latency = result["latency_ms"]
+        assert latency["p50"] <= latency["p99"] <= latency["max"]

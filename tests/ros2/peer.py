@@ -151,9 +151,16 @@ class Peer(Node):
         return future.result()
 
     def set_double(self, name: str, value: float) -> tuple[bool, str]:
+        return self._set(name, ParameterValue(type=ParameterType.PARAMETER_DOUBLE,
+                                              double_value=value))
+
+    def set_int(self, name: str, value: int) -> tuple[bool, str]:
+        return self._set(name, ParameterValue(type=ParameterType.PARAMETER_INTEGER,
+                                              integer_value=value))
+
+    def _set(self, name: str, value: ParameterValue) -> tuple[bool, str]:
         request = SetParameters.Request()
-        request.parameters = [ParameterMsg(name=name, value=ParameterValue(
-            type=ParameterType.PARAMETER_DOUBLE, double_value=value))]
+        request.parameters = [ParameterMsg(name=name, value=value)]
         result = self.call(self.set_client, request).results[0]
         return bool(result.successful), str(result.reason)
 
@@ -224,8 +231,11 @@ def main_scenario(peer: Peer) -> None:
         bad_ok, bad_reason = peer.set_double(name, -1.0)
         peer.spin_for(0.2)
         after = peer.get_double(name)
+        silence_ok, silence_reason = peer.set_int("L.GetDataPeriodical", 0)
         report("parameters", ok=ok, reason=reason, on_board=on_board, bad_ok=bad_ok,
-               bad_reason=bad_reason, after=after,
+               bad_reason=bad_reason, after=after, silence_ok=silence_ok,
+               silence_reason=silence_reason,
+               streaming=truth.latest["boards"]["L"]["params"]["GetDataPeriodical"],
                board_after=truth.latest["boards"]["L"]["params"]["Kp_Wheel_PidA"])
 
         # enable: silence stops the wheels. The truth lines after the last `true` say when

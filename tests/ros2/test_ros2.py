@@ -41,14 +41,28 @@ pytestmark = [pytest.mark.skipif(_missing is not None, reason=_missing or ""),
               pytest.mark.timeout(SCENARIO_TIMEOUT_S + 60)]
 
 
+def docs_example() -> str:
+    """The rclpy example of docs/ros2.md, as written there."""
+    text = (ROOT / "docs" / "ros2.md").read_text(encoding="utf-8")
+    section = text[text.index("## An example session"):]
+    return section.split("```python\n", 1)[1].split("```", 1)[0]
+
+
 class Scenario:
     def __init__(self, name: str, log_dir: Path) -> None:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                    ROS_LOG_DIR=str(log_dir), PYTHONPATH=str(ROOT),
                    PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
         self.name = name
+        command = [sys.executable, "-m", "tests.ros2.peer", name]
+        if name == "docs":  # the node on the emulated robot, then the docs' example
+            example = log_dir / "docs_example.py"
+            example.write_text(docs_example(), encoding="utf-8")
+            command = ["sh", "-c", f"{sys.executable} -m fpgalink.ros2 & node=$!; "
+                       f"{sys.executable} {example}; rc=$?; kill -INT $node; wait $node; "
+                       "echo node exit $?; exit $rc"]
         self.proc = subprocess.Popen(
-            [str(NETNS), sys.executable, "-m", "tests.ros2.peer", name], cwd=ROOT, env=env,
+            [str(NETNS), *command], cwd=ROOT, env=env,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self._checks: dict[str, dict[str, Any]] | None = None
         self.output = ""
@@ -62,6 +76,8 @@ class Scenario:
                 self.output, _ = self.proc.communicate()
                 pytest.fail(f"peer {self.name} ran over {SCENARIO_TIMEOUT_S} s:\n{self.output}")
             self._checks = {}
+            if self.proc.returncode != 0:
+                pytest.fail(f"peer {self.name} exited {self.proc.returncode}:\n{self.output}")
             for line in self.output.splitlines():
                 if line.startswith('{"check"'):
                     facts = json.loads(line)
@@ -77,7 +93,7 @@ class Scenario:
 @pytest.fixture(scope="module")
 def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Scenario]]:
     log_dir = tmp_path_factory.mktemp("roslog")
-    running = {name: Scenario(name, log_dir) for name in ("main", "kill")}
+    running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs")}
     yield running
     for scenario in running.values():
         if scenario.proc.poll() is None:
@@ -126,6 +142,9 @@ def test_set_parameters_is_confirmed_by_the_board_or_refused_with_the_reason(
     assert facts["bad_ok"] is False
     assert "Kp_Wheel_Pid" in facts["bad_reason"] and "-1" in facts["bad_reason"]
     assert facts["after"] == 400.0 and facts["board_after"] == 400.0
+    # Telemetry is what the node runs on: turning it off is refused, and it stays on.
+    assert facts["silence_ok"] is False and "telemetry" in facts["silence_reason"]
+    assert facts["streaming"] == 1
 
 
 def test_enable_silence_stops_the_wheels(scenarios: dict[str, Scenario]) -> None:
@@ -166,3 +185,23 @@ def test_a_killed_board_server_turns_its_status_to_error_and_disables_the_robot(
     assert facts["board_r"][0] == 0
     level, message = facts["supervision"]
     assert level == 2 and "board L" in message
+
+
+def test_the_example_session_in_the_docs_runs_as_shown(scenarios: dict[str, Scenario]
+                                                       ) -> None:
+    scenarios["docs"].checks()  # it ran to the end, exit 0
+    lines = scenarios["docs"].output.splitlines()
+    printed = [line for line in lines if not line.startswith("[")]  # the node's log: [INFO]
+    joints = next(line for line in printed if line.startswith("joint_states:"))
+    assert "['FL', 'BL', 'FR', 'BR']" in joints
+    speeds = [float(v) for v in joints.split("] [")[1].split("]")[0].replace("'", "").split(",")]
+    assert speeds[2] > speeds[0] > 0  # forward, turning left
+    assert next(line for line in printed if line.startswith("odom:"))
+    assert [line for line in printed if line.startswith("diagnostics:")] == [
+        "diagnostics: fpgalink: board L: level 0 alive",
+        "diagnostics: fpgalink: board R: level 0 alive",
+        "diagnostics: fpgalink: supervision: level 0 enabled"]
+    assert "set L.Kp_Wheel_Pid.A = 400.0: successful=True " in printed
+    assert ("set L.Kp_Wheel_Pid.A = -1.0: successful=False board L: Kp_Wheel_Pid must be a "
+            "float ≥ 0 (and fit a float32); got -1.0") in printed
+    assert "node exit 0" in printed

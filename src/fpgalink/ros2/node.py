@@ -277,6 +277,9 @@ class RosBridge:
             return result
         board, param, channel = target
         value = parameter.value
+        if param.name == "GetDataPeriodical" and value != 1:
+            return SetParametersResult(successful=False, reason=(
+                f"{name}: this node runs on the boards' telemetry; it stays 1"))
         if isinstance(value, bool) or not isinstance(value, int | float):
             return SetParametersResult(successful=False, reason=(
                 f"{name} takes a {param.type.name.lower()} ({param.range_text}), "
