@@ -70,10 +70,11 @@ class Body:
         dt, self.t = t - self.t, t
         if last is None:
             return
-        ground = {name: math.radians(angles[name] - last[name]) * self.radius * self.mount[name]
-                  for name in angles}
-        left = sum(ground[n] for n in LEFT_WHEELS) / len(LEFT_WHEELS)
-        right = sum(ground[n] for n in RIGHT_WHEELS) / len(RIGHT_WHEELS)
+        radius, mount, radians = self.radius, self.mount, math.radians
+        left = sum([radians(angles[n] - last[n]) * radius * mount[n]
+                    for n in LEFT_WHEELS]) / len(LEFT_WHEELS)
+        right = sum([radians(angles[n] - last[n]) * radius * mount[n]
+                     for n in RIGHT_WHEELS]) / len(RIGHT_WHEELS)
         distance, turn = self.kinematics.displacement(left, right)
         self.pose = integrate_arc(self.pose, distance, turn)
         self.distance += abs(distance)

@@ -76,6 +76,10 @@ ALIVE_PERIOD_CYCLES = ms(300)
 SPEED_SW, SPEED_HW, CURRENT_SW, CURRENT_HW = 0, 1, 2, 3  #: ActiveController values
 HARDWARE_MODES = (SPEED_HW, CURRENT_HW)
 _MOTOR = MotorConstants()
+_CYCLES_PER_US = us(1)
+# Plain ints: the flag word is built every tick, and IntFlag arithmetic is slow.
+_ENABLE, _END_STOP, _SATURATED = (int(f) for f in (
+    TelemetryFlags.ENABLE, TelemetryFlags.END_STOP, TelemetryFlags.SATURATED))
 #: Duty (PWM counts) to current (A) at stall, the current loop's plant gain.
 _AMPS_PER_COUNT = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
 _ELECTRICAL_TAU = _MOTOR.inductance_h / _MOTOR.resistance_ohm
@@ -219,13 +223,7 @@ class Firmware:
         counter = getattr(message, "counter", None)
         if counter is not None:
             self.host_counter.observe(counter)
-        if isinstance(message, ParamSet):
-            self.stats.param_sets += 1
-            self._handle_set(message)
-        elif isinstance(message, ParamGet):
-            self.stats.param_gets += 1
-            self._handle_get(message)
-        elif isinstance(message, References):
+        if isinstance(message, References):
             # Only the next timer tick reads the references, so the wheels need not be
             # brought up to this cycle. A non-finite reference is refused whole, as a
             # malformed message is: nothing a broken host sends may reach a controller.
@@ -237,6 +235,12 @@ class Firmware:
                         self._write_hardware_reference(code)
             else:
                 self.stats.invalid_references += 1
+        elif isinstance(message, ParamSet):
+            self.stats.param_sets += 1
+            self._handle_set(message)
+        elif isinstance(message, ParamGet):
+            self.stats.param_gets += 1
+            self._handle_get(message)
         elif isinstance(message, Malformed):
             self.stats.malformed += 1
         else:
@@ -399,21 +403,24 @@ class Firmware:
         board = self.board
         board.settle(cycle)
         dt = board.timer.period_cycles / CLOCK_HZ
+        values, enabled = self.values, self._enabled
         saturated = {}
         for code, ch in self.channels.items():
             io = board.channels[code]
-            ch.speed = io.encoder.sample_speed(cycle)
-            ch.position = io.encoder.position
+            encoder = io.encoder
+            ch.speed = encoder.sample_speed(cycle)
+            ch.position = encoder.position
             ch.current = io.current_a
-            mode = self.mode(code)
-            if not self._enabled:
+            mode = values[(4, code)]
+            if not enabled:
                 ch.pid.reset()
                 ch.current_pid.reset()
                 io.pwm.write_duty(0, cycle)
                 saturated[code] = False
             elif mode == SPEED_SW:
-                io.pwm.write_duty(ch.pid.update(ch.reference, ch.speed, dt), cycle)
-                saturated[code] = ch.pid.saturated
+                pid = ch.pid
+                io.pwm.write_duty(pid.update(ch.reference, ch.speed, dt), cycle)
+                saturated[code] = pid.saturated
             elif mode == CURRENT_SW:
                 pid = ch.current_pid
                 # Ti no shorter than the period: the loop stays stable at any timer period.
@@ -426,9 +433,9 @@ class Firmware:
                 assert ch.hardware is not None
                 saturated[code] = ch.hardware.saturated
         self.timing.periods += 1
-        if self.values[(2, BOARD)] == 1:
+        if values[(2, BOARD)] == 1:
             sample = Telemetry(
-                (cycle // us(1)) & 0xFFFF_FFFF,
+                (cycle // _CYCLES_PER_US) & 0xFFFF_FFFF,
                 self._channel_sample(CHANNEL_A, saturated[CHANNEL_A]),
                 self._channel_sample(CHANNEL_B, saturated[CHANNEL_B]),
             )
@@ -441,16 +448,17 @@ class Firmware:
     def _channel_sample(self, code: int, saturated: bool) -> ChannelTelemetry:
         ch = self.channels[code]
         io = self.board.channels[code]
+        pwm = io.pwm
         flags = 0
-        if io.pwm.global_enable:
-            flags |= TelemetryFlags.ENABLE
+        if pwm.global_enable:
+            flags |= _ENABLE
         if io.encoder.end_stop:
-            flags |= TelemetryFlags.END_STOP
+            flags |= _END_STOP
         if saturated:
-            flags |= TelemetryFlags.SATURATED
+            flags |= _SATURATED
         # Floats are rounded to float32 when the message is packed.
         return ChannelTelemetry(
-            ch.position, ch.speed, ch.current, io.pwm.applied_duty, ch.reference, flags,
+            ch.position, ch.speed, ch.current, pwm.applied_duty, ch.reference, flags,
         )
 
 

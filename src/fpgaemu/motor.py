@@ -262,23 +262,28 @@ class WheelPlant:
         """Hold the duty for ``dt`` seconds; returns (angle at start, speed at start) so a
         caller can interpolate within the step."""
         angle0, speed0 = self.angle_deg, self.speed_dps
-        if dt <= 0:
-            return angle0, speed0
+        if dt > 0:
+            self.hold(dt)
+        return angle0, speed0
+
+    def hold(self, dt: float) -> None:
+        """:meth:`advance` for a caller that needs neither starting figure (``dt`` > 0): the
+        physics step every emulated millisecond, so it skips what :meth:`advance` reports."""
         if self.stalled:
             self._follow_current(dt, 0.0)
-            return angle0, 0.0
-        u = self._input()
+            return
+        # Unloaded (the usual case) the input is the duty alone: the same value, no division.
+        u = self._input() if self.load_torque_nm else self.duty / MAX_DUTY
         x = self._x
+        coefficients = self._cache.get(dt) or self._coefficients(dt)
         angle_gain = 0.0
-        for i, (e, gain, angle_from_state, angle_from_input) in enumerate(
-            self._coefficients(dt)
-        ):
+        for i in range(3):
+            e, gain, angle_from_state, angle_from_input = coefficients[i]
             xi = x[i]
             angle_gain += (angle_from_state * xi + angle_from_input * u).real
             x[i] = e * xi + gain * u
         self.angle_deg += angle_gain
         self._follow_current(dt, angle_gain / dt)
-        return angle0, speed0
 
     @property
     def at_rest(self) -> bool:
@@ -301,7 +306,8 @@ def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) ->
     c0 = start
     while c0 < end:
         c1 = min(end, c0 + PHYSICS_STEP_CYCLES)
-        angle0, _ = wheel.advance((c1 - c0) / CLOCK_HZ)
+        angle0 = wheel.angle_deg
+        wheel.hold((c1 - c0) / CLOCK_HZ)
         encoder.follow(c0, angle0, c1, wheel.angle_deg)
         c0 = c1
 
@@ -345,7 +351,12 @@ class Motors:
         for code, wheel in self.wheels.items():
             io = channels[code]
             wheel.duty = io.pwm.applied_duty
-            turn(wheel, io.encoder, start, cycle)
+            if cycle - start <= PHYSICS_STEP_CYCLES:  # turn() in one step, the usual case
+                angle0 = wheel.angle_deg
+                wheel.hold((cycle - start) / CLOCK_HZ)
+                io.encoder.follow(start, angle0, cycle, wheel.angle_deg)
+            else:
+                turn(wheel, io.encoder, start, cycle)
             io.current_a = wheel.current if self._noise is None else (
                 wheel.current + float(self._noise.normal(0.0, self.current_noise_a)))
         self._cycle = cycle

@@ -59,14 +59,15 @@ class Pid:
             self.reset()
             return 0
         g = self.gains
+        kp = g.kp
         error = reference - measurement
-        proportional = g.kp * error
+        proportional = kp * error
         if g.td > 0.0 and self._last_measurement is not None and dt > 0:
             tf = g.td / DERIVATIVE_FILTER_N
-            raw = -g.kp * g.td * (measurement - self._last_measurement) / dt
+            raw = -kp * g.td * (measurement - self._last_measurement) / dt
             self._derivative += (raw - self._derivative) * dt / (tf + dt)
         self._last_measurement = measurement
-        step = g.kp * dt / g.ti * error
+        step = kp * dt / g.ti * error
         candidate = proportional + self.integral + step + self._derivative
         limit = self.limit
         output: float

@@ -56,6 +56,10 @@ class EmulatedRobot:
         }
         self.body = Body(self.description)
         self._motors = {name: self._motors_of(board) for name, board in self.boards.items()}
+        # Each board's motors with the cycle getter they follow, and each wheel's plant by
+        # name: the same objects for the robot's life, looked up once.
+        self._settled = [(motors, self.boards[name]) for name, motors in self._motors.items()]
+        self._plants = [(w.name, self.wheel(w)) for w in self.description.wheels]
         self.now = 0
         self._follow()
 
@@ -72,16 +76,17 @@ class EmulatedRobot:
         return self._motors[mount.board].wheels[mount.channel]
 
     def _follow(self) -> None:
-        for name, motors in self._motors.items():
-            motors.advance_to(self.boards[name].now)
-        angles = {w.name: self.wheel(w).angle_deg for w in self.description.wheels}
-        self.body.follow(self.now / CLOCK_HZ, angles)
+        for motors, board in self._settled:
+            motors.advance_to(board.now)
+        self.body.follow(self.now / CLOCK_HZ,
+                         {name: plant.angle_deg for name, plant in self._plants})
 
     def run_until(self, cycle: int) -> None:
         """Every board and the body up to ``cycle``."""
+        boards = list(self.boards.values())
         while self.now < cycle:
             step = min(cycle, self.now + PHYSICS_STEP_CYCLES)
-            for board in self.boards.values():
+            for board in boards:
                 board.run_until(step)
             self.now = step
             self._follow()

@@ -625,7 +625,7 @@ class UartWrite(_Line):
         it occupies the line but the host never sees it."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        self._deliver(self._send(bytes(data), cycle, lost))
+        self._deliver(self._send(data if type(data) is bytes else bytes(data), cycle, lost))
         return self.line_free_at
 
     def _deliver(self, runs: list[ByteRun]) -> None:

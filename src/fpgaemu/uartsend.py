@@ -57,10 +57,11 @@ def frame_bytes(content: bytes, framing: Framing) -> bytes:
 
 
 class _Escaper:
-    __slots__ = ("_head", "_pattern", "_tail", "_template")
+    __slots__ = ("_head", "_pattern", "_tail", "_template", "framing")
     _cache: dict[Framing, _Escaper] = {}  # noqa: RUF012 - per-framing memo, class-wide
 
     def __init__(self, framing: Framing) -> None:
+        self.framing = framing
         specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
         self._pattern = re.compile(b"[" + specials + b"]")
         skip = bytes((framing.skip,))
@@ -93,11 +94,12 @@ class UartSend:
         self._timeline = timeline
         self.bram = bram
         self.uartwrite = uartwrite
-        self.framing = framing
+        self._escaper = _Escaper.get(framing)
         self.length = 0
         self.stats = UartSendStats()
         #: cycle the current frame's last stop bit ends; idle from then on
         self.busy_until = 0
+        self._on_wire = 0  #: wire bytes of the frame being sent
         #: Fault hook: called with (content, cycle) at each accepted strobe; returning False
         #: loses the frame on the wire (it still takes its line time).
         self.frame_filter: FrameFilter | None = None
@@ -109,8 +111,12 @@ class UartSend:
         # completion cycle sees the module idle whatever their order.
         return self._timeline.now < self.busy_until
 
+    @property
+    def framing(self) -> Framing:
+        return self._escaper.framing
+
     def set_framing(self, framing: Framing) -> None:
-        self.framing = framing
+        self._escaper = _Escaper.get(framing)
 
     def set_length(self, length: int) -> None:
         if not 0 <= length <= self.bram.size:
@@ -131,7 +137,7 @@ class UartSend:
             self.stats.refused_strobes += 1
             return False
         content = self.bram.read_bytes(0, self.length)
-        wire = frame_bytes(content, self.framing)
+        wire = self._escaper.frame(content)
         stats = self.stats
         stats.frames += 1
         stats.wire_bytes += len(wire)
@@ -141,10 +147,12 @@ class UartSend:
         if lost:
             stats.filtered += 1
         self.busy_until = end = self.uartwrite.transmit(wire, lost=lost)
-        self._timeline.schedule(end, lambda cycle: self._finish(cycle, len(wire)))
+        # One frame at a time (a strobe while busy is refused), so its size can wait here.
+        self._on_wire = len(wire)
+        self._timeline.schedule(end, self._finish)
         return True
 
-    def _finish(self, cycle: int, wire_bytes: int) -> None:
-        event = TxDone(cycle, wire_bytes)
+    def _finish(self, cycle: int) -> None:
+        event = TxDone(cycle, self._on_wire)
         for listener in self._done_listeners:
             listener(event)
