@@ -216,6 +216,7 @@ class RobotRun:
         self._truth_reader = _TruthReader(truth_url) if truth_url else None
         self._sink: Any = None
         self._started = 0.0
+        self._bag_truth_at = -math.inf  #: host time /truth was last written to the bag
         self.robot: Robot | None = None
         self.last_truth: dict[str, Any] | None = None
 
@@ -309,6 +310,8 @@ class RobotRun:
 
         sets = SampleSets(robot.description.boards)
         clocks = {board: BoardClock() for board in robot.description.boards}
+        # One truth clock for all the boards' tasks: /truth at most every BAG_TRUTH_PERIOD_S.
+        self._bag_truth_at = -math.inf
         return [*(asyncio.ensure_future(self._bag_telemetry(robot, name, sets, clocks))
                   for name in robot.description.boards),
                 asyncio.ensure_future(self._bag_diagnostics(robot))]
@@ -318,7 +321,6 @@ class RobotRun:
         bag = self.bag
         assert bag is not None
         boards = robot.description.boards
-        last_truth = -math.inf
         loop = asyncio.get_running_loop()
         to_epoch_ns = time.time_ns() - round(loop.time() * 1e9)
         async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
@@ -334,11 +336,11 @@ class RobotRun:
                 if states is not None:
                     bag.joint_states(states, stamp_ns, now_ns)
                 bag.odometry(robot.odometry_state, stamp_ns, now_ns)
-                if received - last_truth >= BAG_TRUTH_PERIOD_S:
+                if received - self._bag_truth_at >= BAG_TRUTH_PERIOD_S:
                     truth = self.truth()
                     if truth is not None:
                         bag.truth(truth, now_ns, now_ns)
-                        last_truth = received
+                        self._bag_truth_at = received
             except OSError as exc:
                 self._bag_failed(exc)
                 return

@@ -115,6 +115,15 @@ def test_odom_follows_the_wheels_and_the_truth(driven: tuple[Path, str]) -> None
     assert covariance[0] > 0 and covariance[14] == 1e6  # x estimated, z not
 
 
+def test_truth_is_recorded_at_most_every_10_ms(driven: tuple[Path, str]) -> None:
+    """One clock for both boards' sample streams: /truth at 100 Hz at most, not once per
+    board (which doubled it)."""
+    times = [t for t, _ in read_bag(driven[0])["/truth"]]
+    gaps = [b - a for a, b in itertools.pairwise(times)]
+    assert len(gaps) > 50
+    assert min(gaps) >= 10_000_000 - 1  # ns; host receive times, rounded to whole ns
+
+
 def test_diagnostics_once_a_second_per_board_and_supervision(driven: tuple[Path, str]
                                                              ) -> None:
     topics = read_bag(driven[0])
