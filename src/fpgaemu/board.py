@@ -136,6 +136,12 @@ class Board:
         firmware's next tick while the board is quiescent), or ``None``."""
         self._skippable = source
 
+    @property
+    def quiescent(self) -> bool:
+        """The next timer tick is known to change nothing observable (see
+        :meth:`set_skippable`)."""
+        return self._skippable is not None and self._skippable() is not None
+
     def next_deadline(self) -> int | None:
         """The cycle of the next event that may change something a host could see (an event
         known to change nothing is not counted), or ``None`` when nothing is scheduled."""

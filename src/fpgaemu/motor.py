@@ -351,7 +351,9 @@ class Motors:
         for code, wheel in self.wheels.items():
             io = channels[code]
             wheel.duty = io.pwm.applied_duty
-            if cycle - start <= PHYSICS_STEP_CYCLES:  # turn() in one step, the usual case
+            if wheel.at_rest:
+                pass  # advancing changes nothing (an idle robot's long quiet stretches)
+            elif cycle - start <= PHYSICS_STEP_CYCLES:  # turn() in one step, the usual case
                 angle0 = wheel.angle_deg
                 wheel.hold((cycle - start) / CLOCK_HZ)
                 io.encoder.follow(start, angle0, cycle, wheel.angle_deg)

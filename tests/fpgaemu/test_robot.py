@@ -1,0 +1,72 @@
+"""The emulated robot's stepping: an idle robot (every board quiescent, every wheel exactly
+at rest) crosses its quiet stretches in one step, with the same outcome as stepping each
+millisecond with every timer tick run in full."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fpgaemu.firmware import Firmware
+from fpgaemu.robot import EmulatedRobot
+from fpgaemu.timeline import CLOCK_HZ, ms, us
+from fpgalink import Connection
+from fpgalink.protocol import References
+
+
+def _firmware(robot: EmulatedRobot, name: str) -> Firmware:
+    firmware = robot.boards[name].peripherals["firmware"]
+    assert isinstance(firmware, Firmware)
+    return firmware
+
+
+def idle_then_drive(skip_quiet: bool) -> tuple[EmulatedRobot, dict[str, Any], int]:
+    """2 s idle from power-up, then enable and references arrive (mid-millisecond) and the
+    robot drives for 0.5 s; returns the robot, what each board sent, and how many times the
+    body was moved."""
+    robot = EmulatedRobot()
+    follows = 0
+    body_follow = robot.body.follow
+
+    def counted(t: float, angles: Any) -> None:
+        nonlocal follows
+        follows += 1
+        body_follow(t, angles)
+
+    robot.body.follow = counted  # type: ignore[method-assign]
+    for name in robot.boards:
+        _firmware(robot, name).skip_quiescent_ticks = skip_quiet
+    robot.run_until(ms(2000))
+    for index, name in enumerate(robot.boards):
+        at = ms(2000) + us(137 + 50 * index)
+        conn = Connection()
+        conn.start(at / CLOCK_HZ)
+        conn.enable(at / CLOCK_HZ)
+        conn.send(References(40.0, 40.0 - 20 * index), at / CLOCK_HZ)
+        robot.boards[name].host_write(conn.data_to_send(), at)
+    sent = {}
+    robot.run_until(ms(2200))
+    for board in robot.boards.values():  # the watchdog would lapse: re-enable
+        conn = Connection()
+        conn.start(0.0)
+        conn.enable(0.0)
+        board.host_write(conn.data_to_send(), ms(2200))
+    robot.run_until(ms(2500))
+    for name, board in robot.boards.items():
+        sent[name] = board.read_host_bytes_timed()
+    return robot, sent, follows
+
+
+def test_an_idle_robot_crosses_its_quiet_stretches_in_one_step_with_the_same_outcome(
+) -> None:
+    fast, fast_sent, fast_follows = idle_then_drive(skip_quiet=True)
+    full, full_sent, full_follows = idle_then_drive(skip_quiet=False)
+    assert full_follows >= 2500  # one body step per millisecond
+    # Idle, the robot wakes only for the boards' alive messages (every 300 ms each).
+    assert fast_follows < 500 + 60
+    assert fast.body.pose == full.body.pose and fast.body.distance == full.body.distance > 0.01
+    assert fast_sent == full_sent and all(fast_sent.values())
+    for name in fast.boards:
+        for code in (1, 2):
+            a, b = fast.boards[name].channels[code], full.boards[name].channels[code]
+            assert a.encoder.position == b.encoder.position != 0
+        assert _firmware(fast, name).timing.periods == _firmware(full, name).timing.periods
