@@ -13,7 +13,7 @@ import click
 
 from fpgalink.cli.options import ConnectionOptions
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
-from fpgalink.cli.robotsession import RobotRun, live, robot_options, rosbag_option
+from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
 from fpgalink.cli.session import run, stop_exit_code, wait_or_stop
 
 __all__ = ["drive"]
@@ -26,11 +26,7 @@ __all__ = ["drive"]
               help="Turn rate, deg/s (counter-clockwise positive).")
 @click.option("--for", "duration", type=FiniteRange(min=0, min_open=True, max=86400),
               help="How long, s (default: until Ctrl-C).")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
-              help="Save the path (odometry, and truth when emulated) to a .png/.svg/.pdf.")
-@click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
-              help="Record odometry, truth and commands into an MCAP file.")
-@rosbag_option
+@output_options
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
           record: Path | None, rosbag: Path | None, robot_file: Path | None, surface: str | None,

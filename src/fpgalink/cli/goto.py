@@ -11,7 +11,7 @@ import click
 
 from fpgalink.cli.options import ConnectionOptions
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
-from fpgalink.cli.robotsession import RobotRun, live, robot_options, rosbag_option
+from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
 from fpgalink.cli.session import run, stop_exit_code
 
 __all__ = ["goto"]
@@ -27,11 +27,7 @@ __all__ = ["goto"]
               help="Give up (and stop) after this many seconds.")
 @click.option("--tolerance", type=FiniteRange(min=0.005, max=10), default=0.05,
               show_default=True, help="Arrived within this distance, m.")
-@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
-              help="Save the path (odometry, and truth when emulated) to a .png/.svg/.pdf.")
-@click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
-              help="Record odometry, truth and commands into an MCAP file.")
-@rosbag_option
+@output_options
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
          plot: Path | None, record: Path | None, rosbag: Path | None, robot_file: Path | None,

@@ -29,7 +29,8 @@ if TYPE_CHECKING:
     from fpgalink.robot.joints import SampleSets
     from fpgalink.robot.robot import Robot
 
-__all__ = ["PathLog", "RobotRun", "description_options", "robot_options", "rosbag_option"]
+__all__ = ["PathLog", "RobotRun", "description_options", "output_options", "robot_options",
+           "rosbag_option"]
 
 T = TypeVar("T")
 
@@ -56,6 +57,21 @@ COMMAND_SCHEMA = {
 def robot_options(func: Callable[..., T]) -> Callable[..., T]:
     """``--robot FILE``, ``--surface NAME``, ``--truth URL`` and the connection options."""
     return description_options(connection_options(multi=True, announce=False)(func))
+
+
+def output_options(func: Callable[..., T]) -> Callable[..., T]:
+    """``--plot FILE``, ``--record FILE`` and ``--rosbag2 DIR``: what a robot command leaves
+    behind."""
+    func = rosbag_option(func)
+    for option in (  # innermost first: --help lists --plot, --record, --rosbag2
+        click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
+                     help="Save the path (odometry, and truth when emulated) to a "
+                          ".png/.svg/.pdf."),
+        click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
+                     help="Record odometry, truth and commands into an MCAP file."),
+    )[::-1]:
+        func = option(func)
+    return func
 
 
 def rosbag_option(func: Callable[..., T]) -> Callable[..., T]:
