@@ -10,7 +10,10 @@ Four sections, every figure measured in this run (nothing is copied from elsewhe
    (``Connection.send`` then ``data_to_send`` per message) and decoded by
    ``Connection.receive_data`` to typed events, against pymavlink encoding (``MAVLink.send``)
    and decoding (``MAVLink.parse_buffer``) MAVLink v2 messages of the same payload size, in the
-   same process, repetitions interleaved, so ratios pair repetitions of one run.
+   same process, repetitions interleaved, so ratios pair repetitions of one run. ``TM`` is
+   also decoded by the protocol layer alone (``FrameDecoder.feed``, then ``parse_contents``
+   on each chunk's frames, no link bookkeeping): issue 17's "typed TM decode" beside
+   "through Connection".
 2. **Host stack, no pacing.** Pre-encoded ``TM`` bytes fed in chunks to a
    :class:`~fpgalink.testing.MemoryTransport` under a :class:`~fpgalink.aio.link.Link`, to a
    sample taken from a ``link.telemetry()`` subscription; wall rate and host CPU µs per
@@ -57,6 +60,7 @@ from fpgalink.protocol import (
     Binary,
     ChannelTelemetry,
     CountedMessage,
+    FrameDecoder,
     MessageId,
     ParamAck,
     ParamSet,
@@ -65,6 +69,7 @@ from fpgalink.protocol import (
     Telemetry,
     encode_frame,
     encode_message,
+    parse_contents,
     resolve,
 )
 from fpgalink.protocol.catalogue import layout
@@ -86,6 +91,10 @@ BAUD = 1_000_000
 PERIOD_MS = 1
 #: ``E`` every 300 ms (SPEC §4): the board's own share of the board→host wire.
 ALIVE_PERIOD_S = 0.3
+
+#: issue 17: ours over pymavlink in messages/s, median of the repetitions paired in one run
+TARGET_TYPED_TM_VS_PYMAVLINK = 4.0  #: FrameDecoder.feed + parse_contents
+TARGET_CONNECTION_TM_VS_PYMAVLINK = 3.5  #: Connection.receive_data + events
 
 #: MAVLink v2 messages with the same payload size as ours (the sizes actually sent are measured
 #: and reported). Chosen for size first, then for a similar field mix.
@@ -140,7 +149,7 @@ class _NullFile:
 class CodecCase:
     key: str  #: ``tm.encode.fpgalink``
     kind: str  #: ``TM``, ``RV``, ``PS/PA``
-    operation: str  #: ``encode`` or ``decode``
+    operation: str  #: ``encode``, ``decode`` or ``decode_typed`` (protocol layer alone)
     impl: str  #: ``fpgalink`` or ``pymavlink``
     message: str  #: what is encoded or decoded
     payload_bytes: int
@@ -249,6 +258,22 @@ def _decode_ours(chunks: list[bytes], expected: type) -> Callable[[], int]:
     return run
 
 
+def _decode_typed(chunks: list[bytes]) -> Callable[[], int]:
+    """The protocol layer alone: a chunk's frames, then their contents to typed messages
+    (``parse_contents``: a chunk at a time, as ``MAVLink.parse_buffer`` takes one)."""
+
+    def run() -> int:
+        feed = FrameDecoder().feed
+        n = 0
+        for chunk in chunks:
+            # A consumer must tell frames from framing-error events; so does this loop.
+            frames = [item for item in feed(chunk) if type(item) is bytes]
+            n += sum(type(m) is Telemetry for m in parse_contents(frames))
+        return n
+
+    return run
+
+
 def _mavlink_module() -> Any:
     """The MAVLink v2 ``common`` dialect, or ``None`` without pymavlink (an optional extra)."""
     try:
@@ -323,6 +348,10 @@ def _codec_cases(config: BenchConfig, rng: random.Random) -> tuple[list[CodecCas
         cases.append(CodecCase(f"{key}.decode.fpgalink", kind, "decode", "fpgalink", dec_name,
                                body_size[kind], len(to_decode), len(dec_stream),
                                _decode_ours(chunked(dec_stream, CHUNK), expected)))
+        if kind == "TM":
+            cases.append(CodecCase(f"{key}.decode_typed.fpgalink", kind, "decode_typed",
+                                   "fpgalink", dec_name, body_size[kind], len(to_decode),
+                                   len(dec_stream), _decode_typed(chunked(dec_stream, CHUNK))))
 
     mav_mod = _mavlink_module()
     peers: dict[str, Any] = {"available": mav_mod is not None}
@@ -364,7 +393,8 @@ def _codec_ratios(cases: dict[str, CodecCase]) -> dict[str, Any]:
     for key, case in cases.items():
         if case.impl != "fpgalink":
             continue
-        peer = cases.get(key.replace(".fpgalink", ".pymavlink"))
+        # pymavlink has one decode path: both of ours are held against it.
+        peer = cases.get(f"{key.split('.')[0]}.{case.operation.split('_')[0]}.pymavlink")
         if peer is None:
             continue
         ours, theirs = case.rates()["messages_per_s"], peer.rates()["messages_per_s"]
@@ -749,11 +779,29 @@ def _run_codec(config: BenchConfig, rng: random.Random,
             case.seconds.append(seconds)
             case.counts.append(count)
     by_key = {c.key: c for c in codec}
+    ratios = _codec_ratios(by_key)
     return {
         "pymavlink": peers,
         "cases": {k: c.result() for k, c in by_key.items()},
-        "ratios_fpgalink_over_pymavlink": _codec_ratios(by_key),
+        "ratios_fpgalink_over_pymavlink": ratios,
+        "targets": _codec_targets(ratios),
     }
+
+
+def _codec_targets(ratios: dict[str, Any]) -> list[dict[str, Any]]:
+    """Issue 17's codec targets against pymavlink; none without pymavlink to measure."""
+    metric = "× pymavlink msg/s (median of paired repetitions)"
+    out = []
+    for name, key, threshold in (
+        ("typed TM decode vs pymavlink", "tm.decode_typed", TARGET_TYPED_TM_VS_PYMAVLINK),
+        ("TM through Connection vs pymavlink", "tm.decode", TARGET_CONNECTION_TM_VS_PYMAVLINK),
+    ):
+        if key not in ratios:
+            continue
+        measured = ratios[key]["summary"]["median"]
+        out.append({"name": name, "case": key, "metric": metric, "measured": measured,
+                    "threshold": threshold, "pass": measured >= threshold})
+    return out
 
 
 def _run_stack(config: BenchConfig, rng: random.Random,
@@ -778,7 +826,7 @@ def run(config: BenchConfig, *, progress: bool = True,
     """Run every section and return the report (what ``write_results`` stores)."""
     started = time.perf_counter()
     rng = random.Random(config.seed)
-    codec_cases = 6 * (2 if _mavlink_module() is not None else 1)
+    codec_cases = 7 + (6 if _mavlink_module() is not None else 0)
     with _progress(progress, _steps(config, codec_cases, 2)) as step:
         codec = _run_codec(config, rng, step)
         stack = _run_stack(config, rng, step)
@@ -849,19 +897,24 @@ def print_report(report: dict[str, Any]) -> None:
     cases, ratios, peers = codec["cases"], codec["ratios_fpgalink_over_pymavlink"], \
         codec["pymavlink"]
     for kind in ("tm", "rv", "ps"):
-        for op in ("encode", "decode"):
-            ours = cases[f"{kind}.{op}.fpgalink"]
+        for op in ("encode", "decode", "decode_typed"):
+            ours = cases.get(f"{kind}.{op}.fpgalink")
+            if ours is None:
+                continue
             label = f"{ours['message']} {op} ({ours['payload_bytes']} B payload)"
+            if op == "decode_typed":
+                label = f"{ours['message']} decode, FrameDecoder.feed + parse_content"
             row("1 codec", f"fpgalink {label}", ours["summary"]["messages_per_s"], "msg/s",
                 f"{ours['summary']['mb_per_s']['median']:.2f} MB/s, "
                 f"{ours['wire_bytes_per_message']:.1f} wire B/msg")
-            theirs = cases.get(f"{kind}.{op}.pymavlink")
+            theirs = cases.get(f"{kind}.{op.split('_')[0]}.pymavlink")
             if theirs is None:
                 continue
-            row("1 codec", f"pymavlink {theirs['message']} ({theirs['payload_bytes']} B)",
-                theirs["summary"]["messages_per_s"], "msg/s",
-                f"{theirs['summary']['mb_per_s']['median']:.2f} MB/s, "
-                f"{theirs['wire_bytes_per_message']:.1f} wire B/msg")
+            if op != "decode_typed":  # its peer row is the decode row just above
+                row("1 codec", f"pymavlink {theirs['message']} ({theirs['payload_bytes']} B)",
+                    theirs["summary"]["messages_per_s"], "msg/s",
+                    f"{theirs['summary']['mb_per_s']['median']:.2f} MB/s, "
+                    f"{theirs['wire_bytes_per_message']:.1f} wire B/msg")
             row("1 codec", "  ratio fpgalink/pymavlink", ratios[f"{kind}.{op}"]["summary"],
                 "×", "same run, repetitions paired")
 
@@ -926,6 +979,14 @@ def print_report(report: dict[str, Any]) -> None:
     print_table(["section", "measurement", "median", "min–max", "unit", "notes"], rows,
                 align="<<>><<")
     print()
+    if codec.get("targets"):
+        print_table(
+            ["target", "measured", "threshold", "result"],
+            [[t["name"], f"{t['measured']:.2f}", f"≥ {t['threshold']:g}",
+              "PASS" if t["pass"] else "FAIL"] for t in codec["targets"]],
+            align="<>><",
+        )
+        print()
     lines: list[str] = []
     if peers.get("available"):
         lines.append(
@@ -940,7 +1001,9 @@ def print_report(report: dict[str, Any]) -> None:
         "fpgalink: encode = Connection.send + data_to_send per message, as a library user "
         "does (baud=None: no reference pacing, so every RV is sent), decode = "
         f"Connection.receive_data on {CHUNK}-byte chunks to typed events (PS/PA: the host "
-        "encodes PS and decodes PA).",
+        "encodes PS and decodes PA); TM is also decoded by FrameDecoder.feed + parse_content "
+        "per frame (the protocol layer without the link), held against the same pymavlink "
+        "decode.",
         "Latency: the board stamps each TM with t_us, its sample time in µs since its power-up; "
         "the host stamps arrival at the subscriber. The emulator is paced to the wall clock "
         "from its own start, an instant not known here, so latency is arrival − t_us minus the "

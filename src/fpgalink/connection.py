@@ -44,8 +44,10 @@ from fpgalink.events import (
     RequestFailed,
 )
 from fpgalink.protocol import (
+    COUNTER_MODULUS,
     DEFAULT_FRAMING,
     FLOAT32_MAX,
+    TELEMETRY_RUN_MIN,
     AbortReason,
     Alive,
     CountedMessage,
@@ -60,6 +62,7 @@ from fpgalink.protocol import (
     FramingError,
     Malformed,
     Message,
+    MessageId,
     NoiseDropped,
     Observation,
     Param,
@@ -72,10 +75,12 @@ from fpgalink.protocol import (
     Role,
     SendCounter,
     Telemetry,
+    content_length,
     encode_frame,
     encode_message,
     float32,
     parse_content,
+    parse_telemetry_run,
 )
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, byte_time_s
 
@@ -105,6 +110,8 @@ _SENDABLE = {role: _sendable(role) for role in Role}
 #: Bytes decoded between two checks of the event cap, so one huge read cannot fill memory.
 _RECEIVE_SLICE = 1 << 16
 #: Events that are never dropped when the queue overflows: they settle requests or liveness.
+#: A TM frame's content bytes: runs of frames this size may be telemetry.
+_TM_SIZE = content_length(MessageId.TM)
 _KEEP_ON_OVERFLOW = (RequestDone, RequestFailed, BoardFound, BoardSilent)
 
 
@@ -307,6 +314,82 @@ class Connection:
             self._receive(view[start : start + _RECEIVE_SLICE], now)
 
     def _receive(self, data: bytes | bytearray | memoryview, now: float) -> None:
+        decoder = self._decoder
+        before = decoder.stats.frames
+        items = decoder.feed(data)
+        if items:
+            n = len(items)
+            if n < TELEMETRY_RUN_MIN:
+                self._each(items, now)
+            # Every item a frame (the decoder counted one per item) and every frame a TM:
+            # the 1 kHz case, a chunk at a time.
+            elif decoder.stats.frames - before != n or not self._telemetry(items, now):
+                self._mixed(items, now)
+        if len(self._events) > self._max_events:
+            self._trim_events()
+        if self.liveness is Liveness.ALIVE:
+            self._last_heard = now
+
+    def _mixed(self, items: list[bytes | FramingError], now: float) -> None:
+        """Items that are not all TM: runs of TM-sized frames long enough to gain go a run at
+        a time, everything else one by one, in stream order."""
+        size = _TM_SIZE
+        odd = [i for i, item in enumerate(items) if type(item) is not bytes or len(item) != size]
+        done = 0  # items before this one are handled
+        previous = -1  # the odd item before the run being looked at
+        for i in (*odd, len(items)):
+            if i - previous - 1 >= TELEMETRY_RUN_MIN:
+                if previous + 1 > done:
+                    self._each(items[done : previous + 1], now)
+                run = items[previous + 1 : i]
+                if not self._telemetry(run, now):
+                    self._each(run, now)
+                done = i
+            previous = i
+        if done < len(items):
+            self._each(items[done:], now)
+
+    def _telemetry(self, frames: list[Any], now: float) -> bool:
+        """Take ``frames`` as TM events if every one is a well-formed TM (what
+        ``parse_content`` would make of each); otherwise leave them and return False."""
+        telemetry = parse_telemetry_run(frames)
+        if telemetry is None:
+            return False
+        n = len(telemetry)
+        counters: list[int] = [tm.counter for tm in telemetry]  # type: ignore[misc]
+        if self.liveness is not Liveness.ALIVE:
+            # The board is known to be there before the message that shows it.
+            self._found(now)
+        tracker = self.counter_tracker
+        first = tracker.expected
+        if (first is not None and counters[0] == first and first + n < COUNTER_MODULUS
+                and counters == list(range(first, first + n))):
+            # All in order and short of the wrap: what observe() would conclude n times.
+            tracker.expected = first + n
+            tracker.received += n
+            self._events.extend(telemetry)
+        else:
+            append = self._events.append
+            for msg, counter in zip(telemetry, counters, strict=True):
+                self._count(counter)
+                append(msg)
+        stats = self.stats
+        stats.frames_received += n
+        stats.messages_received += n
+        stats.telemetry_received += n
+        self.latest_telemetry = telemetry[-1]
+        return True
+
+    def _count(self, counter: int) -> None:
+        tracker = self.counter_tracker
+        if tracker.expected == counter and counter != COUNTER_MODULUS - 1:
+            tracker.expected = counter + 1
+            tracker.received += 1
+        else:  # anything else, the wrap included, is the tracker's to judge
+            self._counter_event(tracker.observe(counter), counter)
+
+    def _each(self, items: list[bytes | FramingError], now: float) -> None:
+        """Items one at a time: framing errors, and frames through ``parse_content``."""
         stats = self.stats
         events = self._events
         append = events.append
@@ -314,7 +397,7 @@ class Connection:
         frames = telemetry = counted = 0
         latest: Telemetry | None = None
         found = self.liveness is Liveness.ALIVE
-        for item in self._decoder.feed(data):
+        for item in items:
             if type(item) is not bytes:
                 assert isinstance(item, FramingError)
                 self._framing_event(item)
@@ -332,7 +415,6 @@ class Connection:
                 self._found(now)
                 found = True
             if type(msg) is Telemetry:
-                # The 1 kHz path: no attribute lookups beyond the counter check.
                 telemetry += 1
                 latest = msg
                 counter = msg.counter
@@ -358,10 +440,6 @@ class Connection:
         if telemetry:
             stats.telemetry_received += telemetry
             self.latest_telemetry = latest
-        if found:
-            self._last_heard = now
-        if len(events) > self._max_events:
-            self._trim_events()
 
     def _trim_events(self) -> None:
         events = self._events
@@ -409,8 +487,9 @@ class Connection:
 
     def events(self) -> Iterator[Event]:
         """Drain every pending event."""
-        while self._events:
-            yield self._events.popleft()
+        events = self._events  # the one queue, for the connection's life
+        while events:
+            yield events.popleft()
 
     @property
     def pending_events(self) -> int:

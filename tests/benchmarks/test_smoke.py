@@ -61,12 +61,12 @@ def test_codec_quick(tmp_path: Path) -> None:
     stdout, report = run_quick("codec", tmp_path)
     assert "frames/s" in stdout
     assert report["config"]["reps"] == 1
-    assert set(report["streams"]) == {"tm", "counted190", "escaped190"}
+    assert set(report["streams"]) == {"tm", "counted190", "escaped52", "escaped190"}
 
     message_paths = ("decode.typed", "decode.connection", "encode.connection")
     framing_paths = ("decode.framing", "decode.naive", "encode.framing", "encode.naive")
     expected = {f"{s}.{p}" for s in ("tm", "counted190") for p in framing_paths + message_paths}
-    expected |= {f"escaped190.{p}" for p in framing_paths}
+    expected |= {f"{s}.{p}" for s in ("escaped52", "escaped190") for p in framing_paths}
     assert set(report["cases"]) == expected
     for key, case in report["cases"].items():
         assert case["frames"] > 0 and case["wire_bytes"] > 0, key
@@ -81,6 +81,11 @@ def test_codec_quick(tmp_path: Path) -> None:
         assert ratio["median"] > 0
     for target in report["targets"]:
         assert isinstance(target["pass"], bool) and target["case"] in report["cases"]
+    # Issue 17's ratios to the naive decoder, each a row of the target table.
+    ratio_targets = {t["case"] for t in report["targets"] if t["metric"].startswith("×")}
+    assert ratio_targets == {"tm.decode.framing", "escaped52.decode.framing",
+                             "escaped190.decode.framing"}
+    assert "PASS" in stdout or "FAIL" in stdout
 
 
 @pytest.mark.timeout(TIMEOUT_S + 20)
@@ -168,8 +173,10 @@ def test_throughput_quick(tmp_path: Path) -> None:
     codec = report["codec"]
     impls = ["fpgalink"] + (["pymavlink"] if codec["pymavlink"]["available"] else [])
     kinds = ("tm", "rv", "ps")
+    # TM is decoded twice: through Connection, and by the protocol layer alone.
     assert set(codec["cases"]) == {
-        f"{k}.{op}.{impl}" for k in kinds for op in ("encode", "decode") for impl in impls}
+        f"{k}.{op}.{impl}" for k in kinds for op in ("encode", "decode") for impl in impls
+    } | {"tm.decode_typed.fpgalink"}
     for key, case in codec["cases"].items():
         assert case["messages"] > 0 and case["wire_bytes"] > 0, key
         (rep,) = case["repetitions"]
@@ -177,7 +184,12 @@ def test_throughput_quick(tmp_path: Path) -> None:
         assert_summary(case["summary"], "messages_per_s", "mb_per_s")
     if "pymavlink" in impls:
         assert set(codec["ratios_fpgalink_over_pymavlink"]) == {
-            f"{k}.{op}" for k in kinds for op in ("encode", "decode")}
+            f"{k}.{op}" for k in kinds for op in ("encode", "decode")} | {"tm.decode_typed"}
+        # Issue 17's targets against pymavlink, with their verdicts printed.
+        assert [t["case"] for t in codec["targets"]] == ["tm.decode_typed", "tm.decode"]
+        for target in codec["targets"]:
+            assert isinstance(target["pass"], bool)
+            assert target["name"] in stdout
         for kind in ("TM", "RV", "PS/PA"):
             peer = codec["pymavlink"][kind]
             # The comparison is only fair at the same payload size.

@@ -74,11 +74,15 @@ _HOMES = {
     "float32": "fpgalink.protocol.params",
     "lookup": "fpgalink.protocol.params",
     "parse_content": "fpgalink.protocol.catalogue",
+    "parse_contents": "fpgalink.protocol.catalogue",
+    "parse_telemetry_run": "fpgalink.protocol.catalogue",
+    "TELEMETRY_RUN_MIN": "fpgalink.protocol.catalogue",
     "resolve": "fpgalink.protocol.params",
 }
 
 if TYPE_CHECKING:
     from fpgalink.protocol.catalogue import (
+        TELEMETRY_RUN_MIN,
         ChannelTelemetry,
         Message,
         NackReason,
@@ -93,6 +97,8 @@ if TYPE_CHECKING:
         content_length,
         encode_message,
         parse_content,
+        parse_contents,
+        parse_telemetry_run,
     )
     from fpgalink.protocol.counter import CounterTracker, Observation, SendCounter
     from fpgalink.protocol.errors import (
@@ -153,6 +159,7 @@ __all__ = [
     "DEFAULT_FRAMING",
     "FLOAT32_MAX",
     "PARAMETERS",
+    "TELEMETRY_RUN_MIN",
     "AbortReason",
     "Alive",
     "Binary",
@@ -200,5 +207,7 @@ __all__ = [
     "float32",
     "lookup",
     "parse_content",
+    "parse_contents",
+    "parse_telemetry_run",
     "resolve",
 ]

@@ -4,12 +4,14 @@ The decoder has exactly the hardware's byte-by-byte semantics, checked against a
 byte-at-a-time reference under hypothesis and a fuzzer, but it never walks the stream one
 byte at a time in Python, and its cost is linear in its input for every input:
 
-* **The clean stream** (frames back to back, the 1 kHz telemetry case) is split by one
-  tokenizing regular expression that matches at *every* position — a frame (START, runs of
-  ordinary bytes and SKIP-escaped pairs, then STOP if there is one) or a run of noise — so
-  the regex engine never fails and retries from the next byte, which is what made a search
-  for frames quadratic on runs of escaped STARTs. Whether every token is a complete frame
-  is checked on the transposed token tuples with C-level calls.
+* **The clean stream** (frames back to back, the 1 kHz telemetry case) costs a handful of
+  C calls per read, none per byte or per frame in Python: one possessive regular
+  expression finds where the run of whole frames ends (it never backtracks, and it is tried
+  once per read, so a read it scans in vain costs one pass); within such a run STOP + START
+  occurs only between frames, so one ``split`` cuts out every frame's wire body; bodies
+  without a SKIP are already their content (a byte-membership test, no buffer protocol),
+  the others are unescaped by ``replace`` and ``translate``; the counts come from lengths.
+  An unfinished frame the read ends in is checked by one more match and kept.
 * **Anything else** (noise, frames restarted by a START, overflows, the unfinished tail)
   goes through a loop over positions whose every step is one bounded C call: a run of
   clean frames within a window, a run of restarted frames of at most the content limit
@@ -168,8 +170,23 @@ class FramingStats:
 #: never ends costs one window of scanning, not the rest of the stream. Any size above the
 #: longest frame that can complete (START, 2 × content limit, STOP) is exact.
 _CLEAN_WINDOW = 1024
-#: The clean-stream path tokenizes this many bytes at a time.
-_TOKEN_WINDOW = 16384
+
+
+_marker_cache: dict[int, tuple[tuple[int, bytes, bytes], ...]] = {}
+
+
+def _markers(skip: int) -> tuple[tuple[int, bytes, bytes], ...]:
+    """Candidates to stand in for an escaped SKIP while unescaping, rare bytes first: (the
+    byte, as an int for a membership test that needs no buffer, SKIP + it, a table mapping
+    it to SKIP). Shared by every decoder with this SKIP: the tables are 64 KiB in all."""
+    markers = _marker_cache.get(skip)
+    if markers is None:
+        skip_b = bytes((skip,))
+        markers = _marker_cache[skip] = tuple(
+            (b, skip_b + bytes((b,)), bytes.maketrans(bytes((b,)), skip_b))
+            for b in dict.fromkeys((0xFE, 0xFD, 0x01, 0xFB, *range(256))) if b != skip
+        )
+    return markers
 
 
 class FrameDecoder:
@@ -179,19 +196,20 @@ class FrameDecoder:
     same frames and the same counts."""
 
     __slots__ = (
+        "_boundary",
         "_clean_run",
         "_double_skip",
-        "_frames_in",
         "_framing",
         "_markers",
         "_overflow",
         "_pairs",
+        "_partial",
         "_pending",
         "_restarts",
+        "_skip",
         "_skip_b",
+        "_start",
         "_start_b",
-        "_stop_b",
-        "_tokens",
         "_window",
         "stats",
     )
@@ -199,34 +217,35 @@ class FrameDecoder:
     def __init__(self, framing: Framing = DEFAULT_FRAMING) -> None:
         self._framing = framing
         s, p, k = (re.escape(bytes((b,))) for b in framing.specials)
-        ordinary = b"[^" + s + p + k + b"]"
+        # Listed rather than negated: the engine tests a plain byte class with one bitmap
+        # lookup, a negated one measurably slower, and this class is tested on nearly every
+        # byte of the stream.
+        ordinary = b"[" + b"".join(
+            re.escape(bytes((b,))) for b in range(256) if b not in framing.specials
+        ) + b"]"
         # The unrolled form keeps the common run of ordinary bytes in one possessive repeat.
         body = ordinary + b"*+(?:" + k + b"." + ordinary + b"*+)*+"
         unit = b"(?:" + ordinary + b"|" + k + b".)"
         limit = str(framing.max_content).encode()
         flags = re.DOTALL
-        # A token at every position: (body, how it ends, noise run). A frame ends in STOP, in
-        # a SKIP that is the buffer's last byte (an escape cut by the read), or in nothing (a
-        # START follows, or the buffer ends).
-        self._tokens = re.compile(
-            s + b"(" + body + b")(" + p + b"|" + k + rb"\Z|)|([^" + s + b"]++)", flags
-        ).findall
+        # Every pattern is possessive throughout, so a match attempt never backtracks: its
+        # cost is the bytes it scans, once.
         self._clean_run = re.compile(b"(?:" + s + body + p + b")++", flags).match
-        self._frames_in = re.compile(s + b"(" + body + b")" + p, flags).findall
+        # An unfinished frame the buffer ends in, perhaps cut inside an escape pair.
+        self._partial = re.compile(s + body + k + b"?+", flags).fullmatch
         self._restarts = re.compile(
             b"(?:" + s + unit + b"{0," + limit + b"}+(?=" + s + b"))++", flags
         ).match
         self._overflow = re.compile(s + unit + b"{" + limit + b"}+" + unit, flags).match
         self._pairs = re.compile(k + b".", flags).sub
         self._window = max(_CLEAN_WINDOW, 2 * framing.max_content + 3)
+        self._start = framing.start
+        self._skip = framing.skip
         self._start_b = bytes((framing.start,))
-        self._stop_b = bytes((framing.stop,))
         self._skip_b = bytes((framing.skip,))
         self._double_skip = self._skip_b * 2
-        # Candidates to stand in for an escaped SKIP while unescaping; rare bytes first.
-        self._markers = tuple(
-            bytes((b,)) for b in (0xFE, 0xFD, 0x01, 0xFB, *range(256)) if b != framing.skip
-        )
+        self._boundary = bytes((framing.stop, framing.start))
+        self._markers = _markers(framing.skip)
         #: wire bytes of an unfinished frame, from its START; empty while hunting
         self._pending = b""
         self.stats = FramingStats()
@@ -247,68 +266,93 @@ class FrameDecoder:
             self._pending = b""
 
     def feed(self, data: bytes | bytearray | memoryview) -> list[bytes | FramingError]:
-        stats = self.stats
-        stats.bytes_fed += len(data)
-        buf = self._pending + bytes(data) if self._pending else bytes(data)
-        self._pending = b""
+        self.stats.bytes_fed += len(data)
+        if self._pending:
+            buf = self._pending + data
+            self._pending = b""
+        else:
+            buf = bytes(data)
         out: list[bytes | FramingError] = []
-        limit = self._framing.max_content
-        stop = self._stop_b
         n = len(buf)
         pos = 0
-        # Token lists are built a bounded window at a time, so a read of any size costs the
-        # same per byte.
-        while pos < n:
-            end = min(n, pos + _TOKEN_WINDOW)
-            tokens = self._tokens(buf, pos, end)
-            bodies, ends, noise = zip(*tokens, strict=True)
-            complete = ends.count(stop) == len(ends)
-            if not (noise.count(b"") == len(noise) and (
-                complete
-                or (ends.count(stop) == len(ends) - 1 and ends[-1] != stop
-                    and len(bodies[-1]) <= limit)
-            )):
-                self._irregular(buf, pos, out)
-                return out
-            # Frames back to back, perhaps an unfinished one last that cannot have passed
-            # the limit yet: the 1 kHz case.
-            if not complete:
-                bodies = bodies[:-1]
-            contents = self._unescape_all(bodies)
-            if contents and max(map(len, contents)) > limit:
-                self._irregular(buf, pos, out)
-                return out
-            plain = sum(map(len, contents))
-            wire = sum(map(len, bodies)) + 2 * len(bodies)
-            stats.frames += len(contents)
-            stats.frame_bytes += plain + 2 * len(contents)
-            stats.escape_bytes += wire - 2 * len(contents) - plain
-            out += contents
-            pos += wire
-            if not complete and end == n:
+        # The 1 kHz case: frames back to back from the first byte, perhaps an unfinished one
+        # last. One possessive match finds where the run of whole frames ends; it is tried
+        # once per read, so even a buffer it scans to the end in vain costs one pass.
+        if n and buf[0] == self._start:
+            m = self._clean_run(buf)
+            if m is not None:
+                pos = self._deliver(buf, 0, m.end(), out)
+        if pos < n:
+            if buf[pos] == self._start and self._partial(buf, pos) is not None and (
+                n - pos - 1 <= self._framing.max_content
+                or self._content_length(buf[pos + 1 :]) <= self._framing.max_content
+            ):
                 self._pending = buf[pos:]
-                break
+            else:
+                self._irregular(buf, pos, out)
         return out
 
-    def _unescape_all(self, bodies: tuple[bytes, ...]) -> list[bytes]:
-        skip, double = self._skip_b, self._double_skip
-        return [
-            b if skip not in b else b.replace(skip, b"") if double not in b else self._unescape(b)
-            for b in bodies
-        ]
+    def _content_length(self, wire: bytes) -> int:
+        """Content bytes so far of an unfinished frame's wire after its START: scanning from
+        the left, a doubled SKIP is always one escaped SKIP; every SKIP left is an escape."""
+        packed = wire.replace(self._double_skip, self._start_b)
+        return len(packed) - packed.count(self._skip)
 
-    def _unescape(self, content: bytes) -> bytes:
-        """Content with an escaped SKIP: scanning from the left, a doubled SKIP always starts
-        on an escape pair. Park each escaped SKIP as SKIP + a byte the content lacks, drop
-        every SKIP (all prefixes now), then turn the parked bytes back into SKIPs."""
+    def _deliver(self, buf: bytes, start: int, end: int, out: list[bytes | FramingError]
+                 ) -> int:
+        """Deliver the whole frames that ``buf[start:end]`` holds back to back (a match of
+        ``_clean_run``), up to the first over the content limit; returns where delivery
+        stopped.
+
+        Between START and STOP an unescaped START or STOP never occurs, and an escaped one
+        follows a SKIP, so within such a run STOP + START occurs only where a frame ends and
+        the next begins: one split cuts the run into the frames' wire bodies."""
+        stats = self.stats
+        region = buf[start + 1 : end - 1]
+        bodies = region.split(self._boundary)
+        skip = self._skip
+        if skip in region:
+            # The first stand-in, tried inline: a body rarely holds it, and a call per
+            # escaped body would cost more than the unescaping.
+            unescape, skip_b, double = self._unescape, self._skip_b, self._double_skip
+            marker, parked, back = self._markers[0]
+            contents = [
+                b if skip not in b
+                else b.replace(double, parked).translate(back, skip_b) if marker not in b
+                else unescape(b)
+                for b in bodies
+            ]
+            plain = sum(map(len, contents))
+        else:
+            contents = bodies
+            plain = end - start - 2 * len(bodies)
+        limit = self._framing.max_content
+        if max(map(len, contents)) > limit:
+            good = next(i for i, c in enumerate(contents) if len(c) > limit)
+            if not good:
+                return start
+            end = start + sum(map(len, bodies[:good])) + 2 * good
+            contents = contents[:good]
+            plain = sum(map(len, contents))
+        frames = len(contents)
+        stats.frames += frames
+        stats.frame_bytes += plain + 2 * frames
+        stats.escape_bytes += end - start - 2 * frames - plain
+        out += contents
+        return end
+
+    def _unescape(self, body: bytes) -> bytes:
+        """A wire body with escapes: scanning from the left, a doubled SKIP always starts on
+        an escape pair. Park each escaped SKIP as SKIP + a byte the body lacks, drop every
+        SKIP (all prefixes now), then turn the parked bytes back into SKIPs."""
         skip_b, double = self._skip_b, self._double_skip
-        for marker in self._markers:
-            if marker not in content:
-                return content.replace(double, skip_b + marker).replace(skip_b, b"").replace(
-                    marker, skip_b
-                )
-        # Content using every byte value (only possible with a limit over 255).
-        return skip_b.join([piece.replace(skip_b, b"") for piece in content.split(double)])
+        for marker, parked, back in self._markers:
+            if marker not in body:
+                # translate deletes before it maps: every SKIP goes, then the parked byte
+                # becomes a SKIP.
+                return body.replace(double, parked).translate(back, skip_b)
+        # A body using every byte value (only possible with a limit over 255).
+        return skip_b.join([piece.replace(skip_b, b"") for piece in body.split(double)])
 
     def _irregular(self, buf: bytes, pos: int, out: list[bytes | FramingError]) -> None:
         """The exact state machine from ``pos`` over a stream with noise, restarts and
@@ -316,7 +360,6 @@ class FrameDecoder:
         stats = self.stats
         n = len(buf)
         start_b = self._start_b
-        limit = self._framing.max_content
         window = self._window
         while pos < n:
             if buf[pos] != start_b[0]:
@@ -331,19 +374,8 @@ class FrameDecoder:
                 continue
             m = self._clean_run(buf, pos, pos + window)
             if m is not None:
-                end = m.end()
-                bodies = self._frames_in(buf, pos, end)
-                contents = self._unescape_all(tuple(bodies))
-                good = len(contents)
-                if max(map(len, contents)) > limit:
-                    good = next(i for i, c in enumerate(contents) if len(c) > limit)
-                    end = pos + sum(map(len, bodies[:good])) + 2 * good
-                if good:
-                    plain = sum(map(len, contents[:good]))
-                    stats.frames += good
-                    stats.frame_bytes += plain + 2 * good
-                    stats.escape_bytes += end - pos - 2 * good - plain
-                    out += contents[:good]
+                end = self._deliver(buf, pos, m.end(), out)
+                if end > pos:
                     pos = end
                     continue
             m = self._restarts(buf, pos)

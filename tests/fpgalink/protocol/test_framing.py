@@ -6,6 +6,7 @@ from __future__ import annotations
 import random
 import time
 from collections.abc import Sequence
+from dataclasses import astuple
 
 import pytest
 from hypothesis import given
@@ -18,6 +19,7 @@ from fpgalink.protocol import (
     FrameDecoder,
     FrameTooLong,
     Framing,
+    FramingError,
     NoiseDropped,
     encode_frame,
 )
@@ -184,6 +186,137 @@ def test_a_run_of_restarted_frames_is_one_event_that_counts_each() -> None:
     assert decoder.stats.restarts == 3
     naive = NaiveFrameDecoder()
     assert naive.feed(b"SSaS\\SbSokP") == [b"ok"] and naive.restarts == 3
+
+
+# --- the clean-run fast path against the state machine ---------------------------------------
+#
+# feed() takes runs of whole frames (and an unfinished one last) with a few whole-buffer C
+# calls and leaves everything else to the state machine (_irregular). Fed only to the state
+# machine, the same stream must give the same events, counts and pending bytes, whatever
+# the chunking: the fast path is an exact shortcut, never a second opinion.
+
+
+class StateMachineOnly(FrameDecoder):
+    """The decoder with its fast path taken away: every byte through ``_irregular``."""
+
+    __slots__ = ()
+
+    def feed(self, data: bytes | bytearray | memoryview) -> list[bytes | FramingError]:
+        self.stats.bytes_fed += len(data)
+        buf = self._pending + bytes(data)
+        self._pending = b""
+        out: list[bytes | FramingError] = []
+        if buf:
+            self._irregular(buf, 0, out)
+        return out
+
+
+def mixed_streams(framing: Framing) -> st.SearchStrategy[bytes]:
+    """Mostly whole frames, some with content over the limit, escaped by hand so even those
+    are well formed, with content rich in the framing bytes and in the first stand-in the
+    unescaping tries (0xFE); between them noise, runs of framing bytes, lone STARTs."""
+    start, stop, skip = (bytes((b,)) for b in framing.specials)
+    content_bytes = st.sampled_from([start, stop, skip, b"\xfe", b"a", b"\x00"])
+    contents = st.one_of(
+        st.binary(max_size=framing.max_content),
+        st.lists(content_bytes, max_size=framing.max_content + 2).map(b"".join),
+    )
+
+    def hand_escaped(content: bytes) -> bytes:
+        body = content.replace(skip, skip + skip).replace(start, skip + start)
+        return start + body.replace(stop, skip + stop) + stop
+
+    good = contents.filter(lambda c: len(c) <= framing.max_content).map(
+        lambda c: encode_frame(c, framing))
+    junk = st.one_of(
+        st.lists(st.sampled_from([start, stop, skip, b"a"]), max_size=20).map(b"".join),
+        st.binary(max_size=30),
+        st.just(start),
+    )
+    part = st.one_of(good, good, good, contents.map(hand_escaped), junk)
+    return st.lists(part, max_size=25).map(b"".join)
+
+
+def feed_both(framing: Framing, stream: bytes, cuts: list[int]
+              ) -> tuple[FrameDecoder, list[object]]:
+    """Both decoders, read by read: the same events from each read (nothing delivered late)
+    and the same bytes held after it."""
+    fast, slow = FrameDecoder(framing), StateMachineOnly(framing)
+    events: list[object] = []
+    pos = 0
+    for cut in [*sorted(set(c % (len(stream) + 1) for c in cuts)), len(stream)]:
+        got = fast.feed(stream[pos:cut])
+        assert got == slow.feed(stream[pos:cut])
+        assert fast.pending == slow.pending
+        events += got
+        pos = cut
+    assert astuple(fast.stats) == astuple(slow.stats)
+    # Every delivered frame's bytes counted as such, its escapes apart.
+    frames = frames_of(events)
+    assert fast.stats.frame_bytes == sum(len(f) + 2 for f in frames)
+    assert fast.stats.frames == len(frames)
+    return fast, events
+
+
+@given(framings, st.data())
+def test_fast_path_gives_exactly_what_the_state_machine_gives(framing: Framing,
+                                                              data: st.DataObject) -> None:
+    stream = data.draw(mixed_streams(framing))
+    cuts = data.draw(st.lists(st.integers(0, 10_000), max_size=10))
+    fast, got = feed_both(framing, stream, cuts)
+    # And both agree with the byte-at-a-time model.
+    reference = NaiveFrameDecoder(framing)
+    assert frames_of(got) == reference.feed(stream)
+    s = fast.stats
+    assert (s.restarts, s.overflows, s.noise_bytes) == (
+        reference.restarts, reference.overflows, reference.noise_bytes)
+    assert accounted(fast) == len(stream)
+
+
+@given(st.lists(st.binary(min_size=1, max_size=200), min_size=1, max_size=30),
+       st.lists(st.integers(0, 10_000), max_size=10))
+def test_clean_streams_take_the_fast_path_and_match(contents: list[bytes], cuts: list[int]
+                                                    ) -> None:
+    stream = b"".join(map(encode_frame, contents))
+    _, got = feed_both(DEFAULT_FRAMING, stream, cuts)
+    assert got == contents
+
+
+@pytest.mark.parametrize("extra", [1, 2, 5, 200])
+def test_an_unfinished_frame_past_the_limit_is_an_overflow_at_once(extra: int) -> None:
+    # Not held as pending until more bytes come: the hardware dropped it already.
+    stream = encode_frame(b"ok") + b"S" + b"x" * (200 + extra)
+    for cut in (len(stream), 4, 10, 150):
+        decoder = FrameDecoder()
+        events = decoder.feed(stream[:cut]) + decoder.feed(stream[cut:])
+        assert events[:2] == [b"ok", FrameAborted(202, AbortReason.OVERFLOW)]
+        assert decoder.pending == 0 and decoder.stats.overflows == 1
+
+
+@pytest.mark.parametrize("cut", [1, 2, 150, 201, 202, 203, 300, 399, 400, 401])
+def test_an_unfinished_all_escaped_frame_waits_until_its_content_passes_the_limit(cut: int
+                                                                                ) -> None:
+    # 200 escaped content bytes are 400 wire bytes: past the limit on the wire, not in content.
+    wire = encode_frame(b"S" * 200)
+    decoder = FrameDecoder()
+    assert decoder.feed(wire[:cut]) == []
+    assert decoder.pending == cut
+    assert decoder.feed(wire[cut:]) == [b"S" * 200]
+    # One more content byte is an overflow, found wherever the read is cut.
+    over = b"S" + b"\\S" * 201 + b"P"
+    for chunks in ([over], [over[:cut], over[cut:]]):
+        decoder = FrameDecoder()
+        events = [e for chunk in chunks for e in decoder.feed(chunk)]
+        assert events[0] == FrameAborted(403, AbortReason.OVERFLOW)
+        assert decoder.stats.overflows == 1 and not frames_of(events)
+
+
+def test_bodies_holding_the_first_stand_in_still_unescape() -> None:
+    # 0xFE is the byte an escaped SKIP is parked as first; a body that holds it needs another.
+    contents = [b"\xfe\\", b"\xfe\\\\S", bytes(range(200)), b"\\\xfe"]
+    stream = b"".join(map(encode_frame, contents))
+    assert FrameDecoder().feed(stream) == contents
+    assert FrameDecoder().feed(stream + b"S\xfe\\\\") == contents
 
 
 # --- cost linear in the input, whatever the input --------------------------------------------
