@@ -903,7 +903,7 @@ def print_report(report: dict[str, Any]) -> None:
                 continue
             label = f"{ours['message']} {op} ({ours['payload_bytes']} B payload)"
             if op == "decode_typed":
-                label = f"{ours['message']} decode, FrameDecoder.feed + parse_content"
+                label = f"{ours['message']} decode, FrameDecoder.feed + parse_contents"
             row("1 codec", f"fpgalink {label}", ours["summary"]["messages_per_s"], "msg/s",
                 f"{ours['summary']['mb_per_s']['median']:.2f} MB/s, "
                 f"{ours['wire_bytes_per_message']:.1f} wire B/msg")
@@ -1001,9 +1001,9 @@ def print_report(report: dict[str, Any]) -> None:
         "fpgalink: encode = Connection.send + data_to_send per message, as a library user "
         "does (baud=None: no reference pacing, so every RV is sent), decode = "
         f"Connection.receive_data on {CHUNK}-byte chunks to typed events (PS/PA: the host "
-        "encodes PS and decodes PA); TM is also decoded by FrameDecoder.feed + parse_content "
-        "per frame (the protocol layer without the link), held against the same pymavlink "
-        "decode.",
+        "encodes PS and decodes PA); TM is also decoded by FrameDecoder.feed + parse_contents on "
+        "each chunk's frames (the protocol layer without the link), held against the same "
+        "pymavlink decode.",
         "Latency: the board stamps each TM with t_us, its sample time in µs since its power-up; "
         "the host stamps arrival at the subscriber. The emulator is paced to the wall clock "
         "from its own start, an instant not known here, so latency is arrival − t_us minus the "
