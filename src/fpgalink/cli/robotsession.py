@@ -328,17 +328,19 @@ class RobotRun:
         clocks = {board: BoardClock() for board in robot.description.boards}
         # One truth clock for all the boards' tasks: /truth at most every BAG_TRUTH_PERIOD_S.
         self._bag_truth_at = -math.inf
-        return [*(asyncio.ensure_future(self._bag_telemetry(robot, name, sets, clocks))
+        # One mapping of the loop's clock onto epoch time for every board: bag times of
+        # different boards are then on one clock (taken per task, they differed by µs).
+        to_epoch_ns = time.time_ns() - round(asyncio.get_running_loop().time() * 1e9)
+        return [*(asyncio.ensure_future(self._bag_telemetry(robot, name, sets, clocks,
+                                                            to_epoch_ns))
                   for name in robot.description.boards),
                 asyncio.ensure_future(self._bag_diagnostics(robot))]
 
     async def _bag_telemetry(self, robot: Robot, name: str, sets: SampleSets,
-                             clocks: dict[str, BoardClock]) -> None:
+                             clocks: dict[str, BoardClock], to_epoch_ns: int) -> None:
         bag = self.bag
         assert bag is not None
         boards = robot.description.boards
-        loop = asyncio.get_running_loop()
-        to_epoch_ns = time.time_ns() - round(loop.time() * 1e9)
         async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
             complete = sets.add(name, sample, received)
             if complete is None:
