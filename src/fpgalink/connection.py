@@ -44,7 +44,6 @@ from fpgalink.events import (
     RequestFailed,
 )
 from fpgalink.protocol import (
-    COUNTER_MODULUS,
     DEFAULT_FRAMING,
     FLOAT32_MAX,
     TELEMETRY_RUN_MIN,
@@ -360,13 +359,9 @@ class Connection:
         if self.liveness is not Liveness.ALIVE:
             # The board is known to be there before the message that shows it.
             self._found(now)
-        tracker = self.counter_tracker
-        first = tracker.expected
-        if (first is not None and counters[0] == first and first + n < COUNTER_MODULUS
-                and counters == list(range(first, first + n))):
-            # All in order and short of the wrap: what observe() would conclude n times.
-            tracker.expected = first + n
-            tracker.received += n
+        first = counters[0]
+        if (counters == list(range(first, first + n))
+                and self.counter_tracker.observe_in_order(first, n)):
             self._events.extend(telemetry)
         else:
             append = self._events.append
@@ -382,10 +377,8 @@ class Connection:
 
     def _count(self, counter: int) -> None:
         tracker = self.counter_tracker
-        if tracker.expected == counter and counter != COUNTER_MODULUS - 1:
-            tracker.expected = counter + 1
-            tracker.received += 1
-        else:  # anything else, the wrap included, is the tracker's to judge
+        if not tracker.observe_in_order(counter):
+            # anything else, the wrap included, is the tracker's to judge
             self._counter_event(tracker.observe(counter), counter)
 
     def _each(self, items: list[bytes | FramingError], now: float) -> None:
@@ -393,7 +386,6 @@ class Connection:
         stats = self.stats
         events = self._events
         append = events.append
-        tracker = self.counter_tracker
         frames = telemetry = counted = 0
         latest: Telemetry | None = None
         found = self.liveness is Liveness.ALIVE
@@ -429,11 +421,7 @@ class Connection:
                     self._answer(msg, now)
             counted += 1
             assert counter is not None
-            if tracker.expected == counter and counter != 99_999:
-                tracker.expected = counter + 1
-                tracker.received += 1
-            else:  # anything else, the wrap included, is the tracker's to judge
-                self._counter_event(tracker.observe(counter), counter)
+            self._count(counter)
             append(msg)
         stats.frames_received += frames
         stats.messages_received += counted
