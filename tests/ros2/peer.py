@@ -217,8 +217,22 @@ def main_scenario(peer: Peer) -> None:
         goal.pose.orientation.w = 1.0
         peer.goal.publish(goal)
         target = (goal.pose.position.x, goal.pose.position.y)
+        sent = [time.monotonic()]
+
+        def hold_goal() -> None:
+            # Topics have no order between them: a stop on cmd_vel still in flight when the
+            # goal went out arrives after it and cancels it, as a teleop command must. A
+            # robot standing still away from the goal has no goal: send it again.
+            peer.hold_enable()
+            latest = truth.latest
+            if (abs(latest["v"]) < 1e-3 and abs(latest["omega"]) < 1e-3
+                    and math.dist(target, (latest["x"], latest["y"])) > 0.1
+                    and time.monotonic() - sent[0] > 1.0):
+                peer.goal.publish(goal)
+                sent[0] = time.monotonic()
+
         peer.spin_until(lambda: math.dist(target, (truth.latest["x"], truth.latest["y"])) < 0.06
-                        and abs(truth.latest["v"]) < 1e-3, "the goal reached", peer.hold_enable,
+                        and abs(truth.latest["v"]) < 1e-3, "the goal reached", hold_goal,
                         timeout=60)
         report("goal_pose", goal_x=target[0], goal_y=target[1], truth_x=truth.latest["x"],
                truth_y=truth.latest["y"])
