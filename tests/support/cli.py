@@ -123,3 +123,28 @@ def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = N
 def start_cli(*args: str, env: dict[str, str] | None = None) -> subprocess.Popen[str]:
     return subprocess.Popen([*CLI, *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, cwd=ROOT, env=env or cli_env())
+
+
+#: A private tmpfs needs root (for the mount namespace) and util-linux's unshare.
+CAN_MOUNT = (sys.platform == "linux" and os.geteuid() == 0
+             and shutil.which("unshare") is not None)
+
+
+def cli_on_small_disk(tmp_path: Path, size: str, output: str, *args: str,
+                      timeout: float = 120) -> tuple[subprocess.CompletedProcess[str], Path]:
+    """``fpgalink-cli ARGS`` writing ``output`` (a file or directory name, ``{out}`` in
+    ``args``) on a tmpfs of ``size`` in a private mount namespace, so the disk fills; what it
+    wrote is copied out before the namespace (and the tmpfs) goes away. Skips the test when
+    no tmpfs can be mounted here."""
+    import pytest
+
+    small = tmp_path / "small"
+    small.mkdir()
+    command = " ".join(CLI + [a.replace("{out}", str(small / output)) for a in args])
+    script = (f"mount -t tmpfs -o size={size} tmpfs {small} || exit 97\n{command}\n"
+              f"rc=$?\ncp -r {small / output} {tmp_path / output}\nexit $rc\n")
+    done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True,
+                          text=True, cwd=ROOT, env=cli_env(), timeout=timeout)
+    if done.returncode == 97:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    return done, tmp_path / output

@@ -6,10 +6,8 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import stat
 import subprocess
-import sys
 import threading
 from collections.abc import Callable
 from pathlib import Path
@@ -18,7 +16,16 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import CLI, ROOT, BoardThread, cli_env, run_cli, start_cli
+from tests.support.cli import (
+    CAN_MOUNT,
+    CLI,
+    ROOT,
+    BoardThread,
+    cli_env,
+    cli_on_small_disk,
+    run_cli,
+    start_cli,
+)
 from tests.support.waiting import wait_until_sync as wait_until
 
 pytestmark = pytest.mark.timeout(90)
@@ -203,30 +210,10 @@ def test_param_dump_onto_a_full_device_fails_and_leaves_the_node(
 
 # --- a full disk during record ----------------------------------------------------------------
 
-_CAN_MOUNT = (os.geteuid() == 0 and shutil.which("unshare") is not None
-              and sys.platform == "linux")
-
-
-def _record_on_small_tmpfs(tmp_path: Path, size: str, *args: str) -> tuple[
-        subprocess.CompletedProcess[str], Path]:
-    """``record`` into a tmpfs of ``size`` in a private mount namespace; the file is copied
-    out before the namespace (and the tmpfs) goes away."""
-    small = tmp_path / "small"
-    small.mkdir()
-    name = "run.csv" if "--csv" in args else "run.mcap"
-    script = (f"mount -t tmpfs -o size={size} tmpfs {small} || exit 97\n"
-              f"{' '.join(CLI)} record {small / name} --port emu:// {' '.join(args)}\n"
-              f"rc=$?\ncp {small / name} {tmp_path / name}\nexit $rc\n")
-    done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True,
-                          text=True, cwd=ROOT, env=cli_env(), timeout=60)
-    if done.returncode == 97:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-    return done, tmp_path / name
-
-
-@pytest.mark.skipif(not _CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
 def test_record_mcap_on_a_full_disk_stops_with_a_readable_file(tmp_path: Path) -> None:
-    done, path = _record_on_small_tmpfs(tmp_path, "1m", "--duration", "60")
+    done, path = cli_on_small_disk(tmp_path, "1m", "run.mcap", "record", "{out}", "--port", "emu://",
+                                   "--duration", "60", timeout=60)
     assert done.returncode == 1, done.stderr
     assert_one_line_error(done.stderr, "disk is full", "complete up to there")
     said = int(done.stderr.split(" with ")[1].split()[0])
@@ -237,9 +224,10 @@ def test_record_mcap_on_a_full_disk_stops_with_a_readable_file(tmp_path: Path) -
     assert len(messages) == said > 1000
 
 
-@pytest.mark.skipif(not _CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
 def test_record_csv_on_a_full_disk_ends_at_a_complete_row(tmp_path: Path) -> None:
-    done, path = _record_on_small_tmpfs(tmp_path, "1m", "--csv", "--duration", "60")
+    done, path = cli_on_small_disk(tmp_path, "1m", "run.csv", "record", "{out}", "--port", "emu://",
+                                   "--csv", "--duration", "60", timeout=60)
     assert done.returncode == 1, done.stderr
     assert_one_line_error(done.stderr, "disk is full", "complete rows")
     said = int(done.stderr.split(" with ")[1].split()[0])

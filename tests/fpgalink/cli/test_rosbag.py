@@ -11,7 +11,6 @@ import importlib.util
 import itertools
 import math
 import os
-import shutil
 import statistics
 import subprocess
 import sys
@@ -22,7 +21,7 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import CLI, ROOT, cli_env, run_cli
+from tests.support.cli import CAN_MOUNT, ROOT, cli_env, cli_on_small_disk, run_cli
 
 _missing = next((f"{name} is not installed (the ros2 extra)" for name in ("rclpy", "rosbags")
                  if importlib.util.find_spec(name) is None), None)
@@ -174,25 +173,14 @@ def test_without_rosbags_the_option_says_how_to_install(tmp_path: Path) -> None:
     assert not (tmp_path / "bag").exists()
 
 
-_CAN_MOUNT = (os.geteuid() == 0 and shutil.which("unshare") is not None
-              and sys.platform == "linux")
-
-
-@pytest.mark.skipif(not _CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
 def test_a_full_disk_stops_the_bag_complete_up_to_there(tmp_path: Path) -> None:
-    small = tmp_path / "small"
-    small.mkdir()
-    script = (f"mount -t tmpfs -o size=8m tmpfs {small} || exit 97\n"
-              f"{' '.join(CLI)} drive --v 0.1 --for 60 --rosbag2 {small / 'bag'}\n"
-              f"rc=$?\ncp -r {small / 'bag'} {tmp_path / 'bag'}\nexit $rc\n")
-    done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True,
-                          text=True, cwd=ROOT, env=cli_env(), timeout=120)
-    if done.returncode == 97:
-        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
+    done, bag = cli_on_small_disk(tmp_path, "8m", "bag", "drive", "--v", "0.1", "--for", "60",
+                                  "--rosbag2", "{out}")
     assert done.returncode == 1, done.stderr
     errors = [line for line in done.stderr.splitlines() if "error:" in line]
     assert len(errors) == 1 and "the disk is full" in errors[0], done.stderr
     said = int(errors[0].split(" with ")[1].split()[0])
-    topics = read_bag(tmp_path / "bag")
+    topics = read_bag(bag)
     assert sum(len(v) for v in topics.values()) == said > 1000
-    assert not (tmp_path / "bag" / ".fpgalink-reserve").exists()
+    assert not (bag / ".fpgalink-reserve").exists()
