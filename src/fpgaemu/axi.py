@@ -105,8 +105,23 @@ class AxiBus:
         """Pulse the send strobe; ``False`` if ``uartsend`` was busy and ignored it."""
         return self.uartsend.strobe()
 
+    @property
+    def tx_done_cycle(self) -> int:
+        """The cycle the frame on the wire (or the last one) ends."""
+        return self.uartsend.busy_until
+
+    @property
+    def tx_frame_wire_bytes(self) -> int:
+        """The wire bytes of the frame on the wire (or the last one)."""
+        return self.uartsend.frame_wire_bytes
+
     def on_tx_done(self, handler: Callable[[TxDone], None]) -> None:
+        """``handler`` at the end of every frame."""
         self.uartsend.on_done(handler)
+
+    def on_next_tx_done(self, handler: Callable[[TxDone], None]) -> None:
+        """``handler`` once, at the end of the frame on the wire (nothing when idle)."""
+        self.uartsend.on_next_done(handler)
 
     # --- enable ---------------------------------------------------------------------------
 
@@ -130,38 +145,56 @@ class TxQueueStats:
 class TxQueue:
     """Firmware-side send queue: ``send(content)`` writes and strobes at once when
     ``uartsend`` is idle, otherwise keeps the message (bounded) and sends it from the TX-done
-    interrupt — what the MicroBlaze software does around a module that ignores busy strobes."""
+    interrupt — what the MicroBlaze software does around a module that ignores busy strobes.
+    It asks for that interrupt only while it holds a message, so a frame sent straight away
+    costs no event at its end. ``on_start(tag, done_cycle, wire_bytes)`` is told when each
+    message goes on the wire, with the ``tag`` it was sent with (the caller's number)."""
 
-    def __init__(self, axi: AxiBus, depth: int = 8) -> None:
+    def __init__(
+        self, axi: AxiBus, depth: int = 8,
+        on_start: Callable[[int | None, int, int], None] | None = None,
+    ) -> None:
         self._axi = axi
         self.depth = depth
-        self._queue: deque[bytes] = deque()
+        self._queue: deque[tuple[bytes, int | None]] = deque()
         self.stats = TxQueueStats()
-        axi.on_tx_done(self._on_done)
+        self._on_start = on_start
+        self._waiting = False  #: the done interrupt is asked for
 
     def __len__(self) -> int:
         return len(self._queue)
 
-    def send(self, content: bytes) -> bool:
+    def send(self, content: bytes, tag: int | None = None) -> bool:
         """Send or queue ``content``; ``False`` if the queue was full and it was dropped."""
         if not self._axi.tx_busy and not self._queue:
-            self._start(content)
+            self._start(content, tag)
             return True
         if len(self._queue) >= self.depth:
             self.stats.dropped += 1
             return False
-        self._queue.append(content)
+        self._queue.append((content, tag))
         self.stats.queued += 1
         self.stats.max_depth = max(self.stats.max_depth, len(self._queue))
+        self._wait()
         return True
 
-    def _start(self, content: bytes) -> None:
+    def _wait(self) -> None:
+        if not self._waiting:
+            self._waiting = True
+            self._axi.on_next_tx_done(self._on_done)
+
+    def _start(self, content: bytes, tag: int | None) -> None:
         axi = self._axi
         axi.write_tx(content)
         accepted = axi.strobe_tx()
         assert accepted, "uartsend refused a strobe while idle"
         self.stats.sent += 1
+        if self._on_start is not None:
+            self._on_start(tag, axi.tx_done_cycle, axi.tx_frame_wire_bytes)
 
     def _on_done(self, event: TxDone) -> None:
+        self._waiting = False
         if self._queue and not self._axi.tx_busy:
-            self._start(self._queue.popleft())
+            self._start(*self._queue.popleft())
+        if self._queue:
+            self._wait()

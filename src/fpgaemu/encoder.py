@@ -105,17 +105,16 @@ class QuadratureEncoder:
         n1 = math.floor((angle1 - offset) * counts / 360.0)
         if n0 == n1:
             return
-        self.edges += abs(n1 - n0)
-        step = 360.0 / self.counts_per_turn
-        span = cycle1 - cycle0
-
-        def crossing(index: int) -> int:
-            fraction = (self._angle_offset + index * step - angle0) / (angle1 - angle0)
-            return cycle0 + round(min(1.0, max(0.0, fraction)) * span)
-
         up = n1 > n0
+        self.edges += n1 - n0 if up else n0 - n1
+        step = 360.0 / counts
+        span = cycle1 - cycle0
+        moved = angle1 - angle0
+        # Where the wheel crossed a count boundary, the angle taken as linear in time; the
+        # first boundary crossed, then (below) the last.
+        fraction = (offset + (n0 + 1 if up else n0) * step - angle0) / moved
+        first = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
         previous = self._last_edge_cycle
-        first = crossing(n0 + 1 if up else n0)
         stale = previous is None or first - previous > SPEED_TIMEOUT_CYCLES
         for reader in self._readers:
             if reader.cycle is None or stale:
@@ -124,7 +123,8 @@ class QuadratureEncoder:
                 reader.count = n0 + 1 if up else n0 - 1
         # The last boundary crossed: moving up it is where the count became n1, moving down
         # where it left n1 + 1.
-        self._last_edge_cycle = crossing(n1 if up else n1 + 1)
+        fraction = (offset + (n1 if up else n1 + 1) * step - angle0) / moved
+        self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
         self._count = n1
 
     @property

@@ -45,7 +45,6 @@ from fpgaemu.pwm import MAX_DUTY
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, ms, us
 from fpgaemu.timing import TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
-from fpgaemu.uartsend import TxDone
 from fpgalink.protocol import (
     PARAMETERS,
     ChannelTelemetry,
@@ -61,9 +60,9 @@ from fpgalink.protocol import (
     References,
     Scope,
     SendCounter,
-    Telemetry,
     TelemetryFlags,
     encode_message,
+    encode_telemetry,
     float32,
     parse_content,
     resolve,
@@ -127,11 +126,13 @@ class Firmware:
                 self.values[(param.id, channel)] = _stored(param, param.default)
         self.channels = {code: Channel(self._gains(code)) for code in (CHANNEL_A, CHANNEL_B)}
         self.stats = FirmwareStats()
-        self.timing = TimingReport()
+        self._timing = TimingReport()
         self.host_counter = CounterTracker()
         self._counter = SendCounter()
         self._pending_settings = dict(settings or {})
-        self._in_flight: deque[tuple[str, int]] = deque()
+        #: (done cycle, wire bytes, tick or None) of each frame on the wire, oldest first:
+        #: booked into the timing report once done (no event at a frame's end)
+        self._in_flight: deque[tuple[int, int, int | None]] = deque()
         self._board: Board | None = None
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
@@ -155,10 +156,9 @@ class Firmware:
         axi = board.axi
         axi.on_rx_interrupt(self._on_rx)
         axi.on_global_enable(self._on_enable)
-        axi.on_tx_done(self._on_tx_done)
-        self.tx = TxQueue(axi, depth=8)
+        self.tx = TxQueue(axi, depth=8, on_start=self._on_tx_start)
         now = board.now
-        self.timing.started_cycle = now
+        self._timing.started_cycle = now
         for param in PARAMETERS:
             for channel in _channels_of(param):
                 self._apply(param, channel, self.values[(param.id, channel)])
@@ -176,6 +176,12 @@ class Firmware:
         board.set_skippable(self.skippable_event)
         board.schedule(now + ALIVE_PERIOD_CYCLES, self._on_alive)
 
+    @property
+    def timing(self) -> TimingReport:
+        """How the output fitted the timer periods, up to now (SPEC §7)."""
+        self._book_finished(self.board.now)
+        return self._timing
+
     def budget_report(self) -> dict[str, Any]:
         """SPEC §7 from this run (see :meth:`fpgaemu.timing.TimingReport.summary`)."""
         return self.timing.summary(self.board)
@@ -189,21 +195,26 @@ class Firmware:
 
     # --- sending --------------------------------------------------------------------------
 
-    def _send(self, message: Any, kind: str, tick: int = 0) -> bool:
+    def _send(self, message: Any, kind: str) -> bool:
+        """Send or queue a message other than ``TM`` (the tick sends those itself)."""
         content = b"E" if kind == "E" else encode_message(message, self._counter.take())
-        if self.tx.send(content):
-            self._in_flight.append((kind, tick))
-            return True
-        return False
+        return self.tx.send(content)
 
-    def _on_tx_done(self, done: TxDone) -> None:
-        self.timing.tx_wire_bytes += done.wire_bytes
-        if not self._in_flight:
-            return
-        kind, tick = self._in_flight.popleft()
-        if kind == "TM":
-            deadline = tick + self.board.timer.period_cycles
-            self.timing.record_slack(tick, done.cycle, deadline - done.cycle)
+    def _on_tx_start(self, tick: int | None, done: int, wire_bytes: int) -> None:
+        self._in_flight.append((done, wire_bytes, tick))
+
+    def _book_finished(self, now: int) -> None:
+        """Book every frame whose last stop bit has ended by ``now``: its wire bytes, and a
+        TM's slack to the next tick. Called before anything reads the report or changes the
+        timer period, so each is booked as it would have been at its end."""
+        in_flight = self._in_flight
+        timing = self._timing
+        while in_flight and in_flight[0][0] <= now:
+            done, wire_bytes, tick = in_flight.popleft()
+            timing.tx_wire_bytes += wire_bytes
+            if tick is not None:
+                deadline = tick + self.board.timer.period_cycles
+                timing.record_slack(tick, done, deadline - done)
 
     def _on_alive(self, cycle: int) -> None:
         if self._send(None, "E"):
@@ -297,6 +308,7 @@ class Firmware:
         if self._board is None:
             return  # applied to the hardware at attach
         if param.id == 1:
+            self._book_finished(self.board.now)  # frames done so far against the old period
             self.board.timer.set_period_ms(int(value))
         elif param.scope is Scope.CHANNEL:
             ch = self.channels[channel]
@@ -397,69 +409,66 @@ class Firmware:
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
+        if self._in_flight and self._in_flight[0][0] <= cycle:
+            self._book_finished(cycle)
         if self.skip_quiescent_ticks and self.quiescent:  # what a full tick would do, no more
-            self.timing.periods += 1
+            self._timing.periods += 1
             return
         board = self.board
         board.settle(cycle)
         dt = board.timer.period_cycles / CLOCK_HZ
         values, enabled = self.values, self._enabled
-        saturated = {}
+        telemetry = values[(2, BOARD)] == 1
+        io_channels = board.channels
+        samples = []
         for code, ch in self.channels.items():
-            io = board.channels[code]
+            io = io_channels[code]
             encoder = io.encoder
-            ch.speed = encoder.sample_speed(cycle)
+            pwm = io.pwm
+            ch.speed = speed = encoder.sample_speed(cycle)
             ch.position = encoder.position
             ch.current = io.current_a
             mode = values[(4, code)]
             if not enabled:
                 ch.pid.reset()
                 ch.current_pid.reset()
-                io.pwm.write_duty(0, cycle)
-                saturated[code] = False
+                pwm.write_duty(0, cycle)
+                saturated = False
             elif mode == SPEED_SW:
                 pid = ch.pid
-                io.pwm.write_duty(pid.update(ch.reference, ch.speed, dt), cycle)
-                saturated[code] = pid.saturated
+                pwm.write_duty(pid.update(ch.reference, speed, dt), cycle)
+                saturated = pid.saturated
             elif mode == CURRENT_SW:
                 pid = ch.current_pid
                 # Ti no shorter than the period: the loop stays stable at any timer period.
                 if pid.gains.ti != max(_ELECTRICAL_TAU, dt):
                     pid.gains = PidGains(SW_CURRENT_KP, max(_ELECTRICAL_TAU, dt), 0.0)
-                io.pwm.write_duty(pid.update(self._current_reference(code), ch.current, dt),
-                                  cycle)
-                saturated[code] = pid.saturated
+                pwm.write_duty(pid.update(self._current_reference(code), ch.current, dt),
+                               cycle)
+                saturated = pid.saturated
             else:  # the FPGA module runs the loop; the software only reports
                 assert ch.hardware is not None
-                saturated[code] = ch.hardware.saturated
-        self.timing.periods += 1
-        if values[(2, BOARD)] == 1:
-            sample = Telemetry(
-                (cycle // _CYCLES_PER_US) & 0xFFFF_FFFF,
-                self._channel_sample(CHANNEL_A, saturated[CHANNEL_A]),
-                self._channel_sample(CHANNEL_B, saturated[CHANNEL_B]),
-            )
-            if self._send(sample, "TM", cycle):
+                saturated = ch.hardware.saturated
+            if telemetry:
+                # The channel's part of the TM; no later step of this tick touches it.
+                flags = _ENABLE if pwm.global_enable else 0
+                if encoder.end_stop:
+                    flags |= _END_STOP
+                if saturated:
+                    flags |= _SATURATED
+                # Floats are rounded to float32 when the message is packed.
+                samples.append(ChannelTelemetry(
+                    ch.position, speed, ch.current,
+                    pwm.duty_register if pwm.global_enable else 0, ch.reference, flags))
+        self._timing.periods += 1
+        if telemetry:
+            content = encode_telemetry(self._counter.take(),
+                                       (cycle // _CYCLES_PER_US) & 0xFFFF_FFFF, *samples)
+            if self.tx.send(content, cycle):
                 self.stats.telemetry_sent += 1
             else:
                 self.stats.telemetry_dropped += 1
-                self.timing.record_miss(cycle, None)
-
-    def _channel_sample(self, code: int, saturated: bool) -> ChannelTelemetry:
-        ch = self.channels[code]
-        io = self.board.channels[code]
-        pwm = io.pwm
-        flags = 0
-        if pwm.global_enable:
-            flags |= _ENABLE
-        if io.encoder.end_stop:
-            flags |= _END_STOP
-        if saturated:
-            flags |= _SATURATED
-        # Floats are rounded to float32 when the message is packed.
-        return ChannelTelemetry(
-            ch.position, ch.speed, ch.current, pwm.applied_duty, ch.reference, flags,
-        )
+                self._timing.record_miss(cycle, None)
 
 
 _BY_ID = {p.id: p for p in PARAMETERS}

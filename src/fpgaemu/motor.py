@@ -88,6 +88,7 @@ GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
 MAX_DUTY = 32760
 MAX_SPEED_HIGH_DPS = 90.0
 GEAR_RATIO = 70.0
+_radians = math.radians
 
 
 @dataclass(frozen=True, slots=True)
@@ -236,9 +237,9 @@ class WheelPlant:
             decay = math.exp(-dt * m.resistance_ohm / m.inductance_h)
             if len(self._decay) < 64:
                 self._decay[dt] = decay
-        volts = m.supply_v * self.duty / MAX_DUTY
-        omega_motor = math.radians(mean_speed_dps) * GEAR_RATIO
-        steady = (volts - m.ke_v_s_per_rad * omega_motor) / m.resistance_ohm
+        steady = (m.supply_v * self.duty / MAX_DUTY
+                  - m.ke_v_s_per_rad * (_radians(mean_speed_dps) * GEAR_RATIO)
+                  ) / m.resistance_ohm
         self.current = steady + (self.current - steady) * decay
 
     def _input(self) -> float:
@@ -274,14 +275,15 @@ class WheelPlant:
             return
         # Unloaded (the usual case) the input is the duty alone: the same value, no division.
         u = self._input() if self.load_torque_nm else self.duty / MAX_DUTY
-        x = self._x
-        coefficients = self._cache.get(dt) or self._coefficients(dt)
-        angle_gain = 0.0
-        for i in range(3):
-            e, gain, angle_from_state, angle_from_input = coefficients[i]
-            xi = x[i]
-            angle_gain += (angle_from_state * xi + angle_from_input * u).real
-            x[i] = e * xi + gain * u
+        x0, x1, x2 = self._x
+        # The three modes written out (this runs for every wheel every emulated millisecond);
+        # the sum is accumulated from 0.0 in mode order, as a loop would.
+        (e0, g0, s0, i0), (e1, g1, s1, i1), (e2, g2, s2, i2) = (
+            self._cache.get(dt) or self._coefficients(dt))
+        angle_gain = 0.0 + (s0 * x0 + i0 * u).real
+        angle_gain += (s1 * x1 + i1 * u).real
+        angle_gain += (s2 * x2 + i2 * u).real
+        self._x = [e0 * x0 + g0 * u, e1 * x1 + g1 * u, e2 * x2 + g2 * u]
         self.angle_deg += angle_gain
         self._follow_current(dt, angle_gain / dt)
 
@@ -348,12 +350,18 @@ class Motors:
             return
         assert self._board is not None
         channels = self._board.channels
+        one_step = cycle - start <= PHYSICS_STEP_CYCLES
         for code, wheel in self.wheels.items():
             io = channels[code]
-            wheel.duty = io.pwm.applied_duty
-            if wheel.at_rest:
+            pwm = io.pwm
+            # Pwm.applied_duty and WheelPlant.at_rest, written out: this runs for every wheel
+            # every emulated millisecond.
+            wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
+            x = wheel._x
+            if (duty == 0 and wheel.current == 0.0 and wheel.load_torque_nm == 0.0
+                    and not (x[0] or x[1] or x[2])):
                 pass  # advancing changes nothing (an idle robot's long quiet stretches)
-            elif cycle - start <= PHYSICS_STEP_CYCLES:  # turn() in one step, the usual case
+            elif one_step:  # turn() in one step, the usual case
                 angle0 = wheel.angle_deg
                 wheel.hold((cycle - start) / CLOCK_HZ)
                 io.encoder.follow(start, angle0, cycle, wheel.angle_deg)

@@ -37,7 +37,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 from fpgaemu.timeline import CLOCK_HZ, Timeline
 
@@ -74,10 +74,10 @@ def cycles_per_bit(baud: int) -> int:
     return round(CLOCK_HZ / baud)
 
 
-@dataclass(frozen=True, slots=True)
-class ByteRun:
+class ByteRun(NamedTuple):
     """Bytes received back to back: byte ``i`` completed (stop bit ended) at cycle
-    ``first + i * step``."""
+    ``first + i * step``. A named tuple, not a frozen dataclass: one is built for every frame
+    in each direction, and a frozen dataclass's ``__init__`` costs three times as much."""
 
     data: bytes
     first: int

@@ -42,6 +42,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
+from typing import NamedTuple
 
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, Timeline
@@ -77,9 +78,9 @@ class EnableCause(Enum):
     WATCHDOG = "watchdog"
 
 
-@dataclass(frozen=True, slots=True)
-class RxInterrupt:
-    """A message frame is in the RX RAM: ``length`` content bytes at byte ``start_address``."""
+class RxInterrupt(NamedTuple):
+    """A message frame is in the RX RAM: ``length`` content bytes at byte ``start_address``
+    (a named tuple: one per received frame, cheaper to build than a frozen dataclass)."""
 
     cycle: int
     start_address: int

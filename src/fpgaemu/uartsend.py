@@ -21,8 +21,10 @@ Decisions (see ``docs/emulator.md``):
 from __future__ import annotations
 
 import re
+from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
@@ -33,9 +35,9 @@ from fpgalink.protocol import DEFAULT_FRAMING, Framing
 __all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
 
 
-@dataclass(frozen=True, slots=True)
-class TxDone:
-    """The last stop bit of a frame has ended; the module is idle again."""
+class TxDone(NamedTuple):
+    """The last stop bit of a frame has ended; the module is idle again (a named tuple: one
+    per sent frame, cheaper to build than a frozen dataclass)."""
 
     cycle: int
     wire_bytes: int
@@ -99,11 +101,16 @@ class UartSend:
         self.stats = UartSendStats()
         #: cycle the current frame's last stop bit ends; idle from then on
         self.busy_until = 0
-        self._on_wire = 0  #: wire bytes of the frame being sent
+        self.frame_wire_bytes = 0  #: wire bytes of the frame being (or last) sent
         #: Fault hook: called with (content, cycle) at each accepted strobe; returning False
         #: loses the frame on the wire (it still takes its line time).
         self.frame_filter: FrameFilter | None = None
         self._done_listeners: list[Callable[[TxDone], None]] = []
+        #: (end cycle, wire bytes) of each frame a done event is scheduled for, in order: a
+        #: frame nobody listens for gets none
+        self._ends: deque[tuple[int, int]] = deque()
+        #: one-shot listeners, by the end cycle of the frame they wait for
+        self._done_once: list[tuple[int, Callable[[TxDone], None]]] = []
 
     @property
     def busy(self) -> bool:
@@ -124,7 +131,26 @@ class UartSend:
         self.length = length
 
     def on_done(self, listener: Callable[[TxDone], None]) -> None:
+        """``listener`` runs at the end of every frame from now on (the frame on the wire
+        included)."""
         self._done_listeners.append(listener)
+        self._ensure_finish()
+
+    def on_next_done(self, listener: Callable[[TxDone], None]) -> None:
+        """``listener`` runs once, at the end of the frame on the wire (the done interrupt
+        enabled for one frame): software that has something waiting asks for it, so a frame
+        nobody waits for costs no event at its end. Idle, nothing is on the wire and
+        ``listener`` is not called."""
+        if self.busy:
+            self._done_once.append((self.busy_until, listener))
+            self._ensure_finish()
+
+    def _ensure_finish(self) -> None:
+        """A done event at the end of the frame on the wire, if it has none yet."""
+        end = self.busy_until
+        if self.busy and not (self._ends and self._ends[-1][0] == end):
+            self._ends.append((end, self.frame_wire_bytes))
+            self._timeline.schedule(end, self._finish)
 
     def note_ram_write(self) -> None:
         """The processor wrote the TX RAM (called by the AXI side)."""
@@ -148,11 +174,20 @@ class UartSend:
             stats.filtered += 1
         self.busy_until = end = self.uartwrite.transmit(wire, lost=lost)
         # One frame at a time (a strobe while busy is refused), so its size can wait here.
-        self._on_wire = len(wire)
-        self._timeline.schedule(end, self._finish)
+        self.frame_wire_bytes = len(wire)
+        if self._done_listeners:
+            self._ends.append((end, self.frame_wire_bytes))
+            self._timeline.schedule(end, self._finish)
         return True
 
     def _finish(self, cycle: int) -> None:
-        event = TxDone(cycle, self._on_wire)
+        # The frame's own size: the next frame may already have been strobed in this cycle.
+        _, wire_bytes = self._ends.popleft()
+        event = TxDone(cycle, wire_bytes)
         for listener in self._done_listeners:
             listener(event)
+        if self._done_once:
+            due = [listener for end, listener in self._done_once if end == cycle]
+            self._done_once = [entry for entry in self._done_once if entry[0] != cycle]
+            for listener in due:
+                listener(event)

@@ -7,7 +7,7 @@ stands on it, and so does the board emulator (``fpgaemu``): it is the only part 
 * :mod:`.framing` — ``S``/``P``/``\\`` framing: :func:`encode_frame`, :class:`FrameDecoder`;
 * :mod:`.messages` — wire IDs (:class:`MessageId`), direct commands, counted messages;
 * :mod:`.catalogue` — the typed messages ``PS PG PA PN RV TM``, :func:`parse_content`,
-  :func:`encode_message`;
+  :func:`encode_message` (:func:`encode_telemetry` for a ``TM`` from its fields);
 * :mod:`.params` — the parameter table (ranges, types, power-up defaults);
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
 * :mod:`.wire` — 8N1 wire-time arithmetic and budgets.
@@ -71,6 +71,7 @@ _HOMES = {
     "content_length": "fpgalink.protocol.catalogue",
     "encode_frame": "fpgalink.protocol.framing",
     "encode_message": "fpgalink.protocol.catalogue",
+    "encode_telemetry": "fpgalink.protocol.catalogue",
     "float32": "fpgalink.protocol.params",
     "lookup": "fpgalink.protocol.params",
     "parse_content": "fpgalink.protocol.catalogue",
@@ -96,6 +97,7 @@ if TYPE_CHECKING:
         TelemetryFlags,
         content_length,
         encode_message,
+        encode_telemetry,
         parse_content,
         parse_contents,
         parse_telemetry_run,
@@ -204,6 +206,7 @@ __all__ = [
     "content_length",
     "encode_frame",
     "encode_message",
+    "encode_telemetry",
     "float32",
     "lookup",
     "parse_content",
