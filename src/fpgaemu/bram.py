@@ -51,12 +51,16 @@ class BlockRam:
 
     def write_bytes(self, address: int, data: bytes | bytearray | memoryview) -> None:
         """A run of consecutive byte writes, done in one step (the result is the same)."""
-        self._check(address, len(data))
-        self._mem[address : address + len(data)] = data
+        end = address + len(data)
+        if address < 0 or end > self.size:  # _check, written out: a few calls every ms
+            self._check(address, len(data))
+        self._mem[address:end] = data
 
     def read_bytes(self, address: int, length: int) -> bytes:
-        self._check(address, length)
-        return bytes(self._mem[address : address + length])
+        end = address + length
+        if address < 0 or length < 0 or end > self.size:
+            self._check(address, length)
+        return bytes(self._mem[address:end])
 
     def _check(self, address: int, length: int) -> None:
         if address < 0 or length < 0 or address + length > self.size:

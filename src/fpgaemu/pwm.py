@@ -32,7 +32,11 @@ class Pwm:
 
     def write_duty(self, duty: int, cycle: int) -> None:
         """Processor write. The register is 16 bits but the stage saturates at ±32760."""
-        value = max(-MAX_DUTY, min(MAX_DUTY, int(duty)))
+        value = int(duty)
+        if value > MAX_DUTY:
+            value = MAX_DUTY
+        elif value < -MAX_DUTY:
+            value = -MAX_DUTY
         if value != self.duty_register:
             for listener in self._listeners:
                 listener(cycle)

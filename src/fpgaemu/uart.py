@@ -401,18 +401,18 @@ class _Line:
         start = max(at, self.line_free_at)
         stats = self.stats
         index = stats.bytes_sent
-        stats.bytes_sent += len(data)
+        n = len(data)
+        stats.bytes_sent += n
         step = self.byte_step
         if lost:
-            self.line_free_at = start + len(data) * step - self.byte_gap
+            self.line_free_at = start + n * step - self.byte_gap
             self._last_level = 1
-            stats.dropped_bytes += len(data)
+            stats.dropped_bytes += n
             return self._idle_until(start)
         faults = self.faults
         plan = _NO_PLAN
         hits = None
         if faults is not None:
-            n = len(data)
             plan = _Plan(
                 set(_indexes(self._rng_drop, n, faults.drop_rate)),
                 set(_indexes(self._rng_dup, n, faults.dup_rate)),
@@ -435,9 +435,9 @@ class _Line:
             # The receiver is mid-byte, or the line is still low from the last burst: the
             # first start bit is not a clean edge, so the slots decide.
             return self._send_bitwise(data, start, index, faults or _CLEAN, plan, hits)
-        self.line_free_at = start + len(data) * step - self.byte_gap
+        self.line_free_at = start + n * step - self.byte_gap
         self._last_level = 1
-        stats.bytes_received += len(data)
+        stats.bytes_received += n
         return [ByteRun(data, start + self.cycles_per_byte, step)]
 
     def _idle_until(self, start: int) -> list[ByteRun]:

@@ -327,6 +327,15 @@ class UartCommand:
                     stats.noise_bytes += end - i
                     break
                 stats.noise_bytes += j - i
+                # The usual case at once: START, content with no special byte, STOP — what
+                # the byte-by-byte states below do for it, without a pass through each.
+                k = ordinary_run(data, j + 1, end).end()  # type: ignore[union-attr]
+                if k < end and data[k] == stop and k - j - 1 <= limit:
+                    if k > j + 1:
+                        self._store(0, data[j + 1 : k])
+                    i = k + 1
+                    self._complete(k - j - 1, run.first + k * run.step)
+                    continue
                 state, length, i = _FRAME, 0, j + 1
                 continue
             if state == _ESCAPE:

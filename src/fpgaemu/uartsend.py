@@ -164,19 +164,20 @@ class UartSend:
             return False
         content = self.bram.read_bytes(0, self.length)
         wire = self._escaper.frame(content)
+        wire_bytes = len(wire)
         stats = self.stats
         stats.frames += 1
-        stats.wire_bytes += len(wire)
-        stats.escapes += len(wire) - len(content) - 2
+        stats.wire_bytes += wire_bytes
+        stats.escapes += wire_bytes - len(content) - 2
         frame_filter = self.frame_filter
         lost = frame_filter is not None and not frame_filter(content, self._timeline.now)
         if lost:
             stats.filtered += 1
         self.busy_until = end = self.uartwrite.transmit(wire, lost=lost)
         # One frame at a time (a strobe while busy is refused), so its size can wait here.
-        self.frame_wire_bytes = len(wire)
+        self.frame_wire_bytes = wire_bytes
         if self._done_listeners:
-            self._ends.append((end, self.frame_wire_bytes))
+            self._ends.append((end, wire_bytes))
             self._timeline.schedule(end, self._finish)
         return True
 
