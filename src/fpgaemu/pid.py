@@ -70,19 +70,17 @@ class Pid:
         step = kp * dt / g.ti * error
         candidate = proportional + self.integral + step + self._derivative
         limit = self.limit
-        output: float
         if candidate > limit:
             if step < 0:
                 self.integral += step
-            output = limit
             self.saturated = True
-        elif candidate < -limit:
+            return round(limit)
+        if candidate < -limit:
             if step > 0:
                 self.integral += step
-            output = -limit
             self.saturated = True
-        else:
-            self.integral += step
-            output = candidate
-            self.saturated = False
-        return round(max(-limit, min(limit, output)))
+            return round(-limit)
+        self.integral += step
+        self.saturated = False
+        # Clamped again: a NaN candidate (an overflowing gain) fails both tests above.
+        return round(max(-limit, min(limit, candidate)))

@@ -67,7 +67,9 @@ class _Escaper:
         specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
         self._pattern = re.compile(b"[" + specials + b"]")
         skip = bytes((framing.skip,))
-        self._template = skip.replace(b"\\", b"\\\\") + rb"\g<0>"
+        # A function, not a template: a bytes template costs a Python-level expansion per
+        # call, the function only per escaped byte (a few per frame, often none).
+        self._template: Callable[[re.Match[bytes]], bytes] = lambda m: skip + m[0]
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
 
