@@ -97,8 +97,8 @@ def make_rig(
         queue = firmware.tx
         send = queue.send
 
-        def recording_send(content: bytes) -> bool:
-            accepted = send(content)
+        def recording_send(content: bytes, tag: int | None = None) -> bool:
+            accepted = send(content, tag)
             if accepted and content[:2] == b"TM":
                 rig.sent_tm[int(content[2:7])] = content
             return accepted
