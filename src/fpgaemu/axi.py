@@ -166,7 +166,8 @@ class TxQueue:
 
     def send(self, content: bytes, tag: int | None = None) -> bool:
         """Send or queue ``content``; ``False`` if the queue was full and it was dropped."""
-        if not self._axi.tx_busy and not self._queue:
+        uartsend = self._axi.uartsend
+        if not self._queue and uartsend._timeline.now >= uartsend.busy_until:  # not tx_busy
             self._start(content, tag)
             return True
         if len(self._queue) >= self.depth:
@@ -190,7 +191,8 @@ class TxQueue:
         assert accepted, "uartsend refused a strobe while idle"
         self.stats.sent += 1
         if self._on_start is not None:
-            self._on_start(tag, axi.tx_done_cycle, axi.tx_frame_wire_bytes)
+            uartsend = axi.uartsend
+            self._on_start(tag, uartsend.busy_until, uartsend.frame_wire_bytes)
 
     def _on_done(self, event: TxDone) -> None:
         self._waiting = False

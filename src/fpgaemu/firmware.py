@@ -209,12 +209,13 @@ class Firmware:
         timer period, so each is booked as it would have been at its end."""
         in_flight = self._in_flight
         timing = self._timing
+        assert self._board is not None
+        period = self._board.timer.period_cycles
         while in_flight and in_flight[0][0] <= now:
             done, wire_bytes, tick = in_flight.popleft()
             timing.tx_wire_bytes += wire_bytes
             if tick is not None:
-                deadline = tick + self.board.timer.period_cycles
-                timing.record_slack(tick, done, deadline - done)
+                timing.record_slack(tick, done, tick + period - done)
 
     def _on_alive(self, cycle: int) -> None:
         if self._send(None, "E"):
@@ -411,10 +412,11 @@ class Firmware:
         self.last_tick = cycle
         if self._in_flight and self._in_flight[0][0] <= cycle:
             self._book_finished(cycle)
-        if self.skip_quiescent_ticks and self.quiescent:  # what a full tick would do, no more
-            self._timing.periods += 1
+        if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
+            self._timing.periods += 1  # what a full tick would do, no more
             return
-        board = self.board
+        board = self._board
+        assert board is not None
         board.settle(cycle)
         dt = board.timer.period_cycles / CLOCK_HZ
         values, enabled = self.values, self._enabled
