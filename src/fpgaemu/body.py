@@ -71,10 +71,16 @@ class Body:
         if last is None:
             return
         radius, mount, radians = self.radius, self.mount, math.radians
-        left = sum([radians(angles[n] - last[n]) * radius * mount[n]
-                    for n in LEFT_WHEELS]) / len(LEFT_WHEELS)
-        right = sum([radians(angles[n] - last[n]) * radius * mount[n]
-                     for n in RIGHT_WHEELS]) / len(RIGHT_WHEELS)
+        # Each side's mean arc, summed from 0 in wheel order as sum() would (written out:
+        # this runs every emulated millisecond).
+        left: float = 0
+        for n in LEFT_WHEELS:
+            left += radians(angles[n] - last[n]) * radius * mount[n]
+        left /= len(LEFT_WHEELS)
+        right: float = 0
+        for n in RIGHT_WHEELS:
+            right += radians(angles[n] - last[n]) * radius * mount[n]
+        right /= len(RIGHT_WHEELS)
         distance, turn = self.kinematics.displacement(left, right)
         self.pose = integrate_arc(self.pose, distance, turn)
         self.distance += abs(distance)

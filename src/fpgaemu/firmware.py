@@ -405,8 +405,9 @@ class Firmware:
 
     def skippable_event(self) -> EventHandle | None:
         """The next timer interrupt, when it will change nothing (see :attr:`quiescent`)."""
-        return self.board.timer.handle if self.skip_quiescent_ticks and self.quiescent \
-            else None
+        if not self.skip_quiescent_ticks or self._enabled or not self.quiescent:
+            return None
+        return self.board.timer.handle
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
