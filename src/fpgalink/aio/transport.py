@@ -123,16 +123,31 @@ async def _open_serial(
     url: str, baud: int, protocol_factory: ProtocolFactory
 ) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
     import serial
-    import serial_asyncio
 
     loop = asyncio.get_running_loop()
     try:
         port = _loop_serial_class()(url, baudrate=baud, exclusive=True)
-        return await serial_asyncio.connection_for_serial(  # type: ignore[no-any-return]
-            loop, protocol_factory, port
-        )
     except (serial.SerialException, ValueError) as exc:
         raise PortError(f"cannot open serial port {url}: {exc}") from exc
+    # serial_asyncio.connection_for_serial, with the transport below.
+    protocol = protocol_factory()
+    transport = _serial_transport_class()(loop, protocol, port)
+    return transport, protocol
+
+
+@functools.cache
+def _serial_transport_class() -> Any:
+    """pyserial-asyncio's transport, closing on a failed write as it does on a failed read.
+    Its write path hands the error to the loop's exception handler first, which prints a
+    traceback for what is only a port that went away (a board unplugged, a pty whose server
+    was killed); the protocol learns it from ``connection_lost(exc)`` either way."""
+    import serial_asyncio
+
+    class QuietSerialTransport(serial_asyncio.SerialTransport):  # type: ignore[misc]
+        def _fatal_error(self, exc: Exception, message: str = "") -> None:
+            self._abort(exc)
+
+    return QuietSerialTransport
 
 
 #: Bytes one read may take from a serial port (a pty holds up to 64 KiB).

@@ -104,3 +104,34 @@ async def test_tcp_to_a_scripted_board() -> None:
             assert await link.get_param("Kp_Wheel_PidB") == pytest.approx(520.0)
     finally:
         await board.stop()
+
+
+async def test_a_write_to_a_vanished_serial_port_closes_the_link_without_a_traceback() -> None:
+    """A pty whose other end is gone (a killed ``fpgaemu serve``, an unplugged adapter)
+    fails the next write. pyserial-asyncio hands that to the loop's exception handler,
+    which prints a traceback; the port must instead close, the protocol told why."""
+    import os
+    import pty
+
+    loop = asyncio.get_running_loop()
+    handled: list[dict[str, object]] = []
+    loop.set_exception_handler(lambda _loop, context: handled.append(context))
+    master, slave = pty.openpty()
+    lost: asyncio.Future[Exception | None] = loop.create_future()
+
+    class Recorder(asyncio.Protocol):
+        def connection_lost(self, exc: Exception | None) -> None:
+            lost.set_result(exc)
+
+    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    os.close(slave)
+    os.close(master)
+    try:
+        assert isinstance(transport, asyncio.WriteTransport)
+        transport.write(b"SRE" + b"P")  # fails at once: the pty has no other end
+        exc = await asyncio.wait_for(lost, 5)
+    finally:
+        transport.close()
+        loop.set_exception_handler(None)
+    assert exc is not None, "the protocol must learn that the port failed"
+    assert handled == []
