@@ -105,16 +105,6 @@ class AxiBus:
         """Pulse the send strobe; ``False`` if ``uartsend`` was busy and ignored it."""
         return self.uartsend.strobe()
 
-    @property
-    def tx_done_cycle(self) -> int:
-        """The cycle the frame on the wire (or the last one) ends."""
-        return self.uartsend.busy_until
-
-    @property
-    def tx_frame_wire_bytes(self) -> int:
-        """The wire bytes of the frame on the wire (or the last one)."""
-        return self.uartsend.frame_wire_bytes
-
     def on_tx_done(self, handler: Callable[[TxDone], None]) -> None:
         """``handler`` at the end of every frame."""
         self.uartsend.on_done(handler)
@@ -166,8 +156,9 @@ class TxQueue:
 
     def send(self, content: bytes, tag: int | None = None) -> bool:
         """Send or queue ``content``; ``False`` if the queue was full and it was dropped."""
-        uartsend = self._axi.uartsend
-        if not self._queue and uartsend._timeline.now >= uartsend.busy_until:  # not tx_busy
+        axi = self._axi
+        # tx_busy, read directly: a property costs more than this test on every message.
+        if not self._queue and axi._timeline.now >= axi.uartsend.busy_until:
             self._start(content, tag)
             return True
         if len(self._queue) >= self.depth:

@@ -59,7 +59,7 @@ def frame_bytes(content: bytes, framing: Framing) -> bytes:
 
 
 class _Escaper:
-    __slots__ = ("_head", "_pattern", "_tail", "_template", "framing")
+    __slots__ = ("_escape", "_head", "_pattern", "_tail", "framing")
     _cache: dict[Framing, _Escaper] = {}  # noqa: RUF012 - per-framing memo, class-wide
 
     def __init__(self, framing: Framing) -> None:
@@ -69,7 +69,7 @@ class _Escaper:
         skip = bytes((framing.skip,))
         # A function, not a template: a bytes template costs a Python-level expansion per
         # call, the function only per escaped byte (a few per frame, often none).
-        self._template: Callable[[re.Match[bytes]], bytes] = lambda m: skip + m[0]
+        self._escape: Callable[[re.Match[bytes]], bytes] = lambda m: skip + m[0]
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
 
@@ -81,7 +81,7 @@ class _Escaper:
         return escaper
 
     def frame(self, content: bytes) -> bytes:
-        return self._head + self._pattern.sub(self._template, content) + self._tail
+        return self._head + self._pattern.sub(self._escape, content) + self._tail
 
 
 class UartSend:
