@@ -156,12 +156,12 @@ class UartSend:
 
     def note_ram_write(self) -> None:
         """The processor wrote the TX RAM (called by the AXI side)."""
-        if self._timeline.now < self.busy_until:  # busy
+        if self.busy:
             self.stats.writes_while_busy += 1
 
     def strobe(self) -> bool:
         """Pulse the send strobe; returns whether the module accepted it."""
-        if self._timeline.now < self.busy_until:  # busy
+        if self.busy:
             self.stats.refused_strobes += 1
             return False
         content = self.bram.read_bytes(0, self.length)
@@ -175,12 +175,11 @@ class UartSend:
         lost = frame_filter is not None and not frame_filter(content, self._timeline.now)
         if lost:
             stats.filtered += 1
-        self.busy_until = end = self.uartwrite.transmit(wire, lost=lost)
+        self.busy_until = self.uartwrite.transmit(wire, lost=lost)
         # One frame at a time (a strobe while busy is refused), so its size can wait here.
         self.frame_wire_bytes = wire_bytes
         if self._done_listeners:
-            self._ends.append((end, wire_bytes))
-            self._timeline.schedule(end, self._finish)
+            self._ensure_finish()
         return True
 
     def _finish(self, cycle: int) -> None:
