@@ -17,7 +17,14 @@ import serial
 
 from fpgalink import BoardLost, PortError
 from fpgalink.aio import open_link
-from tests.support.served import PATIENCE, connect_when_free, open_when_free, serve, wait_until
+from tests.support.served import (
+    PATIENCE,
+    ServeExited,
+    connect_when_free,
+    open_when_free,
+    serve,
+    wait_until,
+)
 
 pytestmark = pytest.mark.timeout(20)
 
@@ -266,13 +273,34 @@ async def test_tcp_ports_are_reported_as_they_are() -> None:
                                  PATIENCE, "an E frame")
             finally:
                 await link.close()
-    # Port N: boards take N, N+1.
-    with socket.socket() as probe:
-        probe.bind(("127.0.0.1", 0))
-        base = probe.getsockname()[1]
-    async with serve("--tcp", f"127.0.0.1:{base}", boards=2) as server:
-        assert list(server.ready.values()) == [f"socket://127.0.0.1:{base}",
-                                               f"socket://127.0.0.1:{base + 1}"]
+    # Port N: boards take N, N+1. Another test's connection can take N+1 between the probe
+    # and serve's bind (a CI run hit it); serve then says so and exits, and we try anew.
+    for _attempt in range(5):
+        base = free_port_pair()
+        try:
+            async with serve("--tcp", f"127.0.0.1:{base}", boards=2) as server:
+                assert list(server.ready.values()) == [f"socket://127.0.0.1:{base}",
+                                                       f"socket://127.0.0.1:{base + 1}"]
+                return
+        except ServeExited as exc:
+            assert "address already in use" in str(exc), exc
+    raise AssertionError("no two free consecutive ports in five attempts")
+
+
+def free_port_pair() -> int:
+    """A port N such that N and N+1 were both free a moment ago."""
+    while True:
+        with socket.socket() as probe:
+            probe.bind(("127.0.0.1", 0))
+            base: int = probe.getsockname()[1]
+            if base == 65535:
+                continue
+            with socket.socket() as second:
+                try:
+                    second.bind(("127.0.0.1", base + 1))
+                except OSError:
+                    continue
+                return base
 
 
 def test_options_before_serve_and_after_it() -> None:

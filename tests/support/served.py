@@ -25,6 +25,7 @@ __all__ = [
     "COUNTER_MODULUS",
     "PATIENCE",
     "Serve",
+    "ServeExited",
     "StreamResult",
     "connect_when_free",
     "next_event",
@@ -86,6 +87,10 @@ class Serve:
             await self.proc.wait()
 
 
+class ServeExited(AssertionError):
+    """``fpgaemu serve`` exited before it printed ``ready`` for every board; says why."""
+
+
 async def start_serve(*args: str, boards: int = 1) -> Serve:
     """Start ``fpgaemu serve ARGS`` and return once it printed ``ready`` for every board."""
     proc = await asyncio.create_subprocess_exec(
@@ -100,7 +105,9 @@ async def start_serve(*args: str, boards: int = 1) -> Serve:
         while len(server.ready) < boards:
             line = (await asyncio.wait_for(proc.stdout.readline(), READY_TIMEOUT)).decode()
             if not line:
-                raise AssertionError(f"fpgaemu serve {' '.join(args)} exited before ready")
+                await asyncio.wait_for(proc.wait(), READY_TIMEOUT)
+                raise ServeExited(f"fpgaemu serve {' '.join(args)} exited before ready: "
+                                  f"{(await server.stderr_text()).strip()}")
             word, name, where, *pointed = line.split()  # "ready L LINK -> /dev/pts/N"
             assert word == "ready", line
             server.ready[name] = where
