@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections import deque
 from dataclasses import dataclass
+from math import isfinite
 from typing import Any
 
 from fpgaemu.axi import TxQueue
@@ -239,12 +240,17 @@ class Firmware:
             # Only the next timer tick reads the references, so the wheels need not be
             # brought up to this cycle. A non-finite reference is refused whole, as a
             # malformed message is: nothing a broken host sends may reach a controller.
-            if math.isfinite(message.ref_a) and math.isfinite(message.ref_b):
+            ref_a, ref_b = message.ref_a, message.ref_b
+            if isfinite(ref_a) and isfinite(ref_b):
                 self.stats.references += 1
-                for code, value in ((CHANNEL_A, message.ref_a), (CHANNEL_B, message.ref_b)):
-                    self.channels[code].reference = value
-                    if self.values[(4, code)] in HARDWARE_MODES:
-                        self._write_hardware_reference(code)
+                # Both channels written out: one of these arrives every millisecond.
+                channels, values = self.channels, self.values
+                channels[CHANNEL_A].reference = ref_a
+                channels[CHANNEL_B].reference = ref_b
+                if values[(4, CHANNEL_A)] in HARDWARE_MODES:
+                    self._write_hardware_reference(CHANNEL_A)
+                if values[(4, CHANNEL_B)] in HARDWARE_MODES:
+                    self._write_hardware_reference(CHANNEL_B)
             else:
                 self.stats.invalid_references += 1
         elif isinstance(message, ParamSet):

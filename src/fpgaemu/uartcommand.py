@@ -214,8 +214,16 @@ class UartCommand:
 
     def sync(self) -> None:
         """Process every byte completed by now, short of the pending STOP candidate."""
-        now = self._timeline.now
         runs = self._runs
+        if not runs:
+            return
+        now = self._timeline.now
+        cursor = runs[0]
+        run = cursor.run
+        if run.first + cursor.pos * run.step > now:
+            # The next byte to process has not completed: nothing to do (the usual case,
+            # the processor reading a frame while the host's next one is on its way).
+            return
         while runs:
             cursor = runs[0]
             done = cursor.run.completed_by(now)

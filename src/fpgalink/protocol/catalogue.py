@@ -313,6 +313,7 @@ def _setter(cls: type, field: str) -> Callable[[object, object], None]:
 
 
 _tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", "counter"))
+_rv_a, _rv_b, _rv_c = (_setter(References, f) for f in ("ref_a", "ref_b", "counter"))
 _new_tuple = tuple.__new__
 
 
@@ -326,6 +327,15 @@ def _build_tm(v: tuple[Any, ...]) -> Telemetry:
     _tm_b(tm, _new_tuple(ChannelTelemetry, v[9:15]))
     _tm_c(tm, int(v[0]))
     return tm
+
+
+def _build_rv(v: tuple[Any, ...]) -> References:
+    # An emulated board takes one every millisecond in the SPEC §7 scenario.
+    rv = _new(References)
+    _rv_a(rv, v[2])
+    _rv_b(rv, v[3])
+    _rv_c(rv, int(v[0]))
+    return rv
 
 
 def _build_param(cls: type[ParamSet] | type[ParamAck]) -> Callable[[tuple[Any, ...]], Any]:
@@ -354,7 +364,7 @@ _BUILDERS: dict[bytes, _Entry] = {
     MessageId.PA: _entry(MessageId.PA, _build_param(ParamAck)),
     MessageId.PG: _entry(MessageId.PG, lambda v: ParamGet(v[2], v[3], int(v[0]))),
     MessageId.PN: _entry(MessageId.PN, lambda v: ParamNack(v[2], v[3], v[4], int(v[0]))),
-    MessageId.RV: _entry(MessageId.RV, lambda v: References(v[2], v[3], int(v[0]))),
+    MessageId.RV: _entry(MessageId.RV, _build_rv),
 }
 _CLOSE = b"}"
 
