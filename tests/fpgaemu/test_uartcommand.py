@@ -104,6 +104,19 @@ def test_overflow_at_the_201st_content_byte() -> None:
     assert [c for _, _, c in cpu.frames] == [b"x" * 200, b"ok"]
 
 
+def test_a_clean_frame_one_byte_too_long_is_an_overflow_whole_or_in_pieces() -> None:
+    # START, 201 plain bytes, STOP: in one run (the clean-frame shortcut's case) or in two.
+    for pieces in ([b"S" + b"q" * 201 + b"P"], [b"S" + b"q" * 100, b"q" * 101 + b"P"]):
+        board = Board()
+        cpu = Recorder(board)
+        for piece in pieces:
+            board.host_write(piece, board.uartread.line_free_at)
+        board.run_for(0.01)
+        stats = board.uartcommand.stats
+        # The 201st byte overflows; hunting again, the STOP is noise.
+        assert (stats.overflows, stats.noise_bytes, cpu.frames) == (1, 1, []), pieces
+
+
 def test_escaped_specials_are_content() -> None:
     board = Board()
     cpu = Recorder(board)
@@ -241,6 +254,41 @@ def test_stored_frames_equal_fpgalink_decoder_frames(
     model = NaiveUartCommand()
     model.feed(naive_line_timing(writes, board.cycles_per_byte))
     assert cpu.frames == model.interrupts
+
+
+@given(streams(), st.lists(st.integers(1, 40), min_size=1, max_size=8),
+       st.lists(st.integers(0, 3_000), min_size=1, max_size=8),
+       st.lists(st.tuples(st.integers(0, 10**6), st.integers(-1, 1)), min_size=1,
+                max_size=12))
+def test_what_an_observer_sees_at_any_cycle_is_every_byte_completed_by_then(
+    stream: bytes, chunk_sizes: list[int], gaps: list[int], looks: list[tuple[int, int]]
+) -> None:
+    # The lazy processing (sync, the STOP candidate, the early return while the next byte is
+    # still on the wire) against a per-byte decoder fed what has completed by each look.
+    board = Board()
+    Recorder(board)
+    writes: list[tuple[int, bytes]] = []
+    pos, cycle, k = 0, 0, 0
+    while pos < len(stream):  # all written ahead, at future cycles
+        size = chunk_sizes[k % len(chunk_sizes)]
+        cycle += gaps[k % len(gaps)]
+        writes.append((cycle, stream[pos : pos + size]))
+        board.host_write(stream[pos : pos + size], cycle)
+        pos += size
+        k += 1
+    timed = naive_line_timing(writes, board.cycles_per_byte)
+    decoder = FrameDecoder(DEFAULT_FRAMING)
+    fed = 0
+    # Looks at a byte's completion cycle, or one cycle either side of it.
+    for look in sorted({max(0, timed[x % len(timed)][1] + d) for x, d in looks if timed}):
+        board.run_until(look)
+        completed = sum(1 for _, at in timed if at <= look)
+        decoder.feed(stream[fed:completed])
+        fed = completed
+        stats = board.uartcommand.stats  # the observer's read: a sync at this cycle
+        assert (stats.noise_bytes, stats.restarts, stats.overflows) == (
+            decoder.stats.noise_bytes, decoder.stats.restarts, decoder.stats.overflows), look
+        assert stats.frames + stats.direct_commands == decoder.stats.frames, look
 
 
 @given(st.lists(st.binary(max_size=30), max_size=8), st.integers(0, 2**16),
