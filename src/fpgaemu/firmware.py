@@ -234,7 +234,8 @@ class Firmware:
         message = parse_content(content)
         self.stats.messages += 1
         counter = getattr(message, "counter", None)
-        if counter is not None:
+        # The next expected counter (nearly always) is booked without the full observation.
+        if counter is not None and not self.host_counter.observe_in_order(counter):
             self.host_counter.observe(counter)
         if isinstance(message, References):
             # Only the next timer tick reads the references, so the wheels need not be

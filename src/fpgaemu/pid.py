@@ -17,8 +17,8 @@ Units: error in deg/s (or A), output in PWM counts (32760 = 100 %).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
+from math import isfinite
 
 __all__ = ["Pid", "PidGains"]
 
@@ -55,7 +55,7 @@ class Pid:
 
     def update(self, reference: float, measurement: float, dt: float) -> int:
         """One controller period; returns the duty command."""
-        if not (math.isfinite(reference) and math.isfinite(measurement)):
+        if not (isfinite(reference) and isfinite(measurement)):
             self.reset()
             return 0
         g = self.gains
