@@ -78,6 +78,15 @@ class AxiBus:
         cmd.sync()
         return self.rx_bram.read_bytes(cmd.start_address, cmd.length)
 
+    def take_rx(self, start_address: int, length: int) -> bytes:
+        """:meth:`read_rx` then :meth:`ack_rx` of the same frame in the same cycle: what an
+        interrupt handler does with each frame, one look at the logic instead of two."""
+        cmd = self.uartcommand
+        cmd.sync()
+        content = self.rx_bram.read_bytes(start_address, length)
+        cmd.ack_synced(start_address)
+        return content
+
     def ack_rx(self, start_address: int | None = None) -> None:
         """Write the read-done register for the frame at ``start_address`` (default: the one
         the registers describe)."""

@@ -229,8 +229,7 @@ class Firmware:
     def _on_rx(self, irq: RxInterrupt) -> None:
         assert self._board is not None
         axi = self._board.axi
-        content = axi.read_rx(irq.start_address, irq.length)
-        axi.ack_rx(irq.start_address)
+        content = axi.take_rx(irq.start_address, irq.length)
         message = parse_content(content)
         self.stats.messages += 1
         counter = getattr(message, "counter", None)

@@ -208,9 +208,13 @@ class UartCommand:
     def ack(self, start_address: int) -> None:
         """Read-done register: the processor is finished with the frame at ``start_address``
         (0 or ``half_size``), so the logic may reuse that half without an overrun."""
+        self.sync()
+        self.ack_synced(start_address)
+
+    def ack_synced(self, start_address: int) -> None:
+        """:meth:`ack` for a caller that has just called :meth:`sync` in this cycle."""
         if start_address not in (0, self.half_size):
             raise ValueError(f"{start_address} is not the start of an RX RAM half")
-        self.sync()
         self._owned[start_address // self.half_size] = False
 
     def sync(self) -> None:
@@ -283,8 +287,9 @@ class UartCommand:
             if index >= 0:
                 self._candidate_cursor = cursor
                 self._candidate_index = index
+                run = cursor.run
                 self._candidate = self._timeline.schedule(
-                    cursor.run.cycle_of(index), self._on_candidate
+                    run.first + index * run.step, self._on_candidate  # run.cycle_of(index)
                 )
                 return
         self._candidate = None
@@ -313,7 +318,7 @@ class UartCommand:
             return
         self._due = []
         for event in due:
-            if type(event) is RxInterrupt:
+            if isinstance(event, RxInterrupt):
                 for rx_listener in self._rx_listeners:
                     rx_listener(event)
             else:

@@ -6,6 +6,7 @@ exact deadline counted from the STOP of the last RE."""
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -33,6 +34,27 @@ class Recorder:
         self.frames.append((irq.cycle, irq.start_address, content))
         if self.ack:
             self.board.axi.ack_rx(irq.start_address)
+
+
+def test_take_rx_is_read_rx_then_ack_rx() -> None:
+    # The interrupt handler's one call against its two; a third frame must not overrun.
+    for take in (True, False):
+        board = Board()
+        irqs: list[RxInterrupt] = []
+        board.axi.on_rx_interrupt(irqs.append)
+        board.run_until(board.host_write(b"SfirstP" + b"SsecondP"))
+        if take:
+            got = board.axi.take_rx(irqs[0].start_address, irqs[0].length)
+        else:
+            got = board.axi.read_rx(irqs[0].start_address, irqs[0].length)
+            board.axi.ack_rx(irqs[0].start_address)
+        assert got == b"first"
+        board.run_until(board.host_write(b"SXP"))
+        assert (board.uartcommand.stats.overruns, board.axi.read_rx(200, 6)) == (0, b"second")
+        assert board.axi.read_rx(0, 1) == b"X"
+    board = Board()
+    with pytest.raises(ValueError, match="not the start of an RX RAM half"):
+        board.axi.take_rx(3, 1)
 
 
 def test_frame_lands_byte_exact_and_interrupts_at_stop_completion() -> None:
