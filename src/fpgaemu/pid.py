@@ -80,7 +80,11 @@ class Pid:
                 self.integral += step
             self.saturated = True
             return round(-limit)
+        if candidate != candidate:
+            # NaN (both tests above fail): gains beyond any parameter's range overflowed to
+            # inf − inf. Nothing is driven by it, and the controller starts again from rest.
+            self.reset()
+            return 0
         self.integral += step
         self.saturated = False
-        # Clamped again: a NaN candidate (an overflowing gain) fails both tests above.
-        return round(max(-limit, min(limit, candidate)))
+        return round(candidate)

@@ -156,12 +156,12 @@ class UartSend:
 
     def note_ram_write(self) -> None:
         """The processor wrote the TX RAM (called by the AXI side)."""
-        if self.busy:
+        if self._timeline.now < self.busy_until:  # busy, without the property's call
             self.stats.writes_while_busy += 1
 
     def strobe(self) -> bool:
         """Pulse the send strobe; returns whether the module accepted it."""
-        if self.busy:
+        if self._timeline.now < self.busy_until:  # busy, without the property's call
             self.stats.refused_strobes += 1
             return False
         content = self.bram.read_bytes(0, self.length)

@@ -166,6 +166,15 @@ def test_a_non_finite_input_outputs_zero_and_never_enters_the_state(bad: float) 
     assert pid.update(0.0, 0.0, TS) == fresh.update(0.0, 0.0, TS) == 0
 
 
+def test_an_overflowing_controller_drives_nothing_and_restarts_from_rest() -> None:
+    # Gains past any parameter's range: proportional and integral +inf, derivative -inf.
+    pid = Pid(PidGains(kp=1e308, ti=1e-308, td=1e308))
+    assert pid.update(10.0, 0.0, TS) == 32760  # +inf: saturated, as a large error is
+    assert pid.saturated
+    assert pid.update(10.0, 1.0, TS) == 0  # inf - inf: NaN
+    assert pid.at_rest
+
+
 @pytest.mark.parametrize(("name", "seed"), [("seed-high", (7.11, 23.66, 0.43)),
                                             ("seed-low", (15.96, 51.51, 1.237))])
 def test_the_shipped_seed_sets_are_the_conversion(name: str, seed: tuple[float, float, float]
