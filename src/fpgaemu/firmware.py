@@ -31,7 +31,6 @@ Power-up values come from the parameter table's ``default`` column.
 
 from __future__ import annotations
 
-import math
 from collections import deque
 from dataclasses import dataclass
 from math import isfinite
@@ -274,7 +273,7 @@ class Firmware:
             return NackReason.WRONG_TYPE
         if param.type is ParamType.INT and isinstance(value, float) and not value.is_integer():
             return NackReason.WRONG_TYPE
-        if isinstance(value, float) and not math.isfinite(value):
+        if isinstance(value, float) and not isfinite(value):
             return NackReason.OUT_OF_RANGE
         if not param.in_range(value):
             return NackReason.OUT_OF_RANGE

@@ -398,20 +398,7 @@ class _Line:
         at = now if cycle is None else cycle
         if at < now:
             raise ValueError(f"{self.name}: cannot send at cycle {at}, the present is {now}")
-        free_at = self.line_free_at
-        start = at if at > free_at else free_at
-        if (self.faults is None and not lost and not self.receiver._bursts
-                and (start != free_at or self._last_level)):
-            # No faults and a clean first edge (every frame of a fault-free board): the end
-            # of this method, without the fault bookkeeping before it.
-            n = len(data)
-            stats = self.stats
-            stats.bytes_sent += n
-            stats.bytes_received += n
-            step = self.byte_step
-            self.line_free_at = start + n * step - self.byte_gap
-            self._last_level = 1
-            return [ByteRun(data, start + self.cycles_per_byte, step)]
+        start = max(at, self.line_free_at)
         stats = self.stats
         index = stats.bytes_sent
         n = len(data)
