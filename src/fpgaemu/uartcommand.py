@@ -171,7 +171,6 @@ class UartCommand:
     def _configure(self, framing: Framing) -> None:
         self.framing = framing
         self._limit = min(framing.max_content, self.half_size)
-        self._start, self._stop = framing.start, framing.stop
         self._start_b = bytes((framing.start,))
         self._stop_b = bytes((framing.stop,))
         specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
@@ -329,15 +328,6 @@ class UartCommand:
 
     def _process(self, run: ByteRun, pos: int, end: int) -> None:
         data = run.data
-        if (self._state == _HUNT and data[pos] == self._start and data[end - 1] == self._stop
-                and end - pos - 2 <= self._limit
-                and self._ordinary_run(data, pos + 1, end).end() == end - 1):  # type: ignore[union-attr]
-            # Exactly one clean frame, START to STOP (a STOP candidate's event, nearly
-            # always): what the loop below does for it, without its set-up.
-            if end - pos > 2:
-                self._store(0, data[pos + 1 : end - 1])
-            self._complete(end - pos - 2, run.first + (end - 1) * run.step)
-            return
         framing = self.framing
         start, stop, skip = framing.start, framing.stop, framing.skip
         start_b = self._start_b
