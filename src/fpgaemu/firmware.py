@@ -464,10 +464,11 @@ class Firmware:
                     flags |= _END_STOP
                 if saturated:
                     flags |= _SATURATED
-                # Floats are rounded to float32 when the message is packed.
-                samples.append(ChannelTelemetry(
+                # Floats are rounded to float32 when the message is packed. Built with the
+                # C constructor: a named tuple's own __new__ is a Python call, two per tick.
+                samples.append(tuple.__new__(ChannelTelemetry, (
                     ch.position, speed, ch.current,
-                    pwm.duty_register if pwm.global_enable else 0, ch.reference, flags))
+                    pwm.duty_register if pwm.global_enable else 0, ch.reference, flags)))
         self._timing.periods += 1
         if telemetry:
             content = encode_telemetry(self._counter.take(),

@@ -74,6 +74,11 @@ def cycles_per_bit(baud: int) -> int:
     return round(CLOCK_HZ / baud)
 
 
+#: A named tuple's own ``__new__`` is a Python function; a run built on the hot path (one per
+#: frame in each direction) is made with the C constructor instead, field order the same.
+_new_tuple = tuple.__new__
+
+
 class ByteRun(NamedTuple):
     """Bytes received back to back: byte ``i`` completed (stop bit ended) at cycle
     ``first + i * step``. A named tuple, not a frozen dataclass: one is built for every frame
@@ -438,7 +443,7 @@ class _Line:
         self.line_free_at = start + n * step - self.byte_gap
         self._last_level = 1
         stats.bytes_received += n
-        return [ByteRun(data, start + self.cycles_per_byte, step)]
+        return [_new_tuple(ByteRun, (data, start + self.cycles_per_byte, step))]
 
     def _idle_until(self, start: int) -> list[ByteRun]:
         """The line idles (high) from ``start``: whatever the receiver held is decided."""

@@ -425,7 +425,8 @@ class UartCommand:
         self.start_address = base
         self.length = length
         self._stats.frames += 1
-        self._due.append(RxInterrupt(cycle, base, length))
+        # The C constructor: a named tuple's own __new__ is a Python call (one per frame).
+        self._due.append(tuple.__new__(RxInterrupt, (cycle, base, length)))
 
     # --- global_enable --------------------------------------------------------------------
 
