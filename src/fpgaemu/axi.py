@@ -110,6 +110,12 @@ class AxiBus:
         self.tx_bram.write_bytes(0, content)
         self.uartsend.set_length(len(content))
 
+    def send_tx(self, content: bytes) -> bool:
+        """:meth:`write_tx` then :meth:`strobe_tx` in the same cycle: what the firmware does
+        with each message, one look at the logic instead of several. ``False`` if
+        ``uartsend`` was busy and ignored the strobe (the RAM is written all the same)."""
+        return self.uartsend.load_and_strobe(content)
+
     def strobe_tx(self) -> bool:
         """Pulse the send strobe; ``False`` if ``uartsend`` was busy and ignored it."""
         return self.uartsend.strobe()
@@ -186,8 +192,7 @@ class TxQueue:
 
     def _start(self, content: bytes, tag: int | None) -> None:
         axi = self._axi
-        axi.write_tx(content)
-        accepted = axi.strobe_tx()
+        accepted = axi.send_tx(content)
         assert accepted, "uartsend refused a strobe while idle"
         self.stats.sent += 1
         if self._on_start is not None:

@@ -164,7 +164,26 @@ class UartSend:
         if self._timeline.now < self.busy_until:  # busy, without the property's call
             self.stats.refused_strobes += 1
             return False
-        content = self.bram.read_bytes(0, self.length)
+        return self._start_frame(self.bram.read_bytes(0, self.length))
+
+    def load_and_strobe(self, content: bytes) -> bool:
+        """The TX RAM written with ``content`` from address 0, the length register set to
+        its size and the strobe pulsed, in one cycle: exactly :meth:`note_ram_write`, the
+        RAM write, :meth:`set_length`, then :meth:`strobe`. Idle (the usual case), the
+        frame goes out from ``content`` itself, which is what the RAM now holds."""
+        if self._timeline.now < self.busy_until:
+            self.note_ram_write()
+            self.bram.write_bytes(0, content)
+            self.set_length(len(content))
+            return self.strobe()
+        # Raises IndexError before anything changes when content does not fit the RAM, so
+        # the length it sets below always fits.
+        self.bram.write_bytes(0, content)
+        self.length = len(content)
+        return self._start_frame(content)
+
+    def _start_frame(self, content: bytes) -> bool:
+        """The accepted strobe: ``content`` (the RAM's first ``length`` bytes) goes out."""
         wire = self._escaper.frame(content)
         wire_bytes = len(wire)
         stats = self.stats

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -29,6 +30,44 @@ def test_wire_bytes_and_timing(content: bytes, framing: Framing, at: int) -> Non
     got = board.read_host_bytes_timed()
     assert bytes(b for b, _ in got) == wire
     assert [c for _, c in got] == [at + 1_000 * (i + 1) for i in range(len(wire))]
+
+
+@given(st.lists(st.tuples(st.binary(max_size=40), st.integers(0, 8_000)),
+                max_size=8))
+def test_send_tx_is_write_tx_then_strobe_tx(steps: list[tuple[bytes, int]]) -> None:
+    # The firmware's one call against its two, idle or busy, with a fault hook losing some
+    # frames: the same RAM, registers, counters, hook calls and wire, cycle for cycle.
+    boards = (Board(), Board())
+    seen: tuple[list[tuple[bytes, int]], list[tuple[bytes, int]]] = ([], [])
+    results: tuple[list[bool], list[bool]] = ([], [])
+    for fused, board in enumerate(boards):
+        def keep(content: bytes, cycle: int, seen: list[tuple[bytes, int]] = seen[fused]
+                 ) -> bool:
+            seen.append((content, cycle))
+            return len(content) % 3 != 1
+        board.uartsend.frame_filter = keep
+        for content, delay in steps:
+            board.run_for(delay / 100e6)
+            if fused:
+                results[fused].append(board.axi.send_tx(content))
+            else:
+                board.axi.write_tx(content)
+                results[fused].append(board.axi.strobe_tx())
+        board.run_for(0.01)
+    plain, fused_board = boards
+    assert results[0] == results[1] and seen[0] == seen[1]
+    assert plain.uartsend.stats == fused_board.uartsend.stats
+    assert plain.uartsend.length == fused_board.uartsend.length
+    assert plain.blk_mem_gen_tx.read_bytes(0, 64) == fused_board.blk_mem_gen_tx.read_bytes(0, 64)
+    assert plain.read_host_bytes_timed() == fused_board.read_host_bytes_timed()
+
+
+def test_send_tx_of_more_than_the_ram_holds_changes_nothing() -> None:
+    board = Board()
+    with pytest.raises(IndexError, match="outside"):
+        board.axi.send_tx(b"x" * (board.blk_mem_gen_tx.size + 1))
+    assert (board.uartsend.length, board.uartsend.stats.frames, board.axi.tx_busy) == (
+        0, 0, False)
 
 
 def test_words_written_by_the_processor_are_sent_little_endian() -> None:
