@@ -52,22 +52,47 @@ class SpeedReader:
 
     def sample(self, now: int) -> float:
         """The M/T reading at ``now`` over this reader's window (deg/s, counting direction)."""
-        return self._encoder._measure(self, now)
+        encoder = self._encoder
+        counts = encoder.counts_per_turn
+        if counts <= 0:
+            return 0.0
+        deg_per_count = 360.0 / counts
+        last = encoder._last_edge_cycle
+        if last is None or self.cycle is None:
+            self.speed = 0.0
+        elif last > self.cycle:
+            count = encoder._count
+            self.speed = (count - self.count) * deg_per_count * CLOCK_HZ / (last - self.cycle)
+            self.count = count
+            self.cycle = last
+        else:
+            since = now - last
+            if since > SPEED_TIMEOUT_CYCLES:
+                self.speed = 0.0
+            elif since > 0:
+                bound = deg_per_count * CLOCK_HZ / since
+                if abs(self.speed) > bound:
+                    self.speed = math.copysign(bound, self.speed)
+        return self.speed * encoder._direction
 
 
 class QuadratureEncoder:
     def __init__(self, pulses_per_turn: int = 500, direction: int = 1) -> None:
         self.counts_per_turn = 10 * pulses_per_turn
-        self.direction = direction
+        self._direction = direction
         self.end_stop = False  #: the end-stop switch input
         self._count = 0  #: physical count (before the direction setting)
+        #: The counter register, as a signed 32-bit value: kept as the count changes, since
+        #: the firmware reads it at every tick and it changes only at an edge.
+        self.position = 0
         self._angle_offset = self._half_count()
         self._last_edge_cycle: int | None = None
         self._angle = 0.0  #: the wheel angle last followed, deg
         self.edges = 0  #: every edge seen (unsigned)
-        #: the firmware's window first; a hardware controller may add its own
-        self._firmware = SpeedReader(self)
-        self._readers: list[SpeedReader] = [self._firmware]
+        #: the firmware's window (sampled at the timer tick) first; a hardware controller may
+        #: add its own
+        self.firmware_reader = SpeedReader(self)
+        self._readers: list[SpeedReader] = [self.firmware_reader]
 
     def reader(self) -> SpeedReader:
         """A speed measurement of its own (see :class:`SpeedReader`)."""
@@ -79,9 +104,10 @@ class QuadratureEncoder:
         """New resolution or direction: the count restarts from the wheel's present angle
         (as last followed: bring the wheel up to date first)."""
         self.counts_per_turn = 10 * pulses_per_turn
-        self.direction = direction
+        self._direction = direction
         self._angle_offset = self._angle + self._half_count()
         self._count = 0
+        self.position = 0
         self._last_edge_cycle = None
         for reader in self._readers:
             reader.count, reader.cycle, reader.speed = 0, None, 0.0
@@ -126,18 +152,19 @@ class QuadratureEncoder:
         fraction = (offset + (n1 if up else n1 + 1) * step - angle0) / moved
         self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
         self._count = n1
+        value = (n1 * self._direction) & 0xFFFF_FFFF
+        self.position = value - (1 << 32) if value & 0x8000_0000 else value
 
     @property
-    def position(self) -> int:
-        """The counter register, as a signed 32-bit value."""
-        value = (self._count * self.direction) & 0xFFFF_FFFF
-        return value - (1 << 32) if value & 0x8000_0000 else value
+    def direction(self) -> int:
+        """The counting direction (±1), set by :meth:`configure`."""
+        return self._direction
 
     @property
     def settled(self) -> bool:
         """The firmware's reading is 0 and stays 0 while no edge comes: sampling again
         would change nothing."""
-        reader = self._firmware
+        reader = self.firmware_reader
         return reader.speed == 0.0 and (self._last_edge_cycle is None
                                         or reader.cycle is None
                                         or self._last_edge_cycle <= reader.cycle)
@@ -145,27 +172,4 @@ class QuadratureEncoder:
     def sample_speed(self, now: int) -> float:
         """The M/T speed reading at ``now`` (deg/s, in the counting direction): the
         firmware's, over the window since its previous reading."""
-        return self._measure(self._firmware, now)
-
-    def _measure(self, reader: SpeedReader, now: int) -> float:
-        """:meth:`sample_speed` over ``reader``'s window."""
-        if self.counts_per_turn <= 0:
-            return 0.0
-        deg_per_count = 360.0 / self.counts_per_turn
-        last = self._last_edge_cycle
-        if last is None or reader.cycle is None:
-            reader.speed = 0.0
-        elif last > reader.cycle:
-            edges = self._count - reader.count
-            reader.speed = edges * deg_per_count * CLOCK_HZ / (last - reader.cycle)
-            reader.count = self._count
-            reader.cycle = last
-        else:
-            since = now - last
-            if since > SPEED_TIMEOUT_CYCLES:
-                reader.speed = 0.0
-            elif since > 0:
-                bound = deg_per_count * CLOCK_HZ / since
-                if abs(reader.speed) > bound:
-                    reader.speed = math.copysign(bound, reader.speed)
-        return reader.speed * self.direction
+        return self.firmware_reader.sample(now)

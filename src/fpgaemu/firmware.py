@@ -433,7 +433,7 @@ class Firmware:
             io = io_channels[code]
             encoder = io.encoder
             pwm = io.pwm
-            ch.speed = speed = encoder.sample_speed(cycle)
+            ch.speed = speed = encoder.firmware_reader.sample(cycle)
             ch.position = encoder.position
             ch.current = io.current_a
             mode = values[(4, code)]
