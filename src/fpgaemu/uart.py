@@ -593,29 +593,21 @@ class UartRead(_Line):
             self.sink(run)
 
 
-class _Draining:
-    """A run on its way to the host and how many of its bytes have been handed out."""
-
-    __slots__ = ("run", "taken")
-
-    def __init__(self, run: ByteRun) -> None:
-        self.run = run
-        self.taken = 0
-
-
 class UartWrite(_Line):
     """Board → host: bytes leave back to back at line rate; the host side drains those whose
     stop bit has ended (:meth:`read_completed`). Listeners see each run when it is committed
     to the wire, with its future completion cycles (a logic analyser, a budget meter)."""
 
-    __slots__ = ("_listeners", "_pending")
+    __slots__ = ("_head_taken", "_listeners", "_pending")
 
     def __init__(
         self, timeline: Timeline, baud: int = DEFAULT_BAUD, faults: LineFaults | None = None,
         byte_gap: int = 0,
     ) -> None:
         super().__init__(timeline, "uartwrite", baud, faults, byte_gap)
-        self._pending: deque[_Draining] = deque()
+        #: runs on their way to the host; only the first can be partly handed out
+        self._pending: deque[ByteRun] = deque()
+        self._head_taken = 0  #: bytes of the first pending run already handed out
         self._listeners: list[Callable[[ByteRun], None]] = []
 
     def add_listener(self, listener: Callable[[ByteRun], None]) -> None:
@@ -635,7 +627,7 @@ class UartWrite(_Line):
 
     def _deliver(self, runs: list[ByteRun]) -> None:
         for run in runs:
-            self._pending.append(_Draining(run))
+            self._pending.append(run)
             for listener in self._listeners:
                 listener(run)
 
@@ -644,7 +636,7 @@ class UartWrite(_Line):
         """The cycle the run of bytes now on the wire completes (its last stop bit), or
         ``None``: a reader that waits for whole runs (frames) wakes once per frame."""
         pending = self._pending
-        return pending[0].run.last if pending else None
+        return pending[0].last if pending else None
 
     def read_completed(self, cycle: int | None = None) -> bytes:
         """Drain the bytes whose stop bit has ended by ``cycle`` (default now)."""
@@ -652,15 +644,15 @@ class UartWrite(_Line):
         out = bytearray()
         pending = self._pending
         while pending:
-            entry = pending[0]
-            run, taken = entry.run, entry.taken
+            run, taken = pending[0], self._head_taken
             done = run.completed_by(at)
             if done > taken:
                 out += run.data[taken:done]
             if done < len(run.data):
-                entry.taken = done
+                self._head_taken = done
                 break
             pending.popleft()
+            self._head_taken = 0
         return bytes(out)
 
     def read_completed_timed(self, cycle: int | None = None) -> list[tuple[int, int]]:
@@ -669,12 +661,12 @@ class UartWrite(_Line):
         out: list[tuple[int, int]] = []
         pending = self._pending
         while pending:
-            entry = pending[0]
-            run, taken = entry.run, entry.taken
+            run, taken = pending[0], self._head_taken
             done = run.completed_by(at)
             out += [(run.data[i], run.first + i * run.step) for i in range(taken, done)]
             if done < len(run.data):
-                entry.taken = done
+                self._head_taken = done
                 break
             pending.popleft()
+            self._head_taken = 0
         return out
