@@ -585,7 +585,10 @@ class UartRead(_Line):
         last byte's stop bit ends."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        self._deliver(self._send(bytes(data), cycle))
+        # _deliver, written out: the host's every frame comes this way.
+        sink = self.sink
+        for run in self._send(bytes(data), cycle):
+            sink(run)
         return self.line_free_at
 
     def _deliver(self, runs: list[ByteRun]) -> None:
@@ -622,7 +625,12 @@ class UartWrite(_Line):
         it occupies the line but the host never sees it."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        self._deliver(self._send(data if type(data) is bytes else bytes(data), cycle, lost))
+        # _deliver, written out: the board's every frame comes this way.
+        pending, listeners = self._pending, self._listeners
+        for run in self._send(data if type(data) is bytes else bytes(data), cycle, lost):
+            pending.append(run)
+            for listener in listeners:
+                listener(run)
         return self.line_free_at
 
     def _deliver(self, runs: list[ByteRun]) -> None:
