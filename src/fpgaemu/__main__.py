@@ -202,8 +202,9 @@ def cli(ctx: click.Context, /, **given: Any) -> None:
 @click.pass_context
 def serve(ctx: click.Context, /, **given: Any) -> None:
     """Serve emulated boards until SIGINT/SIGTERM. Prints `ready <board> <path-or-url>` per
-    board once it is reachable, `ready <board> <link> -> <pty>` with --link, and with --robot
-    `ready truth socket://HOST:PORT` (the true pose as JSON lines)."""
+    board, `ready <board> <link> -> <pty>` with --link, and with --robot `ready truth
+    socket://HOST:PORT` (the true pose as JSON lines), all at once when every one is
+    reachable; none if any cannot be served (exit 5)."""
     before = ctx.obj.given if isinstance(ctx.obj, Options) else {}
     value = {**DEFAULTS, **before, **{k: v for k, v in given.items() if v not in (None, ())}}
     use_pty, tcp = bool(value["use_pty"]), value["tcp"]
@@ -305,6 +306,9 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
     endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
     made: list[Path] = []
     truth_endpoint: TruthEndpoint | None = None
+    # Printed once every endpoint is up: a script that connects on the first ready line
+    # must not reach a board that is about to go because a later one could not be served.
+    ready: list[str] = []
     try:
         for index, (name, board) in enumerate(paced.items()):
             if use_pty:
@@ -325,7 +329,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                                      f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
                 endpoints.append((name, tcp))
                 where = tcp.url
-            print(f"ready {name} {where}", flush=True)
+            ready.append(f"ready {name} {where}")
         sides = [b for b in paced.values() if isinstance(b, RobotSide)]
         if truth is not None and sides:
             truth_endpoint = TruthEndpoint(sides[0].robot, *truth)
@@ -334,7 +338,8 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             except OSError as exc:
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
-            print(f"ready truth {truth_endpoint.url}", flush=True)
+            ready.append(f"ready truth {truth_endpoint.url}")
+        print("\n".join(ready), flush=True)
         await stop.wait()
     finally:
         if truth_endpoint is not None:

@@ -217,6 +217,28 @@ async def test_a_busy_port_is_one_line() -> None:
     assert result.stderr.count("\n") == 1
 
 
+async def test_a_board_that_cannot_be_served_leaves_no_ready_line() -> None:
+    # N+1 taken: serve used to print `ready L` and then exit, so a script that connected on
+    # the first ready line reached a board about to vanish.
+    for _attempt in range(5):
+        base = free_port_pair()
+        with socket.socket() as squatter:
+            try:
+                squatter.bind(("127.0.0.1", base + 1))
+            except OSError:
+                continue
+            squatter.listen()
+            result = await asyncio.to_thread(fpgaemu, "serve", "--tcp", f"127.0.0.1:{base}",
+                                             "--boards", "2")
+        if "cannot serve board L" in result.stderr:
+            continue  # another test took N in the meantime: try anew
+        assert result.returncode == 5, result.stderr
+        assert result.stderr.startswith("fpgaemu: error: cannot serve board R")
+        assert "ready" not in result.stdout
+        return
+    raise AssertionError("no two free consecutive ports in five attempts")
+
+
 def test_version_and_help_before_the_command() -> None:
     assert fpgaemu("--version").stdout.startswith("fpgaemu, version ")
     assert "serve" in fpgaemu("-h").stdout
