@@ -73,18 +73,15 @@ class SpeedReader:
                 bound = deg_per_count * CLOCK_HZ / since
                 if abs(self.speed) > bound:
                     self.speed = math.copysign(bound, self.speed)
-        return self.speed * encoder._direction
+        return self.speed * encoder.direction
 
 
 class QuadratureEncoder:
     def __init__(self, pulses_per_turn: int = 500, direction: int = 1) -> None:
         self.counts_per_turn = 10 * pulses_per_turn
-        self._direction = direction
+        self.direction = direction
         self.end_stop = False  #: the end-stop switch input
         self._count = 0  #: physical count (before the direction setting)
-        #: The counter register, as a signed 32-bit value: kept as the count changes, since
-        #: the firmware reads it at every tick and it changes only at an edge.
-        self.position = 0
         self._angle_offset = self._half_count()
         self._last_edge_cycle: int | None = None
         self._angle = 0.0  #: the wheel angle last followed, deg
@@ -104,10 +101,9 @@ class QuadratureEncoder:
         """New resolution or direction: the count restarts from the wheel's present angle
         (as last followed: bring the wheel up to date first)."""
         self.counts_per_turn = 10 * pulses_per_turn
-        self._direction = direction
+        self.direction = direction
         self._angle_offset = self._angle + self._half_count()
         self._count = 0
-        self.position = 0
         self._last_edge_cycle = None
         for reader in self._readers:
             reader.count, reader.cycle, reader.speed = 0, None, 0.0
@@ -152,13 +148,12 @@ class QuadratureEncoder:
         fraction = (offset + (n1 if up else n1 + 1) * step - angle0) / moved
         self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
         self._count = n1
-        value = (n1 * self._direction) & 0xFFFF_FFFF
-        self.position = value - (1 << 32) if value & 0x8000_0000 else value
 
     @property
-    def direction(self) -> int:
-        """The counting direction (±1), set by :meth:`configure`."""
-        return self._direction
+    def position(self) -> int:
+        """The counter register, as a signed 32-bit value."""
+        value = (self._count * self.direction) & 0xFFFF_FFFF
+        return value - (1 << 32) if value & 0x8000_0000 else value
 
     @property
     def settled(self) -> bool:

@@ -74,11 +74,6 @@ def cycles_per_bit(baud: int) -> int:
     return round(CLOCK_HZ / baud)
 
 
-#: A named tuple's own ``__new__`` is a Python function; a run built on the hot path (one per
-#: frame in each direction) is made with the C constructor instead, field order the same.
-_new_tuple = tuple.__new__
-
-
 class ByteRun(NamedTuple):
     """Bytes received back to back: byte ``i`` completed (stop bit ended) at cycle
     ``first + i * step``. A named tuple, not a frozen dataclass: one is built for every frame
@@ -443,7 +438,8 @@ class _Line:
         self.line_free_at = start + n * step - self.byte_gap
         self._last_level = 1
         stats.bytes_received += n
-        return [_new_tuple(ByteRun, (data, start + self.cycles_per_byte, step))]
+        # The C constructor: a named tuple's own __new__ is a Python call (one per frame).
+        return [tuple.__new__(ByteRun, (data, start + self.cycles_per_byte, step))]
 
     def _idle_until(self, start: int) -> list[ByteRun]:
         """The line idles (high) from ``start``: whatever the receiver held is decided."""
@@ -585,10 +581,7 @@ class UartRead(_Line):
         last byte's stop bit ends."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        # _deliver, written out: the host's every frame comes this way.
-        sink = self.sink
-        for run in self._send(bytes(data), cycle):
-            sink(run)
+        self._deliver(self._send(bytes(data), cycle))
         return self.line_free_at
 
     def _deliver(self, runs: list[ByteRun]) -> None:
@@ -625,12 +618,7 @@ class UartWrite(_Line):
         it occupies the line but the host never sees it."""
         if not data:
             return max(self._timeline.now, self.line_free_at)
-        # _deliver, written out: the board's every frame comes this way.
-        pending, listeners = self._pending, self._listeners
-        for run in self._send(data if type(data) is bytes else bytes(data), cycle, lost):
-            pending.append(run)
-            for listener in listeners:
-                listener(run)
+        self._deliver(self._send(data if type(data) is bytes else bytes(data), cycle, lost))
         return self.line_free_at
 
     def _deliver(self, runs: list[ByteRun]) -> None:
