@@ -35,7 +35,7 @@ switching one fault on never changes where another one strikes.
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
@@ -636,33 +636,30 @@ class UartWrite(_Line):
 
     def read_completed(self, cycle: int | None = None) -> bytes:
         """Drain the bytes whose stop bit has ended by ``cycle`` (default now)."""
-        at = self._timeline.now if cycle is None else cycle
         out = bytearray()
+        for run, taken, done in self._drain(cycle):
+            out += run.data[taken:done]
+        return bytes(out)
+
+    def read_completed_timed(self, cycle: int | None = None) -> list[tuple[int, int]]:
+        """As :meth:`read_completed`, as ``(byte, completion cycle)`` pairs."""
+        out: list[tuple[int, int]] = []
+        for run, taken, done in self._drain(cycle):
+            out += [(run.data[i], run.first + i * run.step) for i in range(taken, done)]
+        return out
+
+    def _drain(self, cycle: int | None) -> Iterator[tuple[ByteRun, int, int]]:
+        """Each pending run with bytes ``taken:done`` newly completed by ``cycle`` (default
+        now), handed out as the caller takes them."""
+        at = self._timeline.now if cycle is None else cycle
         pending = self._pending
         while pending:
             run, taken = pending[0], self._head_taken
             done = run.completed_by(at)
             if done > taken:
-                out += run.data[taken:done]
+                yield run, taken, done
             if done < len(run.data):
                 self._head_taken = done
-                break
+                return
             pending.popleft()
             self._head_taken = 0
-        return bytes(out)
-
-    def read_completed_timed(self, cycle: int | None = None) -> list[tuple[int, int]]:
-        """As :meth:`read_completed`, as ``(byte, completion cycle)`` pairs."""
-        at = self._timeline.now if cycle is None else cycle
-        out: list[tuple[int, int]] = []
-        pending = self._pending
-        while pending:
-            run, taken = pending[0], self._head_taken
-            done = run.completed_by(at)
-            out += [(run.data[i], run.first + i * run.step) for i in range(taken, done)]
-            if done < len(run.data):
-                self._head_taken = done
-                break
-            pending.popleft()
-            self._head_taken = 0
-        return out
