@@ -67,6 +67,8 @@ if TYPE_CHECKING:
 __all__ = [
     "GEARS",
     "PHYSICS_STEP_CYCLES",
+    "REST_CURRENT_A",
+    "REST_SPEED_DPS",
     "ContinuousModel",
     "MotorConstants",
     "Motors",
@@ -87,6 +89,14 @@ GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
 }
 MAX_DUTY = 32760
 MAX_SPEED_HIGH_DPS = 90.0
+#: Static friction's dead band: an unpowered, unloaded wheel whose motion can no longer
+#: exceed this speed (deg/s at the wheel; one encoder count, 0.072°, would take 72 s) is
+#: held by it and stops, having rolled out the rest of its decay at once. Without it the
+#: linear model's modes decay towards zero for minutes (until float underflow), and a board
+#: that has been driven never counts as at rest again.
+REST_SPEED_DPS = 1e-3
+#: Below this an unpowered winding's current is zero (the Hall sensor's noise is far above).
+REST_CURRENT_A = 1e-6
 GEAR_RATIO = 70.0
 _radians = math.radians
 
@@ -272,6 +282,8 @@ class WheelPlant:
         physics step every emulated millisecond, so it skips what :meth:`advance` reports."""
         if self.stalled:
             self._follow_current(dt, 0.0)
+            if not self.duty and abs(self.current) < REST_CURRENT_A:
+                self.current = 0.0
             return
         # Unloaded (the usual case) the input is the duty alone: the same value, no division.
         u = self._input() if self.load_torque_nm else self.duty / MAX_DUTY
@@ -286,12 +298,31 @@ class WheelPlant:
         self._x = [e0 * x0 + g0 * u, e1 * x1 + g1 * u, e2 * x2 + g2 * u]
         self.angle_deg += angle_gain
         self._follow_current(dt, angle_gain / dt)
+        if not u:
+            self._come_to_rest()
+
+    def _come_to_rest(self) -> None:
+        """Unpowered and unloaded: within the dead band the wheel stops (see
+        :data:`REST_SPEED_DPS`). Each mode only decays from here, so the bound on the speed
+        is the sum of the modes' magnitudes, and the angle the decay would still add is
+        added now, so the wheel rests where the model's motion would have ended."""
+        c, x = self._c, self._x
+        if (x[0] or x[1] or x[2]) and (abs(c[0] * x[0]) + abs(c[1] * x[1])
+                                       + abs(c[2] * x[2])) < REST_SPEED_DPS:
+            s = self._s
+            self.angle_deg += (-(c[0] * x[0] / s[0] + c[1] * x[1] / s[1]
+                                 + c[2] * x[2] / s[2])).real
+            self._x = [0j, 0j, 0j]
+        if (self.current and abs(self.current) < REST_CURRENT_A
+                and not (self._x[0] or self._x[1] or self._x[2])):
+            self.current = 0.0
 
     @property
     def at_rest(self) -> bool:
         """Exactly still, unpowered and unloaded: advancing changes nothing at all (true
-        from power-up until driven; after being driven, once its motion has decayed to
-        exactly zero)."""
+        from power-up until driven; after being driven, once its motion has decayed into
+        static friction's dead band, :data:`REST_SPEED_DPS`, a few seconds after the duty
+        went to 0)."""
         return (self.duty == 0 and self.current == 0.0 and self.load_torque_nm == 0.0
                 and not (self._x[0] or self._x[1] or self._x[2]))
 

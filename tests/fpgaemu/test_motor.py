@@ -7,6 +7,7 @@ own and inside the board."""
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from fpgaemu.motor import (
     continuous_model,
     identified_response,
 )
+from fpgaemu.timeline import seconds_to_cycles
 from fpgalink.protocol import ParamAck
 from tests.support.host import Host
 
@@ -340,3 +342,78 @@ def test_hall_sensor_noise_is_optional_seeded_and_of_the_asked_size() -> None:
     mean = sum(noisy) / len(noisy)
     spread = (sum((x - mean) ** 2 for x in noisy) / len(noisy)) ** 0.5
     assert abs(mean) < 0.01 and spread == pytest.approx(0.05, rel=0.1)
+
+
+def test_an_unpowered_wheel_comes_to_exact_rest_where_its_decay_would_end() -> None:
+    # Static friction's dead band: driven at full duty, then unpowered, the wheel is exactly
+    # at rest within a few seconds (without it, minutes, until float underflow), and stands
+    # where the identified model's motion ends, to far below one encoder count.
+    from fpgaemu.motor import REST_SPEED_DPS
+
+    plant = WheelPlant("high")
+    plant.duty = MAX_DUTY
+    for _ in range(2000):
+        plant.hold(0.001)
+    plant.duty = 0
+    reference = WheelPlant("high")  # the same motion without the dead band: its limit
+    reference._x, reference.angle_deg = list(plant._x), plant.angle_deg
+    limit = reference.angle_deg + sum(
+        (-(c * x / s)).real for c, x, s in zip(reference._c, reference._x, reference._s,
+                                               strict=True))
+    steps = 0
+    while not plant.at_rest:
+        plant.hold(0.001)
+        steps += 1
+        assert steps < 4000, "still not at rest after 4 s unpowered"
+    assert steps > 1500  # it coasted down first: the dead band is at creep speed only
+    assert plant.speed_dps == 0.0 and plant.current == 0.0
+    assert plant.angle_deg == pytest.approx(limit, abs=1e-6)
+    assert REST_SPEED_DPS * 72 < 0.1  # one count (0.072°) at the band's edge takes > 70 s
+
+
+def test_a_wheel_swinging_through_zero_speed_is_not_caught_by_the_dead_band() -> None:
+    # The complex pair makes the speed cross zero while the wheel still has motion in it:
+    # the dead band judges the motion left (every mode), not the speed of the moment.
+    plant = WheelPlant("high")
+    plant.duty = -MAX_DUTY
+    plant.hold(0.03)
+    plant.duty = 0
+    crossed = False
+    previous = plant.speed_dps
+    for _ in range(300):
+        plant.hold(0.0001)
+        crossed |= (previous < 0) != (plant.speed_dps < 0)
+        previous = plant.speed_dps
+        if plant.at_rest:
+            break
+    assert not plant.at_rest
+    assert abs(plant.speed_dps) > 1e-3 or crossed
+
+
+def test_a_board_that_was_driven_becomes_quiescent_again() -> None:
+    # The board idles after use as it does fresh: disabled, telemetry off, wheels at rest.
+    from tests.support.host import Host
+
+    host = Host.make()
+    assert isinstance(host.set(2, 0, 1, 1), ParamAck)
+    host.start_enabled()
+    host.references(60.0, -40.0)
+    host.run(1.0)
+    host.keep_enabled = False
+    host.disable()
+    assert isinstance(host.set(2, 0, 1, 0), ParamAck)
+    firmware: Any = host.board.peripherals["firmware"]
+    quiet_after = None
+    for k in range(1, 1001):
+        host.run(0.01)
+        if firmware.quiescent:
+            quiet_after = k * 0.01
+            break
+    assert quiet_after is not None and quiet_after < 5.0
+    # A paced board then wakes only for its E (300 ms period; 2 deadlines each: the frame
+    # starts, its bytes end), not for its 1 ms ticks: as few wake-ups as a fresh board's.
+    end, wakeups = host.board.now + seconds_to_cycles(3.0), 0
+    while (deadline := host.board.next_deadline()) is not None and deadline < end:
+        host.run_to(deadline)
+        wakeups += 1
+    assert wakeups <= 2 * 3000 // 300 + 2
