@@ -78,7 +78,23 @@ class Board:
         if overrides:
             config = dataclasses.replace(config, **overrides)
         self.config = config
+        self.peripherals: dict[str, Peripheral] = {}
+        #: the cycle of the last power-up (0, or the last :meth:`power_cycle`)
+        self.powered_at = 0
+        self.power_cycles = 0
+        #: host bytes still on the RX line when the board power-cycled (lost with it)
+        self.power_cycle_rx_lost = 0
+        self._restart_at: list[int] = []
+        #: TX bytes completed before a power cycle, still to be read by the host
+        self._carried_tx: list[tuple[int, int]] = []
+        self._power_up(0)
+
+    def _power_up(self, cycle: int) -> None:
+        """Every FPGA block in its power-up state, on a timeline that starts at ``cycle``
+        (0 at first; a power cycle's moment after)."""
+        config = self.config
         self.timeline = Timeline(config.seed)
+        self.timeline.now = cycle
         self.blk_mem_gen_rx = BlockRam(BRAM_BYTES, "blk_mem_gen_rx")
         self.blk_mem_gen_tx = BlockRam(BRAM_BYTES, "blk_mem_gen_tx")
         self.uartcommand = UartCommand(
@@ -103,7 +119,6 @@ class Board:
         }
         # The PWM outputs are gated by global_enable in logic, before any software sees it.
         self.uartcommand.on_enable_change(self._gate_pwm)
-        self.peripherals: dict[str, Peripheral] = {}
         self._settlers: list[Callable[[int], None]] = []
         self._skippable: Callable[[], EventHandle | None] | None = None
 
@@ -146,7 +161,46 @@ class Board:
         """The cycle of the next event that may change something a host could see (an event
         known to change nothing is not counted), or ``None`` when nothing is scheduled."""
         skip = self._skippable() if self._skippable is not None else None
-        return self.timeline.next_deadline_except(skip)
+        deadline = self.timeline.next_deadline_except(skip)
+        if self._restart_at and (deadline is None or self._restart_at[0] < deadline):
+            return self._restart_at[0]
+        return deadline
+
+    # --- power ----------------------------------------------------------------------------
+
+    def schedule_power_cycle(self, cycle: int) -> None:
+        """Power-cycle the board at ``cycle`` (a brown-out, a watchdog reset of the
+        MicroBlaze, a re-flashed bitstream): see :meth:`power_cycle`."""
+        if cycle < self.now:
+            raise ValueError(f"cannot power-cycle at cycle {cycle}: the present is {self.now}")
+        self._restart_at.append(cycle)
+        self._restart_at.sort()
+
+    def power_cycle(self) -> None:
+        """The board restarts now: every FPGA block and the MicroBlaze software back to
+        their power-up state — registers, both block RAMs, the watchdog and
+        ``global_enable`` (low), the encoders' counters (0 at the wheels' present angles),
+        the timer and the board's clock (``t_us`` from 0), the message counter (``00000``)
+        and every parameter (the power-up values). The physical world goes on: a turning
+        wheel keeps turning (coasting, its PWM at 0) and the robot's body with it. Host
+        bytes the line had not finished delivering are lost; bytes the board finished
+        sending before the cut stay readable, as they reached the host's UART.
+
+        Each peripheral either carries over (the motors, the line's faults) or is replaced
+        by its power-up self (the firmware): ``power_cycled()`` returns what to attach."""
+        at = self.now
+        self._carried_tx.extend(self.uartwrite.read_completed_timed())
+        before = self.uartcommand.stats.bytes_received
+        self.uartcommand.discard_from(at)
+        self.power_cycle_rx_lost += before - self.uartcommand.stats.bytes_received
+        peripherals = self.peripherals
+        self._power_up(at)
+        self.peripherals = {}
+        self.powered_at = at
+        self.power_cycles += 1
+        for name, peripheral in peripherals.items():
+            revive = getattr(peripheral, "power_cycled", None)
+            self.add_peripheral(name, revive() if revive is not None else peripheral)
 
     # --- time -----------------------------------------------------------------------------
 
@@ -155,6 +209,13 @@ class Board:
         return self.timeline.now
 
     def run_until(self, cycle: int) -> None:
+        restarts = self._restart_at
+        while restarts and restarts[0] <= cycle:
+            at = restarts.pop(0)
+            if at > self.timeline.now:
+                self.timeline.run_until(at)
+                self.uartcommand.sync()
+            self.power_cycle()
         self.timeline.run_until(cycle)
         self.uartcommand.sync()
 
@@ -190,11 +251,19 @@ class Board:
 
     def read_host_bytes(self) -> bytes:
         """TX bytes whose stop bit has ended by now, not returned before."""
+        if self._carried_tx:
+            return bytes(b for b, _ in self._take_carried()) + self.uartwrite.read_completed()
         return self.uartwrite.read_completed()
 
     def read_host_bytes_timed(self) -> list[tuple[int, int]]:
         """As :meth:`read_host_bytes`, as ``(byte, completion cycle)`` pairs."""
+        if self._carried_tx:
+            return self._take_carried() + self.uartwrite.read_completed_timed()
         return self.uartwrite.read_completed_timed()
+
+    def _take_carried(self) -> list[tuple[int, int]]:
+        carried, self._carried_tx = self._carried_tx, []
+        return carried
 
     @property
     def global_enable(self) -> bool:

@@ -108,6 +108,12 @@ class QuadratureEncoder:
         for reader in self._readers:
             reader.count, reader.cycle, reader.speed = 0, None, 0.0
 
+    def power_up(self, angle_deg: float) -> None:
+        """The counter starts at 0 with the wheel at ``angle_deg`` (a board that powers up
+        beside a wheel that has turned before)."""
+        self._angle = angle_deg
+        self.configure(self.counts_per_turn // 10, self.direction)
+
     def _half_count(self) -> float:
         """Minus half a count in degrees (0 without an encoder)."""
         return -180.0 / self.counts_per_turn if self.counts_per_turn > 0 else 0.0

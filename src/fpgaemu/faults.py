@@ -39,15 +39,21 @@ START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
   stall=START_S:DURATION_S         the host stalls: the board hears nothing (= rx-cut)
   babble=START_S:DURATION_S        the host sends random bytes at full line rate
   drop-frames=ID:N                 lose the first N host->board frames with message ID
-  wheel-stuck=A|B[:START_S:DUR_S]  that channel's wheel is blocked (from power-up, for ever)"""
+  wheel-stuck=A|B[:START_S:DUR_S]  that channel's wheel is blocked (from power-up, for ever)
+  restart=T_S (or restart@T_S)     the board power-cycles at T_S: registers, RAM, counter,
+                                   clock and parameters back to power-up; the wheels go on
+  tm-loss=START_S:DURATION_S       the board's TM frames are lost on the way to the host
+                                   (E, PA, PN pass): a telemetry-only loss"""
 
 FAULT_KEYS = ("rx-ber", "tx-ber", "rx-drop", "tx-drop", "rx-dup", "tx-dup", "rx-noise",
               "tx-noise", "rx-stuck", "tx-stuck", "stuck", "rx-cut", "tx-cut", "disconnect",
-              "stall", "babble", "drop-frames", "wheel-stuck")
+              "stall", "babble", "drop-frames", "wheel-stuck", "restart", "tm-loss")
 
 #: The babbler refills the line this often; short enough that the line never goes idle
 #: between refills for longer than a few bytes, long enough to cost one call per refill.
 BABBLE_CHUNK_S = 0.001
+#: Times in a spec are below this (a year of emulated time): anything later is a typo.
+_LONGEST_S = 365 * 86400.0
 
 
 @dataclass
@@ -61,6 +67,10 @@ class FaultSet:
     babble: list[tuple[int, int]] = field(default_factory=list)
     #: ``(channel code, start, end)``: a blocked wheel (``end`` None: for ever)
     stuck_wheels: list[tuple[int, int, int | None]] = field(default_factory=list)
+    #: cycles at which the board power-cycles
+    restarts: list[int] = field(default_factory=list)
+    #: ``(start, end)`` cycle windows in which the board's TM frames are lost
+    tm_loss: list[tuple[int, int]] = field(default_factory=list)
 
     def line(self, which: str) -> LineFaults | None:
         """The line faults for ``"rx"`` or ``"tx"``, or ``None`` when that line is clean
@@ -71,7 +81,8 @@ class FaultSet:
     def board_faults(self) -> BoardFaults:
         """The faults that attach to a board rather than to one line."""
         return BoardFaults(drop_frames=dict(self.drop_frames), babble=list(self.babble),
-                           stuck_wheels=list(self.stuck_wheels))
+                           stuck_wheels=list(self.stuck_wheels),
+                           restarts=sorted(self.restarts), tm_loss=list(self.tm_loss))
 
 
 def parse_faults(specs: list[str]) -> FaultSet:
@@ -85,23 +96,43 @@ def parse_faults(specs: list[str]) -> FaultSet:
 @dataclass
 class BoardFaults:
     """Faults that are not a property of one line: frame drops applied at ``uartcommand``
-    (as if the line had eaten the frame) and a babbling host (``(start, end)`` cycles).
-    A board peripheral."""
+    (as if the line had eaten the frame), a babbling host (``(start, end)`` cycles),
+    blocked wheels, the board's power cycles, and its TM frames lost on the way out. A
+    board peripheral, carried over a power cycle (the faults are the world's, not the
+    board's): attached again, it re-wires what it had wired into the new blocks."""
 
     drop_frames: dict[bytes, int] = field(default_factory=dict)
     dropped: int = 0
     babble: list[tuple[int, int]] = field(default_factory=list)
     babbler: Babbler | None = None
     stuck_wheels: list[tuple[int, int, int | None]] = field(default_factory=list)
+    restarts: list[int] = field(default_factory=list)
+    tm_loss: list[tuple[int, int]] = field(default_factory=list)
+    tm_lost: int = 0  #: TM frames the tm-loss windows lost
+    _attached: bool = False
 
     def attach(self, board: Board) -> None:
+        first = not self._attached
+        self._attached = True
         if self.drop_frames:
             board.uartcommand.frame_filter = self._keep
+        if self.tm_loss:
+            board.uartsend.frame_filter = self._keep_outgoing
         if self.babble:
             self.babbler = Babbler(self.babble)
             self.babbler.attach(board)
         for channel, start, end in self.stuck_wheels:
-            self._block(board, channel, start, end)
+            if first or end is None or end > board.now:
+                self._block(board, channel, start, end)
+        if first:  # the board keeps the pending ones through its own power cycles
+            for cycle in self.restarts:
+                board.schedule_power_cycle(max(cycle, board.now))
+
+    def _keep_outgoing(self, content: bytes, cycle: int) -> bool:
+        if content[:2] == b"TM" and any(s <= cycle < e for s, e in self.tm_loss):
+            self.tm_lost += 1
+            return False
+        return True
 
     @staticmethod
     def _block(board: Board, channel: int, start: int, end: int | None) -> None:
@@ -143,7 +174,7 @@ def _window(text: str) -> tuple[int, int]:
     if not sep:
         raise ValueError
     start, duration = float(start_s), float(duration_s)
-    if start < 0 or duration < 0:
+    if not (0 <= start < _LONGEST_S and 0 <= duration < _LONGEST_S):  # NaN fails too
         raise ValueError
     first = seconds_to_cycles(start)
     return first, first + seconds_to_cycles(duration)
@@ -168,6 +199,16 @@ def parse_fault_spec(spec: str, into: FaultSet) -> None:
         elif key == "babble":
             start, end = _window(value)
             into.babble.append((start, end))
+        elif key == "restart" or key.startswith("restart@"):
+            at = key.partition("@")[2] if key != "restart" else value
+            if key != "restart" and value:
+                raise ValueError
+            restart_s = float(at)
+            if not 0 <= restart_s < _LONGEST_S:  # NaN fails too
+                raise ValueError
+            into.restarts.append(seconds_to_cycles(restart_s))
+        elif key == "tm-loss":
+            into.tm_loss.append(_window(value))
         elif key == "wheel-stuck":
             channel, _, when = value.partition(":")
             if channel not in ("A", "B"):

@@ -130,6 +130,7 @@ class Firmware:
         self.host_counter = CounterTracker()
         self._counter = SendCounter()
         self._pending_settings = dict(settings or {})
+        self._powered_at = 0  #: the cycle the board powered up: t_us counts from it
         #: (done cycle, wire bytes, tick or None) of each frame on the wire, oldest first:
         #: booked into the timing report once done (no event at a frame's end)
         self._in_flight: deque[tuple[int, int, int | None]] = deque()
@@ -151,8 +152,16 @@ class Firmware:
 
     # --- wiring ---------------------------------------------------------------------------
 
+    def power_cycled(self) -> Firmware:
+        """The software after a power cycle: started afresh with the same power-up
+        settings (what was flashed), nothing of this run's state."""
+        firmware = Firmware(self._pending_settings)
+        firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
+        return firmware
+
     def attach(self, board: Board) -> None:
         self._board = board
+        self._powered_at = board.powered_at
         axi = board.axi
         axi.on_rx_interrupt(self._on_rx)
         axi.on_global_enable(self._on_enable)
@@ -472,7 +481,8 @@ class Firmware:
         self._timing.periods += 1
         if telemetry:
             content = encode_telemetry(self._counter.take(),
-                                       (cycle // _CYCLES_PER_US) & 0xFFFF_FFFF, *samples)
+                                       ((cycle - self._powered_at) // _CYCLES_PER_US)
+                                       & 0xFFFF_FFFF, *samples)
             if self.tx.send(content, cycle):
                 self.stats.telemetry_sent += 1
             else:

@@ -360,12 +360,21 @@ class Motors:
         self._noise: Any = None
 
     def attach(self, board: Board) -> None:
+        """Wire the wheels to ``board``'s PWM stages and encoders. Attached again after a
+        power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the wheels are the same
+        ones, turning on: only the board's counters start again, from their present
+        angles."""
         self._board = board
         self._cycle = board.now
-        if self.current_noise_a > 0:
+        if self.current_noise_a > 0 and self._noise is None:
             self._noise = board.timeline.rng("hall")
         for code, io in board.channels.items():
-            self.wheels[code] = WheelPlant(self.gear)
+            wheel = self.wheels.get(code)
+            if wheel is None:
+                self.wheels[code] = WheelPlant(self.gear)
+            else:
+                io.encoder.power_up(wheel.angle_deg)
+                io.current_a = wheel.current
             io.pwm.on_change(self.advance_to)
         board.on_settle(self.advance_to)
 

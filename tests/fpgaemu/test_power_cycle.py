@@ -1,0 +1,188 @@
+"""A board that restarts (a brown-out, a watchdog reset of the MicroBlaze, a re-flashed
+bitstream): every block and the software back to power-up, the wheels and the robot's body
+going on; and the telemetry-only loss. Both on demand (``Board.power_cycle``,
+``schedule_power_cycle``) and from ``--fault`` specs."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from typing import Any
+
+import pytest
+
+from fpgaemu import build_board, ms
+from fpgaemu.board import Board
+from fpgaemu.faults import parse_faults
+from fpgaemu.robot import EmulatedRobot
+from fpgaemu.timeline import CLOCK_HZ
+from fpgalink import Connection
+from fpgalink.events import RequestDone
+from fpgalink.protocol import Alive, ParamAck, References, Telemetry, lookup
+
+
+class Host:
+    """The host's side of one board's link, run 1 ms at a time with its heartbeat."""
+
+    def __init__(self, board: Board) -> None:
+        self.board = board
+        self.link = Connection()
+        self.events: list[tuple[float, Any]] = []
+
+    def run_to(self, seconds: float) -> None:
+        board, link = self.board, self.link
+        step = round(board.now / ms(1))
+        while board.now < round(seconds * CLOCK_HZ):
+            step += 1
+            board.host_write(link.data_to_send())
+            board.run_until(ms(step))
+            now = step / 1000
+            link.receive_data(board.read_host_bytes(), now)
+            timer = link.get_timer()
+            if timer is not None and timer <= now:
+                link.handle_timer(now)
+            self.events += [(now, event) for event in link.events()]
+
+    def telemetry(self, since: float = 0.0) -> list[Telemetry]:
+        return [e for t, e in self.events if isinstance(e, Telemetry) and t >= since]
+
+
+def driven(faults: list[str] | None = None) -> Host:
+    """Telemetry on, Kp_Wheel_PidA set, enabled and driving both wheels."""
+    host = Host(build_board(faults=faults))
+    link = host.link
+    link.enable(0.0)
+    link.set_param(lookup("GetDataPeriodical"), 0, 1, 0.0)
+    link.set_param(lookup("Kp_Wheel_Pid"), 1, 400.0, 0.0)
+    link.send(References(60.0, -40.0), 0.0)
+    return host
+
+
+def test_a_power_cycle_puts_the_board_back_to_power_up_while_the_wheels_go_on() -> None:
+    host = driven()
+    host.run_to(1.0)
+    board = host.board
+    before = host.telemetry()[-1]
+    assert before.a.flags & 1 and before.a.position > 100
+    assert before.counter is not None and before.counter > 900
+    wheel = board.peripherals["motors"].wheels[1]  # type: ignore[attr-defined]
+    angle, speed = wheel.angle_deg, wheel.speed_dps
+    assert speed > 30
+
+    board.power_cycle()
+    firmware: Any = board.peripherals["firmware"]
+    assert board.power_cycles == 1 and board.powered_at == ms(1000)
+    assert not board.global_enable
+    assert firmware.value("GetDataPeriodical") == 0  # telemetry off at power-up
+    assert firmware.value("Kp_Wheel_Pid", "A") == lookup("Kp_Wheel_Pid").default
+    assert board.channels[1].encoder.position == 0  # the counter starts again...
+    assert wheel.angle_deg == angle and wheel.speed_dps == speed  # ...the wheel goes on
+
+    # The host, not knowing, goes on: its heartbeat enables the restarted board.
+    host.run_to(2.0)
+    after = [e for t, e in host.events if t > 1.0]
+    assert not any(isinstance(e, Telemetry) for e in after)  # telemetry is off now
+    alive = [t for t, e in host.events if isinstance(e, Alive) and t > 1.0]
+    assert alive and alive[0] == pytest.approx(1.3, abs=0.002)  # E 300 ms after power-up
+    assert board.global_enable  # RE re-enabled it...
+    assert firmware.channel(1).reference == 0.0  # ...with its references cleared
+    assert abs(wheel.speed_dps) < 5.0  # so its PID brings the wheel to rest
+    assert board.channels[1].encoder.position > 0  # the wheel coasted on, counted afresh
+
+    # The restarted board's clock and counter start again: t_us from 0, counter 00000.
+    host.link.set_param(lookup("GetDataPeriodical"), 0, 1, 2.0)
+    host.run_to(2.1)
+    acks = [e for t, e in host.events if isinstance(e, ParamAck) and t > 2.0]
+    assert acks and acks[0].counter == 0
+    first = host.telemetry(2.0)[0]
+    assert first.counter == 1 and first.t_us < 1_200_000 < before.t_us + 1_000_000
+    assert first.t_us == pytest.approx(1_000_000 + 1000, abs=100_000)
+
+
+def test_bytes_sent_before_the_cut_reach_the_host_and_the_hosts_pending_bytes_are_lost(
+) -> None:
+    board = build_board()
+    link = Connection()
+    link.set_param(lookup("GetDataPeriodical"), 0, 1, 0.0)
+    board.host_write(link.data_to_send())
+    board.run_until(ms(10))
+    board.host_write(b"S" + b"x" * 200 + b"P")  # 2 ms of host bytes on the line
+    board.run_until(ms(10) + ms(1) // 2)
+    board.power_cycle()
+    assert board.power_cycle_rx_lost > 100
+    data = board.read_host_bytes()  # the PA and the TMs completed before the cut
+    link.receive_data(data, 0.011)
+    events = list(link.events())
+    assert any(isinstance(e, RequestDone) for e in events)
+    assert sum(isinstance(e, Telemetry) for e in events) >= 8
+
+
+def test_restart_faults_from_specs_and_power_cycles_on_schedule() -> None:
+    assert parse_faults(["restart=0.5", "restart@1.25"]).restarts == [ms(500), ms(1250)]
+    for bad in ("restart=-1", "restart=nan", "restart=inf", "restart@1=2", "restart=",
+                "tm-loss=1", "tm-loss=nan:1"):
+        with pytest.raises(ValueError, match="bad fault spec"):
+            parse_faults([bad])
+    board = build_board(faults=["restart=0.5", "restart@1.25"])
+    first = board.next_deadline()
+    assert first is not None and first <= ms(300)
+    board.run_until(ms(2000))
+    assert board.power_cycles == 2 and board.powered_at == ms(1250)
+    # Scheduled for the future only; not again when the faults re-attach after each one.
+    board.run_until(ms(4000))
+    assert board.power_cycles == 2
+    with pytest.raises(ValueError):
+        board.schedule_power_cycle(ms(100))
+
+
+def test_a_quiet_board_wakes_for_its_restart() -> None:
+    board = build_board(faults=["restart=0.45"])
+    deadlines = []
+    while board.now < ms(1000):
+        deadline = board.next_deadline()
+        assert deadline is not None
+        deadlines.append(deadline)
+        board.run_until(deadline)
+    assert ms(450) in deadlines and board.power_cycles == 1
+
+
+def test_tm_loss_loses_only_telemetry_in_its_window() -> None:
+    host = driven(["tm-loss=0.2:0.3"])
+    host.run_to(1.0)
+    samples = host.telemetry()
+    times = [tm.t_us for tm in samples]
+    assert not [t for t in times if 200_000 < t < 499_000]
+    assert len(times) > 600
+    faults: Any = host.board.peripherals["faults"]
+    assert 295 <= faults.tm_lost <= 301
+    host.link.get_param(lookup("Kp_Wheel_Pid"), 1, 0.3)  # not reached: in the past
+    link = host.link
+    link.get_param(lookup("TsTimerPeriod"), 0, 1.0)
+    host.run_to(1.05)
+    assert any(isinstance(e, RequestDone) for _, e in host.events)
+    assert any(isinstance(e, Alive) for t, e in host.events if 0.2 < t < 0.5)
+
+
+def test_a_robot_board_restart_leaves_the_body_moving_continuously() -> None:
+    robot = EmulatedRobot(faults={"L": ["restart=0.6"]})
+    hosts = {name: Connection() for name in robot.boards}
+    for conn in hosts.values():
+        conn.enable(0.0)
+        conn.send(References(50.0, 50.0), 0.0)
+    poses = []
+    for step in range(1, 1201):
+        for name, board in robot.boards.items():
+            board.host_write(hosts[name].data_to_send())
+        robot.run_until(ms(step))
+        for name, board in robot.boards.items():
+            conn = hosts[name]
+            conn.receive_data(board.read_host_bytes(), step / 1000)
+            timer = conn.get_timer()
+            if timer is not None and timer <= step / 1000:
+                conn.handle_timer(step / 1000)
+            list(conn.events())
+        poses.append(robot.truth().pose)
+    assert robot.boards["L"].power_cycles == 1 and robot.boards["R"].power_cycles == 0
+    steps = [math.hypot(b.x - a.x, b.y - a.y) for a, b in itertools.pairwise(poses)]
+    assert max(steps) < 0.001  # never a jump: at most 1 mm in a millisecond
+    assert poses[-1].x > 0.05
