@@ -10,6 +10,13 @@ the caller passes ``now`` (seconds, any monotonic origin) wherever time matters 
 * ``get_timer()`` → when to call ``handle_timer(now)`` next;
 * ``port_lost(now, reason)`` and ``reconnected(now)`` when the transport goes and comes back.
 
+The board's real life is reported, never silent, and the connection never drives on
+blind: a restart (:class:`~fpgalink.events.BoardRestarted`) or a watchdog lapse
+(:class:`~fpgalink.events.WatchdogLapsed`) stops its heartbeat (``RD``: the caller enables
+again when it is safe), and after a restart every parameter this side had set is set
+again (:class:`~fpgalink.events.BoardResynced`); telemetry configured on that stops coming
+is :class:`~fpgalink.events.TelemetryStale`. ``docs/robot.md`` (Faults) has the table.
+
 Bad input from the board never raises: it is an :class:`~fpgalink.protocol.Event`
 (:class:`~fpgalink.protocol.Malformed`, :class:`~fpgalink.protocol.NoiseDropped`,
 :class:`~fpgalink.events.CounterGap` …) and a counter in :attr:`Connection.stats`.
@@ -35,6 +42,8 @@ from fpgalink.errors import (
 )
 from fpgalink.events import (
     BoardFound,
+    BoardRestarted,
+    BoardResynced,
     BoardSilent,
     CounterDuplicate,
     CounterGap,
@@ -42,8 +51,13 @@ from fpgalink.events import (
     EventsDropped,
     RequestDone,
     RequestFailed,
+    RestartEvidence,
+    TelemetryResumed,
+    TelemetryStale,
+    WatchdogLapsed,
 )
 from fpgalink.protocol import (
+    COUNTER_MODULUS,
     DEFAULT_FRAMING,
     FLOAT32_MAX,
     TELEMETRY_RUN_MIN,
@@ -78,6 +92,7 @@ from fpgalink.protocol import (
     encode_frame,
     encode_message,
     float32,
+    lookup,
     parse_content,
     parse_telemetry_run,
 )
@@ -111,7 +126,18 @@ _RECEIVE_SLICE = 1 << 16
 #: Events that are never dropped when the queue overflows: they settle requests or liveness.
 #: A TM frame's content bytes: runs of frames this size may be telemetry.
 _TM_SIZE = content_length(MessageId.TM)
-_KEEP_ON_OVERFLOW = (RequestDone, RequestFailed, BoardFound, BoardSilent)
+_KEEP_ON_OVERFLOW = (RequestDone, RequestFailed, BoardFound, BoardSilent, BoardRestarted,
+                     BoardResynced, WatchdogLapsed, TelemetryStale, TelemetryResumed)
+#: The board's watchdog (SPEC §6): enable falls this long after the last ``RE`` arrived.
+WATCHDOG_S = 0.3
+#: The two parameters that say whether, and how often, the board sends telemetry.
+_GET_DATA = lookup("GetDataPeriodical")
+_PERIOD = lookup("TsTimerPeriod")
+_T_US_WRAP = 1 << 32
+_WATCHDOG_US = round(WATCHDOG_S * 1e6)
+#: Before the telemetry period is known (confirmed or seen), a stream may wait this long for
+#: its first samples: the longest period the board allows.
+_LONGEST_PERIOD_S = 1.0
 
 
 class Liveness(Enum):
@@ -212,6 +238,10 @@ class LinkStats:
     echo_mismatches: int = 0  #: PA echoes with another value than the pending request's
     heartbeats_sent: int = 0
     heartbeat_misses: int = 0  #: times the board went silent past the liveness timeout
+    restarts: int = 0  #: the board restarted (or may have: out of reach, reconnected)
+    resync_failures: int = 0  #: parameters that could not be set again after a restart
+    watchdog_lapses: int = 0  #: the board's watchdog disabled it while it was meant enabled
+    telemetry_stalls: int = 0  #: telemetry configured on stopped coming
     #: references replaced by a newer one before the line had room to send them
     references_superseded: int = 0
     events_dropped: int = 0
@@ -240,6 +270,13 @@ class Connection:
     behind more than ``max_reference_delay`` of earlier bytes: a newer ``RV`` replaces one
     still waiting (only the newest reference matters) and the replacement is counted in
     :attr:`LinkStats.references_superseded`. ``None`` sends every ``RV`` at once.
+
+    ``heartbeat_give_up``: a heartbeat due when the last ``RE`` went out this long ago (the
+    caller's loop stalled) is not sent: the board's 300 ms watchdog has lapsed or is about
+    to, clearing its references, and a late ``RE`` would enable it again with none. The
+    connection sends ``RD`` instead and reports :class:`~fpgalink.events.WatchdogLapsed`.
+    ``stale_periods``: telemetry configured on (``GetDataPeriodical`` = 1 confirmed on this
+    link) and none for this many timer periods is :class:`~fpgalink.events.TelemetryStale`.
     """
 
     def __init__(
@@ -254,12 +291,21 @@ class Connection:
         request_tries: int = 8,
         max_reference_delay: float = 0.005,
         max_events: int = 65536,
+        heartbeat_give_up: float = 0.28,
+        stale_periods: int = 50,
     ) -> None:
-        if not 0 < heartbeat_interval < 0.3:
+        if not 0 < heartbeat_interval < WATCHDOG_S:
             raise ValueError(
                 f"heartbeat_interval must be below the board's 300 ms watchdog, got "
                 f"{heartbeat_interval!r} s"
             )
+        if not heartbeat_interval < heartbeat_give_up <= WATCHDOG_S:
+            raise ValueError(
+                f"heartbeat_give_up must be above the heartbeat interval and at most the "
+                f"board's 300 ms watchdog, got {heartbeat_give_up!r} s"
+            )
+        if not (isinstance(stale_periods, int) and stale_periods >= 2):
+            raise ValueError(f"stale_periods must be a whole number ≥ 2, got {stale_periods!r}")
         for name, value in (("request_timeout", request_timeout),
                             ("liveness_timeout", liveness_timeout),
                             ("max_reference_delay", max_reference_delay)):
@@ -279,6 +325,8 @@ class Connection:
         self.request_timeout = request_timeout
         self.request_tries = request_tries
         self.max_reference_delay = max_reference_delay
+        self.heartbeat_give_up = heartbeat_give_up
+        self.stale_periods = stale_periods
         self.stats = LinkStats()
         self.counter_tracker = CounterTracker()
         self.latest_telemetry: Telemetry | None = None
@@ -299,6 +347,31 @@ class Connection:
         self._held_reference: References | None = None
         self._requests: dict[int, _Request] = {}
         self._next_request_id = 1
+        #: every parameter this side set and the board confirmed, in the order first set:
+        #: the configuration it holds, set again after the board restarts
+        self.held: dict[tuple[int, int], tuple[Param, int, int | float]] = {}
+        self._last_heartbeat_at: float | None = None  #: when the last RE was queued
+        self._enable_seen = False  #: the board's telemetry showed it enabled by this link
+        self._saw_disabled = False  #: since enable(), a sample showed the board disabled
+        self._enabled_since_us: int | None = None  #: since enable(), enabled from this t_us
+        #: telemetry: on as confirmed by the board (None: not known), since when, its period
+        self._telemetry_on: bool | None = None
+        self._telemetry_since = 0.0
+        self._period: float | None = None  #: s, TsTimerPeriod as confirmed
+        self._seen_period: float | None = None  #: s, from consecutive samples' t_us
+        self._last_telemetry_at: float | None = None  #: when the last TM arrived
+        self._stale_from = -math.inf  #: missed samples count from here at the earliest
+        self._last_t_us: int | None = None
+        self.telemetry_stale = False  #: configured on, and not arriving
+        self._probe: int | None = None  #: the request asking a stale board for its setting
+        #: a restart's resync: what is still to set, the request in flight, the outcome
+        self._resync: deque[tuple[Param, int, int | float]] | None = None
+        self._resync_request: int | None = None
+        self._resync_applied = 0
+        self._resync_failed: list[tuple[str, FpgalinkError]] = []
+        #: the board was out of reach: when heard again, it may have restarted
+        self._out_of_reach: tuple[RestartEvidence, float] | None = None
+        self._last_duplicate: int | None = None
 
     # --- receiving ------------------------------------------------------------------------
 
@@ -362,12 +435,13 @@ class Connection:
         first = counters[0]
         if (counters == list(range(first, first + n))
                 and self.counter_tracker.observe_in_order(first, n)):
+            if self.enabled:
+                self._watch_enable(telemetry, now)
             self._events.extend(telemetry)
+            self._telemetry_arrived(telemetry[0], telemetry[-1], now)
         else:
-            append = self._events.append
-            for msg, counter in zip(telemetry, counters, strict=True):
-                self._count(counter)
-                append(msg)
+            for msg in telemetry:
+                self._one_telemetry(msg, now)
         stats = self.stats
         stats.frames_received += n
         stats.messages_received += n
@@ -375,11 +449,106 @@ class Connection:
         self.latest_telemetry = telemetry[-1]
         return True
 
-    def _count(self, counter: int) -> None:
+    def _one_telemetry(self, msg: Telemetry, now: float) -> None:
+        """A TM off the in-order fast path: its counter and clock judged, in stream order."""
+        counter = msg.counter
+        assert counter is not None
         tracker = self.counter_tracker
-        if not tracker.observe_in_order(counter):
-            # anything else, the wrap included, is the tracker's to judge
-            self._counter_event(tracker.observe(counter), counter)
+        last_t_us = self._last_t_us
+        if tracker.observe_in_order(counter):
+            pass
+        elif (last_t_us is not None
+                and 0 < (last_t_us - msg.t_us) % _T_US_WRAP < _T_US_WRAP // 2):
+            # Its clock went back and its counter broke the sequence with it: a restarted
+            # board (a damaged t_us alone comes with the counter in order).
+            self._restarted(RestartEvidence.CLOCK_BACKWARDS,
+                            f"t_us {msg.t_us} after {last_t_us}, counter {counter:05d} "
+                            f"where {tracker.expected:05d} was expected", now)
+            tracker.observe(counter)
+        else:
+            self._count_out_of_order(counter, now)
+        if self.enabled:
+            self._watch_enable((msg,), now)
+        self._events.append(msg)
+        self._telemetry_arrived(msg, msg, now)
+
+    def _telemetry_arrived(self, first: Telemetry, last: Telemetry, now: float) -> None:
+        """Samples ``first`` … ``last`` (in counter order) arrived at ``now``: the stream's
+        clock, its period as seen, and the end of a stale spell."""
+        previous = self._last_t_us
+        if self._seen_period is None and previous is not None and last is not first:
+            # Consecutive counters: their t_us apart is one period.
+            span = (last.t_us - first.t_us) % _T_US_WRAP
+            count = ((last.counter or 0) - (first.counter or 0)) % COUNTER_MODULUS
+            if count and span:
+                self._seen_period = span / count / 1e6
+        elif self._seen_period is None and previous is not None:
+            span = (last.t_us - previous) % _T_US_WRAP
+            if 0 < span < _T_US_WRAP // 2:
+                self._seen_period = min(span / 1e6, _LONGEST_PERIOD_S)
+        self._last_t_us = last.t_us
+        if self.telemetry_stale:
+            self.telemetry_stale = False
+            gap = now - (self._last_telemetry_at or self._telemetry_since)
+            self._events.append(TelemetryResumed(gap))
+        self._last_telemetry_at = now
+
+    def _watch_enable(self, samples: Any, now: float) -> None:
+        """The link keeps the board enabled. Once its telemetry has shown it enabled by this
+        link's ``RE``, a sample showing it disabled means the board disabled itself.
+
+        Shown enabled by this link: samples still on the way when ``enable()`` was called
+        may show it enabled from before an ``RD`` (then disabled, then enabled): so it is a
+        rise from disabled to enabled, or enabled samples spanning the watchdog's 300 ms of
+        board time (no earlier enable outlives that without this link's ``RE``)."""
+        if self._enable_seen:
+            for sample in samples:
+                if not sample.a.flags & 1:
+                    self._lapse(now, None, "its telemetry shows it disabled after it was "
+                                "enabled, while this host kept sending RE: the RE came more "
+                                "than 300 ms apart at the board, or an RD came from "
+                                "elsewhere")
+                    return
+            return
+        for index, sample in enumerate(samples):
+            if not sample.a.flags & 1:
+                self._saw_disabled = True
+                self._enabled_since_us = None
+            elif self._saw_disabled:
+                self._enable_seen = True
+            elif self._enabled_since_us is None:
+                self._enabled_since_us = sample.t_us
+            elif (sample.t_us - self._enabled_since_us) % _T_US_WRAP >= _WATCHDOG_US:
+                self._enable_seen = True
+            if self._enable_seen:
+                self._watch_enable(samples[index + 1:], now)
+                return
+
+    def _count(self, counter: int, now: float) -> None:
+        if not self.counter_tracker.observe_in_order(counter):
+            self._count_out_of_order(counter, now)
+
+    def _count_out_of_order(self, counter: int, now: float) -> None:
+        """Anything but the expected counter, the wrap included, is the tracker's to judge;
+        a sequence starting again is a restart, not copies."""
+        tracker = self.counter_tracker
+        expected = tracker.expected
+        observation = tracker.observe(counter)
+        if observation is Observation.DUPLICATE:
+            previous, self._last_duplicate = self._last_duplicate, counter
+            run = previous == (counter - 1) % COUNTER_MODULUS
+            if counter == 0 or run:
+                # Back to 00000, or counting on from behind: a new sequence, not copies.
+                tracker.duplicates -= 1 + run
+                self.stats.duplicates -= run
+                self._restarted(RestartEvidence.COUNTER_RESET,
+                                f"counter {counter:05d} where {expected:05d} was expected",
+                                now)
+                tracker.observe(counter)
+                return
+        else:
+            self._last_duplicate = None
+        self._counter_event(observation, counter)
 
     def _each(self, items: list[bytes | FramingError], now: float) -> None:
         """Items one at a time: framing errors, and frames through ``parse_content``."""
@@ -408,8 +577,9 @@ class Connection:
                 found = True
             if type(msg) is Telemetry:
                 telemetry += 1
+                self._one_telemetry(msg, now)
                 latest = msg
-                counter = msg.counter
+                continue
             elif isinstance(msg, DirectCommand):
                 if type(msg) is Alive:
                     stats.alive_received += 1
@@ -421,10 +591,10 @@ class Connection:
                     self._answer(msg, now)
             counted += 1
             assert counter is not None
-            self._count(counter)
+            self._count(counter, now)
             append(msg)
         stats.frames_received += frames
-        stats.messages_received += counted
+        stats.messages_received += counted + telemetry
         if telemetry:
             stats.telemetry_received += telemetry
             self.latest_telemetry = latest
@@ -540,13 +710,18 @@ class Connection:
         self._liveness_origin = now
 
     def enable(self, now: float) -> None:
-        """Send ``RE`` now and every ``heartbeat_interval`` until :meth:`disable`."""
+        """Send ``RE`` now and every ``heartbeat_interval`` until :meth:`disable` (or until
+        the board restarts or its watchdog lapses: then enable again)."""
+        if not self.enabled:
+            self._enable_seen = self._saw_disabled = False
+            self._enabled_since_us = None
         self.enabled = True
         self._heartbeat(now)
 
     def disable(self, now: float) -> None:
         """Stop the heartbeat and send ``RD`` (the board drops enable at once)."""
         self.enabled = False
+        self._enable_seen = False
         self._next_heartbeat = None
         if self._port_up:
             self._queue(_DISABLE, now)
@@ -555,11 +730,114 @@ class Connection:
         if self._port_up:
             self._queue(_ENABLE, now)
             self.stats.heartbeats_sent += 1
+            self._last_heartbeat_at = now
         self._next_heartbeat = now + self.heartbeat_interval
+
+    def _lapse(self, now: float, host_silent_for: float | None, detail: str) -> None:
+        """The board is (or is about to be) disabled by its watchdog while meant enabled:
+        stop keeping it enabled, make it definite with ``RD``, and say so."""
+        self.disable(now)
+        self.stats.watchdog_lapses += 1
+        self._events.append(WatchdogLapsed(host_silent_for, detail))
 
     def _found(self, now: float) -> None:
         self.liveness = Liveness.ALIVE
         self._events.append(BoardFound())
+        if self._out_of_reach is not None:
+            evidence, since = self._out_of_reach
+            self._out_of_reach = None
+            where = (", on the reconnected port"
+                     if evidence is RestartEvidence.PORT_RECONNECTED else "")
+            self._restarted(evidence, f"heard again after {now - since:.3f} s of silence"
+                            + where, now)
+
+    # --- the board's restarts ---------------------------------------------------------------
+
+    def _restarted(self, evidence: RestartEvidence, detail: str, now: float) -> None:
+        """The board restarted (or may have): it runs its power-up state — disabled,
+        telemetry off, parameters at their power-up values, counters from 0. Stop keeping
+        it enabled, follow its new counter sequence, and set again what this side holds."""
+        self.stats.restarts += 1
+        self._events.append(BoardRestarted(evidence, detail))
+        self.counter_tracker.reset()
+        self._last_duplicate = None
+        if self.enabled:
+            self.disable(now)
+        self._enable_seen = False
+        self.latest_telemetry = None
+        self._last_t_us = None
+        self._telemetry_on = None
+        self._period = self._seen_period = None
+        self.telemetry_stale = False
+        self._probe = None
+        # Telemetry last, so the stream comes back from a board configured as before.
+        settings = sorted(self.held.values(), key=lambda held: held[0] is _GET_DATA)
+        self._resync = deque(settings)
+        self._resync_request = None
+        self._resync_applied = 0
+        self._resync_failed = []
+        self._resync_next(now)
+
+    def _resync_next(self, now: float) -> None:
+        """Set the next held parameter again (one at a time: the board's RX RAM holds two
+        frames), or report the resync done."""
+        queue = self._resync
+        if queue is None:
+            return
+        if queue:
+            param, channel, value = queue.popleft()
+            self._resync_request = self.set_param(param, channel, value, now)
+            return
+        self._resync = self._resync_request = None
+        failed = tuple(self._resync_failed)
+        self.stats.resync_failures += len(failed)
+        self._events.append(BoardResynced(self._resync_applied, failed))
+
+    def hold(self, param: Param, channel: int, value: int | float) -> None:
+        """Keep ``value`` (the board's, as read) as this side's configuration for
+        ``param``: set again after the board restarts, as a value set here would be."""
+        self.held.setdefault((param.id, channel), (param, channel, value))
+
+    @property
+    def resyncing(self) -> bool:
+        """The board restarted and the configuration this side holds is being set again."""
+        return self._resync is not None
+
+    # --- telemetry expected ---------------------------------------------------------------
+
+    def _confirmed(self, param: Param, channel: int, value: int | float, now: float) -> None:
+        """The board says ``value`` is in force for ``param``: follow what the telemetry
+        stream should be."""
+        if param is _GET_DATA:
+            on = value == 1
+            if on and not self._telemetry_on:
+                self._telemetry_since = now
+            self._telemetry_on = on
+            if not on:
+                self.telemetry_stale = False
+        elif param is _PERIOD and isinstance(value, int) and value > 0:
+            self._period = value / 1000
+
+    def _stale_window(self) -> tuple[float, float] | None:
+        """(since when telemetry has been missed, how long it may be), while expected."""
+        if not self._telemetry_on or self.telemetry_stale or not self._port_up:
+            return None
+        last = self._last_telemetry_at
+        since = max(self._telemetry_since, self._stale_from,
+                    last if last is not None else -math.inf)
+        period = self._period or self._seen_period
+        if period is None:  # not known yet: any period the board allows, then as for 1 ms
+            return since, _LONGEST_PERIOD_S + self.stale_periods * 0.001
+        return since, self.stale_periods * period
+
+    def _stale_deadline(self) -> float | None:
+        window = self._stale_window()
+        return None if window is None else window[0] + window[1]
+
+    @property
+    def telemetry_period(self) -> float | None:
+        """The board's telemetry period, s, as confirmed or as seen (``None``: not known)."""
+        return self._period or self._seen_period
 
     def get_timer(self) -> float | None:
         """The next time :meth:`handle_timer` has work to do, or ``None``."""
@@ -571,6 +849,9 @@ class Connection:
             deadlines.append(silence)
         if self._held_reference is not None:
             deadlines.append(self._line_free_at - self.max_reference_delay)
+        stale = self._stale_deadline()
+        if stale is not None:
+            deadlines.append(stale)
         return min(deadlines) if deadlines else None
 
     def _silence_deadline(self) -> float | None:
@@ -581,7 +862,13 @@ class Connection:
 
     def handle_timer(self, now: float) -> None:
         if self._next_heartbeat is not None and now >= self._next_heartbeat:
-            self._heartbeat(now)
+            last = self._last_heartbeat_at
+            if self.enabled and last is not None and now - last >= self.heartbeat_give_up:
+                # Overdue past the board's watchdog: the caller stalled. Supervision
+                # decides what happens next, not a late RE.
+                self._lapse(now, now - last, f"this host sent no RE for {now - last:.3f} s")
+            else:
+                self._heartbeat(now)
         held = self._held_reference
         if held is not None and self._line_free_at - now <= self.max_reference_delay:
             self._held_reference = None
@@ -593,10 +880,28 @@ class Connection:
             self.liveness = Liveness.LOST
             self.stats.heartbeat_misses += 1
             self._events.append(BoardSilent(now - origin))
+            self._out_of_reach = (RestartEvidence.HEARD_AFTER_SILENCE, origin)
             self._settle_all(BoardLost(f"board silent for {now - origin:.3f} s"))
         for request in list(self._requests.values()):
             if now >= request.deadline:
                 self._settle(request, Answer.NO_ANSWER, now)
+        window = self._stale_window()
+        if window is not None and now >= window[0] + window[1]:
+            since, limit = window
+            if now - (since + limit) > limit / 2:
+                # This host's own timer came late: it was not running when the samples
+                # were due, and cannot tell a board that stopped from samples it had no
+                # chance to read (or, from an emulator starved with it, no chance to be
+                # made). Half a window of its own running time decides.
+                self._stale_from = now - limit / 2
+                return
+            self.telemetry_stale = True
+            self.stats.telemetry_stalls += 1
+            self._events.append(TelemetryStale(now - since, self.telemetry_period or 0.001))
+            if self._probe is None and self._resync is None and self.liveness is Liveness.ALIVE:
+                # Ask the board what it has: a restart shows as telemetry off (and as its
+                # counter back at 00000 on the answer).
+                self._probe = self.get_param(_GET_DATA, 0, now)
 
     # --- the port -------------------------------------------------------------------------
 
@@ -605,15 +910,26 @@ class Connection:
         :meth:`reconnected`."""
         self.stats.port_losses += 1
         self._port_up = False
+        if self.liveness is not Liveness.LOST:
+            self._out_of_reach = (RestartEvidence.PORT_RECONNECTED, now)
+        elif self._out_of_reach is not None:
+            self._out_of_reach = (RestartEvidence.PORT_RECONNECTED, self._out_of_reach[1])
         self.liveness = Liveness.LOST
+        # No heartbeat can reach the board: its watchdog lapses. Nothing enables it again
+        # by itself when the port comes back; the caller decides.
+        self.enabled = False
+        self._enable_seen = False
+        self._next_heartbeat = None
         self._outbox.clear()
         self._held_reference = None
         self._settle_all(BoardLost(reason))
 
     def reconnected(self, now: float) -> None:
         """A new transport to the board: the stream starts afresh (the board may have
-        restarted, so its counter need not continue ours), liveness is judged anew from
-        ``now``, and an enabled link sends ``RE`` at once."""
+        restarted, so its counter need not continue ours) and liveness is judged anew from
+        ``now``. The link was disabled when the port went: when the board is heard again
+        it is taken as restarted (:class:`~fpgalink.events.BoardRestarted`), what this
+        side holds is set again, and the caller enables again when it is safe."""
         self.stats.reconnects += 1
         self._port_up = True
         self.counter_tracker.reset()
@@ -622,8 +938,6 @@ class Connection:
         self._last_heard = None
         self._liveness_origin = now
         self._line_free_at = now
-        if self.enabled:
-            self._heartbeat(now)
 
     def close(self, now: float) -> None:
         """Stop the heartbeat (queueing ``RD`` if enabled) and fail pending requests with
@@ -692,6 +1006,7 @@ class Connection:
             assert isinstance(msg, ParamAck)
             self._events.append(RequestDone(request.request_id, request.param, request.channel,
                                             msg.value, request.tries))
+            self._done(request, msg.value, now)
             return
         if outcome is Outcome.FAIL_REFUSED:
             assert isinstance(msg, ParamNack)
@@ -711,10 +1026,38 @@ class Connection:
         assert error is not None
         self._events.append(RequestFailed(request.request_id, request.param, request.channel,
                                           error, request.tries))
+        if request.request_id == self._probe:
+            self._probe = None
+        if request.request_id == self._resync_request:
+            if outcome is Outcome.FAIL_LINK:
+                self._resync = self._resync_request = None  # again when the board is back
+            else:
+                self._resync_failed.append((request.param.full_name(request.channel), error))
+                self._resync_next(now)
+
+    def _done(self, request: _Request, value: int | float, now: float) -> None:
+        """A request confirmed ``value``: the configuration held, the telemetry expected,
+        a probe's answer, the resync's next step."""
+        param, channel = request.param, request.channel
+        if request.value is not None:
+            # Keys keep their first place: the order the configuration was built in.
+            self.held[(param.id, channel)] = (param, channel, value)
+        self._confirmed(param, channel, value, now)
+        if request.request_id == self._probe:
+            self._probe = None
+            held = self.held.get((param.id, channel))
+            if held is not None and held[2] != value:
+                self._restarted(RestartEvidence.CONFIG_LOST,
+                                f"{param.full_name(channel)} reads {value} on the board; "
+                                f"this host set {held[2]}", now)
+        elif request.request_id == self._resync_request:
+            self._resync_applied += 1
+            self._resync_next(now)
 
     def _settle_all(self, error: FpgalinkError) -> None:
         for request in list(self._requests.values()):
             self._settle(request, Answer.LINK_DOWN, 0.0, error=error)
+        self._probe = None
 
     @property
     def pending_requests(self) -> int:

@@ -9,11 +9,20 @@ request's outcome, and events dropped because nobody drained them.
 
 Order is stream order, with one rule: :class:`BoardFound` comes *before* the message that
 revealed the board, so a consumer knows the board is there when it sees the message.
+
+The board's real life, each reported, never silent: :class:`BoardRestarted` (its counter
+back to ``00000``, its clock going backwards, a parameter the host set found at another
+value, or the board heard again after a silence or a reconnection) and then
+:class:`BoardResynced` once the configuration the host holds is applied again;
+:class:`WatchdogLapsed` (the board's 300 ms watchdog disabled it while the host meant it
+enabled); :class:`TelemetryStale` and :class:`TelemetryResumed` (telemetry configured on
+and none arriving).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import Enum
 
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import (
@@ -32,7 +41,10 @@ from fpgalink.protocol import (
 
 __all__ = [
     "Alive",
+    "BoardFault",
     "BoardFound",
+    "BoardRestarted",
+    "BoardResynced",
     "BoardSilent",
     "CountedMessage",
     "CounterDuplicate",
@@ -48,7 +60,11 @@ __all__ = [
     "ParamNack",
     "RequestDone",
     "RequestFailed",
+    "RestartEvidence",
     "Telemetry",
+    "TelemetryResumed",
+    "TelemetryStale",
+    "WatchdogLapsed",
 ]
 
 
@@ -113,3 +129,99 @@ class RequestFailed(Event):
     channel: int
     error: FpgalinkError
     tries: int
+
+
+@dataclass(frozen=True, slots=True)
+class BoardFault(Event):
+    """The base of the events about the board's real life: each says what happened in one
+    line (:meth:`describe`), for a log, a CLI message or ROS diagnostics."""
+
+    def describe(self) -> str:
+        raise NotImplementedError
+
+
+class RestartEvidence(Enum):
+    """What showed that the board restarted (or may have: it was out of reach)."""
+
+    COUNTER_RESET = "its message counter went back"
+    CLOCK_BACKWARDS = "its clock (t_us) went backwards"
+    CONFIG_LOST = "a parameter this host set reads back at another value"
+    HEARD_AFTER_SILENCE = "it was heard again after a silence"
+    PORT_RECONNECTED = "its port was reconnected"
+
+
+@dataclass(frozen=True, slots=True)
+class BoardRestarted(BoardFault):
+    """The board restarted (power-up state: disabled, telemetry off, parameters at their
+    power-up values, counters from 0), or was out of reach long enough that it may have.
+    The connection has stopped its heartbeat (and sent ``RD``): enable again when ready.
+    It applies the configuration it holds again; :class:`BoardResynced` follows."""
+
+    evidence: RestartEvidence
+    detail: str
+
+    def describe(self) -> str:
+        return f"restarted: {self.evidence.value} ({self.detail})"
+
+
+@dataclass(frozen=True, slots=True)
+class BoardResynced(BoardFault):
+    """After a restart, every parameter this host had set on the board (confirmed) was
+    set again: ``applied`` of them confirmed; ``failed`` names the others with the reason.
+    Until this event the board runs its power-up configuration."""
+
+    applied: int
+    failed: tuple[tuple[str, FpgalinkError], ...] = ()
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+    def describe(self) -> str:
+        if self.ok:
+            return f"reconfigured: {self.applied} parameter(s) set again and confirmed"
+        what = "; ".join(f"{name}: {error}" for name, error in self.failed)
+        return f"reconfiguring failed: {what}"
+
+
+@dataclass(frozen=True, slots=True)
+class WatchdogLapsed(BoardFault):
+    """The board's watchdog disabled it (its references cleared to 0) while this host
+    meant it enabled, so the connection stopped its heartbeat and sent ``RD``: enable again
+    to go on. Either the host's own heartbeat was overdue (``host_silent_for``: seconds
+    since its last ``RE``, e.g. a stalled process), or the board's telemetry showed it
+    disabled after it had shown it enabled (``host_silent_for`` is ``None``)."""
+
+    host_silent_for: float | None
+    detail: str
+
+    def describe(self) -> str:
+        if self.host_silent_for is not None:
+            return (f"disabled itself (watchdog: host silent "
+                    f"{self.host_silent_for * 1000:.0f} ms)")
+        return f"disabled itself ({self.detail})"
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryStale(BoardFault):
+    """Telemetry is configured on (``GetDataPeriodical`` = 1, confirmed), and none has come
+    for ``silent_for`` seconds: more than the connection's limit of periods of
+    ``period`` seconds."""
+
+    silent_for: float
+    period: float
+
+    def describe(self) -> str:
+        return (f"telemetry stopped: none for {self.silent_for * 1000:.0f} ms "
+                f"({self.silent_for / self.period:.0f} periods of {self.period * 1000:g} ms)")
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryResumed(BoardFault):
+    """Telemetry came again after :class:`TelemetryStale`, ``gap`` seconds after the last
+    sample before it."""
+
+    gap: float
+
+    def describe(self) -> str:
+        return f"telemetry resumed ({self.gap * 1000:.0f} ms after the last sample)"

@@ -196,8 +196,14 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
             await next_event(events, {LinkEventKind.PORT_RESTORED}, 5.0)
             assert link.state is LinkState.CONNECTED  # type: ignore[comparison-overlap]
             samples.close()
-            # Telemetry flows again, and the heartbeat (resumed by the link) enabled the
-            # new board.
+            # The new server is a new board: the link reports it restarted (on the
+            # reconnected port), and did not enable it by itself.
+            restart = await next_event(events, {LinkEventKind.BOARD_RESTARTED}, PATIENCE)
+            assert "reconnected port" in restart.detail
+            await next_event(events, {LinkEventKind.BOARD_RESYNCED}, PATIENCE)
+            assert not link.enabled
+            # Telemetry flows again; enabled again by the caller, the new board runs.
+            link.enable()
             result = await stream(link, 500)
             result.check_accounting(PERIOD_US)
             assert result.missing == 0  # over TCP nothing is lost, however slow the host

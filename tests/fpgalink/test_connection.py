@@ -25,12 +25,15 @@ from fpgalink import (
 from fpgalink.connection import REQUEST_TABLE, Answer, Liveness, Outcome
 from fpgalink.events import (
     BoardFound,
+    BoardRestarted,
+    BoardResynced,
     BoardSilent,
     CounterDuplicate,
     CounterGap,
     EventsDropped,
     RequestDone,
     RequestFailed,
+    RestartEvidence,
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
@@ -223,8 +226,14 @@ def test_liveness_lost_then_found() -> None:
     assert len(events) == 1 and isinstance(events[0], BoardSilent)
     assert events[0].silent_for == pytest.approx(0.7)
     assert host.stats.heartbeat_misses == 1
+    # Heard again after a silence: it may have restarted. Nothing was held, so the resync
+    # is done at once.
     host.receive_data(board_bytes(Alive()), now=1.0)
-    assert drain(host) == [BoardFound(), Alive()]
+    assert drain(host) == [
+        BoardFound(),
+        BoardRestarted(RestartEvidence.HEARD_AFTER_SILENCE,
+                       "heard again after 0.900 s of silence"),
+        BoardResynced(0), Alive()]
 
 
 # --- the request table ------------------------------------------------------------------------
@@ -454,15 +463,17 @@ def test_port_lost_then_reconnected_owns_what_a_replug_resets() -> None:
     assert host.liveness is Liveness.LOST and host.stats.port_losses == 1
     host.handle_timer(0.3)  # no heartbeat onto a port that is gone
     assert host.data_to_send() == b""
+    assert not host.enabled  # nothing could keep the board enabled: its watchdog lapsed
     host.reconnected(1.0)
-    # An enabled link says RE at once; the board may have restarted: its counter starts
+    # Nothing enables the board again by itself. It may have restarted: its counter starts
     # over without a gap, and the half frame from before is gone.
-    assert host.data_to_send() == b"SREP"
+    assert host.data_to_send() == b""
     liveness: Liveness = host.liveness
     assert host.stats.reconnects == 1 and liveness is Liveness.UNKNOWN
     host.receive_data(board_bytes(tm(0)), now=1.01)
-    assert [type(e) for e in drain(host)] == [BoardFound, Telemetry]
-    assert host.stats.lost == 0 and host.stats.duplicates == 0
+    assert [type(e) for e in drain(host)] == [BoardFound, BoardRestarted, BoardResynced,
+                                              Telemetry]
+    assert host.stats.lost == 0 and host.stats.duplicates == 0 and host.stats.restarts == 1
     # Silence on the new port is judged from the replug on: lost 0.5 s after the last
     # message, not at once for the time the port was gone.
     host.disable(1.02)

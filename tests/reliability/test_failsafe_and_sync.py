@@ -12,7 +12,7 @@ from fpgaemu.board import Board
 from fpgaemu.timeline import CLOCK_HZ, seconds_to_cycles
 from fpgaemu.uartcommand import EnableChange
 from fpgalink import Connection, RequestTimeout
-from fpgalink.events import RequestDone, RequestFailed
+from fpgalink.events import RequestDone, RequestFailed, WatchdogLapsed
 from fpgalink.protocol import References
 from fpgalink.protocol.catalogue import Telemetry
 from fpgalink.protocol.params import PARAMETERS, ParamType, Scope, float32
@@ -24,6 +24,9 @@ WATCHDOG_S = 0.3
 
 
 def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
+    """And a host that comes back after its board's watchdog lapsed says so and keeps the
+    board disabled: its late heartbeat is not sent (RD instead), never re-enabling a board
+    whose references were cleared."""
     trials = scale(100, 100)
     rnd = random.Random(2024)
     gaps: list[float] = []
@@ -51,7 +54,7 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
         assert rig.board.global_enable and not falls
         speed_before = abs(rig.wheel(1).speed_dps)
         assert speed_before > 30.0
-        stall_s = rnd.choice([rnd.uniform(0.05, 0.18), rnd.uniform(0.35, 2.0), float("inf")])
+        stall_s = rnd.choice([rnd.uniform(0.05, 0.17), rnd.uniform(0.35, 2.0), float("inf")])
         rig.host_alive = False
         last_re = max(end for end, data in rig.writes if data.endswith(b"SREP"))
         if stall_s == float("inf") or stall_s > WATCHDOG_S:
@@ -64,8 +67,21 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
             if stall_s > 1.5:
                 # The wheels coast down once the PWM is off (plant time constant ≈ 0.24 s).
                 assert abs(rig.wheel(1).speed_dps) < 0.05 * speed_before
+            # The host comes back: it reports the lapse and sends RD, never a late RE.
+            seen: list[object] = []
+            writes_before = len(rig.writes)
+            rig.host_alive = True
+            rig.run(0.3, seen.append)
+            resumed = [data for _, data in rig.writes[writes_before:]]
+            assert resumed and resumed[0].startswith(b"SRDP"), resumed[:2]
+            assert not any(b"SREP" in data for data in resumed)
+            (lapse,) = [e for e in seen if isinstance(e, WatchdogLapsed)]
+            assert lapse.host_silent_for is not None and lapse.host_silent_for >= 0.28
+            assert not rig.conn.enabled
+            assert not rig.board.global_enable
         else:
-            # Shorter than the watchdog minus a heartbeat: the board never notices.
+            # Shorter than the host's give-up (the watchdog less a margin) minus a heartbeat:
+            # the board never notices.
             rig.run(stall_s)
             rig.host_alive = True
             rig.run(0.5)

@@ -8,10 +8,12 @@ the tests skip, unless ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a fai
 
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
 import math
 import os
+import signal
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -61,8 +63,9 @@ class Scenario:
             command = ["sh", "-c", f"{sys.executable} -m fpgalink.ros2 & node=$!; "
                        f"{sys.executable} {example}; rc=$?; kill -INT $node; wait $node; "
                        "echo node exit $?; exit $rc"]
+        # A session of its own: a timeout kills the peer with everything it started.
         self.proc = subprocess.Popen(
-            [str(NETNS), *command], cwd=ROOT, env=env,
+            [str(NETNS), *command], cwd=ROOT, env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self._checks: dict[str, dict[str, Any]] | None = None
         self.output = ""
@@ -72,7 +75,7 @@ class Scenario:
             try:
                 self.output, _ = self.proc.communicate(timeout=SCENARIO_TIMEOUT_S)
             except subprocess.TimeoutExpired:
-                self.proc.kill()
+                self.kill()
                 self.output, _ = self.proc.communicate()
                 pytest.fail(f"peer {self.name} ran over {SCENARIO_TIMEOUT_S} s:\n{self.output}")
             self._checks = {}
@@ -83,6 +86,10 @@ class Scenario:
                     facts = json.loads(line)
                     self._checks[facts.pop("check")] = facts
         return self._checks
+
+    def kill(self) -> None:
+        with contextlib.suppress(ProcessLookupError):
+            os.killpg(self.proc.pid, signal.SIGKILL)
 
     def check(self, name: str) -> dict[str, Any]:
         checks = self.checks()
@@ -96,9 +103,8 @@ def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Sc
     running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs")}
     yield running
     for scenario in running.values():
-        if scenario.proc.poll() is None:
-            scenario.proc.kill()
-            scenario.proc.wait()
+        scenario.kill()  # whatever it started too, finished or not
+        scenario.proc.wait()
 
 
 def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
@@ -158,6 +164,7 @@ def test_enable_silence_stops_the_wheels(scenarios: dict[str, Scenario]) -> None
         assert stopped["disabled_s"] > driven["now_s"]
         assert 0 <= stopped["disabled_s"] - stopped["last_re_s"] <= 0.3
     # The node's deadman is 0.5 s: never sooner than that after the last `true`.
+    assert "deadman" in facts["reason"]
     assert facts["host_wait_s"] >= 0.45
 
 

@@ -5,6 +5,7 @@ second, the same way on a busy machine as on an idle one."""
 
 from __future__ import annotations
 
+import random
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -35,17 +36,23 @@ class RobotSim:
     wheels: tuple[float, float] | None = None
     #: per-board hooks called with each telemetry sample
     on_telemetry: list[Callable[[str, Telemetry], None]] = field(default_factory=list)
+    #: the host receives board R's samples one step late at random (seeded), as two ports
+    #: read in turn do: odometry then pairs samples up to a period apart
+    arrival_jitter: random.Random | None = None
+    _held: list[Telemetry] = field(default_factory=list)
 
     @classmethod
     def make(cls, surface: str = "ideal", description: RobotDescription | None = None,
              odometry_surface: str | None = None, faults: dict[str, list[str]] | None = None,
-             pose: Pose | None = None) -> RobotSim:
+             pose: Pose | None = None, arrival_jitter_seed: int | None = None) -> RobotSim:
         description = (description or seed_robot()).on_surface(surface)
         robot = EmulatedRobot(description, faults=faults)
         if pose is not None:
             robot.body.pose = pose
         odometry = Odometry(description, description.kinematics(odometry_surface), pose)
         sim = cls(robot, description, odometry)
+        if arrival_jitter_seed is not None:
+            sim.arrival_jitter = random.Random(arrival_jitter_seed)
         for name in robot.boards:
             conn = Connection()
             conn.start(0.0)
@@ -108,11 +115,15 @@ class RobotSim:
             self.robot.run_until(ms(self.now_ms))
             for name, conn in self.conns.items():
                 conn.receive_data(self.robot.boards[name].read_host_bytes(), self.now)
-                for event in conn.events():
-                    if isinstance(event, Telemetry):
-                        self.odometry.update(name, event)
-                        for hook in self.on_telemetry:
-                            hook(name, event)
+                samples = [e for e in conn.events() if isinstance(e, Telemetry)]
+                if self.arrival_jitter is not None and name == "R":
+                    samples, self._held = self._held + samples, []
+                    if samples and self.arrival_jitter.random() < 0.5:
+                        self._held = [samples.pop()]
+                for event in samples:
+                    self.odometry.update(name, event)
+                    for hook in self.on_telemetry:
+                        hook(name, event)
 
     def go_to(self, x: float, y: float, theta: float | None = None,
               settings: GoToSettings | None = None, limit_s: float = 60.0) -> GoTo:

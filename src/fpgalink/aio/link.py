@@ -23,7 +23,18 @@ from typing import Any, Generic, NamedTuple, TypeVar
 from fpgalink.aio.transport import READ_CHUNK, ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.events import BoardFound, BoardSilent, RequestDone, RequestFailed
+from fpgalink.events import (
+    BoardFault,
+    BoardFound,
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    RequestDone,
+    RequestFailed,
+    TelemetryResumed,
+    TelemetryStale,
+    WatchdogLapsed,
+)
 from fpgalink.protocol import (
     DEFAULT_FRAMING,
     CountedMessage,
@@ -73,6 +84,15 @@ class LinkState(Enum):
 class LinkEventKind(Enum):
     BOARD_LOST = "board_lost"  #: no well-formed message for ``liveness_timeout``
     BOARD_FOUND = "board_found"
+    #: the board restarted (or may have); the link stopped enabling it and sets again what
+    #: it holds (:class:`~fpgalink.events.BoardRestarted`)
+    BOARD_RESTARTED = "board_restarted"
+    #: after a restart, what the link holds is set again (detail: what failed, if anything)
+    BOARD_RESYNCED = "board_resynced"
+    #: the board's watchdog disabled it; the link stopped enabling it
+    WATCHDOG_LAPSED = "watchdog_lapsed"
+    TELEMETRY_STALE = "telemetry_stale"  #: configured on, and not arriving
+    TELEMETRY_RESUMED = "telemetry_resumed"
     PORT_LOST = "port_lost"  #: the device or socket went away
     PORT_RESTORED = "port_restored"
     CLOSED = "closed"  #: the link closed: the last event a watcher gets
@@ -83,6 +103,8 @@ class LinkEvent:
     kind: LinkEventKind
     at: float  #: loop time
     detail: str = ""
+    #: the connection's event behind it, where there is one (BoardRestarted, …)
+    cause: Event | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -356,13 +378,16 @@ class Link:
         self._ensure_connected()
         return await self._request(self.connection.get_param(param, code, self._now()))
 
-    async def read_params(self) -> dict[tuple[int, int], int | float]:
+    async def read_params(self, *, hold: bool = False) -> dict[tuple[int, int], int | float]:
         """Every parameter address's value, ``{(param id, channel): value}``, in table order;
         stops at the first failure (a silent board would otherwise cost every address its
-        full retry budget)."""
+        full retry budget). ``hold``: keep what the board runs now as this link's
+        configuration, set again if the board restarts (:attr:`held`)."""
         values: dict[tuple[int, int], int | float] = {}
         for param, code in iter_addresses():
-            values[(param.id, code)] = await self.get_param(param.id, code)
+            values[(param.id, code)] = value = await self.get_param(param.id, code)
+            if hold:
+                self.connection.hold(param, code, value)
         return values
 
     async def sync_params(
@@ -480,6 +505,18 @@ class Link:
     @property
     def board_alive(self) -> bool:
         return self.connection.liveness is Liveness.ALIVE
+
+    @property
+    def held(self) -> dict[str, int | float]:
+        """Every parameter set on this link and confirmed by the board (``"Kp_Wheel_PidA"``
+        style names, in the order first set): what is set again if the board restarts."""
+        return {param.full_name(channel): value
+                for param, channel, value in self.connection.held.values()}
+
+    @property
+    def resyncing(self) -> bool:
+        """The board restarted and what this link holds is being set again."""
+        return self.connection.resyncing
 
     # --- plumbing -------------------------------------------------------------------------
 
@@ -601,8 +638,8 @@ class Link:
         self._process()
         self._flush()
 
-    def _emit(self, kind: LinkEventKind, detail: str = "") -> None:
-        event = LinkEvent(kind, self._now(), detail)
+    def _emit(self, kind: LinkEventKind, detail: str = "", cause: Event | None = None) -> None:
+        event = LinkEvent(kind, self._now(), detail, cause)
         for callback in list(self._event_callbacks):
             callback(event)
         for sub in self._event_subs:
@@ -637,6 +674,8 @@ class Link:
                 self._emit(LinkEventKind.BOARD_LOST, f"silent for {event.silent_for:.3f} s")
             elif kind is BoardFound:
                 self._emit(LinkEventKind.BOARD_FOUND)
+            elif isinstance(event, BoardFault):
+                self._emit(_REPORTED[kind], event.describe(), event)
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -679,6 +718,16 @@ class Link:
             return
 
 
+#: The connection's events about the board's real life, and the link events they become.
+_REPORTED: dict[type[Event], LinkEventKind] = {
+    BoardRestarted: LinkEventKind.BOARD_RESTARTED,
+    BoardResynced: LinkEventKind.BOARD_RESYNCED,
+    WatchdogLapsed: LinkEventKind.WATCHDOG_LAPSED,
+    TelemetryStale: LinkEventKind.TELEMETRY_STALE,
+    TelemetryResumed: LinkEventKind.TELEMETRY_RESUMED,
+}
+
+
 def _read_waiting(transport: asyncio.BaseTransport | None) -> bytes | None:
     """What a paused transport's port holds now, without blocking: a serial port's device
     or a socket, read directly; ``None`` when there is no such thing to read or reading it
@@ -718,16 +767,21 @@ def open_link(
     reconnect: bool = True,
     reconnect_backoff: tuple[float, float] = (0.05, 2.0),
     read_latency: float | None = None,
+    heartbeat_give_up: float = 0.28,
+    stale_periods: int = 50,
 ) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
     ``socket://host:port``, or ``emu://`` for an emulated board in this process (any scheme
     a package registers). The connection settings go to :class:`~fpgalink.Connection`;
     ``reconnect`` reopens the URL with backoff when the port vanishes; ``read_latency``
-    lets the link batch reads (:meth:`Link.set_read_latency`)."""
+    lets the link batch reads (:meth:`Link.set_read_latency`); ``heartbeat_give_up`` and
+    ``stale_periods``: when a late heartbeat is not sent, and how many timer periods
+    without telemetry are a fault (:class:`~fpgalink.Connection`)."""
     connection = Connection(
         framing=framing, baud=baud, heartbeat_interval=heartbeat_interval,
         liveness_timeout=liveness_timeout, request_timeout=request_timeout,
         request_tries=request_tries, max_reference_delay=max_reference_delay,
+        heartbeat_give_up=heartbeat_give_up, stale_periods=stale_periods,
     )
 
     async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:

@@ -6,6 +6,7 @@ rosbag2 recording carry them as they are; nothing here knows ROS.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from enum import IntEnum
 
@@ -53,9 +54,14 @@ def _percent(share: float | None) -> str:
 
 
 def board_status(board: str, hardware_id: str, *, alive: bool, enabled: bool,
-                 stats: LinkStats, wire: tuple[float | None, float | None]) -> Status:
+                 stats: LinkStats, wire: tuple[float | None, float | None],
+                 fault: str | None = None) -> Status:
+    """ERROR when the board is not answering, or not ready (``fault``: restarted and being
+    reconfigured, its telemetry stopped); WARN when messages were lost or damaged."""
     if not alive:
         level, message = Level.ERROR, "not answering"
+    elif fault is not None:
+        level, message = Level.ERROR, fault
     elif stats.lost or stats.decode_errors:
         level, message = Level.WARN, "alive; messages lost or damaged"
     else:
@@ -65,6 +71,8 @@ def board_status(board: str, hardware_id: str, *, alive: bool, enabled: bool,
         ("telemetry received", str(stats.telemetry_received)),
         ("lost", str(stats.lost)), ("damaged", str(stats.decode_errors)),
         ("retries", str(stats.retries)), ("port losses", str(stats.port_losses)),
+        ("restarts", str(stats.restarts)), ("watchdog lapses", str(stats.watchdog_lapses)),
+        ("telemetry stalls", str(stats.telemetry_stalls)),
         ("bytes received", str(stats.bytes_received)), ("bytes sent", str(stats.bytes_sent)),
         ("wire use board to host", _percent(wire[0])),
         ("wire use host to board", _percent(wire[1])),
@@ -72,17 +80,32 @@ def board_status(board: str, hardware_id: str, *, alive: bool, enabled: bool,
     return Status(f"board {board}", hardware_id or board, level, message, values)
 
 
-def supervision_status(state: State, last_stop: SupervisionEvent | None) -> Status:
-    """ERROR when a board's silence stopped the robot, WARN when the deadman lapsed, OK
-    when enabled or disabled on request."""
+#: Stops for a fault of the robot's own (not the caller's doing): ERROR.
+_FAULTS = frozenset({StopReason.BOARD_LOST, StopReason.BOARD_RESTARTED,
+                     StopReason.TELEMETRY_STALE, StopReason.WATCHDOG_LAPSED,
+                     StopReason.TASK_FAILED})
+
+
+def supervision_status(state: State, last_stop: SupervisionEvent | None,
+                       blocked: Mapping[str, str] | None = None) -> Status:
+    """ERROR when a fault stopped the robot (a board silent, restarted, its telemetry
+    stopped, its watchdog lapsed; a robot task failed), WARN when the deadman lapsed, OK
+    when enabled or disabled on request. ``blocked``: boards not ready, and why (enable is
+    refused while any is)."""
+    not_ready = "; ".join(f"{'the robot' if name == 'robot' else 'board ' + name}: {why}"
+                          for name, why in (blocked or {}).items())
     if state is State.ENABLED:
         level, message = Level.OK, "enabled"
-    elif last_stop is not None and last_stop.reason is StopReason.BOARD_LOST:
+    elif last_stop is not None and last_stop.reason in _FAULTS:
         level, message = Level.ERROR, f"disabled: {last_stop.describe()}"
     elif last_stop is not None and last_stop.reason is StopReason.DEADMAN:
         level, message = Level.WARN, f"disabled: {last_stop.describe()}"
     else:
         level, message = Level.OK, "disabled"
+    if not_ready and state is not State.ENABLED:
+        level = Level.ERROR
+        message += f" (not ready: {not_ready})"
     values = (("state", state.value),
-              ("last stop", last_stop.describe() if last_stop is not None else ""))
+              ("last stop", last_stop.describe() if last_stop is not None else ""),
+              ("not ready", not_ready))
     return Status("supervision", "robot", level, message, values)

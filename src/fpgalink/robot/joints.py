@@ -57,10 +57,15 @@ def wheel_channel(sample: Telemetry, channel: int) -> ChannelTelemetry:
 
 def joint_states(description: RobotDescription, latest: Mapping[str, Telemetry],
                  counts_per_turn: Mapping[tuple[str, int], int],
-                 torque_coef: Mapping[tuple[str, int], float]) -> JointStates | None:
+                 torque_coef: Mapping[tuple[str, int], float],
+                 count_offset: Mapping[tuple[str, int], int] | None = None
+                 ) -> JointStates | None:
     """The four wheels from each board's latest sample (``None`` until every board has
     sent one). ``counts_per_turn`` and ``torque_coef`` by (board, channel), as read from
-    the boards. A non-finite speed or current is reported as NaN (JointState allows it)."""
+    the boards; ``count_offset``: counts a wheel had before its board restarted (its
+    counter starts from 0 again; the joint's angle goes on). A non-finite speed or
+    current is reported as NaN (JointState allows it)."""
+    offsets = count_offset or {}
     if any(board not in latest for board in description.boards):
         return None
     position, velocity, effort = [], [], []
@@ -69,7 +74,8 @@ def joint_states(description: RobotDescription, latest: Mapping[str, Telemetry],
         data = wheel_channel(latest[wheel.board], wheel.channel)
         key = (wheel.board, wheel.channel)
         per_turn = counts_per_turn.get(key, 0)
-        position.append(math.tau * data.position / per_turn * wheel.forward if per_turn
+        counts = data.position + offsets.get(key, 0)
+        position.append(math.tau * counts / per_turn * wheel.forward if per_turn
                         else math.nan)
         velocity.append(math.radians(data.speed) * wheel.forward)
         effort.append(data.current * torque_coef.get(key, math.nan) * wheel.forward)

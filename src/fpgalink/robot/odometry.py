@@ -6,6 +6,19 @@ telemetry: a lost ``TM`` only makes the next step longer. Counts are i32 on the 
 wrap; differences are taken modulo 2³². Each step moves the body along an arc through the
 skid-steer model (:meth:`~fpgalink.protocol.robot.SkidSteer.displacement`), and the pose
 covariance grows by a standard odometry motion model (:class:`OdometryNoise`).
+
+The running totals (distance travelled, angle turned) and the covariance's growth are
+driven by the motion the encoders resolve, not by each step's jitter: a step pairs the
+two boards' latest samples, taken up to a period apart, and counts come in whole counts, so
+a straight line's steps alternate small turns left and right (and a turn in place small
+steps forward and back) that cancel in the pose but would add up in absolute totals. The
+totals follow the cumulative distance and heading through a play (backlash) operator whose
+band is that jitter's bound — one encoder count and a period of a side at full speed —
+so jitter moves nothing, and motion beyond it counts in full (less the band once per
+reversal).
+
+A board that restarts counts from 0 again (:meth:`restart`): its next sample is a new
+reference, and motion the encoders did not see while it was away is not invented.
 """
 
 from __future__ import annotations
@@ -24,7 +37,7 @@ from fpgalink.protocol.robot import (
     integrate_arc,
 )
 
-__all__ = ["Odometry", "OdometryState", "count_delta"]
+__all__ = ["Odometry", "OdometryState", "Play", "count_delta"]
 
 _WRAP = 1 << 32
 _HALF = 1 << 31
@@ -35,6 +48,27 @@ Matrix = list[list[float]]
 def count_delta(new: int, old: int) -> int:
     """``new − old`` for i32 encoder counts, across the wrap at ±2³¹."""
     return (new - old + _HALF) % _WRAP - _HALF
+
+
+class Play:
+    """The play (backlash) operator: an output that follows its input only once the input
+    leaves a band of ±``band`` around it. ``update(x)`` returns how far the output moved."""
+
+    __slots__ = ("band", "output")
+
+    def __init__(self, band: float) -> None:
+        self.band = band
+        self.output = 0.0
+
+    def update(self, value: float) -> float:
+        output, band = self.output, self.band
+        if value > output + band:
+            self.output = value - band
+        elif value < output - band:
+            self.output = value + band
+        else:
+            return 0.0
+        return self.output - output
 
 
 @dataclass(frozen=True, slots=True)
@@ -81,8 +115,8 @@ class Odometry:
         self.covariance: Matrix = [[0.0] * 3 for _ in range(3)]
         self.v = 0.0
         self.omega = 0.0
-        self.distance = 0.0
-        self.turned = 0.0
+        self._travelled = 0.0  #: m, what the play operator let through
+        self._rotated = 0.0  #: rad, likewise
         self.steps = 0
         self._wheels = {(w.board, w.channel): w for w in description.wheels}
         self._counts_per_turn: dict[str, int] = {}
@@ -91,6 +125,15 @@ class Odometry:
         self._speeds: dict[str, float] = {w.name: 0.0 for w in description.wheels}
         self._boards = frozenset(description.boards)
         self._fresh: set[str] = set()
+        self._path = 0.0  #: m, the cumulative signed distance along the path
+        self._heading = 0.0  #: rad, the cumulative (unwrapped) turn
+        self._play_path = Play(0.0)
+        self._play_heading = Play(0.0)
+        self._period = 0.001  #: s, between a board's samples (as their t_us say)
+        self._last_t_us: dict[str, int] = {}
+        #: boards that restarted: their next sample is a new reference for every wheel
+        self._reanchor: set[str] = set()
+        self.reanchors = 0  #: boards re-anchored after a restart
 
     def set_resolution(self, board: str, channel: int, pulses_per_turn: int) -> None:
         """The wheel on ``board``/``channel`` has ``pulses_per_turn`` encoder pulses a turn
@@ -102,6 +145,18 @@ class Odometry:
             raise ValueError(f"{wheel.name}: the board reports {pulses_per_turn} encoder "
                              "pulses per turn; odometry needs a positive resolution")
         self._counts_per_turn[wheel.name] = 10 * pulses_per_turn
+        self._set_bands()
+
+    def _set_bands(self) -> None:
+        """The jitter bound of one step's sides: a count of the coarsest wheel, and a side
+        at full speed over one period (the boards' samples pair up to a period apart)."""
+        if not self._counts_per_turn:
+            return
+        radius = self.description.wheel_radius
+        count = max(math.tau * radius / n for n in self._counts_per_turn.values())
+        side = count + math.radians(self.description.max_wheel_speed) * radius * self._period
+        self._play_path.band = side
+        self._play_heading.band = 2 * side / self.kinematics.effective_track
 
     @property
     def ready(self) -> bool:
@@ -111,10 +166,42 @@ class Odometry:
         """Start again from ``pose`` with zero covariance (counts keep their reference)."""
         self.pose = pose or Pose()
         self.covariance = [[0.0] * 3 for _ in range(3)]
-        self.distance = self.turned = 0.0
+        self._travelled = self._rotated = 0.0
+        self._path = self._heading = 0.0
+        self._play_path.output = self._play_heading.output = 0.0
+
+    def restart(self, board: str) -> None:
+        """``board`` restarted: its counters start from 0 again, and what its wheels did
+        meanwhile was not measured. Its next sample is a new reference; what the other
+        boards measured since the last step is dropped with it (one side's motion alone
+        would read as a turn), so the pose neither jumps nor invents a turn."""
+        self._reanchor.add(board)
+        self._last_t_us.pop(board, None)
+        for wheel in self.description.wheels:
+            if wheel.board == board:
+                self._last_counts.pop(wheel.name, None)
+                self._speeds[wheel.name] = 0.0
+        self._drop_unintegrated()
+
+    def _drop_unintegrated(self) -> None:
+        for name in self._unintegrated:
+            self._unintegrated[name] = 0.0
+        self._fresh.clear()
 
     def update(self, board: str, sample: Telemetry) -> None:
         """One ``TM`` of ``board``: its wheels' positions and speeds."""
+        last_t_us = self._last_t_us.get(board)
+        self._last_t_us[board] = sample.t_us
+        if last_t_us is not None:
+            apart = (sample.t_us - last_t_us) % (1 << 32) / 1e6
+            if 0 < apart <= 1.0 and apart != self._period:
+                self._period = apart
+                self._set_bands()
+        reference = board in self._reanchor
+        if reference:
+            self._reanchor.discard(board)
+            self.reanchors += 1
+            self._drop_unintegrated()
         for channel, data in ((CHANNEL_A, sample.a), (CHANNEL_B, sample.b)):
             wheel = self._wheels.get((board, channel))
             if wheel is None:
@@ -135,7 +222,8 @@ class Odometry:
         # Integrate once every board has reported since the last step: a step then moves
         # both sides together (one board at a time would zig-zag the heading, and a turn in
         # place would add path length).
-        self._fresh.add(board)
+        if not reference:  # a reference moves nothing: the others pair with what follows
+            self._fresh.add(board)
         if self._fresh >= self._boards:
             self._fresh.clear()
             self._integrate()
@@ -150,10 +238,16 @@ class Odometry:
         if left_m == 0.0 and right_m == 0.0:
             return
         distance, turn = self.kinematics.displacement(left_m, right_m)
-        self._propagate(distance, turn)
+        self._path += distance
+        self._heading += turn
+        moved = self._play_path.update(self._path)
+        turned = self._play_heading.update(self._heading)
+        if moved or turned:
+            # Before the pose moves: the motion model's Jacobians at the step's start.
+            self._propagate(moved, turned)
+            self._travelled += abs(moved)
+            self._rotated += abs(turned)
         self.pose = integrate_arc(self.pose, distance, turn)
-        self.distance += abs(distance)
-        self.turned += abs(turn)
         self.steps += 1
 
     def _propagate(self, distance: float, turn: float) -> None:
@@ -178,6 +272,17 @@ class Odometry:
         left = (speeds["FL"] + speeds["BL"]) / 2.0
         right = (speeds["FR"] + speeds["BR"]) / 2.0
         self.v, self.omega = self.kinematics.body_twist(left, right)
+
+    @property
+    def distance(self) -> float:
+        """m travelled (path length): the motion let through, and what is within the band
+        now (at most one band, never accumulating)."""
+        return self._travelled + abs(self._path - self._play_path.output)
+
+    @property
+    def turned(self) -> float:
+        """rad turned (absolute), as :attr:`distance`."""
+        return self._rotated + abs(self._heading - self._play_heading.output)
 
     @property
     def state(self) -> OdometryState:

@@ -2,6 +2,13 @@
 parts (:mod:`.drive`, :mod:`.odometry`, :mod:`.supervision`, :mod:`.goto`) fed from the
 links' telemetry and events and the loop's clock.
 
+Faults stop it and say why (``docs/robot.md``, Faults): a board that restarts is
+reconfigured by its link (every parameter set through it, set again) and re-anchored here
+(its encoder counts and clock start again, which is not motion), and is not ready until
+that is confirmed; a board whose telemetry stops is not ready until it comes again; a
+board whose watchdog lapsed stops the robot; any exception in the robot's own tasks and
+callbacks stops it for good (it is not ready any more).
+
     async with Robot.open(seed_robot(), {"L": "emu://robot/L", "R": "emu://robot/R"}) as robot:
         async with robot.enabled():          # the deadman, renewed while the block runs
             await robot.go_to(1.0, 0.5)
@@ -18,7 +25,7 @@ from typing import Any
 
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open_link
 from fpgalink.errors import FpgalinkError
-from fpgalink.events import Event, RequestDone
+from fpgalink.events import BoardResynced, Event, RequestDone, WatchdogLapsed
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription
 from fpgalink.robot.drive import WheelCommand, wheel_command
@@ -29,6 +36,7 @@ from fpgalink.robot.odometry import Odometry, OdometryState
 from fpgalink.robot.supervision import (
     DEADMAN_S,
     Action,
+    Fault,
     NotReady,
     State,
     SupervisionEvent,
@@ -103,13 +111,23 @@ class Robot:
         self._streaming_before: dict[str, int | float] = {}
         self._started = False
         self._stopped_event = asyncio.Event()
+        #: boards restarted and not yet reconfigured, and boards whose telemetry stopped
+        self._reconfiguring: set[str] = set()
+        self._stale: dict[str, str] = {}
+        #: encoder counts each wheel had before its board's restarts (joint angles go on)
+        self._count_offset: dict[tuple[str, int], int] = {}
+        #: the exception that stopped the robot for good, if one did
+        self.failure: BaseException | None = None
 
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
-             baud: int = 1_000_000, **options: Any) -> Robot:
+             baud: int = 1_000_000, stale_periods: int = 50, **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
-        ``options`` go to the robot (deadman_s, control_period, goto_settings)."""
-        links = {name: open_link(url, baud, name=name) for name, url in ports.items()}
+        ``stale_periods``: timer periods without a board's telemetry that stop the robot
+        (:class:`~fpgalink.Connection`); ``options`` go to the robot (deadman_s,
+        control_period, goto_settings)."""
+        links = {name: open_link(url, baud, name=name, stale_periods=stale_periods)
+                 for name, url in ports.items()}
         return cls(description, links, **options)
 
     # --- lifecycle ------------------------------------------------------------------------
@@ -165,6 +183,8 @@ class Robot:
                 raise RobotError(f"board {name}: {exc}") from None
             self.torque_coef[(name, wheel.channel)] = float(
                 await link.get_param("TorqueCoef", wheel.channel))
+        # The link then knows the period its telemetry must keep (TelemetryStale).
+        await link.get_param("TsTimerPeriod")
         self._streaming_before[name] = await link.get_param("GetDataPeriodical")
         await link.set_param("GetDataPeriodical", 1)
 
@@ -266,8 +286,10 @@ class Robot:
             for link in self.links.values():
                 with contextlib.suppress(FpgalinkError):
                     if action is Action.ENABLE_ALL:
-                        # Zero first: a board keeps its last references while disabled,
-                        # and must not drive off with them when enabled again.
+                        # Zero first. This project's board clears its references when
+                        # enable falls (SPEC §4); the seed's firmware gated only the PWM
+                        # output (its §3.2) and kept its references in memory, so such a
+                        # board would drive off with the last ones when enabled again.
                         link.set_references(0.0, 0.0)
                         link.enable()
                     elif action is Action.DISABLE_ALL:
@@ -292,21 +314,114 @@ class Robot:
 
     def _on_timer(self) -> None:
         self._timer = None
-        self._carry_out(self.supervisor.handle_timer(self._now()))
+        with self._guarded("the deadman timer"):
+            self._carry_out(self.supervisor.handle_timer(self._now()))
+
+    @contextlib.contextmanager
+    def _guarded(self, what: str) -> Any:
+        """Run a callback or task body; an exception in it stops the robot for good (RD to
+        every board, the reason said) instead of killing it silently."""
+        try:
+            yield
+        except Exception as exc:  # any: a dead task must not leave the robot driving
+            self._task_failed(what, exc)
+
+    def _task_failed(self, what: str, exc: BaseException) -> None:
+        if self.failure is None:
+            self.failure = exc
+        detail = f"{what}: {type(exc).__name__}: {exc}"
+        self.command = None
+        for link in self.links.values():  # first, before anything else can fail
+            with contextlib.suppress(Exception):
+                link.disable()
+        with contextlib.suppress(Exception):
+            self._carry_out(self.supervisor.task_failed(self._now(), detail))
 
     def _on_link_event(self, name: str, link: Link, event: LinkEvent) -> None:
-        lost = event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
-                              LinkEventKind.CLOSED)
-        if lost:
-            what = event.kind.value.replace("_", " ")
+        with self._guarded(f"board {name}'s {event.kind.value} event"):
+            self._link_event(name, link, event)
+
+    def _link_event(self, name: str, link: Link, event: LinkEvent) -> None:
+        kind, now = event.kind, self._now()
+        if kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST, LinkEventKind.CLOSED):
+            what = kind.value.replace("_", " ")
             detail = f"{what} ({event.detail})" if event.detail else what
-            self._carry_out(self.supervisor.board_alive(name, False, self._now(), detail))
+            self._carry_out(self.supervisor.board_alive(name, False, now, detail))
+        elif kind is LinkEventKind.BOARD_RESTARTED:
+            self._restarted(name, event.detail, now)
+        elif kind is LinkEventKind.BOARD_RESYNCED:
+            assert isinstance(event.cause, BoardResynced)
+            self._tasks.append(asyncio.ensure_future(self._reconfigured(name, link,
+                                                                        event.cause)))
+        elif kind is LinkEventKind.WATCHDOG_LAPSED:
+            lapse = event.cause
+            assert isinstance(lapse, WatchdogLapsed)
+            why = (f"watchdog: host silent {lapse.host_silent_for * 1000:.0f} ms"
+                   if lapse.host_silent_for is not None else f"watchdog: {lapse.detail}")
+            self._carry_out(self.supervisor.board_fault(name, Fault.WATCHDOG_LAPSED, now, why))
+        elif kind is LinkEventKind.TELEMETRY_STALE:
+            self._stale[name] = event.detail
+            self._carry_out(self.supervisor.board_fault(name, Fault.TELEMETRY_STALE, now,
+                                                        event.detail))
+        elif kind is LinkEventKind.TELEMETRY_RESUMED:
+            if self._stale.pop(name, None) is not None:
+                self._board_recovered(name, "telemetry flowing again", now)
         elif link.board_alive:
-            self.supervisor.board_alive(name, True, self._now())
+            self.supervisor.board_alive(name, True, now)
+
+    def _restarted(self, name: str, detail: str, now: float) -> None:
+        """The board restarted: stop, forget its counts (a reset is not motion), and wait
+        for its link to set again what it holds."""
+        self._reconfiguring.add(name)
+        self._stale.pop(name, None)
+        latest = self.latest.pop(name, None)
+        if latest is not None:
+            for wheel in self.description.wheels:
+                if wheel.board == name:
+                    key = (name, wheel.channel)
+                    data = latest.a if wheel.channel == 1 else latest.b
+                    self._count_offset[key] = self._count_offset.get(key, 0) + data.position
+        self.odometry.restart(name)
+        self._carry_out(self.supervisor.board_fault(
+            name, Fault.RESTARTED, now, f"restarted: reconfiguring ({detail})"))
+
+    async def _reconfigured(self, name: str, link: Link, resynced: BoardResynced) -> None:
+        """The link set again what it holds: read back what odometry and joint states use,
+        then the board is ready (or says why not)."""
+        with self._guarded(f"reconfiguring board {name}"):
+            failure = None if resynced.ok else resynced.describe()
+            if failure is None:
+                try:
+                    for wheel in self.description.wheels:
+                        if wheel.board == name:
+                            self._set_resolution(name, wheel.channel, int(
+                                await link.get_param("IncSenzRes", wheel.channel)))
+                            self.torque_coef[(name, wheel.channel)] = float(
+                                await link.get_param("TorqueCoef", wheel.channel))
+                except (FpgalinkError, ValueError) as exc:
+                    failure = f"reading back after the restart: {exc}"
+            now = self._now()
+            if failure is not None:
+                self._carry_out(self.supervisor.board_fault(
+                    name, Fault.RESTARTED, now, f"restarted: {failure}"))
+                return
+            if name in self._reconfiguring:
+                self._reconfiguring.discard(name)
+                self._board_recovered(name, resynced.describe(), now)
+
+    def _board_recovered(self, name: str, detail: str, now: float) -> None:
+        """One of the board's faults cleared: ready again once none is left."""
+        if name in self._reconfiguring:
+            self.supervisor.blocked[name] = "restarted: reconfiguring"
+        elif name in self._stale:
+            self.supervisor.blocked[name] = self._stale[name]
+        else:
+            self._carry_out(self.supervisor.board_ready(name, now, detail))
 
     async def _follow_telemetry(self, name: str, link: Link) -> None:
-        async for sample in link.telemetry(maxsize=4096):
-            self._on_telemetry(name, sample)
+        with self._guarded(f"board {name}'s telemetry (odometry)"):
+            async for sample in link.telemetry(maxsize=4096):
+                self._on_telemetry(name, sample)
 
     def _on_telemetry(self, name: str, sample: Telemetry) -> None:
         self.latest[name] = sample
@@ -319,6 +434,10 @@ class Robot:
     def _on_confirmed(self, board: str, event: Event) -> None:
         """A parameter set through this robot's links changed a wheel's encoder resolution
         or torque coefficient: odometry and joint states follow the board."""
+        with self._guarded(f"board {board}'s confirmations"):
+            self._confirmed(board, event)
+
+    def _confirmed(self, board: str, event: Event) -> None:
         if not isinstance(event, RequestDone) or (board, event.channel) not in self.resolution:
             return
         if event.param.name == "IncSenzRes":
@@ -424,7 +543,7 @@ class Robot:
         sample; ``None`` until every board has one): rad, rad/s, N·m, forward-positive."""
         return joint_states(self.description, self.latest if samples is None else samples,
                             {key: 10 * pulses for key, pulses in self.resolution.items()},
-                            self.torque_coef)
+                            self.torque_coef, self._count_offset)
 
     def health(self, now: float | None = None) -> list[Status]:
         """One status per board and one for supervision. Wire use is measured between
@@ -438,8 +557,10 @@ class Robot:
                 name, link.url, alive=link.board_alive,
                 enabled=bool(latest is not None and latest.a.enabled),
                 stats=stats,
-                wire=self._wire[name].update(now, stats.bytes_received, stats.bytes_sent)))
-        statuses.append(supervision_status(self.supervisor.state, self.supervisor.last_stop))
+                wire=self._wire[name].update(now, stats.bytes_received, stats.bytes_sent),
+                fault=self.supervisor.blocked.get(name)))
+        statuses.append(supervision_status(self.supervisor.state, self.supervisor.last_stop,
+                                           self.supervisor.blocked))
         return statuses
 
     def truth(self) -> dict[str, Any] | None:

@@ -1,10 +1,14 @@
 """Supervision (the seed's HeartBeat and GlobalEnable nodes), sans-I/O: the robot is enabled
-only while every board is alive and the caller keeps renewing its enable — a deadman, as
-the seed's ``/globalEnable`` had to arrive every 500 ms.
+only while every board is alive and ready and the caller keeps renewing its enable — a
+deadman, as the seed's ``/globalEnable`` had to arrive every 500 ms.
 
-A lapse, or any board going silent, disables every board at once and says why; after
-recovery the robot stays disabled until enable is asked for again. It never re-enables by
-itself. The transitions are the table :data:`TRANSITIONS`, and nothing else."""
+A lapse, a board going silent, restarting, its telemetry stopping or its watchdog disabling
+it, or a robot task failing: each disables every board at once and says why (an event,
+whatever the state). A board that restarted is not ready until it is reconfigured, one
+whose telemetry stopped until it comes again: enable is refused meanwhile, naming the
+board and why. After recovery the robot stays disabled until enable is asked for again; it
+never re-enables by itself. The transitions are the table :data:`TRANSITIONS`, and nothing
+else."""
 
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ __all__ = [
     "DEADMAN_S",
     "TRANSITIONS",
     "Action",
+    "Fault",
     "Input",
     "NotReady",
     "State",
@@ -41,6 +46,10 @@ class Input(Enum):
     DISABLE = "disable"  #: asked for
     DEADMAN_LAPSED = "deadman_lapsed"  #: not renewed within the deadman time
     BOARD_LOST = "board_lost"  #: a board went silent or its port went away
+    BOARD_RESTARTED = "board_restarted"  #: a board restarted (not ready: reconfiguring)
+    TELEMETRY_STALE = "telemetry_stale"  #: a board's telemetry stopped (not ready)
+    WATCHDOG_LAPSED = "watchdog_lapsed"  #: a board's watchdog disabled it
+    TASK_FAILED = "task_failed"  #: a robot task failed (the robot is not ready any more)
 
 
 class Action(Enum):
@@ -52,20 +61,42 @@ class Action(Enum):
 class StopReason(Enum):
     DEADMAN = "the enable was not renewed within the deadman time"
     BOARD_LOST = "a board stopped answering"
+    BOARD_RESTARTED = "a board restarted"
+    TELEMETRY_STALE = "a board's telemetry stopped"
+    WATCHDOG_LAPSED = "a board disabled itself"
+    TASK_FAILED = "a robot task failed"
     REQUESTED = "disable was asked for"
+
+
+class Fault(Enum):
+    """What a board's link reported, and the supervision input it is."""
+
+    RESTARTED = Input.BOARD_RESTARTED
+    TELEMETRY_STALE = Input.TELEMETRY_STALE
+    WATCHDOG_LAPSED = Input.WATCHDOG_LAPSED
+
+
+#: Faults after which a board is not ready until it recovers (the others stop the robot, and
+#: enable may be asked for again at once).
+BLOCKING = frozenset({Fault.RESTARTED, Fault.TELEMETRY_STALE})
 
 
 @dataclass(frozen=True, slots=True)
 class SupervisionEvent:
-    """The robot was enabled (``reason is None``) or stopped, when, and why."""
+    """The robot was enabled (``reason is None``) or stopped, when, and why; or a board is
+    ready again (``recovered``: the robot stays as it is)."""
 
     at: float
     state: State
     reason: StopReason | None = None
-    board: str | None = None  #: the board that went silent
+    board: str | None = None  #: the board the stop is about
     detail: str = ""
+    recovered: bool = False
 
     def describe(self) -> str:
+        if self.recovered:
+            return f"board {self.board} ready again" + (f": {self.detail}" if self.detail
+                                                        else "")
         if self.reason is None:
             return "enabled"
         which = f" (board {self.board})" if self.board else ""
@@ -80,7 +111,13 @@ TRANSITIONS: dict[tuple[State, Input], tuple[State, tuple[Action, ...], object]]
     (State.DISABLED, Input.ENABLE_REFUSED): (State.DISABLED, (), None),
     (State.DISABLED, Input.DISABLE): (State.DISABLED, (Action.DISABLE_ALL,), None),
     (State.DISABLED, Input.DEADMAN_LAPSED): (State.DISABLED, (), None),
-    (State.DISABLED, Input.BOARD_LOST): (State.DISABLED, (), None),
+    # A fault while disabled changes nothing on the wire, and is still said.
+    (State.DISABLED, Input.BOARD_LOST): (State.DISABLED, (), StopReason.BOARD_LOST),
+    (State.DISABLED, Input.BOARD_RESTARTED): (State.DISABLED, (), StopReason.BOARD_RESTARTED),
+    (State.DISABLED, Input.TELEMETRY_STALE): (State.DISABLED, (), StopReason.TELEMETRY_STALE),
+    (State.DISABLED, Input.WATCHDOG_LAPSED): (State.DISABLED, (), StopReason.WATCHDOG_LAPSED),
+    (State.DISABLED, Input.TASK_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                          StopReason.TASK_FAILED),
     (State.ENABLED, Input.ENABLE): (State.ENABLED, (Action.RENEW,), None),
     (State.ENABLED, Input.ENABLE_REFUSED): (State.DISABLED, (Action.DISABLE_ALL,),
                                             StopReason.BOARD_LOST),
@@ -90,12 +127,21 @@ TRANSITIONS: dict[tuple[State, Input], tuple[State, tuple[Action, ...], object]]
                                             StopReason.DEADMAN),
     (State.ENABLED, Input.BOARD_LOST): (State.DISABLED, (Action.DISABLE_ALL,),
                                         StopReason.BOARD_LOST),
+    (State.ENABLED, Input.BOARD_RESTARTED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                             StopReason.BOARD_RESTARTED),
+    (State.ENABLED, Input.TELEMETRY_STALE): (State.DISABLED, (Action.DISABLE_ALL,),
+                                             StopReason.TELEMETRY_STALE),
+    (State.ENABLED, Input.WATCHDOG_LAPSED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                             StopReason.WATCHDOG_LAPSED),
+    (State.ENABLED, Input.TASK_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                         StopReason.TASK_FAILED),
 }
 
 
 class NotReady(FpgalinkError):
-    """Enable was asked for while a board is not answering. ``actions``: what must still be
-    carried out (a robot that was enabled is stopped)."""
+    """Enable was asked for while a board is not answering or not ready (reconfiguring
+    after a restart, its telemetry stopped), or after a robot task failed. ``actions``:
+    what must still be carried out (a robot that was enabled is stopped)."""
 
     def __init__(self, message: str, actions: list[Action]) -> None:
         super().__init__(message)
@@ -113,6 +159,9 @@ class Supervisor:
         self.deadman_s = deadman_s
         self.state = State.DISABLED
         self.alive = dict.fromkeys(boards, False)
+        #: why a board is not ready (a restart being reconfigured, telemetry stopped), by
+        #: board; ``"robot"`` when a robot task failed
+        self.blocked: dict[str, str] = {}
         self.deadline: float | None = None
         self.last_stop: SupervisionEvent | None = None
         self._events: list[SupervisionEvent] = []
@@ -135,12 +184,17 @@ class Supervisor:
 
     def request_enable(self, now: float) -> list[Action]:
         """Enable, or renew the enable. :class:`NotReady` naming the board when one is not
-        alive (and, if the robot was enabled, everything is stopped first)."""
+        alive or not ready (and, if the robot was enabled, everything is stopped first)."""
         silent = [name for name, alive in self.alive.items() if not alive]
         if silent:
             actions = self._apply(Input.ENABLE_REFUSED, now, silent[0], "enable refused")
             raise NotReady(f"board {', '.join(silent)} not answering: the robot stays "
                            "disabled", actions)
+        if self.blocked:
+            name, why = next(iter(self.blocked.items()))
+            actions = self._apply(Input.ENABLE_REFUSED, now, name, "enable refused")
+            what = "the robot" if name == "robot" else f"board {name}"
+            raise NotReady(f"{what}: {why}: the robot stays disabled", actions)
         return self._apply(Input.ENABLE, now)
 
     def request_disable(self, now: float) -> list[Action]:
@@ -153,6 +207,28 @@ class Supervisor:
         if alive:
             return []  # coming back never enables anything
         return self._apply(Input.BOARD_LOST, now, board, detail or "silent")
+
+    def board_fault(self, board: str, fault: Fault, now: float, detail: str = ""
+                    ) -> list[Action]:
+        """A board restarted, its telemetry stopped, or its watchdog disabled it: the robot
+        stops (whatever its state, the fault is an event). After a restart or stopped
+        telemetry the board is not ready until :meth:`board_ready`."""
+        if fault in BLOCKING:
+            self.blocked[board] = detail or fault.name.lower()
+        return self._apply(fault.value, now, board, detail)
+
+    def board_ready(self, board: str, now: float, detail: str = "") -> list[Action]:
+        """The board recovered (reconfigured, telemetry flowing): enable may be asked for
+        again. Nothing is enabled by it."""
+        if self.blocked.pop(board, None) is not None:
+            self._events.append(SupervisionEvent(now, self.state, None, board, detail,
+                                                 recovered=True))
+        return []
+
+    def task_failed(self, now: float, detail: str) -> list[Action]:
+        """A robot task failed: every board stops, and the robot is not ready any more."""
+        self.blocked["robot"] = f"a robot task failed ({detail})"
+        return self._apply(Input.TASK_FAILED, now, None, detail)
 
     def get_timer(self) -> float | None:
         """When :meth:`handle_timer` must be called next (the deadman), or ``None``."""

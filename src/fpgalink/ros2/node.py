@@ -231,6 +231,11 @@ class RosBridge:
         double("cmd_vel_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
                "a cmd_vel or wheel_refs older than this brings the wheels to rest, s")
         double("goal_tolerance", 0.05, 0.005, 10.0, "goal_pose reached within this, m")
+        node.declare_parameter("telemetry_timeout_periods", 50, ParameterDescriptor(
+            type=ParameterType.PARAMETER_INTEGER,
+            description="a board's telemetry missing for this many timer periods is a fault: "
+                        "the robot stops until it comes again (50: 50 ms at 1 kHz)",
+            integer_range=[IntegerRange(from_value=2, to_value=100_000, step=1)]))
         for name, default in (("odom_frame", "odom"), ("base_frame", "base_link")):
             node.declare_parameter(name, default, ParameterDescriptor(
                 type=ParameterType.PARAMETER_STRING, description=f"frame id: {name}"))
@@ -242,16 +247,20 @@ class RosBridge:
         """Cache the node's own parameters (read per message at up to 1 kHz)."""
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
-            "base_frame")}
+            "base_frame", "telemetry_timeout_periods")}
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
+        for link in self.robot.links.values():
+            link.connection.stale_periods = int(self._node_values["telemetry_timeout_periods"])
         if hasattr(self, "_sets"):
             self._sets.min_period = self._publish_period
 
     async def declare_board_parameters(self) -> None:
         """Every board parameter as a ROS parameter, its value read from the board; a value
-        given with ``--ros-args -p`` is set on the board (and must be confirmed)."""
+        given with ``--ros-args -p`` is set on the board (and must be confirmed). Each is
+        this node's configuration from then on: held by the board's link, set again if the
+        board restarts, so a ROS parameter never silently differs from its board."""
         for board, link in self.robot.links.items():
-            values = await link.read_params()
+            values = await link.read_params(hold=True)
             for param in PARAMETERS:
                 channels = (0,) if param.scope is Scope.BOARD else (CHANNEL_A, CHANNEL_B)
                 for channel in channels:
@@ -427,8 +436,13 @@ class RosBridge:
     def _log_link_event(self, board: str, event: LinkEvent) -> None:
         text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
             f" ({event.detail})" if event.detail else "")
-        if event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST):
+        if event.kind is LinkEventKind.BOARD_RESTARTED:
+            # Its clock starts again: stamps anchor afresh (not a wrap, not a jump back).
+            self._clocks[board] = BoardClock()
+        if event.kind in _FAULT_KINDS or (event.kind is LinkEventKind.BOARD_RESYNCED
+                                          and "failed" in event.detail):
             self.log.error(text)
+            self._publish_diagnostics()  # now, not at the next second
         elif event.kind is not LinkEventKind.CLOSED:
             self.log.info(text)
 
@@ -444,12 +458,15 @@ class RosBridge:
 
     async def _supervision_log(self) -> None:
         async for event in self.robot.events():
-            if event.reason is None:
+            if event.recovered:
+                self.log.info(event.describe())
+            elif event.reason is None:
                 self.log.info("robot enabled")
             elif event.reason is StopReason.REQUESTED:
                 self.log.info("robot disabled")
             else:
                 self.log.warning(f"robot {event.describe()}")
+            self._publish_diagnostics()  # a change of state is said at once
 
     def _publish_joints(self, samples: dict[str, Telemetry]) -> int | None:
         """joint_states from one set of samples, stamped with the first board's sample time
@@ -511,14 +528,23 @@ class RosBridge:
     async def _diagnostics_loop(self) -> None:
         while True:
             await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
-            self.diag_pub.publish(self.diagnostics(self.loop.time()))
-            self.published["diagnostics"] += 1
+            self._publish_diagnostics()
+
+    def _publish_diagnostics(self) -> None:
+        self.diag_pub.publish(self.diagnostics(self.loop.time()))
+        self.published["diagnostics"] += 1
 
     def diagnostics(self, now: float) -> DiagnosticArray:
         array = DiagnosticArray()
         array.header.stamp = self.node.get_clock().now().to_msg()
         array.status = [diagnostic_status(status) for status in self.robot.health(now)]
         return array
+
+
+#: Link events that are faults: logged as errors, and diagnostics published at once.
+_FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
+                          LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
+                          LinkEventKind.TELEMETRY_STALE})
 
 
 def diagnostic_status(status: Status) -> DiagnosticStatus:

@@ -138,3 +138,68 @@ def test_a_pose_to_start_from() -> None:
     sim.run(2.0)
     assert sim.odometry.pose.x == pytest.approx(3.0, abs=1e-3)
     assert sim.odometry.pose.y > -1.0 + 0.3
+
+
+# --- the running totals and the covariance follow motion, not jitter --------------------------
+
+
+def test_jitter_of_whole_counts_and_sample_pairing_adds_nothing_to_the_totals() -> None:
+    # A straight line whose sides come in whole counts, one board's samples a period
+    # behind the other's: each step's turn alternates left and right and cancels.
+    odo = odometry()
+    per_ms = 1.25  # counts a millisecond, both sides: 0.31 mm/ms
+    for k in range(1, 4001):
+        odo.update("L", sample(k * 1000, math.floor(per_ms * k), math.floor(per_ms * k)))
+        odo.update("R", sample(k * 1000, math.floor(per_ms * (k - 1) + 0.5),
+                               math.floor(per_ms * (k - 1) + 0.5)))
+    assert odo.pose.theta == pytest.approx(0.0, abs=1e-3)
+    assert odo.turned < math.radians(0.1)
+    assert odo.distance == pytest.approx(odo.pose.x, abs=1e-3)
+
+
+def test_the_totals_and_heading_sigma_of_the_seeds_runs_match_the_model() -> None:
+    # Against the emulated robot (whole counts, the PID's ripple, and the two boards'
+    # samples paired up to a period apart, as two ports read in turn deliver them): a 2 m
+    # line turns nothing, a 200° turn in place travels nothing, and the heading's σ after
+    # the line is the documented motion model's, √(k_dθ · 2 m).
+    sim = RobotSim.make("gravel", arrival_jitter_seed=7)
+    sim.drive(0.2, 0.0)
+    sim.run(10.0)
+    sim.drive(0.0, 0.0)
+    sim.run(1.0)
+    travelled = sim.robot.body.distance
+    assert sim.odometry.distance == pytest.approx(travelled, rel=0.01)
+    assert math.degrees(sim.odometry.turned) < 1.0
+    model = math.sqrt(ROBOT.odometry.drift_noise * sim.odometry.distance)
+    sigma = math.sqrt(sim.odometry.covariance[2][2])
+    assert sigma == pytest.approx(model, rel=0.05)  # 0.81° for 2 m
+
+    sim = RobotSim.make("gravel", arrival_jitter_seed=8)
+    sim.drive(0.0, math.radians(20))
+    turned_truth = 0.0
+    for _ in range(4):  # the truth's heading is wrapped: summed in quarters
+        before = sim.truth.theta
+        sim.run(2.5)
+        turned_truth += math.remainder(sim.truth.theta - before, math.tau)
+    sim.drive(0.0, 0.0)
+    before = sim.truth.theta
+    sim.run(1.0)
+    turned_truth += math.remainder(sim.truth.theta - before, math.tau)
+    assert math.degrees(turned_truth) > 180
+    assert sim.odometry.turned == pytest.approx(turned_truth, rel=0.02)
+    assert sim.odometry.distance < 0.005
+
+
+def test_a_restarted_board_is_a_new_reference_not_a_jump() -> None:
+    odo = odometry()
+    drive_counts(odo, 2000, 2000, 20)
+    x = odo.pose.x
+    odo.restart("L")
+    odo.update("R", sample(21_000, 2100, 2100))  # R moved while L was away: dropped
+    odo.update("L", sample(0, 0, 0))  # L counts from 0 again: a reference
+    odo.update("R", sample(22_000, 2200, 2200))
+    odo.update("L", sample(1000, 100, 100))
+    step = 100 / COUNTS_PER_TURN * math.tau * 0.2
+    assert odo.pose.x == pytest.approx(x + step, abs=1e-9)
+    assert odo.pose.theta == pytest.approx(0.0, abs=1e-12)
+    assert odo.reanchors == 1

@@ -1,0 +1,370 @@
+"""The connection in the board's real life (sans-I/O, time passed in): a board that restarts,
+a watchdog that lapses while the host means the board enabled, telemetry configured on that
+stops coming — each an event, never silent, and never a board driven blind."""
+
+from __future__ import annotations
+
+import pytest
+
+from fpgalink import Connection
+from fpgalink.events import (
+    BoardRestarted,
+    BoardResynced,
+    CounterDuplicate,
+    Event,
+    RequestDone,
+    RestartEvidence,
+    TelemetryResumed,
+    TelemetryStale,
+    WatchdogLapsed,
+)
+from fpgalink.protocol import (
+    ChannelTelemetry,
+    Message,
+    ParamAck,
+    ParamGet,
+    ParamNack,
+    ParamSet,
+    Role,
+    Telemetry,
+    lookup,
+    parse_content,
+)
+from fpgalink.protocol.framing import FrameDecoder
+
+ENABLED = ChannelTelemetry(0, 0.0, 0.0, 0, 0.0, 1)
+DISABLED = ChannelTelemetry(0, 0.0, 0.0, 0, 0.0, 0)
+
+
+class Board:
+    """A scripted board: answers the host's PS/PG as the firmware would (every value in
+    range), sends TM on demand. ``power_cycle()`` starts its counter and clock again."""
+
+    def __init__(self) -> None:
+        self.side = Connection(role=Role.BOARD, baud=None)
+        self.values: dict[tuple[int, int], int | float] = {}
+        self.t_us = 0
+        self.refuse: set[int] = set()
+        self._decoder = FrameDecoder()
+
+    def power_cycle(self) -> None:
+        self.side = Connection(role=Role.BOARD, baud=None)
+        self.values.clear()
+        self.t_us = 0
+
+    def tm(self, enabled: bool = True, advance_us: int = 1000) -> bytes:
+        self.t_us += advance_us
+        flags = ENABLED if enabled else DISABLED
+        return self.send(Telemetry(self.t_us, flags, flags))
+
+    def send(self, message: Message) -> bytes:
+        self.side.send(message, 0.0)
+        return self.side.data_to_send()
+
+    def answer(self, host_bytes: bytes) -> bytes:
+        """PA/PN for every PS/PG in ``host_bytes``."""
+        out = b""
+        for item in self._decoder.feed(host_bytes):
+            if not isinstance(item, bytes):
+                continue
+            message = parse_content(item)
+            if isinstance(message, ParamSet):
+                if message.param_id in self.refuse:
+                    out += self.send(ParamNack(message.param_id, message.channel, 3))
+                    continue
+                self.values[(message.param_id, message.channel)] = message.value
+                out += self.send(ParamAck(message.param_id, message.channel,
+                                          message.value_type, message.value))
+            elif isinstance(message, ParamGet):
+                param = lookup(message.param_id)
+                value = self.values.get((message.param_id, message.channel), param.default)
+                out += self.send(ParamAck(message.param_id, message.channel,
+                                          int(param.type), value))
+        return out
+
+
+def exchange(host: Connection, board: Board, now: float) -> list[Event]:
+    """Deliver the host's bytes, let the board answer, deliver the answers: until quiet."""
+    events: list[Event] = []
+    for _ in range(20):
+        answer = board.answer(host.data_to_send())
+        if not answer:
+            break
+        host.receive_data(answer, now)
+        events += host.events()
+    return events
+
+
+def configured(**options: float) -> tuple[Connection, Board, list[Event]]:
+    """A host that set Kp, IncSenzRes and telemetry on, enabled, with samples flowing."""
+    host, board = Connection(baud=None, **options), Board()  # type: ignore[arg-type]
+    host.start(0.0)
+    host.set_param(lookup("GetDataPeriodical"), 0, 1, 0.0)
+    exchange(host, board, 0.0)
+    host.set_param(lookup("Kp_Wheel_Pid"), 1, 400.0, 0.0)
+    exchange(host, board, 0.0)
+    host.set_param(lookup("IncSenzRes"), 2, 1000, 0.0)
+    exchange(host, board, 0.0)
+    host.enable(0.0)
+    host.data_to_send()
+    events: list[Event] = []
+    for k in range(20):  # disabled until the RE arrived, then enabled
+        host.receive_data(board.tm(enabled=k > 0), 0.001 * (k + 1))
+        events += host.events()
+    return host, board, events
+
+
+# --- restarts ---------------------------------------------------------------------------------
+
+
+def test_a_counter_back_at_00000_is_a_restart_and_the_held_configuration_is_set_again(
+) -> None:
+    host, board, _ = configured()
+    assert list(host.held) == [(2, 0), (8, 1), (6, 2)]
+    assert host.enabled and host.stats.restarts == 0
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)  # any counted message: 00000
+    events = list(host.events())
+    restart = next(e for e in events if isinstance(e, BoardRestarted))
+    assert restart.evidence is RestartEvidence.COUNTER_RESET
+    assert "counter 00000 where 00023 was expected" in restart.detail
+    assert not any(isinstance(e, CounterDuplicate) for e in events)
+    assert host.stats.duplicates == 0 and host.stats.restarts == 1
+    # The heartbeat stopped, made definite with RD; the caller enables again when ready.
+    assert not host.enabled and host.resyncing
+    sent = host.data_to_send()
+    assert sent.startswith(b"SRDP") and b"SREP" not in sent
+    # Every held parameter is set again, one at a time, telemetry last.
+    resynced: list[Event] = []
+    order = []
+    host_bytes = sent
+    for _ in range(5):
+        answer = board.answer(host_bytes)
+        for item in FrameDecoder().feed(host_bytes):
+            if isinstance(item, bytes) and item[:2] == b"PS":
+                order.append(item[9])  # PS, 5 digits, "{", LEN, then the parameter's id
+        host.receive_data(answer, 0.06)
+        resynced += host.events()
+        host_bytes = host.data_to_send()
+    assert order == [8, 6, 2]
+    done = [e for e in resynced if isinstance(e, BoardResynced)]
+    assert done == [BoardResynced(3)] and done[0].ok
+    assert board.values == {(8, 1): pytest.approx(400.0), (6, 2): 1000, (2, 0): 1}
+    assert not host.resyncing
+
+
+def test_a_restart_whose_00000_was_lost_is_seen_from_its_counters_running_on() -> None:
+    host, board, _ = configured()
+    board.power_cycle()
+    board.send(ParamAck(1, 0, 1, 1))  # counter 00000, lost on the way
+    host.receive_data(board.tm() + board.tm(), 0.05)  # 00001, 00002: behind, in a run
+    events = list(host.events())
+    assert [type(e).__name__ for e in events].count("BoardRestarted") == 1
+    assert host.stats.duplicates == 0
+
+
+def test_a_real_duplicate_stays_a_duplicate() -> None:
+    host, board, _ = configured()
+    again = board.tm()
+    host.receive_data(again + again, 0.05)
+    events = list(host.events())
+    assert any(isinstance(e, CounterDuplicate) for e in events)
+    assert not any(isinstance(e, BoardRestarted) for e in events)
+    assert host.enabled
+
+
+def test_a_clock_going_back_with_the_counter_is_a_restart_not_with_it_in_order() -> None:
+    host, board, _ = configured()
+    host.receive_data(board.tm(advance_us=2_000_000), 0.03)
+    # A damaged t_us in an otherwise in-order sample: not a restart.
+    board.t_us -= 500_000
+    host.receive_data(board.tm(), 0.05)
+    assert not any(isinstance(e, BoardRestarted) for e in host.events())
+    # The counter breaking with it (a sample after a gap, its clock behind): a restart.
+    board.t_us -= 400_000
+    board.side.send(Telemetry(0, ENABLED, ENABLED), 0.0)
+    board.side.data_to_send()  # lost
+    host.receive_data(board.tm(), 0.06)
+    (restart,) = [e for e in host.events() if isinstance(e, BoardRestarted)]
+    assert restart.evidence is RestartEvidence.CLOCK_BACKWARDS
+
+
+def test_a_parameter_that_fails_to_be_set_again_is_named() -> None:
+    host, board, _ = configured()
+    board.power_cycle()
+    board.refuse = {6}
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)
+    events = list(host.events()) + exchange(host, board, 0.06)
+    (done,) = [e for e in events if isinstance(e, BoardResynced)]
+    assert done.applied == 2 and not done.ok
+    assert [name for name, _ in done.failed] == ["IncSenzResB"]
+    assert "reconfiguring failed: IncSenzResB" in done.describe()
+    assert host.stats.resync_failures == 1
+
+
+# --- the watchdog -----------------------------------------------------------------------------
+
+
+def test_an_overdue_heartbeat_is_not_sent_the_host_says_it_stalled() -> None:
+    host = Connection(baud=None, heartbeat_interval=0.1)
+    host.start(0.0)
+    host.enable(0.0)
+    assert host.data_to_send() == b"SREP"
+    host.handle_timer(0.2)  # late, but within the give-up: the board is still enabled
+    assert host.data_to_send() == b"SREP"
+    host.handle_timer(0.2 + 0.279)  # late by 179 ms: RE 20 ms before the watchdog's 300
+    assert host.data_to_send() == b"SREP"
+    host.handle_timer(0.479 + 0.29)  # the process stalled 190 ms: 290 ms since the last RE
+    assert host.data_to_send() == b"SRDP"
+    (lapse,) = [e for e in host.events() if isinstance(e, WatchdogLapsed)]
+    assert lapse.host_silent_for == pytest.approx(0.29)
+    assert "watchdog: host silent 290 ms" in lapse.describe()
+    assert not host.enabled
+    host.handle_timer(0.9)
+    assert host.data_to_send() == b""  # no heartbeat any more
+    assert host.stats.watchdog_lapses == 1
+
+
+def test_telemetry_showing_the_board_disabled_after_enabled_is_a_lapse() -> None:
+    host, board, _ = configured()
+    host.receive_data(board.tm(enabled=False), 0.05)
+    events = list(host.events())
+    (lapse,) = [e for e in events if isinstance(e, WatchdogLapsed)]
+    assert lapse.host_silent_for is None and "telemetry shows it disabled" in lapse.detail
+    assert events.index(lapse) < next(i for i, e in enumerate(events)
+                                      if isinstance(e, Telemetry))
+    assert not host.enabled and host.data_to_send() == b"SRDP"
+
+
+def test_samples_from_before_the_enable_took_effect_are_no_lapse() -> None:
+    host, board = Connection(baud=None), Board()
+    host.start(0.0)
+    host.enable(0.0)
+    host.receive_data(board.tm(False) + board.tm(False) + board.tm(True), 0.01)
+    assert not any(isinstance(e, WatchdogLapsed) for e in host.events())
+    assert host.enabled
+    # Disabled and enabled again at once: samples still on the way show the board enabled
+    # from before the RD, then disabled, then enabled by the new RE. None is a lapse...
+    host.disable(0.02)
+    host.enable(0.02)
+    stream = b"".join(board.tm(flag) for flag in (True, True, False, False, True, True))
+    host.receive_data(stream, 0.03)
+    assert not any(isinstance(e, WatchdogLapsed) for e in host.events())
+    # ...but disabled after that rise is.
+    host.receive_data(board.tm(False), 0.04)
+    assert any(isinstance(e, WatchdogLapsed) for e in host.events())
+
+
+def test_a_board_enabled_all_along_is_confirmed_after_the_watchdogs_time() -> None:
+    # No disabled sample ever (the board was enabled when this link began): after 300 ms
+    # of board time enabled, only this link's RE can be keeping it so.
+    host, board = Connection(baud=None), Board()
+    host.start(0.0)
+    host.enable(0.0)
+    host.receive_data(b"".join(board.tm(True, advance_us=100_000) for _ in range(4)), 0.3)
+    host.receive_data(board.tm(False), 0.31)
+    assert any(isinstance(e, WatchdogLapsed) for e in host.events())
+
+
+# --- stale telemetry --------------------------------------------------------------------------
+
+
+def test_telemetry_configured_on_that_stops_is_stale_and_the_board_is_asked() -> None:
+    host, board, _ = configured()
+    assert host.telemetry_period == pytest.approx(0.001)
+    timer = host.get_timer()
+    assert timer is not None and timer <= 0.020 + 0.050 + 1e-9
+    host.handle_timer(0.020 + 0.049)
+    assert not host.telemetry_stale
+    host.handle_timer(0.020 + 0.0505)
+    events = list(host.events())
+    (stale,) = [e for e in events if isinstance(e, TelemetryStale)]
+    assert stale.silent_for == pytest.approx(0.0505) and stale.period == pytest.approx(0.001)
+    assert host.stats.telemetry_stalls == 1
+    # It asks the board whether telemetry is on; it is: a telemetry-only loss, still stale.
+    probe = host.data_to_send()
+    (content,) = FrameDecoder().feed(probe)
+    assert isinstance(content, bytes) and content[:2] == b"PG" and content[9] == 2
+    host.receive_data(board.answer(probe), 0.08)
+    assert not any(isinstance(e, BoardRestarted) for e in host.events())
+    assert host.telemetry_stale
+    host.receive_data(board.tm(advance_us=60_000), 0.09)
+    (resumed,) = [e for e in host.events() if isinstance(e, TelemetryResumed)]
+    assert resumed.gap == pytest.approx(0.07)
+    assert not host.telemetry_stale
+
+
+def test_a_stale_board_whose_telemetry_is_off_restarted_and_is_set_up_again() -> None:
+    host, board, _ = configured()
+    board.power_cycle()
+    board.side.send(ParamAck(1, 0, 1, 1), 0.0)  # its first counted message, lost: only
+    board.side.data_to_send()  # the probe's answer will show it
+    host.handle_timer(0.08)
+    probe = host.data_to_send()
+    answer = board.answer(probe)
+    host.receive_data(answer, 0.081)
+    events = list(host.events())
+    (restart,) = [e for e in events if isinstance(e, BoardRestarted)]
+    assert restart.evidence in (RestartEvidence.CONFIG_LOST, RestartEvidence.COUNTER_RESET)
+    assert "GetDataPeriodical" in restart.detail or "counter" in restart.detail
+    events = exchange(host, board, 0.09)
+    assert BoardResynced(3) in events
+    assert board.values[(2, 0)] == 1  # telemetry on again, last
+
+
+def test_telemetry_off_as_confirmed_is_not_expected() -> None:
+    host, board, _ = configured()
+    host.set_param(lookup("GetDataPeriodical"), 0, 0, 0.03)
+    exchange(host, board, 0.03)
+    host.handle_timer(5.0)
+    assert not any(isinstance(e, TelemetryStale) for e in host.events())
+
+
+def test_the_stale_limit_follows_the_period_and_is_set_by_the_caller() -> None:
+    host, board, _ = configured(stale_periods=10)
+    host.set_param(lookup("TsTimerPeriod"), 0, 20, 0.03)
+    exchange(host, board, 0.03)
+    assert host.telemetry_period == pytest.approx(0.02)
+    host.receive_data(board.tm(advance_us=20_000), 0.04)
+    list(host.events())
+    host.handle_timer(0.04 + 0.199)
+    assert not host.telemetry_stale
+    host.handle_timer(0.04 + 0.2)
+    assert host.telemetry_stale
+    with pytest.raises(ValueError, match="stale_periods"):
+        Connection(stale_periods=1)
+    with pytest.raises(ValueError, match="heartbeat_give_up"):
+        Connection(heartbeat_give_up=0.35)
+
+
+def test_port_lost_disables_and_the_board_heard_again_is_taken_as_restarted() -> None:
+    host, board, _ = configured()
+    host.port_lost(0.05, "unplugged")
+    assert not host.enabled
+    host.reconnected(0.5)
+    assert host.data_to_send() == b""  # no RE by itself
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.6)
+    events = list(host.events())
+    (restart,) = [e for e in events if isinstance(e, BoardRestarted)]
+    assert restart.evidence is RestartEvidence.PORT_RECONNECTED
+    assert "reconnected port" in restart.detail
+    assert any(isinstance(e, RequestDone) for e in exchange(host, board, 0.61))
+
+
+def test_a_host_that_was_not_running_gives_the_board_half_a_window_of_its_own_time() -> None:
+    # The host's timer comes 100 ms late (its process was starved): it cannot tell a board
+    # that stopped from samples it had no chance to read. It looks again 25 ms later.
+    host, board, _ = configured()
+    host.handle_timer(0.020 + 0.150)
+    assert not host.telemetry_stale
+    timer = host.get_timer()
+    assert timer == pytest.approx(0.17 + 0.025)
+    host.receive_data(board.tm(advance_us=150_000), 0.18)  # it comes: nothing was wrong
+    host.handle_timer(0.2)
+    assert not host.telemetry_stale
+    # Late again, and still nothing half a window later: stale.
+    host.handle_timer(0.18 + 0.150)
+    assert not host.telemetry_stale
+    host.handle_timer(0.33 + 0.025)
+    assert host.telemetry_stale
