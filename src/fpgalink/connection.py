@@ -81,6 +81,7 @@ from fpgalink.protocol import (
     parse_content,
     parse_telemetry_run,
 )
+from fpgalink.protocol.crc import HostWireCrc  # wire CRC (issue 29)
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, byte_time_s
 
 __all__ = [
@@ -218,6 +219,8 @@ class LinkStats:
     subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
     port_losses: int = 0
     reconnects: int = 0
+    #: frames dropped because their wire CRC did not match (only while the CRC is on)
+    crc_failures: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
 
     def snapshot(self) -> LinkStats:
@@ -299,6 +302,9 @@ class Connection:
         self._held_reference: References | None = None
         self._requests: dict[int, _Request] = {}
         self._next_request_id = 1
+        # --- wire CRC (issue 29): off until the board confirms WireCrc = 1 ----------------
+        #: the optional wire CRC's state (:class:`~fpgalink.protocol.crc.HostWireCrc`)
+        self.wire_crc = HostWireCrc()
 
     # --- receiving ------------------------------------------------------------------------
 
@@ -316,6 +322,13 @@ class Connection:
         decoder = self._decoder
         before = decoder.stats.frames
         items = decoder.feed(data)
+        # --- wire CRC (issue 29): checked and stripped before any frame is parsed --------
+        if self.wire_crc.checking and items:
+            items, failed = self.wire_crc.filter(items)
+            if failed:
+                self.stats.crc_failures += failed
+                before += failed  # those items are CrcMismatch events now, not frames
+        # ----------------------------------------------------------------------------------
         if items:
             n = len(items)
             if n < TELEMETRY_RUN_MIN:
@@ -519,6 +532,10 @@ class Connection:
             content = message.content
         else:
             content = encode_message(message, self._send_counter.take())
+            # --- wire CRC (issue 29) ------------------------------------------------------
+            self.wire_crc.sent(message)
+            content = self.wire_crc.outgoing(content)
+            # -------------------------------------------------------------------------------
         wire = encode_frame(content, self.framing)
         self._outbox.append(wire)
         stats = self.stats
@@ -659,6 +676,9 @@ class Connection:
 
     def _answer(self, msg: ParamAck | ParamNack, now: float) -> None:
         """Settle the pending requests for the parameter ``msg`` is about."""
+        # --- wire CRC (issue 29): the board's PA for WireCrc sets the mode ----------------
+        self.wire_crc.answered(msg.param_id, msg.value if type(msg) is ParamAck else None)
+        # ----------------------------------------------------------------------------------
         waiting = [r for r in self._requests.values()
                    if r.param.id == msg.param_id and r.channel == msg.channel]
         if not waiting:
