@@ -12,6 +12,9 @@ from fpgalink.protocol import NackReason, ParamAck, ParamGet, ParamNack, ParamSe
 from fpgalink.protocol.params import PARAMETERS, Param, ParamType, Scope, float32
 from tests.support.host import MS, Host
 
+# Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
+pytestmark = pytest.mark.usefixtures("each_firmware")
+
 INT, FLOAT = int(ParamType.INT), int(ParamType.FLOAT)
 BY_ID = {p.id: p for p in PARAMETERS}
 CHANNEL_PARAMS = [p for p in PARAMETERS if p.scope is Scope.CHANNEL]
