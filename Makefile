@@ -61,6 +61,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.link
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2
+	$(PY) -m benchmarks.crc_ber
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build
