@@ -17,8 +17,8 @@ compared with what was sent under its counter.
 Python firmware at 1 kHz, ``tx-ber`` faults in ``uart.LineFaults`` with its start-bit
 resynchronisation), fewer frames, so the fast model's figures can be held against it.
 
-``python -m benchmarks.crc_ber`` (10^6 frames per case; ``--frames N``); ``--quick``: 20,000
-frames and a 2 s cross-check (the smoke test).
+``python -m benchmarks.crc_ber`` (10^6 frames per case; ``--frames N``); ``--quick``: 10,000
+frames and a 1 s cross-check (the smoke test).
 """
 
 from __future__ import annotations
@@ -46,11 +46,11 @@ from fpgalink.protocol.crc import CRC16, append_crc
 NAME = "crc_ber"
 RATES = (1e-5, 1e-4)
 DEFAULT_FRAMES = 1_000_000
-QUICK_FRAMES = 20_000
+QUICK_FRAMES = 10_000
 #: Frames generated, damaged and decoded at a time (a counter is unique within two).
 CHUNK = 50_000
 CROSS_CHECK_S = 60.0
-QUICK_CROSS_CHECK_S = 2.0
+QUICK_CROSS_CHECK_S = 1.0
 SEED = 29
 
 

@@ -2,10 +2,6 @@ import os
 
 from hypothesis import HealthCheck, settings
 
-from tests.support.firmwares import each_firmware, firmware_kind
-
-__all__ = ["each_firmware", "firmware_kind"]
-
 # Bounded examples keep CI fast; `HYPOTHESIS_PROFILE=long` digs deeper locally.
 settings.register_profile("ci", max_examples=150, deadline=None,
                           suppress_health_check=[HealthCheck.too_slow])

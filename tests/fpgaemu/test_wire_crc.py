@@ -27,7 +27,8 @@ from fpgalink.protocol import (
 from fpgalink.protocol.crc import WIRE_CRC_PARAM, CrcMismatch, append_crc, strip_crc
 from tests.support.host import MS, Host
 
-pytestmark = pytest.mark.usefixtures("each_firmware")
+#: every test but the older board's runs against the Python firmware model and the C core
+both_firmwares = pytest.mark.usefixtures("each_firmware")
 INT = 1
 
 
@@ -37,6 +38,7 @@ def crc_on(host: Host) -> None:
     assert host.conn.wire_crc.on and host.firmware.wire_crc.on
 
 
+@both_firmwares
 def test_off_at_power_up_the_seeds_wire_unchanged() -> None:
     host = Host.make()
     assert host.get(WIRE_CRC_PARAM, 0) == ParamAck(WIRE_CRC_PARAM, 0, INT, 0, 0)
@@ -48,6 +50,7 @@ def test_off_at_power_up_the_seeds_wire_unchanged() -> None:
     assert frames and all(len(f) == 52 for f in frames if f[:2] == b"TM")
 
 
+@both_firmwares
 def test_switched_on_every_counted_message_carries_it_and_nothing_fails() -> None:
     host = Host.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
@@ -67,6 +70,7 @@ def test_switched_on_every_counted_message_carries_it_and_nothing_fails() -> Non
     assert all(len(f) == 54 and strip_crc(f) is not None for f in counted)
 
 
+@both_firmwares
 def test_a_damaged_telemetry_frame_is_counted_and_never_delivered() -> None:
     host = Host.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
@@ -91,6 +95,7 @@ def test_a_damaged_telemetry_frame_is_counted_and_never_delivered() -> None:
     assert len(host.telemetry) == before
 
 
+@both_firmwares
 def test_a_damaged_reference_is_dropped_by_the_board_and_counted() -> None:
     host = Host.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
@@ -127,6 +132,7 @@ def _exchange(board: Board, conn: Connection, until: int, lose: bool = False) ->
         board.host_write(conn.data_to_send())
 
 
+@both_firmwares
 def test_a_lost_confirmation_is_recovered_by_the_resend() -> None:
     host = Host.make()
     board, conn = host.board, Connection(baud=None, request_timeout=0.01)
@@ -143,6 +149,7 @@ def test_a_lost_confirmation_is_recovered_by_the_resend() -> None:
     assert conn.stats.crc_failures == 0
 
 
+@both_firmwares
 def test_a_new_host_session_finds_the_board_switched_on_and_off_again() -> None:
     host = Host.make()
     crc_on(host)
