@@ -53,12 +53,21 @@ def find_compiler() -> str | None:
 
 
 def cache_dir() -> Path:
+    """Where builds are kept: ``$FPGAEMU_CACHE_DIR``, else the user's cache directory, else
+    (not writable, or no home) a directory of this user's under the system's temporary
+    directory."""
     explicit = os.environ.get("FPGAEMU_CACHE_DIR")
     if explicit:
         return Path(explicit)
     xdg = os.environ.get("XDG_CACHE_HOME")
-    base = Path(xdg) if xdg else Path.home() / ".cache"
-    return base / "fpgaemu"
+    try:
+        preferred = (Path(xdg) if xdg else Path.home() / ".cache") / "fpgaemu"
+        preferred.mkdir(parents=True, exist_ok=True)
+        if os.access(preferred, os.W_OK):
+            return preferred
+    except (OSError, RuntimeError):  # RuntimeError: no home directory to be found
+        pass
+    return Path(tempfile.gettempdir()) / f"fpgaemu-{os.getuid()}"
 
 
 @dataclass(frozen=True, slots=True)
