@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint demo bench clean iverilog
+.PHONY: setup test lint demo bench clean iverilog cc firmware
 
 # The ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags) is part of the test set-up: its
 # transitive pins are in ros2-constraints.txt.
@@ -23,11 +23,24 @@ ifeq ($(ICARUS),)
 	else sudo apt-get update -qq && sudo apt-get install -y -qq iverilog >/dev/null; fi
 endif
 
+# A C compiler builds the C firmware core the emulator can run in place of its Python model
+# (fpgaemu.cfirmware, tests parametrised over both) and the generated protocol codec.
+CC_FOUND := $(shell command -v cc 2>/dev/null || command -v gcc 2>/dev/null)
+cc:
+ifeq ($(CC_FOUND),)
+	@if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq gcc libc6-dev >/dev/null; \
+	else sudo apt-get update -qq && sudo apt-get install -y -qq gcc libc6-dev >/dev/null; fi
+endif
+
+# The firmware core and the protocol code generated for it, built for this host (sizes printed).
+firmware: $(STAMP) cc
+	$(MAKE) -C firmware PYTHON=$(abspath $(PY))
+
 setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
-test: $(STAMP) iverilog
-	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
+test: $(STAMP) iverilog cc
+	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
 # The main job on the built-in emulator, no hardware: connect, enable, show the parameters,
@@ -48,6 +61,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.link
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2
+	$(PY) -m benchmarks.crc_ber
 
 clean:
-	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist
+	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

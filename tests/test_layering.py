@@ -117,3 +117,29 @@ def test_every_public_name_of_a_package_resolves(package: str) -> None:
     module = importlib.import_module(package)
     missing = [name for name in module.__all__ if not hasattr(module, name)]
     assert not missing, f"{package} lists {missing} but cannot give them"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.codegen"))
+def test_the_code_generator_stands_on_the_protocol_alone(where: str, path: Path) -> None:
+    # A tool of fpgalink that reads the one declaration: nothing above the protocol, no I/O
+    # but writing its files (pathlib), no clock.
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.protocol",
+                                                             "fpgalink.codegen")}, where
+    assert not names & {"asyncio", "time", "socket", "serial", "threading"}, where
+
+
+@pytest.mark.parametrize(("where", "path"), [*modules("fpgalink"), *modules("fpgaemu")])
+def test_only_the_cli_command_imports_the_generator(where: str, path: Path) -> None:
+    # The emulator builds the C firmware from the generator's output, running it as a
+    # program (fpgaemu/cfirmware.py), never by import; the library does not need it.
+    if where.startswith(("fpgalink/codegen/", "fpgalink/cli/codegen.py")):
+        return
+    assert not {n for n in imports_of(path) if within(n, "fpgalink.codegen")}, where
+
+
+@pytest.mark.parametrize(("where", "path"), [*modules("fpgalink"), *modules("fpgaemu")])
+def test_cffi_stays_in_the_emulators_c_build(where: str, path: Path) -> None:
+    if where == "fpgaemu/cbuild.py":
+        return
+    assert "cffi" not in imports_of(path), where

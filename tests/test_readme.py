@@ -52,8 +52,9 @@ def test_every_python_example_runs_as_written(code: str, shown: str | None) -> N
 
 def test_the_parameter_table_shown_is_what_param_list_prints(tmp_path: Path) -> None:
     section = README[README.index("$ .venv/bin/fpgalink-cli param list"):]
-    shown = [line for line in section.splitlines()[1:] if line.startswith(("┃", "│"))]
-    shown = shown[: shown.index(next(s for s in shown if s.startswith("│ 10"))) + 1]
+    table = section.splitlines()[1:]
+    table = table[: table.index(next(s for s in table if s.startswith("└"))) + 1]
+    shown = [line for line in table if line.startswith(("┃", "│"))]
     result = subprocess.run([sys.executable, "-m", "fpgalink", "param", "list"],
                             capture_output=True, text=True, timeout=60, cwd=ROOT,
                             env={"COLUMNS": "200", "NO_COLOR": "1", "PATH": "/usr/bin:/bin",

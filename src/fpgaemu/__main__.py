@@ -172,11 +172,16 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--truth", "truth", metavar="HOST:PORT",
                  help="With --robot: where the true pose streams as JSON lines  "
                       "[default: 127.0.0.1:0]"),
+    click.option("--firmware", "firmware", type=click.Choice(["python", "c"]),
+                 help="The MicroBlaze software: the Python model, or the C core of firmware/ "
+                      "(built on first use with the system C compiler; docs/firmware.md)  "
+                      "[default: python]"),
 ]
 DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 1_000_000,
                             "seed": 0, "gear": "high", "config_path": None,
                             "assignments": (), "links": (), "faults": (), "robot": False,
-                            "robot_file": None, "surface": None, "truth": None}
+                            "robot_file": None, "surface": None, "truth": None,
+                            "firmware": "python"}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -223,7 +228,7 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     truth = parse_tcp(value["truth"] or "127.0.0.1:0") if robot else None
     try:
         paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
-                              settings, faults)
+                              settings, faults, value["firmware"])
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
     with asyncio.Runner(loop_factory=_precise_loop) as runner:
@@ -272,14 +277,16 @@ def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
 
 def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, seed: int,
                   gear: str, settings: dict[str, int | float],
-                  faults: dict[str, list[str]]) -> dict[str, PacedBoard]:
+                  faults: dict[str, list[str]], firmware: str = "python"
+                  ) -> dict[str, PacedBoard]:
     if robot is not None:
         emulated = EmulatedRobot(robot, baud=baud, seed=seed, gear=gear, faults=faults,
-                                 settings=settings)
+                                 settings=settings, firmware=firmware)
         paced_robot = PacedRobot(emulated)
         return {name: paced_robot.side(name) for name in names}
     return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
-                                         settings=settings, faults=faults[name]))
+                                         settings=settings, faults=faults[name],
+                                         firmware=firmware))
             for index, name in enumerate(names)}
 
 

@@ -1,6 +1,7 @@
 """Putting a whole board together: the communication path and I/O blocks
 (:class:`~fpgaemu.board.Board`), the MicroBlaze software
-(:class:`~fpgaemu.firmware.Firmware`), the motors and wheels (:class:`~fpgaemu.motor.Motors`)
+(:class:`~fpgaemu.firmware.Firmware`, or the C core: :class:`~fpgaemu.cfirmware.CFirmware`),
+the motors and wheels (:class:`~fpgaemu.motor.Motors`)
 and any injected faults — as ``fpgaemu serve`` and ``emu://`` build it."""
 
 from __future__ import annotations
@@ -14,10 +15,13 @@ from fpgaemu.firmware import attach_firmware
 from fpgaemu.motor import GEARS, Motors
 from fpgaemu.uart import DEFAULT_BAUD
 
-__all__ = ["EMU_OPTIONS", "board_from_url", "build_board", "parse_emu_options", "seed_option"]
+__all__ = ["EMU_OPTIONS", "FIRMWARES", "board_from_url", "build_board", "parse_emu_options",
+           "seed_option"]
 
 #: The query options an ``emu://`` URL understands.
-EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap")
+EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap", "firmware")
+#: The MicroBlaze software: the Python model, or the C core (firmware/) through cffi.
+FIRMWARES = ("python", "c")
 
 
 def build_board(
@@ -29,20 +33,30 @@ def build_board(
     faults: list[str] | None = None,
     tx_byte_gap: int = 0,
     current_noise_a: float = 0.0,
+    firmware: str = "python",
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
     byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
-    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded). ``ValueError`` for
-    anything invalid."""
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``firmware`` the
+    MicroBlaze software, ``"python"`` (the model) or ``"c"`` (the C core, built on first use;
+    :class:`~fpgaemu.cfirmware.CFirmwareUnavailable` without a C compiler). ``ValueError``
+    for anything invalid."""
+    if firmware not in FIRMWARES:
+        raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
     board = Board(config)
-    attach_firmware(board, settings or {})
+    if firmware == "c":
+        from fpgaemu.cfirmware import attach_c_firmware
+
+        attach_c_firmware(board, settings or {})
+    else:
+        attach_firmware(board, settings or {})
     board.add_peripheral("motors", Motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())
     return board
@@ -65,8 +79,8 @@ def seed_option(options: dict[str, list[str]]) -> int:
 
 
 def board_from_url(url: str, baud: int) -> Board:
-    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2`` → a board (``fault``
-    repeats)."""
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2&firmware=c`` → a board
+    (``fault`` repeats)."""
     parts = urlsplit(url)
     if parts.scheme != "emu" or parts.netloc or parts.path not in ("", "/"):
         raise ValueError(f"expected emu:// with optional ?{'&'.join(EMU_OPTIONS)} options")
@@ -76,4 +90,5 @@ def board_from_url(url: str, baud: int) -> Board:
         raise ValueError(f"emu:// tx_gap must be a whole number of cycles, got {gap_text!r}")
     return build_board(baud=baud, seed=seed_option(options),
                        gear=options.get("gear", ["high"])[-1],
-                       faults=options.get("fault", []), tx_byte_gap=int(gap_text))
+                       faults=options.get("fault", []), tx_byte_gap=int(gap_text),
+                       firmware=options.get("firmware", ["python"])[-1])

@@ -8,6 +8,10 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
   controllers, write the PWM registers, and send ``TM`` while GetDataPeriodical = 1.
 * ``E`` every 300 ms, enabled or not.
 * ``global_enable`` falling (``RD`` or watchdog): integrators reset, references cleared.
+* The optional wire CRC (:mod:`fpgalink.protocol.crc`): off at power-up; ``WireCrc`` = 1
+  switches it on, the ``PA`` already carrying it; frames failing the check are counted in
+  :attr:`FirmwareStats.crc_failures` and dropped. ``Firmware(wire_crc=False)`` is a board
+  from before the extension: it answers ``PN`` 1 for the parameter.
 
 Controller modes (parameter 4, per channel):
 
@@ -47,6 +51,7 @@ from fpgaemu.timing import TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgalink.protocol import (
     PARAMETERS,
+    WIRE_CRC_PARAM,
     ChannelTelemetry,
     CounterTracker,
     Malformed,
@@ -67,6 +72,7 @@ from fpgalink.protocol import (
     parse_content,
     resolve,
 )
+from fpgalink.protocol.crc import HANDSHAKE_WITH_CRC, BoardWireCrc, append_crc
 from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
 
 __all__ = ["Firmware", "FirmwareStats", "attach_firmware"]
@@ -116,12 +122,18 @@ class FirmwareStats:
     telemetry_sent: int = 0
     telemetry_dropped: int = 0  #: the TX queue was full
     alive_sent: int = 0
+    crc_failures: int = 0  #: frames dropped for a bad wire CRC
 
 
 class Firmware:
-    def __init__(self, settings: dict[str, Any] | None = None) -> None:
+    def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True
+                 ) -> None:
+        #: the parameters this firmware knows (without WireCrc: a board older than the CRC)
+        self.parameters = {p.id: p for p in PARAMETERS
+                           if wire_crc or p.id != WIRE_CRC_PARAM}
+        self.wire_crc = BoardWireCrc()
         self.values: dict[tuple[int, int], int | float] = {}
-        for param in PARAMETERS:
+        for param in self.parameters.values():
             for channel in _channels_of(param):
                 self.values[(param.id, channel)] = _stored(param, param.default)
         self.channels = {code: Channel(self._gains(code)) for code in (CHANNEL_A, CHANNEL_B)}
@@ -168,7 +180,7 @@ class Firmware:
         self.tx = TxQueue(axi, depth=8, on_start=self._on_tx_start)
         now = board.now
         self._timing.started_cycle = now
-        for param in PARAMETERS:
+        for param in self.parameters.values():
             for channel in _channels_of(param):
                 self._apply(param, channel, self.values[(param.id, channel)])
         for name, value in self._pending_settings.items():
@@ -206,8 +218,9 @@ class Firmware:
 
     def _send(self, message: Any, kind: str) -> bool:
         """Send or queue a message other than ``TM`` (the tick sends those itself)."""
-        content = b"E" if kind == "E" else encode_message(message, self._counter.take())
-        return self.tx.send(content)
+        if kind == "E":
+            return self.tx.send(b"E")
+        return self.tx.send(self.wire_crc.send(encode_message(message, self._counter.take())))
 
     def _on_tx_start(self, tick: int | None, done: int, wire_bytes: int) -> None:
         self._in_flight.append((done, wire_bytes, tick))
@@ -238,6 +251,13 @@ class Firmware:
         assert self._board is not None
         axi = self._board.axi
         content = axi.take_rx(irq.start_address, irq.length)
+        wire_crc = self.wire_crc
+        if wire_crc.on or len(content) in HANDSHAKE_WITH_CRC:
+            checked = wire_crc.receive(content)
+            if checked is None:
+                self.stats.crc_failures += 1
+                return
+            content = checked
         message = parse_content(content)
         self.stats.messages += 1
         counter = getattr(message, "counter", None)
@@ -289,7 +309,7 @@ class Firmware:
         return None
 
     def _handle_set(self, message: ParamSet) -> None:
-        param = _BY_ID.get(message.param_id)
+        param = self.parameters.get(message.param_id)
         if param is None:
             self._refuse(message.param_id, message.channel, NackReason.UNKNOWN_ID)
             return
@@ -301,7 +321,7 @@ class Firmware:
         self._acknowledge(param, message.channel)
 
     def _handle_get(self, message: ParamGet) -> None:
-        param = _BY_ID.get(message.param_id)
+        param = self.parameters.get(message.param_id)
         if param is None:
             self._refuse(message.param_id, message.channel, NackReason.UNKNOWN_ID)
         elif not param.check_channel(message.channel):
@@ -325,6 +345,9 @@ class Firmware:
         if param.id == 1:
             self._book_finished(self.board.now)  # frames done so far against the old period
             self.board.timer.set_period_ms(int(value))
+        elif param.id == WIRE_CRC_PARAM:
+            # Before the PA goes out: the confirmation is the first message in the new form.
+            self.wire_crc.on = value == 1
         elif param.scope is Scope.CHANNEL:
             ch = self.channels[channel]
             if param.id == 4:
@@ -483,14 +506,13 @@ class Firmware:
             content = encode_telemetry(self._counter.take(),
                                        ((cycle - self._powered_at) // _CYCLES_PER_US)
                                        & 0xFFFF_FFFF, *samples)
+            if self.wire_crc.on:
+                content = append_crc(content)
             if self.tx.send(content, cycle):
                 self.stats.telemetry_sent += 1
             else:
                 self.stats.telemetry_dropped += 1
                 self._timing.record_miss(cycle, None)
-
-
-_BY_ID = {p.id: p for p in PARAMETERS}
 
 
 def _channels_of(param: Param) -> tuple[int, ...]:
@@ -502,7 +524,8 @@ def _stored(param: Param, value: int | float) -> int | float:
     return int(value) if param.type is ParamType.INT else float32(float(value))
 
 
-def attach_firmware(board: Board, settings: dict[str, Any] | None = None) -> Firmware:
-    firmware = Firmware(settings)
+def attach_firmware(board: Board, settings: dict[str, Any] | None = None, *,
+                    wire_crc: bool = True) -> Firmware:
+    firmware = Firmware(settings, wire_crc=wire_crc)
     board.add_peripheral("firmware", firmware)
     return firmware

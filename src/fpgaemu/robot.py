@@ -39,6 +39,7 @@ class EmulatedRobot:
         gear: str = "high",
         faults: Mapping[str, list[str]] | None = None,
         settings: Mapping[str, int | float] | None = None,
+        firmware: str = "python",
     ) -> None:
         self.description = description or seed_robot()
         if surface is not None:
@@ -51,7 +52,7 @@ class EmulatedRobot:
         self.boards: dict[str, Board] = {
             name: build_board(baud=baud, seed=seed + index, gear=gear,
                               settings=dict(settings or {}),
-                              faults=list(faults.get(name, [])))
+                              faults=list(faults.get(name, [])), firmware=firmware)
             for index, name in enumerate(self.description.boards)
         }
         self.body = Body(self.description)

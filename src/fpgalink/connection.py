@@ -96,6 +96,7 @@ from fpgalink.protocol import (
     parse_content,
     parse_telemetry_run,
 )
+from fpgalink.protocol.crc import HostWireCrc  # wire CRC (issue 29)
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, byte_time_s
 
 __all__ = [
@@ -133,6 +134,7 @@ WATCHDOG_S = 0.3
 #: The two parameters that say whether, and how often, the board sends telemetry.
 _GET_DATA = lookup("GetDataPeriodical")
 _PERIOD = lookup("TsTimerPeriod")
+_WIRE_CRC = lookup("WireCrc")
 _T_US_WRAP = 1 << 32
 _WATCHDOG_US = round(WATCHDOG_S * 1e6)
 #: Before the telemetry period is known (confirmed or seen), a stream may wait this long for
@@ -248,6 +250,8 @@ class LinkStats:
     subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
     port_losses: int = 0
     reconnects: int = 0
+    #: frames dropped because their wire CRC did not match (only while the CRC is on)
+    crc_failures: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
 
     def snapshot(self) -> LinkStats:
@@ -372,6 +376,9 @@ class Connection:
         #: the board was out of reach: when heard again, it may have restarted
         self._out_of_reach: tuple[RestartEvidence, float] | None = None
         self._last_duplicate: int | None = None
+        # --- wire CRC (issue 29): off until the board confirms WireCrc = 1 ----------------
+        #: the optional wire CRC's state (:class:`~fpgalink.protocol.crc.HostWireCrc`)
+        self.wire_crc = HostWireCrc()
 
     # --- receiving ------------------------------------------------------------------------
 
@@ -389,6 +396,13 @@ class Connection:
         decoder = self._decoder
         before = decoder.stats.frames
         items = decoder.feed(data)
+        # --- wire CRC (issue 29): checked and stripped before any frame is parsed --------
+        if self.wire_crc.checking and items:
+            items, failed = self.wire_crc.filter(items)
+            if failed:
+                self.stats.crc_failures += failed
+                before += failed  # those items are CrcMismatch events now, not frames
+        # ----------------------------------------------------------------------------------
         if items:
             n = len(items)
             if n < TELEMETRY_RUN_MIN:
@@ -689,6 +703,10 @@ class Connection:
             content = message.content
         else:
             content = encode_message(message, self._send_counter.take())
+            # --- wire CRC (issue 29) ------------------------------------------------------
+            self.wire_crc.sent(message)
+            content = self.wire_crc.outgoing(content)
+            # -------------------------------------------------------------------------------
         wire = encode_frame(content, self.framing)
         self._outbox.append(wire)
         stats = self.stats
@@ -766,12 +784,16 @@ class Connection:
         self._enable_seen = False
         self.latest_telemetry = None
         self._last_t_us = None
+        # A board powers up on the plain wire (WireCrc 0); held, it is set again first.
+        self.wire_crc.on = self.wire_crc.asking = False
         self._telemetry_on = None
         self._period = self._seen_period = None
         self.telemetry_stale = False
         self._probe = None
-        # Telemetry last, so the stream comes back from a board configured as before.
-        settings = sorted(self.held.values(), key=lambda held: held[0] is _GET_DATA)
+        # The wire CRC first (every later message then carries it, as before), telemetry
+        # last, so the stream comes back from a board configured as before.
+        settings = sorted(self.held.values(),
+                          key=lambda held: (held[0] is _GET_DATA) - (held[0] is _WIRE_CRC))
         self._resync = deque(settings)
         self._resync_request = None
         self._resync_applied = 0
@@ -900,8 +922,11 @@ class Connection:
             self._events.append(TelemetryStale(now - since, self.telemetry_period or 0.001))
             if self._probe is None and self._resync is None and self.liveness is Liveness.ALIVE:
                 # Ask the board what it has: a restart shows as telemetry off (and as its
-                # counter back at 00000 on the answer).
-                self._probe = self.get_param(_GET_DATA, 0, now)
+                # counter back at 00000 on the answer). On the CRC wire, ask for WireCrc: a
+                # restarted board is back on the plain wire and understands that question
+                # in either form, and its answer is taken in either form.
+                self._probe = self.get_param(_WIRE_CRC if self.wire_crc.on else _GET_DATA,
+                                             0, now)
 
     # --- the port -------------------------------------------------------------------------
 
@@ -973,6 +998,9 @@ class Connection:
 
     def _answer(self, msg: ParamAck | ParamNack, now: float) -> None:
         """Settle the pending requests for the parameter ``msg`` is about."""
+        # --- wire CRC (issue 29): the board's PA for WireCrc sets the mode ----------------
+        self.wire_crc.answered(msg.param_id, msg.value if type(msg) is ParamAck else None)
+        # ----------------------------------------------------------------------------------
         waiting = [r for r in self._requests.values()
                    if r.param.id == msg.param_id and r.channel == msg.channel]
         if not waiting:

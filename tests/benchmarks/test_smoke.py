@@ -256,3 +256,24 @@ def test_ros2_quick(tmp_path: Path) -> None:
         assert result["matched"] > 0 and result["mismatched"] == 0
         latency = result["latency_ms"]
         assert latency["p50"] <= latency["p99"] <= latency["max"]
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_crc_ber_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("crc_ber", tmp_path)
+    assert "accepted corrupt" in stdout
+    assert set(report["cases"]) == {"ber1e-05.plain", "ber1e-05.crc", "ber0.0001.plain",
+                                    "ber0.0001.crc"}
+    for key, case in report["cases"].items():
+        for model in ("fast_model", "emulator"):
+            tally = case[model]
+            assert tally["frames"] > 0, key
+            # every delivered frame is counted once, corrupt or not
+            assert tally["accepted_corrupt"] <= tally["delivered"] <= tally["frames"], key
+        fast = case["fast_model"]
+        assert fast["damaged"] > 0, key  # the line did damage frames at these rates
+        if case["crc"]:
+            # the CRC catches every damaged frame the quick run makes (2^-16 would pass)
+            assert fast["accepted_corrupt"] == 0 and fast["crc_failures"] > 0, key
+        else:
+            assert fast["accepted_corrupt"] > 0, key  # without it, some get through

@@ -73,7 +73,11 @@ async def test_every_parameter_then_1khz_telemetry(board_url: str) -> None:
     async with open_link(board_url) as link:
         link.enable()
         await set_and_read_every_parameter(link)
+        # WireCrc was set to 1 on the way: the telemetry below carries the CRC, every frame
+        # checked on arrival, none failing on a clean line.
+        assert link.connection.wire_crc.on
         await stream_at_1ms_and_check(link, lossless=not board_url.startswith("/dev/"))
+        assert link.stats.crc_failures == 0
         assert link.stats.retries == 0
         assert link.stats.reconnects == 0 and link.stats.port_losses == 0
 

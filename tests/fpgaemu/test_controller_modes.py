@@ -23,6 +23,9 @@ from fpgaemu.timeline import ms
 from fpgalink.protocol import ParamAck
 from tests.support.host import Host
 
+# Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
+pytestmark = pytest.mark.usefixtures("each_firmware")
+
 TORQUE_COEF = 0.2  #: N·m per A (the power-up TorqueCoef)
 
 

@@ -16,6 +16,9 @@ from fpgalink.protocol import ParamAck, References, encode_frame
 from tests.support.host import MS, Host, StepFigures, step_figures
 from tests.support.plant import DEFAULT_GAINS
 
+# Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
+pytestmark = pytest.mark.usefixtures("each_firmware")
+
 FLOAT = 2
 
 

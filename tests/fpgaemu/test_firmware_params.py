@@ -12,6 +12,9 @@ from fpgalink.protocol import NackReason, ParamAck, ParamGet, ParamNack, ParamSe
 from fpgalink.protocol.params import PARAMETERS, Param, ParamType, Scope, float32
 from tests.support.host import MS, Host
 
+# Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
+pytestmark = pytest.mark.usefixtures("each_firmware")
+
 INT, FLOAT = int(ParamType.INT), int(ParamType.FLOAT)
 BY_ID = {p.id: p for p in PARAMETERS}
 CHANNEL_PARAMS = [p for p in PARAMETERS if p.scope is Scope.CHANNEL]
@@ -25,7 +28,7 @@ def valid_channel(param: Param) -> int:
 def a_valid_value(param: Param) -> int | float:
     """A legal value different from the default where possible."""
     return {1: 7, 2: 1, 3: 0.35, 4: 1, 5: 20000, 6: 1024, 7: -1, 8: 123.456, 9: 0.3,
-            10: 0.01}[param.id]
+            10: 0.01, 11: 1}[param.id]
 
 
 @pytest.fixture
@@ -45,7 +48,7 @@ def in_force(host: Host, param: Param, channel: int) -> int | float:
 # --- PN 1: unknown id -------------------------------------------------------------------------
 
 
-@pytest.mark.parametrize("param_id", [0, 11, 12, 99, 255])
+@pytest.mark.parametrize("param_id", [0, 12, 13, 99, 255])
 def test_unknown_id_is_pn1_for_set_and_get(host: Host, param_id: int) -> None:
     assert_nack(host.set(param_id, 0, INT, 1), param_id, 0, NackReason.UNKNOWN_ID)
     assert_nack(host.set(param_id, 1, FLOAT, 1.0), param_id, 1, NackReason.UNKNOWN_ID)
@@ -110,6 +113,7 @@ OUT_OF_RANGE: dict[int, list[int | float]] = {
     8: [-1e-6, -520.0, math.nan, math.inf, -math.inf],
     9: [0.0, -0.0, -0.24, math.nan, math.inf, -math.inf],
     10: [-1e-6, -1.0, math.nan, math.inf, -math.inf],
+    11: [-1, 2, 100],
 }
 IN_RANGE_EDGES: dict[int, list[int | float]] = {
     1: [1, 1000],
@@ -122,6 +126,7 @@ IN_RANGE_EDGES: dict[int, list[int | float]] = {
     8: [0.0, 1e30],
     9: [1e-30, 1e30],
     10: [0.0, 1e30],
+    11: [0, 1],
 }
 
 
@@ -156,7 +161,7 @@ def test_range_edges_are_accepted_and_echoed(host: Host, param: Param) -> None:
     ("body", "code"),
     [
         # unknown id beats bad channel, wrong type and out of range
-        ((11, 7, 7, 12345), NackReason.UNKNOWN_ID),
+        ((12, 7, 7, 12345), NackReason.UNKNOWN_ID),
         ((0, 3, 2, math.nan), NackReason.UNKNOWN_ID),
         # bad channel beats wrong type and out of range
         ((1, 1, 2, math.nan), NackReason.BAD_CHANNEL),

@@ -17,6 +17,9 @@ from fpgalink.protocol.catalogue import ChannelTelemetry
 from fpgalink.protocol.params import float32
 from tests.support.host import MS, Host
 
+# Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
+pytestmark = pytest.mark.usefixtures("each_firmware")
+
 
 @dataclass(frozen=True)
 class Registers:

@@ -10,7 +10,8 @@ the reported current lag the duty, and ActiveController 3, which the scenario se
 channel B, is now run (the hardware current loop) instead of refused. The speed-ups of the
 performance work came after that and keep this trace. A digest keeps the test small; on a
 mismatch the first diverging byte is reported, and the scenario can be rerun against an
-older checkout to compare.
+older checkout to compare. Since issue 29 the same trace is required of the C firmware core
+running in the emulator in place of the Python model.
 """
 
 from __future__ import annotations
@@ -93,6 +94,8 @@ def digest(tx: list[tuple[int, int]]) -> str:
     return h.hexdigest()
 
 
-def test_the_board_reproduces_its_golden_trace() -> None:
-    tx = trace(build_board())
+def test_the_board_reproduces_its_golden_trace(firmware_kind: str) -> None:
+    # The C firmware core (firmware/, issue 29) must put the very same bytes on the wire at
+    # the very same cycles as the Python model it was written after.
+    tx = trace(build_board(firmware=firmware_kind))
     assert (len(tx), digest(tx)) == (GOLDEN_BYTES, GOLDEN_SHA256)

@@ -17,7 +17,13 @@ from fpgaemu.faults import parse_faults
 from fpgaemu.robot import EmulatedRobot
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import Connection
-from fpgalink.events import RequestDone, TelemetryResumed, TelemetryStale
+from fpgalink.events import (
+    BoardRestarted,
+    BoardResynced,
+    RequestDone,
+    TelemetryResumed,
+    TelemetryStale,
+)
 from fpgalink.protocol import Alive, ParamAck, References, Telemetry, encode_frame, lookup
 from tests.fpgaemu.test_golden_trace import ps
 
@@ -48,9 +54,9 @@ class Host:
         return [e for t, e in self.events if isinstance(e, Telemetry) and t >= since]
 
 
-def driven(faults: list[str] | None = None) -> Host:
+def driven(faults: list[str] | None = None, firmware: str = "python") -> Host:
     """Telemetry on, Kp_Wheel_PidA set, enabled and driving both wheels."""
-    host = Host(build_board(faults=faults))
+    host = Host(build_board(faults=faults, firmware=firmware))
     link = host.link
     link.enable(0.0)
     link.set_param(lookup("GetDataPeriodical"), 0, 1, 0.0)
@@ -59,8 +65,9 @@ def driven(faults: list[str] | None = None) -> Host:
     return host
 
 
-def test_a_power_cycle_puts_the_board_back_to_power_up_while_the_wheels_go_on() -> None:
-    host = driven()
+def test_a_power_cycle_puts_the_board_back_to_power_up_while_the_wheels_go_on(
+        firmware_kind: str) -> None:
+    host = driven(firmware=firmware_kind)
     host.run_to(1.0)
     board = host.board
     before = host.telemetry()[-1]
@@ -123,13 +130,13 @@ def test_bytes_sent_before_the_cut_reach_the_host_and_the_hosts_pending_bytes_ar
     assert sum(isinstance(e, Telemetry) for e in events) >= 8
 
 
-def test_restart_faults_from_specs_and_power_cycles_on_schedule() -> None:
+def test_restart_faults_from_specs_and_power_cycles_on_schedule(firmware_kind: str) -> None:
     assert parse_faults(["restart=0.5", "restart@1.25"]).restarts == [ms(500), ms(1250)]
     for bad in ("restart=-1", "restart=nan", "restart=inf", "restart@1=2", "restart=",
                 "tm-loss=1", "tm-loss=nan:1"):
         with pytest.raises(ValueError, match="bad fault spec"):
             parse_faults([bad])
-    board = build_board(faults=["restart=0.5", "restart@1.25"])
+    board = build_board(faults=["restart=0.5", "restart@1.25"], firmware=firmware_kind)
     first = board.next_deadline()
     assert first is not None and first <= ms(300)
     board.run_until(ms(2000))
@@ -152,8 +159,8 @@ def test_a_quiet_board_wakes_for_its_restart() -> None:
     assert ms(450) in deadlines and board.power_cycles == 1
 
 
-def test_tm_loss_loses_only_telemetry_in_its_window() -> None:
-    host = driven(["tm-loss=0.2:0.3"])
+def test_tm_loss_loses_only_telemetry_in_its_window(firmware_kind: str) -> None:
+    host = driven(["tm-loss=0.2:0.3"], firmware_kind)
     host.run_to(1.0)
     times = [tm.t_us for tm in host.telemetry()]
     assert not [t for t in times if 200_000 < t < 499_000]
@@ -193,3 +200,23 @@ def test_a_robot_board_restart_leaves_the_body_moving_continuously() -> None:
     steps = [math.hypot(b.x - a.x, b.y - a.y) for a, b in itertools.pairwise(poses)]
     assert max(steps) < 0.001  # never a jump: at most 1 mm in a millisecond
     assert poses[-1].x > 0.05
+
+
+def test_a_restart_on_the_crc_wire_is_found_and_the_crc_set_again(firmware_kind: str
+                                                                  ) -> None:
+    # The restarted board is back on the plain wire and takes the host's CRC'd frames for
+    # malformed ones; the host asks it for WireCrc (understood in either form), finds it 0,
+    # and sets everything again, the CRC first.
+    host = driven(["restart=0.5"], firmware_kind)
+    host.link.set_param(lookup("WireCrc"), 0, 1, 0.0)
+    host.run_to(1.5)
+    events = [e for _, e in host.events]
+    restarts = [e for e in events if isinstance(e, BoardRestarted)]
+    assert len(restarts) == 1
+    assert [e for e in events if isinstance(e, BoardResynced)] == [BoardResynced(3)]
+    firmware: Any = host.board.peripherals["firmware"]
+    assert firmware.value("WireCrc") == 1 and firmware.value("GetDataPeriodical") == 1
+    assert firmware.value("Kp_Wheel_Pid", "A") == pytest.approx(400.0)
+    assert host.link.wire_crc.on
+    after = [t for t, e in host.events if isinstance(e, Telemetry) and t > 0.9]
+    assert len(after) > 500  # the stream came back, checked by its CRC

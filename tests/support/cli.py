@@ -73,9 +73,10 @@ class Board:
     cleanup: list[Callable[[], None]] = field(default_factory=list)
 
 
-def serve_pty() -> tuple[subprocess.Popen[str], str]:
+def serve_pty(*options: str) -> tuple[subprocess.Popen[str], str]:
+    """``fpgaemu serve --pty OPTIONS`` and its pty's path, once ready."""
     proc = subprocess.Popen(
-        [sys.executable, "-m", "fpgaemu", "serve", "--pty"],
+        [sys.executable, "-m", "fpgaemu", "serve", "--pty", *options],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT,
     )
     assert proc.stdout is not None

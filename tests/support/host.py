@@ -10,6 +10,7 @@ from typing import Any
 
 from fpgaemu.board import Board, ChannelIo
 from fpgaemu.build import build_board
+from fpgaemu.cfirmware import CFirmware
 from fpgaemu.firmware import Firmware
 from fpgaemu.motor import Motors, WheelPlant
 from fpgaemu.timeline import CLOCK_HZ, ms
@@ -30,6 +31,8 @@ from fpgalink.protocol import (
 MS = ms(1)  #: cycles per millisecond
 #: the host's heartbeat: well inside the board's 300 ms watchdog
 RE_EVERY_MS = 100
+#: the firmware ``Host.make()`` builds boards with (tests/support/firmwares.py sets it)
+DEFAULT_FIRMWARE = "python"
 
 
 @dataclass
@@ -37,7 +40,7 @@ class Host:
     """One board and the host's side of its link."""
 
     board: Board
-    firmware: Firmware
+    firmware: Firmware | CFirmware
     conn: Connection = field(default_factory=lambda: Connection(baud=None))
     telemetry: list[Telemetry] = field(default_factory=list)
     replies: list[ParamAck | ParamNack] = field(default_factory=list)
@@ -51,10 +54,11 @@ class Host:
 
     @classmethod
     def make(cls, *, baud: int = 1_000_000, gear: str = "high",
-             settings: dict[str, Any] | None = None) -> Host:
-        board = build_board(baud=baud, gear=gear, settings=settings)
+             settings: dict[str, Any] | None = None, firmware_kind: str | None = None) -> Host:
+        board = build_board(baud=baud, gear=gear, settings=settings,
+                            firmware=firmware_kind or DEFAULT_FIRMWARE)
         firmware = board.peripherals["firmware"]
-        assert isinstance(firmware, Firmware)
+        assert isinstance(firmware, Firmware | CFirmware)
         return cls(board, firmware)
 
     # --- the board's parts ----------------------------------------------------------------

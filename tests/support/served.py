@@ -261,6 +261,7 @@ def valid_value(param: Param, channel: int) -> int | float:
         "Kp_Wheel_Pid": 9.5 + offset,
         "Ti_Wheel_Pid": 30.25 + offset,
         "Td_Wheel_Pid": 0.5 + offset,
+        "WireCrc": 1,  # everything after it runs with the wire CRC on
     }
     value = chosen[param.name]
     return float(value) if param.type is ParamType.FLOAT else int(value)

@@ -17,7 +17,7 @@ from fpgalink.cli.output import (
     echo_out,
     table_console,
 )
-from fpgalink.protocol import DEFAULT_FRAMING, MessageId, Role
+from fpgalink.protocol import CRC_BYTES, DEFAULT_FRAMING, MessageId, Role
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, TM_CONTENT_BYTES, Flow, plan
 
 __all__ = ["budget", "parse_message"]
@@ -26,9 +26,10 @@ _DIRECTION_WORDS = {"up": True, "to-board": True, "down": False, "to-host": Fals
 MAX_CONTENT = DEFAULT_FRAMING.max_content
 
 
-def parse_message(text: str) -> Flow:
-    """``NAME:BYTES:PER_PERIOD[:up|down]`` → a flow; BYTES is the frame content size. A
-    catalogued ID knows its direction; any other is assumed host → board."""
+def parse_message(text: str, crc: bool = False) -> Flow:
+    """``NAME:BYTES:PER_PERIOD[:up|down]`` → a flow; BYTES is the frame content size (with
+    ``crc``, the wire CRC's two bytes are added to it). A catalogued ID knows its
+    direction; any other is assumed host → board."""
     parts = text.split(":")
     if len(parts) not in (3, 4):
         raise CliError(f"--message {text!r}: expected NAME:BYTES:PER_PERIOD[:up|down]",
@@ -51,6 +52,11 @@ def parse_message(text: str) -> Flow:
     else:
         known = MessageId.lookup(name)
         to_board = known is None or known.sender is Role.HOST
+    if crc:
+        if content + CRC_BYTES > MAX_CONTENT:
+            raise CliError(f"--message {text!r}: {content} + {CRC_BYTES} CRC bytes is over "
+                           f"the {MAX_CONTENT}-byte frame content limit", ExitCode.BAD_INPUT)
+        content += CRC_BYTES
     return Flow(name, content, per_period, to_board=to_board)
 
 
@@ -66,21 +72,25 @@ def parse_message(text: str) -> Flow:
               help="More traffic: frame content BYTES, PER_PERIOD frames each period; "
                    "direction from the ID (PS/PG/RV up, PA/PN/TM down) or a 4th field "
                    "up|down. Repeatable. The seed's case: --message BIG:200:1.")
+@click.option("--crc", is_flag=True,
+              help=f"The wire CRC is on (WireCrc = 1): every counted message, TM included, "
+                   f"carries {CRC_BYTES} more content bytes.")
 @click.option("--check", is_flag=True, help="Exit 1 when a direction does not fit.")
 def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...],
-           check: bool) -> int:
+           crc: bool, check: bool) -> int:
     """Static timing budget: wire bytes per period and utilisation per direction.
 
     One byte is 10 bit times on 8N1: at 1 MBd a 1 ms period holds 100 wire bytes per
     direction. A 200-byte frame every 1 ms (the seed's claim) needs over 2 ms.
     """
-    flows = [parse_message(m) for m in messages]
+    flows = [parse_message(m, crc) for m in messages]
     if tm_bytes:
-        flows.insert(0, Flow("TM", tm_bytes, 1.0, to_board=False))
+        flows.insert(0, Flow("TM", tm_bytes + (CRC_BYTES if crc else 0), 1.0, to_board=False))
     report = plan(baud, period_ms / 1000.0, flows)
     capacity = report.to_host.capacity
     table = Table(title=f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
-                        f"({capacity:,.1f} wire bytes per direction per period)",
+                        f"({capacity:,.1f} wire bytes per direction per period)"
+                        + (f", wire CRC on (+{CRC_BYTES} B per counted message)" if crc else ""),
                   title_justify="left")
     for column in ("direction", "message", "content B", "wire B", "worst-case B",
                    "per period", "wire B/period", "share"):

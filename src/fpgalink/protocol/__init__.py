@@ -10,7 +10,8 @@ stands on it, and so does the board emulator (``fpgaemu``): it is the only part 
   :func:`encode_message` (:func:`encode_telemetry` for a ``TM`` from its fields);
 * :mod:`.params` — the parameter table (ranges, types, power-up defaults);
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
-* :mod:`.wire` — 8N1 wire-time arithmetic and budgets.
+* :mod:`.wire` — 8N1 wire-time arithmetic and budgets;
+* :mod:`.crc` — the optional wire CRC (CRC-16/CCITT-FALSE) and its handshake.
 
 Names load from their submodule on first use, so importing one part of the protocol (the
 wire arithmetic, say) does not import the rest.
@@ -30,6 +31,10 @@ _HOMES = {
     "ChannelTelemetry": "fpgalink.protocol.catalogue",
     "CountedMessage": "fpgalink.protocol.messages",
     "CounterTracker": "fpgalink.protocol.counter",
+    "CRC16": "fpgalink.protocol.crc",
+    "CRC_BYTES": "fpgalink.protocol.crc",
+    "CrcMismatch": "fpgalink.protocol.crc",
+    "WIRE_CRC_PARAM": "fpgalink.protocol.crc",
     "DEFAULT_FRAMING": "fpgalink.protocol.framing",
     "DirectCommand": "fpgalink.protocol.messages",
     "Disable": "fpgalink.protocol.messages",
@@ -103,6 +108,7 @@ if TYPE_CHECKING:
         parse_telemetry_run,
     )
     from fpgalink.protocol.counter import CounterTracker, Observation, SendCounter
+    from fpgalink.protocol.crc import CRC16, CRC_BYTES, WIRE_CRC_PARAM, CrcMismatch
     from fpgalink.protocol.errors import (
         FpgalinkError,
         LocalProtocolError,
@@ -158,16 +164,20 @@ def __getattr__(name: str) -> object:
 
 __all__ = [
     "COUNTER_MODULUS",
+    "CRC16",
+    "CRC_BYTES",
     "DEFAULT_FRAMING",
     "FLOAT32_MAX",
     "PARAMETERS",
     "TELEMETRY_RUN_MIN",
+    "WIRE_CRC_PARAM",
     "AbortReason",
     "Alive",
     "Binary",
     "ChannelTelemetry",
     "CountedMessage",
     "CounterTracker",
+    "CrcMismatch",
     "DirectCommand",
     "Disable",
     "Enable",

@@ -180,6 +180,10 @@ PARAMETERS: tuple[Param, ...] = (
           unit="s", description="speed PID integral time", default=0.24),
     Param(10, "Td_Wheel_Pid", Scope.CHANNEL, ParamType.FLOAT, 0, _INF,
           unit="s", description="speed PID derivative time", default=0.0),
+    # Not in the seed: the optional wire CRC (protocol/crc.py, docs/protocol.md §7). Off at
+    # power-up, so the seed's wire is unchanged; a board without it answers PN 1.
+    Param(11, "WireCrc", Scope.BOARD, ParamType.INT, 0, 1,
+          description="1: every counted message carries a CRC-16/CCITT-FALSE", default=0),
 )
 
 _BY_ID = {p.id: p for p in PARAMETERS}

@@ -113,9 +113,10 @@ async def test_read_params_reads_every_address_in_table_order() -> None:
     link, board, _ = make_link()
     async with link:
         values = await link.read_params()
-    assert len(values) == 2 + 8 * 2
+    assert len(values) == 3 + 8 * 2  # three board parameters (WireCrc the third), 8 × A, B
     assert list(values)[:3] == [(1, 0), (2, 0), (3, 1)]
-    assert sum(type(e).__name__ == "ParamGet" for e in board.received) == 18
+    assert list(values)[-1] == (11, 0)
+    assert sum(type(e).__name__ == "ParamGet" for e in board.received) == 19
 
 
 async def test_heartbeat_and_disable() -> None:

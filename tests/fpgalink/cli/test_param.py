@@ -61,7 +61,7 @@ def test_dump_then_load_round_trip(board: Board, tmp_path: Path) -> None:
     loaded = run_cli("param", "load", str(values), "--port", board.url)
     assert loaded.returncode == 0, loaded.stderr + loaded.stdout
     lines = loaded.stdout.splitlines()
-    assert len(lines) == 18 and all(li.startswith("ok ") for li in lines), loaded.stdout
+    assert len(lines) == 19 and all(li.startswith("ok ") for li in lines), loaded.stdout
     assert any("TsTimerPeriod = 7" in li for li in lines)
     assert run_cli("param", "get", "MaxControlSignalB", "--port", board.url).stdout.strip() \
         == "1234"

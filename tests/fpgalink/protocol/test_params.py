@@ -15,13 +15,18 @@ from fpgalink.protocol.params import float32, iter_addresses
 
 
 def test_table_matches_spec() -> None:
-    assert [p.id for p in PARAMETERS] == list(range(1, 11))
+    # SPEC §5's ten, then the wire CRC's switch (not in the seed; docs/protocol.md §7)
+    assert [p.id for p in PARAMETERS] == list(range(1, 12))
+    wire_crc = PARAMETERS[-1]
+    assert (wire_crc.name, wire_crc.scope, wire_crc.type, wire_crc.default) == (
+        "WireCrc", Scope.BOARD, ParamType.INT, 0)
+    assert (wire_crc.minimum, wire_crc.maximum) == (0, 1)
     assert [(p.name, p.scope, p.type) for p in PARAMETERS[:3]] == [
         ("TsTimerPeriod", Scope.BOARD, ParamType.INT),
         ("GetDataPeriodical", Scope.BOARD, ParamType.INT),
         ("TorqueCoef", Scope.CHANNEL, ParamType.FLOAT),
     ]
-    assert len(list(iter_addresses())) == 2 + 8 * 2
+    assert len(list(iter_addresses())) == 3 + 8 * 2
 
 
 @pytest.mark.parametrize(
@@ -49,7 +54,7 @@ def test_resolve(name: str | int, channel: str | int | None, expected: tuple[int
         ("TsTimerPeriod", "A", "board-wide"),
         ("Kp_Wheel_PidA", "B", "name says channel A"),
         ("Kp_Wheel_Pid", "C", "unknown channel"),
-        (11, None, "no parameter has id 11"),
+        (12, None, "no parameter has id 12"),
     ],
 )
 def test_resolve_errors(name: str | int, channel: str | None, message: str) -> None:
