@@ -1,9 +1,15 @@
 """``plot``: fields of a recording against time, saved as a PNG (or SVG, PDF) — for a quick
 look without Foxglove or PlotJuggler at hand.
 
-Reads the MCAP files ``record`` writes (and any MCAP with JSON messages). A recording whose
-writer was killed has no summary; its complete chunks are still read, in file order, and the
-command says so."""
+Reads the MCAP files ``record``, ``drive --record`` and ``goto --record`` write (and any
+MCAP with JSON messages), and the rosbag2 directories ``--rosbag2`` writes (CDR, read with
+the ``rosbags`` library of the ros2 extra). A recording whose writer was killed has no
+summary; its complete chunks are still read, in file order, and the command says so.
+
+Every message is seen as flat numeric fields: nested objects by ``.`` (``pose.pose.
+position.x``), arrays by index or, beside a ``name`` array of the same length (a
+``JointState``), by name (``velocity.FL``). A field asked for is a key, the flat
+``a_speed`` spelt ``a.speed``, or a prefix naming a group (``velocity``: every wheel)."""
 
 from __future__ import annotations
 
@@ -20,17 +26,33 @@ import click
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
 
-__all__ = ["Series", "field_value", "plot", "read_series"]
+__all__ = ["Series", "field_value", "flatten", "plot", "read_series", "unit_of"]
 
 DEFAULT_FIELDS = "a.speed+a.ref,b.speed+b.ref"
 TELEMETRY_SUFFIX = "/telemetry"
+#: A rosbag2 of the robot (``--rosbag2``): each wheel's speed, and the body's.
+BAG_TOPICS = ("/joint_states", "/odom")
+BAG_FIELDS = "velocity,twist.twist.linear.x,twist.twist.angular.z"
 #: What mcap's readers raise on a torn or foreign file (it does not wrap its struct and
 #: decoding errors in McapError).
 _UNREADABLE = (Exception,)
 _CLOCKS = {
-    "publish": "the board's sample time (publish_time)",
-    "log": "host receive time (log_time)",
+    "publish": "the board's sample time (publish_time; header stamps in a bag)",
+    "log": "host receive time (log_time; the bag's time)",
 }
+#: The unit of a field, by its last name(s): the board's telemetry (record, drive
+#: --record), the robot's topics (drive/goto --record) and the ROS messages of a bag.
+UNITS = {
+    "position": "encoder counts", "speed": "deg/s", "current": "A", "pwm": "PWM counts",
+    "ref": "deg/s", "t_us": "µs", "timestamp": "s",
+    "telemetry_rate": "TM/s", "x": "m", "y": "m", "theta": "rad", "v": "m/s",
+    "omega": "rad/s", "left": "deg/s", "right": "deg/s", "distance": "m",
+    "velocity": "rad/s", "effort": "N·m", "linear": "m/s", "angular": "rad/s",
+}
+#: In a bag, ``position`` is a joint's angle.
+BAG_UNITS = {"position": "rad", "orientation": "", "covariance": ""}
+#: The components of a ROS vector take their unit from what the vector is.
+VECTOR_UNITS = {"position": "m", "linear": "m/s", "angular": "rad/s", "orientation": ""}
 
 
 @dataclass
@@ -41,6 +63,61 @@ class Series:
     field: str
     t: list[float] = dataclasses.field(default_factory=list)
     values: list[float] = dataclasses.field(default_factory=list)
+    #: the field as it was asked for (``velocity`` for ``velocity.FL``)
+    asked: str = ""
+
+
+def _number(node: Any) -> float | None:
+    if isinstance(node, bool) or not isinstance(node, int | float):
+        try:  # numpy scalars
+            import numpy as np
+
+            if isinstance(node, np.integer | np.floating):
+                return float(node)
+        except ImportError:  # pragma: no cover - numpy is a dependency
+            pass
+        return None
+    return float(node)
+
+
+def flatten(record: Any, prefix: str = "", out: dict[str, float | None] | None = None
+            ) -> dict[str, float | None]:
+    """Every numeric field of a message (a JSON object or a ROS message) by its dotted
+    path; ``None`` for a JSON ``null`` (a value not finite on the wire)."""
+    out = {} if out is None else out
+    if dataclasses.is_dataclass(record) and not isinstance(record, type):
+        items: Any = ((f.name, getattr(record, f.name)) for f in dataclasses.fields(record)
+                      if not f.name.startswith("__"))
+        names = getattr(record, "name", None)
+    elif isinstance(record, dict):
+        items = record.items()
+        names = record.get("name")
+    else:
+        return out
+    for key, node in items:
+        path = f"{prefix}{key}"
+        if node is None:
+            out[path] = None
+        elif isinstance(node, dict) or (dataclasses.is_dataclass(node)
+                                        and not isinstance(node, type)):
+            flatten(node, path + ".", out)
+        elif isinstance(node, str | bytes):
+            continue
+        elif hasattr(node, "__len__") and not isinstance(node, dict):
+            labels = (list(names) if isinstance(names, list | tuple) and
+                      len(names) == len(node) and key != "name" else range(len(node)))
+            for label, element in zip(labels, node, strict=False):
+                if dataclasses.is_dataclass(element) or isinstance(element, dict):
+                    flatten(element, f"{path}.{label}.", out)
+                else:
+                    value = _number(element)
+                    if value is not None:
+                        out[f"{path}.{label}"] = value
+        else:
+            value = _number(node)
+            if value is not None:
+                out[path] = value
+    return out
 
 
 def field_value(record: Any, path: str) -> float | None:
@@ -61,7 +138,39 @@ def field_value(record: Any, path: str) -> float | None:
     return float(node)
 
 
-def _messages(stream: IO[bytes], topics: list[str] | None) -> tuple[Iterator[Any], bool]:
+def matching(keys: Any, asked: str) -> list[str]:
+    """The flat keys ``asked`` names: itself, its ``_`` spelling, or a group under it."""
+    flat = asked.replace(".", "_")
+    group = asked + "."
+    return [k for k in keys if k in (asked, flat) or k.startswith(group)]
+
+
+def unit_of(field: str, bag: bool = False) -> str:
+    """The unit of a field, from its last names (``""`` when not known)."""
+    parts = [p for p in field.replace("_", ".").split(".") if p and not p.isdigit()]
+    if len(parts) >= 2 and parts[-1] in ("x", "y", "z", "w") and parts[-2] in VECTOR_UNITS:
+        return VECTOR_UNITS[parts[-2]]
+    for part in reversed(parts):
+        if bag and part in BAG_UNITS:
+            return BAG_UNITS[part]
+        if part in UNITS:
+            return UNITS[part]
+    return ""
+
+
+# --- reading ----------------------------------------------------------------------------------
+
+
+@dataclass
+class Message:
+    topic: str
+    publish: float  #: s
+    log: float  #: s
+    record: Any  #: a JSON object, or a ROS message
+
+
+def _mcap_messages(stream: IO[bytes], topics: list[str] | None
+                   ) -> tuple[Iterator[Any], bool]:
     """Messages of ``topics`` (all when ``None``), and whether the file was complete."""
     from mcap.reader import NonSeekingReader, make_reader
 
@@ -76,87 +185,196 @@ def _messages(stream: IO[bytes], topics: list[str] | None) -> tuple[Iterator[Any
     return NonSeekingReader(stream).iter_messages(topics=topics, log_time_order=False), False
 
 
+def _read_mcap(path: Path, topics: list[str] | None, state: dict[str, Any]
+               ) -> Iterator[Message]:
+    with path.open("rb") as stream:
+        messages, state["complete"] = _mcap_messages(stream, topics)
+        for _schema, channel, message in messages:
+            try:
+                record = json.loads(message.data)
+            except (ValueError, UnicodeDecodeError):
+                continue  # not JSON: nothing to plot in it
+            yield Message(channel.topic, message.publish_time / 1e9, message.log_time / 1e9,
+                          record)
+
+
+def _mcap_topics(path: Path) -> list[str]:
+    """Every topic with a message in an MCAP file (read again only to say what there is
+    when a topic asked for is not)."""
+    topics: set[str] = set()
+    try:
+        with path.open("rb") as stream:
+            messages, _ = _mcap_messages(stream, None)
+            for _schema, channel, _message in messages:
+                topics.add(channel.topic)
+    except OSError:
+        pass
+    except _UNREADABLE:
+        pass  # a torn end: the topics before it
+    return sorted(topics)
+
+
+def is_bag(path: Path) -> bool:
+    return path.is_dir() and (path / "metadata.yaml").is_file()
+
+
+def _read_bag(path: Path, topics: list[str] | None, state: dict[str, Any]
+              ) -> Iterator[Message]:
+    try:
+        from rosbags.highlevel import AnyReader
+        from rosbags.typesys import Stores, get_typestore
+    except ImportError:
+        raise CliError(f"{path} is a rosbag2: reading it needs the rosbags library: pip "
+                       "install 'fpgalink[ros2]'", ExitCode.BAD_INPUT) from None
+    state["complete"] = True
+    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+        state["topics"] = sorted({c.topic for c in reader.connections})
+        chosen = [c for c in reader.connections if topics is None or c.topic in topics]
+        for connection, timestamp, raw in reader.messages(connections=chosen):
+            message = reader.deserialize(raw, connection.msgtype)
+            stamp = getattr(getattr(message, "header", None), "stamp", None)
+            log = timestamp / 1e9
+            publish = log if stamp is None else stamp.sec + stamp.nanosec / 1e9
+            yield Message(connection.topic, publish, log, message)
+
+
 def read_series(path: Path, topics: list[str] | None, fields: list[str],
                 clock: str = "publish") -> tuple[list[Series], bool]:
     """Each (topic, field) pair as a time series, and whether the file was complete.
-    ``topics=None``: every ``/board/NAME/telemetry`` topic in the file."""
+    ``topics=None``: every ``/board/NAME/telemetry`` topic (in a bag: ``/joint_states`` and
+    ``/odom``). See :func:`read_recording` for the fields each topic has."""
+    series, complete, _ = read_recording(path, topics, fields, clock)
+    return series, complete
+
+
+def read_recording(path: Path, topics: list[str] | None, fields: list[str],
+                   clock: str = "publish"
+                   ) -> tuple[list[Series], bool, dict[str, list[str]]]:
+    """The series, whether the file was complete, and every topic with the fields its
+    first message has (to say what there is when something asked for is not)."""
+    bag = is_bag(path)
     series: dict[tuple[str, str], Series] = {}
-    if topics is not None:
-        series = {(t, f): Series(t, f) for t in topics for f in fields}
+    available: dict[str, list[str]] = {}
     origin: float | None = None
-    complete = False
+    state: dict[str, Any] = {"complete": False}
+    default_topics = topics is None
+    wanted = list(BAG_TOPICS) if bag and default_topics else topics
     try:
-        with path.open("rb") as stream:
-            messages, complete = _messages(stream, topics)
-            for _schema, channel, message in messages:
-                topic = channel.topic
-                if topics is None and not topic.endswith(TELEMETRY_SUFFIX):
-                    continue
-                try:
-                    record = json.loads(message.data)
-                except (ValueError, UnicodeDecodeError):
-                    continue  # not JSON: nothing to plot in it
-                stamp = (message.publish_time if clock == "publish" else message.log_time) / 1e9
-                origin = stamp if origin is None else min(origin, stamp)
-                for name in fields:
-                    value = field_value(record, name)
+        reader = _read_bag(path, wanted, state) if bag else _read_mcap(path, wanted, state)
+        for message in reader:
+            topic = message.topic
+            if default_topics and not bag and not topic.endswith(TELEMETRY_SUFFIX):
+                available.setdefault(topic, [])
+                continue
+            flat = flatten(message.record)
+            if topic not in available or not available[topic]:
+                available[topic] = list(flat)
+            stamp = message.publish if clock == "publish" else message.log
+            origin = stamp if origin is None else min(origin, stamp)
+            for asked in fields:
+                for key in matching(flat, asked):
+                    value = flat[key]
+                    label = asked if key in (asked, asked.replace(".", "_")) else key
+                    line = series.get((topic, label))
+                    if line is None:
+                        line = series[(topic, label)] = Series(topic, label, asked=asked)
                     if value is not None and math.isfinite(value):
-                        line = series.get((topic, name)) or series.setdefault(
-                            (topic, name), Series(topic, name))
                         line.t.append(stamp)
                         line.values.append(value)
+    except CliError:
+        raise
     except OSError as exc:
         raise CliError(f"{path}: cannot read: {exc.strerror or exc}", ExitCode.FAILURE) from None
     except _UNREADABLE as exc:
         if origin is None:
+            if bag:
+                raise CliError(f"{path}: not a readable rosbag2 ({type(exc).__name__}: "
+                               f"{exc})", ExitCode.BAD_INPUT) from None
             why = "it ends before its first complete chunk" if type(exc).__name__ == \
                 "EndOfFile" else f"{type(exc).__name__}: {exc}"
             raise CliError(f"{path}: not a readable MCAP file ({why})",
                            ExitCode.BAD_INPUT) from None
-        complete = False  # a torn end after good chunks: plot what came before it
+        state["complete"] = False  # a torn end after good chunks: plot what came before it
+    for topic in state.get("topics", []):
+        available.setdefault(topic, [])
     for line in series.values():
         order = sorted(range(len(line.t)), key=line.t.__getitem__)
         line.t = [line.t[i] - (origin or 0.0) for i in order]
         line.values = [line.values[i] for i in order]
-    return sorted(series.values(), key=lambda s: (s.topic, fields.index(s.field))), complete
+    ranked = sorted(series.values(), key=lambda s: (s.topic, fields.index(s.asked), s.field))
+    return ranked, bool(state["complete"]), available
+
+
+def _listing(available: dict[str, list[str]], topics: list[str]) -> str:
+    """What the recording has, for an error that says what to ask for instead."""
+    parts = []
+    for topic in topics:
+        keys = available.get(topic, [])
+        shown = ", ".join(keys[:40]) + (f", … ({len(keys)} in all)" if len(keys) > 40 else "")
+        parts.append(f"{topic} has {shown or 'no numeric fields'}")
+    return "; ".join(parts)
+
+
+# --- the command ------------------------------------------------------------------------------
 
 
 @click.command(epilog=EXIT_CODES_HELP)
-@click.argument("recording", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.argument("recording", type=click.Path(exists=True, path_type=Path))
 @click.option("--topic", "topics", multiple=True, metavar="TOPIC",
-              help="Topic to plot (repeatable). Default: every /board/NAME/telemetry.")
-@click.option("--fields", default=DEFAULT_FIELDS, show_default=True, metavar="F1,F2+F3,…",
+              help="Topic to plot (repeatable). Default: every /board/NAME/telemetry; in a "
+                   "rosbag2, /joint_states and /odom.")
+@click.option("--fields", metavar="F1,F2+F3,…",
               help="Fields to plot, one panel each; F2+F3 share a panel. A field is a.speed "
-                   "or a_speed; nested JSON as a.b.c.")
+                   f"or a_speed; nested as a.b.c; a prefix is a group (velocity: every "
+                   f"wheel). Default: {DEFAULT_FIELDS}; in a rosbag2, {BAG_FIELDS}.")
 @click.option("--time", "clock", type=click.Choice(sorted(_CLOCKS)), default="publish",
               show_default=True,
               help="Time axis: the board's sample time (publish) or host receive time (log).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Image to write (.png, .svg or .pdf). Default: RECORDING with .png.")
-def plot(recording: Path, topics: tuple[str, ...], fields: str, clock: str,
+def plot(recording: Path, topics: tuple[str, ...], fields: str | None, clock: str,
          output: Path | None) -> int:
     """Plot fields of a recording against time into a PNG.
 
-    One panel per field (or per group joined with +), one line per topic and field. Values
-    the recording holds as null (non-finite on the wire) are gaps. Needs matplotlib
-    (pip install 'fpgalink[plot]').
+    RECORDING is an MCAP file (record, drive/goto --record) or a rosbag2 directory
+    (--rosbag2). One panel per field (or per group joined with +), one line per topic and
+    field, references dashed; each axis gives its unit. Values the recording holds as null
+    (non-finite on the wire) are gaps. A field or topic that is not in the recording is an
+    error that lists what is. Needs matplotlib (pip install 'fpgalink[plot]').
     """
+    bag = is_bag(recording)
+    if recording.is_dir() and not bag:
+        raise CliError(f"{recording}: a directory, but not a rosbag2 (no metadata.yaml)",
+                       ExitCode.BAD_INPUT)
+    fields = fields or (BAG_FIELDS if bag else DEFAULT_FIELDS)
     panels = [[f.strip() for f in group.split("+") if f.strip()] for group in fields.split(",")]
     panels = [p for p in panels if p]
     names = list(dict.fromkeys(f for panel in panels for f in panel))
     if not names:
         raise CliError("--fields: give at least one field name", ExitCode.BAD_INPUT)
-    output = output or recording.with_suffix(".png")
+    output = output or (recording.parent / f"{recording.name}.png" if bag
+                        else recording.with_suffix(".png"))
     check_plot_path(output, "--output")
-    series, complete = read_series(recording, list(topics) or None, names, clock)
+    series, complete, available = read_recording(recording, list(topics) or None, names,
+                                                 clock)
     if not complete:
         note(f"{recording} was not closed (no summary): plotting the complete chunks it holds")
+    missing_topics = [t for t in topics if t not in available]
+    if missing_topics:
+        every = sorted(available) if bag else _mcap_topics(recording)
+        raise CliError(f"{recording}: no topic {', '.join(missing_topics)}; it has "
+                       f"{', '.join(every) or 'no messages'}", ExitCode.BAD_INPUT)
     chosen = sorted({s.topic for s in series})
-    if not chosen:
-        where = ", ".join(topics) if topics else "any /board/NAME/telemetry topic"
-        raise CliError(f"{recording}: no values for {', '.join(names)} on {where}",
+    looked_in = list(topics) or sorted(t for t in available if bag or
+                                       t.endswith(TELEMETRY_SUFFIX))
+    unknown = [n for n in names if not any(s.asked == n for s in series)]
+    if unknown:
+        raise CliError(f"{recording}: no field {', '.join(unknown)} on "
+                       f"{', '.join(looked_in) or 'any /board/NAME/telemetry topic'} "
+                       f"({_listing(available, looked_in) or 'no such topics'}; every "
+                       f"topic: {', '.join(sorted(available)) or 'none'})",
                        ExitCode.BAD_INPUT)
-    empty = [n for n in names if not any(s.values for s in series if s.field == n)]
+    empty = [n for n in names if not any(s.values for s in series if s.asked == n)]
     if len(empty) == len(names):
         raise CliError(f"{recording}: no values for {', '.join(names)} on "
                        f"{', '.join(chosen)}", ExitCode.BAD_INPUT)
@@ -164,21 +382,65 @@ def plot(recording: Path, topics: tuple[str, ...], fields: str, clock: str,
         note(f"no values for {', '.join(empty)}: left out")
     shown = [[n for n in panel if n not in empty] for panel in panels]
     shown = [panel for panel in shown if panel]
-    figure = new_figure((9, 2.2 * len(shown) + 0.8))
-    axes = figure.subplots(len(shown), 1, sharex=True, squeeze=False)[:, 0]
-    for ax, panel in zip(axes, shown, strict=True):
+    _draw(output, recording, series, shown, chosen, clock, bag)
+    points = sum(len(s.values) for s in series)
+    note(f"plotted {points} points of {len(names) - len(empty)} field(s) from "
+         f"{len(chosen)} topic(s) to {output}")
+    return ExitCode.OK
+
+
+STYLES = ("-", "--", ":", "-.")
+
+
+def _pair_key(field: str) -> str:
+    """A channel's fields (``a.speed``, ``a_ref``) share a colour; any other its own."""
+    parts = field.replace("_", ".").split(".")
+    return parts[0] if len(parts) == 2 and parts[0] in ("a", "b") else field
+
+
+def _is_reference(field: str) -> bool:
+    last = field.replace("_", ".").split(".")[-1]
+    return last in ("ref", "reference")
+
+
+def _draw(output: Path, recording: Path, series: list[Series], panels: list[list[str]],
+          chosen: list[str], clock: str, bag: bool) -> None:
+    """One panel per group of fields: a colour per topic and channel, references dashed
+    over the measured line (equal lines both stay visible), the units on each axis."""
+    figure = new_figure((9, 2.2 * len(panels) + 0.8))
+    axes = figure.subplots(len(panels), 1, sharex=True, squeeze=False)[:, 0]
+    palette = [f"C{i}" for i in range(10)]
+    for ax, panel in zip(axes, panels, strict=True):
+        colours: dict[tuple[str, str], str] = {}
+        units: dict[str, str] = {}
+        members: dict[str, int] = {}
         for line in series:
-            if line.field in panel and line.values:
-                label = line.field if len(chosen) == 1 else f"{line.topic} {line.field}"
-                ax.plot(line.t, line.values, label=label, linewidth=1)
-        ax.set_ylabel(" / ".join(panel))
+            if line.asked not in panel or not line.values:
+                continue
+            # A reference shares the colour of what follows it (a.ref with a.speed).
+            key = (line.topic, _pair_key(line.field))
+            colours.setdefault(key, palette[len(colours) % len(palette)])
+            label = line.field if len(chosen) == 1 else f"{line.topic} {line.field}"
+            if _is_reference(line.field):
+                ax.plot(line.t, line.values, label=label, linewidth=1.2, linestyle="--",
+                        color=colours[key], drawstyle="steps-post")
+            else:
+                # Members of a group (velocity.FL, velocity.BL …) often run on one another:
+                # a style each keeps every one of them in sight.
+                members[line.asked] = members.get(line.asked, -1) + 1
+                style = STYLES[members[line.asked] % len(STYLES)] if line.field != line.asked \
+                    else "-"
+                ax.plot(line.t, line.values, label=label, linewidth=1, color=colours[key],
+                        linestyle=style)
+            units[line.asked] = unit_of(line.field, bag)
+        known = set(units.values())
+        if len(known) == 1 and "" not in known:
+            ax.set_ylabel(f"{' / '.join(panel)}, {known.pop()}")
+        else:
+            ax.set_ylabel(" / ".join(f"{n} ({units.get(n) or 'no unit'})" for n in panel))
         ax.grid(True, alpha=0.3)
         ax.legend(loc="upper right", fontsize="small")
     title = recording.name if len(chosen) > 1 else f"{recording.name}: {chosen[0]}"
     axes[0].set_title(title)
     axes[-1].set_xlabel(f"s since the first message, {_CLOCKS[clock]}")
     save_figure(figure, output)
-    points = sum(len(s.values) for s in series)
-    note(f"plotted {points} points of {len(names) - len(empty)} field(s) from "
-         f"{len(chosen)} topic(s) to {output}")
-    return ExitCode.OK

@@ -64,8 +64,9 @@ def test_plot_of_a_torn_recording_uses_its_complete_chunks(recording: Path,
 
 
 @pytest.mark.parametrize(("args", "needles"), [
-    (["--fields", "nosuch"], ["no values for nosuch"]),
-    (["--topic", "/nope"], ["no values", "/nope"]),
+    # What is not there is named, with what is (the fields asked for can be corrected).
+    (["--fields", "nosuch"], ["no field nosuch", "a_speed", "/board/0/telemetry"]),
+    (["--topic", "/nope"], ["no topic /nope", "/board/0/telemetry"]),
     (["-o", "x.txt"], ["--output", ".png"]),
     (["-o", "{missing}/x.png"], ["no such directory"]),
     (["--fields", ","], ["at least one field"]),
