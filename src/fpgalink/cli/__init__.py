@@ -89,16 +89,47 @@ def cli(ctx: click.Context, /, **options: Any) -> None:
     ctx.obj = options
 
 
+def _help_hint(exc: click.ClickException) -> str:
+    """Which help a usage error points at: the command's own (``fpgalink-cli param set
+    -h``), not only the program's."""
+    ctx = getattr(exc, "ctx", None)
+    path = ctx.command_path if isinstance(ctx, click.Context) and ctx.command_path else ""
+    return f"{path or 'fpgalink-cli'} -h"
+
+
+def _stdout_failed(exc: OSError) -> None:
+    """stdout could not be written (``> /dev/full``): one line, exit 1; what is still
+    buffered goes to /dev/null so the interpreter's last flush prints no traceback."""
+    click.echo(f"fpgalink-cli: error: cannot write to stdout: {exc.strerror or exc}", err=True)
+    quiet_stdout()
+    sys.exit(ExitCode.FAILURE)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Console-script entry: run the CLI and turn every outcome into an exit code."""
+    no_args_is_help = getattr(click.exceptions, "NoArgsIsHelpError", None)
     try:
         result = cli.main(args=argv, prog_name="fpgalink-cli", standalone_mode=False)
+        sys.stdout.flush()
     except CliError as exc:
         exc.show()
         sys.exit(exc.exit_code)
-    except click.ClickException as exc:  # usage errors: one line, exit 2
+    except click.ClickException as exc:
+        if no_args_is_help is not None and isinstance(exc, no_args_is_help):
+            # A command group without a command (`fpgalink-cli`, `fpgalink-cli param`): its
+            # help, exit 0, as fpgaemu does.
+            try:
+                click.echo(exc.ctx.get_help() if exc.ctx is not None else cli.get_help(
+                    click.Context(cli, info_name="fpgalink-cli")))
+                sys.stdout.flush()
+            except BrokenPipeError:
+                quiet_stdout()
+            except OSError as error:
+                _stdout_failed(error)
+            sys.exit(ExitCode.OK)
+        # Usage errors: one line, exit 2, pointing at the help of the command concerned.
         message = " ".join(exc.format_message().split())
-        click.echo(f"fpgalink-cli: error: {message} (see fpgalink-cli -h)", err=True)
+        click.echo(f"fpgalink-cli: error: {message} (see {_help_hint(exc)})", err=True)
         sys.exit(exc.exit_code)
     except (click.Abort, KeyboardInterrupt):
         click.echo("fpgalink-cli: interrupted", err=True)
@@ -106,4 +137,6 @@ def main(argv: list[str] | None = None) -> None:
     except BrokenPipeError:
         quiet_stdout()
         sys.exit(ExitCode.OK)
+    except OSError as exc:  # click's own output (help, version) into a full disk
+        _stdout_failed(exc)
     sys.exit(result if isinstance(result, int) else ExitCode.OK)

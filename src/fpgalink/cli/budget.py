@@ -6,16 +6,17 @@ only gathers the traffic plan from the command line and presents the result."""
 
 from __future__ import annotations
 
-import click
-from rich.table import Table
+from typing import Any
 
+import click
+
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
     ExitCode,
     FiniteRange,
     echo_out,
-    table_console,
 )
 from fpgalink.protocol import CRC_BYTES, DEFAULT_FRAMING, MessageId, Role
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD, TM_CONTENT_BYTES, Flow, plan
@@ -76,8 +77,9 @@ def parse_message(text: str, crc: bool = False) -> Flow:
               help=f"The wire CRC is on (WireCrc = 1): every counted message, TM included, "
                    f"carries {CRC_BYTES} more content bytes.")
 @click.option("--check", is_flag=True, help="Exit 1 when a direction does not fit.")
+@format_option
 def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...],
-           crc: bool, check: bool) -> int:
+           crc: bool, check: bool, fmt: str) -> int:
     """Static timing budget: wire bytes per period and utilisation per direction.
 
     One byte is 10 bit times on 8N1: at 1 MBd a 1 ms period holds 100 wire bytes per
@@ -88,24 +90,54 @@ def budget(baud: int, period_ms: float, tm_bytes: int, messages: tuple[str, ...]
         flows.insert(0, Flow("TM", tm_bytes + (CRC_BYTES if crc else 0), 1.0, to_board=False))
     report = plan(baud, period_ms / 1000.0, flows)
     capacity = report.to_host.capacity
-    table = Table(title=f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
-                        f"({capacity:,.1f} wire bytes per direction per period)"
-                        + (f", wire CRC on (+{CRC_BYTES} B per counted message)" if crc else ""),
-                  title_justify="left")
-    for column in ("direction", "message", "content B", "wire B", "worst-case B",
-                   "per period", "wire B/period", "share"):
-        table.add_column(column, justify="left" if column in ("direction", "message")
-                         else "right")
+    rows: list[dict[str, Any]] = []
     for load in (report.to_board, report.to_host):
         for flow in load.flows:
             per_period = flow.typical_wire * flow.per_period
-            table.add_row(load.name, flow.name, str(flow.content_length),
-                          str(flow.typical_wire), str(flow.worst_wire),
-                          f"{flow.per_period:g}", f"{per_period:,.1f}",
-                          f"{per_period / capacity:.1%}")
-    console = table_console()
-    console.print(table)
-    for line in report.explain():
-        echo_out(line)
+            rows.append({"direction": "to_board" if flow.to_board else "to_host",
+                         "message": flow.name, "content_bytes": flow.content_length,
+                         "wire_bytes": flow.typical_wire,
+                         "worst_case_wire_bytes": flow.worst_wire,
+                         "per_period": flow.per_period, "wire_bytes_per_period": per_period,
+                         "share": per_period / capacity})
+    if fmt == "json":
+        emit_document({
+            "baud": baud, "period_ms": period_ms, "crc": crc,
+            "capacity_wire_bytes_per_period": capacity,
+            "directions": [{"direction": key, "wire_bytes_per_period": load.typical,
+                            "utilisation": load.utilisation, "fits": load.fits,
+                            "worst_case_wire_bytes_per_period": load.worst,
+                            "worst_case_utilisation": load.worst_utilisation,
+                            "fits_worst_case": load.fits_worst_case}
+                           for key, load in (("to_board", report.to_board),
+                                             ("to_host", report.to_host))],
+            "flows": rows, "fits": report.fits, "explanation": report.explain(),
+        })
+    elif fmt == "csv":
+        emit_rows(fmt, FLOW_COLUMNS, rows)
+    else:
+        title = (f"Timing budget at {baud:,} baud, {period_ms:g} ms period "
+                 f"({capacity:,.1f} wire bytes per direction per period)"
+                 + (f", wire CRC on (+{CRC_BYTES} B per counted message)" if crc else ""))
+        names = {"to_board": "host→board", "to_host": "board→host"}
+        shown = [{**row, "direction": names[row["direction"]],
+                  "per_period": f"{row['per_period']:g}",
+                  "wire_bytes_per_period": f"{row['wire_bytes_per_period']:,.1f}",
+                  "share": f"{row['share']:.1%}"} for row in rows]
+        emit_rows(fmt, FLOW_COLUMNS, shown, title=title)
+        for line in report.explain():
+            echo_out(line)
     fits_all = report.fits
     return ExitCode.FAILURE if check and not fits_all else ExitCode.OK
+
+
+FLOW_COLUMNS = (
+    Column("direction", "direction"),
+    Column("message", "message"),
+    Column("content_bytes", "content B", justify="right", drop=2),
+    Column("wire_bytes", "wire B", justify="right"),
+    Column("worst_case_wire_bytes", "worst-case B", justify="right", drop=1),
+    Column("per_period", "per period", justify="right"),
+    Column("wire_bytes_per_period", "wire B/period", justify="right"),
+    Column("share", "share", justify="right"),
+)

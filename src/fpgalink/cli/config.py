@@ -4,15 +4,16 @@ talks to the wrong port."""
 
 from __future__ import annotations
 
-import json
+from typing import Any
 
 import click
 
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, ExitCode, echo_out
 from fpgalink.cli.settings import Settings, config_paths
 
-__all__ = ["config", "settings_rows"]
+__all__ = ["config", "settings_rows", "settings_values"]
 
 
 def settings_rows(settings: Settings) -> list[tuple[str, str, str]]:
@@ -30,28 +31,50 @@ def settings_rows(settings: Settings) -> list[tuple[str, str, str]]:
     ]
 
 
+def settings_values(settings: Settings) -> dict[str, dict[str, Any]]:
+    """Every setting as JSON has it: numbers as numbers, the unit in the key."""
+    src = settings.sources
+    return {
+        "port": {"value": [{"name": e.name, "url": e.url} for e in settings.endpoints],
+                 "source": src["port"]},
+        "board": {"value": settings.board, "source": src["board"]},
+        "baud": {"value": settings.baud, "source": src["baud"]},
+        "timeout_s": {"value": settings.timeout, "source": src["timeout"]},
+        "retries": {"value": settings.retries, "source": src["retries"]},
+        "robot": {"value": str(settings.robot) if settings.robot else None,
+                  "source": src["robot"]},
+    }
+
+
 @click.command(epilog=EXIT_CODES_HELP)
-@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
-              show_default=True)
+@format_option
 @connection_options(multi=True, announce=False)
 def config(fmt: str, conn: ConnectionOptions) -> int:
     """Show the connection settings in force and where each came from.
 
     Precedence: options after the command, options before it, the environment
-    (FPGALINK_PORT, FPGALINK_BAUD, FPGALINK_BOARD), the config file, the defaults. The
-    config file is --config FILE, FPGALINK_CONFIG, else the first of ./fpgalink.toml and
-    ~/.config/fpgalink/fpgalink.toml (XDG_CONFIG_HOME is honoured).
+    (FPGALINK_PORT, FPGALINK_BAUD, FPGALINK_BOARD), the config file, the defaults. A board
+    chosen in a weaker place than the ports (board = "L" in the file, ports from --port)
+    applies only if those ports have that board. The config file is --config FILE,
+    FPGALINK_CONFIG, else the first of ./fpgalink.toml and ~/.config/fpgalink/fpgalink.toml
+    (XDG_CONFIG_HOME is honoured).
     """
     settings = conn.settings
     rows = settings_rows(settings)
     searched = [str(p) for p in config_paths()]
     if fmt == "json":
-        echo_out(json.dumps({
+        emit_document({
             "config_file": str(settings.config_file) if settings.config_file else None,
             "searched": searched,
-            "settings": {name: {"value": value, "source": source}
-                         for name, value, source in rows},
-        }))
+            "emulated": settings.emulated,
+            "settings": settings_values(settings),
+        })
+        return ExitCode.OK
+    if fmt == "csv":
+        columns = [Column("setting", "setting"), Column("value", "value"),
+                   Column("source", "source")]
+        emit_rows(fmt, columns, [{"setting": name, "value": value, "source": source}
+                                 for name, value, source in rows])
         return ExitCode.OK
     if settings.config_file is not None:
         echo_out(f"config file: {settings.config_file}")

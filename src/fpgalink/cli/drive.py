@@ -11,15 +11,16 @@ from pathlib import Path
 
 import click
 
+from fpgalink.cli.formats import format_option
 from fpgalink.cli.options import ConnectionOptions
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, SignedNumbers
 from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
 from fpgalink.cli.session import run, stop_exit_code, wait_or_stop
 
 __all__ = ["drive"]
 
 
-@click.command(epilog=EXIT_CODES_HELP)
+@click.command(cls=SignedNumbers, epilog=EXIT_CODES_HELP)
 @click.option("--v", "speed", type=FiniteRange(-10, 10), default=0.0, show_default=True,
               help="Body speed, m/s (forward positive).")
 @click.option("--omega", type=FiniteRange(-3600, 3600), default=0.0, show_default=True,
@@ -27,10 +28,11 @@ __all__ = ["drive"]
 @click.option("--for", "duration", type=FiniteRange(min=0, min_open=True, max=86400),
               help="How long, s (default: until Ctrl-C).")
 @output_options
+@format_option
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
-          record: Path | None, rosbag: Path | None, robot_file: Path | None, surface: str | None,
-          truth_url: str | None, conn: ConnectionOptions) -> int:
+          record: Path | None, rosbag: Path | None, fmt: str, robot_file: Path | None,
+          surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
     """Drive the robot at --v and --omega, holding the deadman, with a live view.
 
     A command beyond the robot's limits (speed, turn rate, any wheel's maximum) is scaled
@@ -39,8 +41,8 @@ def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
     """
     session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
     code = run(_drive(session, speed, math.radians(omega), duration))
-    for line in session.summary():
-        echo_out(line)
+    session.print_summary(fmt, {"command": {"v_mps": speed, "omega_dps": omega,
+                                            "for_s": duration}})
     session.finish(f"drive v={speed:g} m/s, ω={omega:g} deg/s")
     return code
 

@@ -9,15 +9,23 @@ from typing import Any
 
 import click
 
+from fpgalink.cli.formats import format_option
 from fpgalink.cli.options import ConnectionOptions
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, echo_out
+from fpgalink.cli.output import (
+    EXIT_CODES_HELP,
+    CliError,
+    ExitCode,
+    FiniteRange,
+    SignedNumbers,
+    echo_out,
+)
 from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
 from fpgalink.cli.session import run, stop_exit_code
 
 __all__ = ["goto"]
 
 
-@click.command(epilog=EXIT_CODES_HELP)
+@click.command(cls=SignedNumbers, epilog=EXIT_CODES_HELP)
 @click.argument("x", type=FiniteRange(-1e4, 1e4))
 @click.argument("y", type=FiniteRange(-1e4, 1e4))
 @click.option("--theta", type=FiniteRange(-360, 360),
@@ -28,10 +36,12 @@ __all__ = ["goto"]
 @click.option("--tolerance", type=FiniteRange(min=0.005, max=10), default=0.05,
               show_default=True, help="Arrived within this distance, m.")
 @output_options
+@format_option
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
-         plot: Path | None, record: Path | None, rosbag: Path | None, robot_file: Path | None,
-         surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
+         plot: Path | None, record: Path | None, rosbag: Path | None, fmt: str,
+         robot_file: Path | None, surface: str | None, truth_url: str | None,
+         conn: ConnectionOptions) -> int:
     """Drive the robot to X Y (m, in the odometry frame of the start) and stop there.
 
     Turns towards the goal, drives with a PI distance loop while a PI heading loop corrects,
@@ -40,19 +50,21 @@ def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: 
     """
     session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
     target = f"({x:g}, {y:g})" + ("" if theta is None else f", θ {theta:g}°")
+    arrived: list[Any] = []
     try:
         code = run(_goto(session, x, y, None if theta is None else math.radians(theta),
-                         time_limit, tolerance, target))
+                         time_limit, tolerance, target, fmt, arrived))
     finally:
         if session.robot is not None:
-            for line in session.summary():
-                echo_out(line)
+            goal = {"x_m": x, "y_m": y, "theta_deg": theta, "tolerance_m": tolerance}
+            session.print_summary(fmt, {"goal": goal, "arrived": bool(arrived)})
             session.finish(f"goto {target}", (x, y))
     return code
 
 
 async def _goto(session: RobotRun, x: float, y: float, theta: float | None,
-                time_limit: float, tolerance: float, target: str) -> int:
+                time_limit: float, tolerance: float, target: str, fmt: str,
+                arrived: list[Any]) -> int:
     import asyncio
     import dataclasses
 
@@ -92,6 +104,8 @@ async def _goto(session: RobotRun, x: float, y: float, theta: float | None,
                     raise CliError(str(exc), ExitCode.TIMEOUT) from None
                 except RobotStopped as exc:
                     raise CliError(str(exc), ExitCode.STOPPED) from None
-        echo_out(f"arrived at {target}: x {pose.x:.3f} m, y {pose.y:.3f} m, θ "
-                 f"{math.degrees(pose.theta):.1f}°")
+        arrived.append(pose)
+        if fmt == "table":
+            echo_out(f"arrived at {target}: x {pose.x:.3f} m, y {pose.y:.3f} m, θ "
+                     f"{math.degrees(pose.theta):.1f}°")
     return ExitCode.OK

@@ -24,6 +24,8 @@ from fpgalink.cli.settings import (
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 if TYPE_CHECKING:  # the asyncio layer loads when a command first opens a link
+    from click.shell_completion import CompletionItem
+
     from fpgalink.aio.link import Link
 
 __all__ = [
@@ -51,6 +53,27 @@ def _board_names(ctx: click.Context, param: click.Parameter, incomplete: str) ->
     return [e.name for e in settings.endpoints if e.name.startswith(incomplete)]
 
 
+def _port_urls(ctx: click.Context, param: click.Parameter, incomplete: str
+               ) -> list[CompletionItem]:
+    """Shell completion for --port: the serial ports ``ports`` would list (their stable
+    paths first), ``emu://`` for the built-in emulator, and paths (a pty, a device)."""
+    from click.shell_completion import CompletionItem
+
+    from fpgalink.cli.ports import scan_ports
+
+    urls = ["emu://", "socket://127.0.0.1:"]
+    try:
+        from serial.tools import list_ports
+
+        for report in scan_ports(list_ports.comports()):
+            if report.usb_id is not None:
+                urls += [u for u in (report.by_id, report.device) if u]
+    except (OSError, ImportError):
+        pass
+    items = [CompletionItem(u) for u in dict.fromkeys(urls) if u.startswith(incomplete)]
+    return [*items, CompletionItem(incomplete, type="file")]
+
+
 def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., Any]]]:
     port_help = (
         "Board port: a device path (/dev/serial/by-id/… stays the same across boots), "
@@ -59,7 +82,8 @@ def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., A
         + "Env FPGALINK_PORT, or the config file. Default: the built-in emulator."
     )
     return [
-        click.option("--port", "ports", multiple=True, metavar="[NAME=]URL", help=port_help),
+        click.option("--port", "ports", multiple=True, metavar="[NAME=]URL", help=port_help,
+                     shell_complete=_port_urls),
         click.option("--board", metavar="NAME", shell_complete=_board_names,
                      help="Which board, when several are configured (env FPGALINK_BOARD)."),
         click.option("--baud", type=click.IntRange(MIN_BAUD, MAX_BAUD),

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 import sys
 from dataclasses import fields
 from enum import IntEnum
@@ -23,15 +24,22 @@ __all__ = [
     "CliError",
     "ExitCode",
     "FiniteRange",
+    "SignedNumbers",
     "classify",
     "describe",
     "echo_out",
     "format_value",
+    "message_fields",
     "message_id",
     "note",
+    "number",
     "quiet_stdout",
     "table_console",
 ]
+
+
+#: A word that is a number (``-0.3``, ``-1e-3``, ``-inf``), never an option.
+_NUMBER = re.compile(r"^-(\d|\.\d|inf|nan)", re.IGNORECASE)
 
 
 class ExitCode(IntEnum):
@@ -117,6 +125,38 @@ def format_value(value: int | float, kind: ParamType | None = None) -> str:
     return shortest(value, kind)
 
 
+def number(value: int | float, kind: ParamType | None = None) -> int | float:
+    """A value for JSON: an int as it is; a float as the shortest decimal that means the
+    stored value (a float32 0.2 is 0.2, not 0.20000000298023224)."""
+    if isinstance(value, int):  # bool is an int too
+        return value
+    if not math.isfinite(value):
+        return value
+    return float(format_value(value, kind))
+
+
+class SignedNumbers(click.Command):
+    """A command whose arguments and option values may be negative numbers as written
+    (``goto -0.3 0``, ``param set IncSenzCountDirectionA -1``): a word that reads as a
+    number is never taken for an option, while a misspelt option is still an error."""
+
+    def parse_args(self, ctx: click.Context, args: list[str]) -> list[str]:
+        known = {name for param in self.get_params(ctx) if isinstance(param, click.Option)
+                 for name in (*param.opts, *param.secondary_opts)}
+        shorts = {name[1:] for name in known if len(name) == 2 and name[0] == "-"}
+        for word in args:
+            if word == "--":
+                break
+            if _NUMBER.match(word) or not word.startswith("-") or word == "-":
+                continue
+            name = word.split("=", 1)[0]
+            if name in known or (not word.startswith("--") and word[1] in shorts):
+                continue
+            raise click.NoSuchOption(name, possibilities=sorted(known), ctx=ctx)
+        ctx.ignore_unknown_options = True
+        return super().parse_args(ctx, args)
+
+
 def message_id(message: Parsed) -> str:
     """The two-letter ID of a received message (``E`` for the heartbeat)."""
     from fpgalink.protocol import Malformed
@@ -125,6 +165,27 @@ def message_id(message: Parsed) -> str:
         return message.content[:2].decode("ascii", "replace")
     msg_id = message.msg_id
     return msg_id if isinstance(msg_id, str) else msg_id.decode("ascii", "replace")
+
+
+def message_fields(message: Parsed) -> dict[str, Any]:
+    """A message as JSON has it: ``id``, ``counter`` (``null`` for a direct command) and
+    its fields by name (a generic counted message's body as ``items``)."""
+    from fpgalink.protocol import CountedMessage, DirectCommand, Malformed, Text
+
+    counter = getattr(message, "counter", None)
+    document: dict[str, Any] = {"id": message_id(message), "counter": counter}
+    if isinstance(message, DirectCommand):
+        document["id"] = message.content.decode("ascii", "replace")
+    elif isinstance(message, Malformed):
+        document["fields"] = {"reason": message.reason.value, "content_hex": message.content.hex()}
+    elif isinstance(message, CountedMessage):
+        document["fields"] = {"items": [
+            {"text": item.data.decode("utf-8", "backslashreplace")} if isinstance(item, Text)
+            else {"hex": item.data.hex()} for item in message.items]}
+    else:
+        document["fields"] = {f.name: getattr(message, f.name) for f in fields(message)
+                              if f.name != "counter"}
+    return document
 
 
 def describe(message: Parsed) -> str:
@@ -151,9 +212,17 @@ def describe(message: Parsed) -> str:
 
 
 def echo_out(text: str = "") -> None:
-    """A line on stdout, flushed (pipes see it at once)."""
-    sys.stdout.write(text + "\n")
-    sys.stdout.flush()
+    """A line on stdout, flushed (pipes see it at once). A write error (a full disk behind
+    a redirect) is one line and exit 1; a reader that went away (``| head``) goes up as
+    BrokenPipeError, which the entry point ends quietly."""
+    try:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        raise
+    except OSError as exc:
+        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
+                       ) from None
 
 
 def quiet_stdout() -> None:

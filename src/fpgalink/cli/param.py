@@ -8,25 +8,31 @@ import stat
 import sys
 from importlib import resources
 from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import click
 
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option, write_out
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
     ExitCode,
+    SignedNumbers,
     classify,
     echo_out,
     format_value,
     note,
-    table_console,
+    number,
 )
 from fpgalink.cli.session import run
 from fpgalink.errors import ParameterError
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
 from fpgalink.protocol.paramfile import Setting, parse_parameter_file, render_parameter_file
 from fpgalink.protocol.params import BOARD
+
+if TYPE_CHECKING:
+    from click.shell_completion import CompletionItem
 
 __all__ = ["SHIPPED_SETS", "param", "parse_param_file", "parse_value", "write_output"]
 
@@ -78,15 +84,38 @@ def param() -> None:
     """Read and write board parameters (confirmed by the board's echo)."""
 
 
+def _channel_name(code: int) -> str | None:
+    return None if code == BOARD else "AB"[code - 1]
+
+
+def _value_document(p: Param, code: int, value: int | float, **extra: Any) -> dict[str, Any]:
+    return {"name": p.full_name(code), "param_id": p.id, "channel": _channel_name(code),
+            "value": number(value, p.type), "unit": p.unit or None, **extra}
+
+
+def _emit_value(fmt: str, p: Param, code: int, value: int | float, table_text: str,
+                **extra: Any) -> None:
+    """One parameter value: ``table_text`` for people, a JSON object or a CSV row."""
+    if fmt == "table":
+        echo_out(table_text)
+        return
+    document = _value_document(p, code, value, **extra)
+    if fmt == "json":
+        emit_document(document)
+    else:
+        emit_rows(fmt, [Column(k, k) for k in document], [document])
+
+
 @param.command("get", epilog=EXIT_CODES_HELP)
 @click.argument("name", shell_complete=_names)
 @_CHANNEL
+@format_option
 @connection_options()
-def get(name: str, channel: str | None, conn: ConnectionOptions) -> int:
+def get(name: str, channel: str | None, fmt: str, conn: ConnectionOptions) -> int:
     """Print the value of parameter NAME in force on the board (just the value: scriptable)."""
     p, code = _resolve(name, channel)
     value = run(_get(conn, p, code), conn.single.url)
-    echo_out(format_value(value, p.type))
+    _emit_value(fmt, p, code, value, format_value(value, p.type))
     return ExitCode.OK
 
 
@@ -95,13 +124,13 @@ async def _get(conn: ConnectionOptions, p: Param, code: int) -> int | float:
         return await link.get_param(p.id, code)
 
 
-@param.command("set", epilog=EXIT_CODES_HELP,
-               context_settings={"ignore_unknown_options": True})
+@param.command("set", cls=SignedNumbers, epilog=EXIT_CODES_HELP)
 @click.argument("name", shell_complete=_names)
 @click.argument("value")
 @_CHANNEL
+@format_option
 @connection_options()
-def set_(name: str, value: str, channel: str | None, conn: ConnectionOptions) -> int:
+def set_(name: str, value: str, channel: str | None, fmt: str, conn: ConnectionOptions) -> int:
     """Set parameter NAME to VALUE; prints the value the board confirms is in force.
 
     The request is resent until the board's echo matches exactly (--timeout, --retries);
@@ -112,7 +141,8 @@ def set_(name: str, value: str, channel: str | None, conn: ConnectionOptions) ->
     coerced = parse_value(p, code, value)
     conn.note_ephemeral()
     confirmed = run(_set(conn, p, code, coerced), conn.single.url)
-    echo_out(f"{p.full_name(code)} = {format_value(confirmed, p.type)}")
+    _emit_value(fmt, p, code, confirmed, f"{p.full_name(code)} = "
+                f"{format_value(confirmed, p.type)}", confirmed=True)
     return ExitCode.OK
 
 
@@ -121,26 +151,42 @@ async def _set(conn: ConnectionOptions, p: Param, code: int, value: int | float)
         return await link.set_param(p.id, value, code)
 
 
-@param.command("list", epilog=EXIT_CODES_HELP)
-@connection_options()
-def list_(conn: ConnectionOptions) -> int:
-    """Table of every parameter: id, name, scope, type, range and the board's values."""
-    from rich.table import Table
+#: param list's columns; the name and the values are never left out, the rest go first to
+#: last when the table does not fit the terminal.
+LIST_COLUMNS = (
+    Column("id", "id", justify="right", drop=2),
+    Column("name", "name"),
+    Column("scope", "scope", drop=5),
+    Column("type", "type", drop=4),
+    Column("range", "range", drop=1),
+    Column("unit", "unit", drop=3),
+    Column("board", "board", justify="right"),
+    Column("A", "A", justify="right"),
+    Column("B", "B", justify="right"),
+)
 
+
+@param.command("list", epilog=EXIT_CODES_HELP)
+@format_option
+@connection_options()
+def list_(fmt: str, conn: ConnectionOptions) -> int:
+    """Table of every parameter: id, name, scope, type, range and the board's values."""
     values = run(_read(conn), conn.single.url)
-    table = Table(title=f"Parameters on {conn.single.url}")
-    for column in ("id", "name", "scope", "type", "range", "unit"):
-        table.add_column(column, justify="right" if column == "id" else "left")
-    for column in ("board", "A", "B"):
-        table.add_column(column, justify="right")
+    rows = []
     for p in PARAMETERS:
+        row: dict[str, Any] = {"id": p.id, "name": p.name, "scope": p.scope.name.lower(),
+                               "type": p.type.name.lower(), "range": p.range_text,
+                               "unit": p.unit or None, "board": None, "A": None, "B": None}
         if p.scope is Scope.BOARD:
-            cells = [format_value(values[(p.id, BOARD)], p.type), "", ""]
+            row["board"] = number(values[(p.id, BOARD)], p.type)
         else:
-            cells = ["", *(format_value(values[(p.id, c)], p.type) for c in (1, 2))]
-        table.add_row(str(p.id), p.name, p.scope.name.lower(), p.type.name.lower(),
-                      p.range_text, p.unit, *cells)
-    table_console().print(table)
+            row["A"], row["B"] = (number(values[(p.id, c)], p.type) for c in (1, 2))
+        rows.append(row)
+    if fmt == "table":
+        kinds = {p.name: p.type for p in PARAMETERS}
+        rows = [{**row, **{k: "" if row[k] is None else format_value(row[k], kinds[row["name"]])
+                           for k in ("board", "A", "B")}} for row in rows]
+    emit_rows(fmt, LIST_COLUMNS, rows, title=f"Parameters on {conn.single.url}")
     return ExitCode.OK
 
 
@@ -183,14 +229,21 @@ def _read_settings(file: str) -> tuple[str, str]:
                        ExitCode.BAD_INPUT) from None
 
 
-def _file_names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
-    return [n for n in shipped_sets() if n.startswith(incomplete)]
+def _file_names(ctx: click.Context, param: click.Parameter, incomplete: str
+                ) -> list[CompletionItem]:
+    """Completion for ``param load``: the files here (the shell completes paths) and the
+    parameter sets shipped with the package."""
+    from click.shell_completion import CompletionItem
+
+    shipped = [CompletionItem(n) for n in shipped_sets() if n.startswith(incomplete)]
+    return [*shipped, CompletionItem(incomplete, type="file")]
 
 
 @param.command("load", epilog=EXIT_CODES_HELP)
 @click.argument("file", shell_complete=_file_names)
+@format_option
 @connection_options()
-def load(file: str, conn: ConnectionOptions) -> int:
+def load(file: str, fmt: str, conn: ConnectionOptions) -> int:
     """Set every parameter in a TOML FILE ('-' for stdin, or the name of a shipped set such
     as seed-high), one at a time; each line is reported as confirmed or failed. All values
     are checked before the first is sent."""
@@ -199,27 +252,43 @@ def load(file: str, conn: ConnectionOptions) -> int:
     if not entries:
         raise CliError(f"{source}: no parameters in the file", ExitCode.BAD_INPUT)
     conn.note_ephemeral()
-    return run(_load(conn, entries), conn.single.url)
+    return run(_load(conn, entries, fmt), conn.single.url)
 
 
-async def _load(conn: ConnectionOptions, entries: list[Setting]) -> int:
+LOAD_COLUMNS = (Column("status", "status"), Column("name", "name"),
+                Column("requested", "requested"), Column("confirmed", "confirmed"),
+                Column("error", "error"))
+
+
+async def _load(conn: ConnectionOptions, entries: list[Setting], fmt: str) -> int:
     worst = ExitCode.OK
     async with conn.link(conn.single) as link:
         results = await link.sync_params(
             [(p.full_name(code), None, value) for p, code, value in entries]
         )
     by_name = {p.full_name(code): p for p, code, _ in entries}
+    rows: list[dict[str, Any]] = []
     for result in results:
         p = by_name[result.name]
         if result.ok:
             assert result.confirmed is not None
-            echo_out(f"ok      {result.name} = {format_value(result.confirmed, p.type)}")
+            rows.append({"status": "ok", "name": result.name,
+                         "requested": number(result.requested, p.type),
+                         "confirmed": number(result.confirmed, p.type), "error": None})
+            if fmt == "table":
+                echo_out(f"ok      {result.name} = {format_value(result.confirmed, p.type)}")
             continue
         assert result.error is not None
         error = classify(result.error, conn.single.url)
-        echo_out(f"failed  {result.name} = {format_value(result.requested, p.type)}: "
-                 f"{error.format_message()}")
+        rows.append({"status": "failed", "name": result.name,
+                     "requested": number(result.requested, p.type), "confirmed": None,
+                     "error": error.format_message()})
+        if fmt == "table":
+            echo_out(f"failed  {result.name} = {format_value(result.requested, p.type)}: "
+                     f"{error.format_message()}")
         worst = max(worst, ExitCode(error.exit_code))
+    if fmt != "table":
+        emit_rows(fmt, LOAD_COLUMNS, rows)
     ok = sum(r.ok for r in results)
     if worst is not ExitCode.OK:
         raise CliError(f"{len(results) - ok} of {len(results)} parameters failed", worst)
@@ -265,8 +334,7 @@ def dump(file: str, conn: ConnectionOptions) -> int:
     text = render_parameter_file(values, f"fpgalink parameters read from {conn.single.url} "
                                          f"at {stamp}")
     if file == "-":
-        sys.stdout.write(text)
-        sys.stdout.flush()
+        write_out(text)
         return ExitCode.OK
     write_output(file, text)
     note(f"wrote {len(values)} values to {file}")

@@ -9,7 +9,6 @@ received bytes before sending a USB packet when fewer than 62 are waiting: the d
 
 from __future__ import annotations
 
-import json
 import os
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
@@ -18,7 +17,8 @@ from typing import Any
 
 import click
 
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, table_console
+from fpgalink.cli.formats import Column, emit_rows, format_option
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out
 
 __all__ = ["PortReport", "ports", "scan_ports"]
 
@@ -146,8 +146,7 @@ def set_low_latency(report: PortReport) -> None:
 @click.command(epilog=EXIT_CODES_HELP)
 @click.option("--all", "show_all", is_flag=True,
               help="Also list ports that are not USB (legacy ttyS*, most of them absent).")
-@click.option("--format", "fmt", type=click.Choice(["table", "json"]), default="table",
-              show_default=True)
+@format_option
 @click.option("--fix-latency", is_flag=True,
               help=f"Set every FTDI port's latency timer to {GOOD_LATENCY_MS} ms (needs "
                    "permission to write sysfs; lasts until the device is replugged).")
@@ -169,9 +168,8 @@ def ports(show_all: bool, fmt: str, fix_latency: bool) -> int:
                            f"{report.latency_timer_ms} → {GOOD_LATENCY_MS} ms", err=True)
         reports = [r for r in scan_ports(list_ports.comports())
                    if show_all or r.usb_id is not None]
-    if fmt == "json":
-        for report in reports:
-            echo_out(json.dumps(asdict(report)))
+    if fmt != "table":
+        emit_rows(fmt, PORT_COLUMNS, [asdict(r) for r in reports])
         return ExitCode.OK
     if not reports:
         echo_out("no USB serial ports found" + ("" if show_all else
@@ -188,18 +186,30 @@ def ports(show_all: bool, fmt: str, fix_latency: bool) -> int:
     return ExitCode.OK
 
 
-def _print_table(reports: list[PortReport]) -> None:
-    from rich.table import Table
+#: Every field of a report; the table leaves out, first to last, what matters least for
+#: picking the port when the terminal is narrow. The stable path is never cut short.
+PORT_COLUMNS = (
+    Column("device", "port"),
+    Column("by_id", "stable path (give as --port)"),
+    Column("usb_id", "VID:PID", drop=3),
+    Column("description", "description", drop=4),
+    Column("serial_number", "serial", drop=2),
+    Column("interface", "interface", drop=6),
+    Column("verdict", "what it is", drop=1),
+    Column("latency_timer_ms", "latency ms", justify="right"),
+    Column("latency_path", "latency_timer file", drop=7),
+)
 
-    table = Table(title="Serial ports", title_justify="left")
-    for column in ("port", "stable path (give as --port)", "VID:PID", "description",
-                   "serial", "latency", "what it is"):
-        table.add_column(column, overflow="fold")
+
+def _print_table(reports: list[PortReport]) -> None:
+    rows = []
     for r in reports:
-        latency = "" if r.latency_timer_ms is None else f"{r.latency_timer_ms} ms"
+        latency = "" if r.latency_timer_ms is None else f"{r.latency_timer_ms}"
         if r.slow_latency:
-            latency = f"[bold red]{latency}[/]"
-        table.add_row(r.device, r.by_id or "-", r.usb_id or "-", r.description or "-",
-                      r.serial_number or "-", latency or "-",
-                      f"[bold]{r.verdict}[/]" if r.likely_board else r.verdict)
-    table_console().print(table)
+            latency = f"{latency} (slow)"
+        rows.append({**asdict(r), "by_id": r.by_id or "-", "usb_id": r.usb_id or "-",
+                     "description": r.description or "-", "serial_number":
+                     r.serial_number or "-", "latency_timer_ms": latency or "-",
+                     "verdict": r.verdict})
+    columns = [c for c in PORT_COLUMNS if c.key not in ("interface", "latency_path")]
+    emit_rows("table", columns, rows, title="Serial ports")

@@ -21,7 +21,7 @@ import click
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import CliError, ExitCode, note
+from fpgalink.cli.output import CliError, ExitCode, echo_out, note
 
 if TYPE_CHECKING:
     from fpgalink.cli.rosbag import RosbagWriter
@@ -255,6 +255,10 @@ class RobotRun:
             if self.record_path is not None:
                 self._open_sink()
             tasks = []
+            if self._sink is not None:
+                to_epoch = time.time() - asyncio.get_running_loop().time()
+                tasks += [asyncio.ensure_future(self._record_board(robot, name, to_epoch))
+                          for name in self.description.boards]
             if self.rosbag_path is not None:
                 self._open_bag(robot)
                 tasks = self._bag_tasks(robot)
@@ -300,6 +304,27 @@ class RobotRun:
         except OSError as exc:
             raise CliError(f"--record {self.record_path}: cannot write: {exc.strerror}",
                            ExitCode.FAILURE) from None
+
+    async def _record_board(self, robot: Robot, name: str, to_epoch: float) -> None:
+        """Every sample of one board into ``/board/NAME/telemetry``, as ``record`` writes it
+        (so ``plot`` of a drive shows the wheels' speeds against their references)."""
+        from fpgalink.cli.session import compact, json_safe, telemetry_row
+
+        clock = BoardClock()
+        async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
+            sink = self._sink
+            if sink is None:
+                return
+            received += to_epoch
+            sampled = clock.seconds(sample.t_us, received)
+            row = json_safe({k: compact(v) for k, v in telemetry_row(sample, 0.0).items()})
+            row["timestamp"] = round(sampled, 6)
+            try:
+                sink.telemetry(name, row, received, sampled)
+            except OSError as exc:
+                self._sink = None
+                note(f"--record stopped: {exc.strerror or exc}")
+                return
 
     # --- rosbag2 --------------------------------------------------------------------------
 
@@ -469,6 +494,44 @@ class RobotRun:
                          f"{math.degrees(truth['theta']):.1f}° (odometry off by "
                          f"{error * 100:.1f} cm)")
         return lines
+
+    def summary_document(self) -> dict[str, Any]:
+        """The summary as JSON has it: metres and degrees, in the keys."""
+        robot = self.robot
+        assert robot is not None
+        state = robot.odometry_state
+        p = state.pose
+        document: dict[str, Any] = {
+            "odometry": {"x_m": p.x, "y_m": p.y, "theta_deg": math.degrees(p.theta),
+                         "distance_m": state.distance},
+            "truth": None,
+        }
+        truth = self.last_truth
+        if truth is not None:
+            document["truth"] = {"x_m": truth["x"], "y_m": truth["y"],
+                                 "theta_deg": math.degrees(truth["theta"]),
+                                 "odometry_error_m": math.hypot(truth["x"] - p.x,
+                                                                truth["y"] - p.y)}
+        return document
+
+    def print_summary(self, fmt: str, extra: dict[str, Any] | None = None) -> None:
+        """The final odometry (and truth) in ``fmt``; ``extra`` goes into the JSON document
+        (the command, the goal)."""
+        from fpgalink.cli.formats import Column, emit_document, emit_rows
+
+        if fmt == "table":
+            for line in self.summary():
+                echo_out(line)
+            return
+        document = {**(extra or {}), **self.summary_document()}
+        if fmt == "json":
+            emit_document(document)
+            return
+        rows = [{"source": "odometry", **document["odometry"]}]
+        if document["truth"] is not None:
+            rows.append({"source": "truth", **document["truth"]})
+        emit_rows(fmt, [Column(k, k) for k in ("source", "x_m", "y_m", "theta_deg",
+                                              "distance_m", "odometry_error_m")], rows)
 
     def finish(self, title: str, goal: tuple[float, float] | None = None) -> None:
         if self.plot_path is not None:

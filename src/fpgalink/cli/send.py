@@ -9,6 +9,7 @@ from typing import Any
 
 import click
 
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
@@ -17,6 +18,7 @@ from fpgalink.cli.output import (
     FiniteRange,
     describe,
     echo_out,
+    message_fields,
     message_id,
 )
 from fpgalink.cli.session import on_messages, run
@@ -108,13 +110,14 @@ def build_items(ctx: click.Context, texts: tuple[str, ...], hexes: tuple[str, ..
                    "that parameter (a PN exits 3), else the first message with ID2.")
 @click.option("--wait", type=FiniteRange(min=0, min_open=True, max=3600), default=1.0,
               show_default=True, help="How long to wait for --reply, s.")
+@format_option
 @click.option("--force", is_flag=True,
               help="Send even what the library would refuse: a body that does not match a "
                    "catalogued layout, or references that are not finite numbers.")
 @connection_options()
 @click.pass_context
 def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tuple[str, ...],
-         bin_files: tuple[Path, ...], reply_id: str | None, wait: float, force: bool,
+         bin_files: tuple[Path, ...], reply_id: str | None, wait: float, fmt: str, force: bool,
          conn: ConnectionOptions) -> int:
     """Send one message with ID and print it; with --reply, wait for the reply.
 
@@ -162,11 +165,12 @@ def send(ctx: click.Context, msg_id: str, text: tuple[str, ...], hex_items: tupl
     reply = reply_id.strip().upper() if reply_id else None
     if request is not None and isinstance(request, ParamSet):
         conn.note_ephemeral()
-    return run(_send(conn, message, shown, reply, request, wait), conn.single.url)
+    return run(_send(conn, message, shown, reply, request, wait, fmt), conn.single.url)
 
 
 async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand, shown: str,
-                reply_id: str | None, request: ParamSet | ParamGet | None, wait: float) -> int:
+                reply_id: str | None, request: ParamSet | ParamGet | None, wait: float,
+                fmt: str) -> int:
     endpoint = conn.single
     async with conn.link(endpoint) as link:
         loop = asyncio.get_running_loop()
@@ -191,22 +195,47 @@ async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand
             on_messages(link, on_message)  # before sending: a fast reply must not be missed
         counter = link.connection.next_counter
         wire = link.send(message)
+        sent: Parsed = message
         if isinstance(message, CountedMessage):
-            shown = describe(parse_content(encode_message(message, counter)))
-        echo_out(f"sent {shown}  ({len(wire)} bytes on the wire)")
-        if conn.verbose:
-            echo_out(f"wire {wire.hex(' ')}")
+            sent = parse_content(encode_message(message, counter))
+            shown = describe(sent)
+        records = [{"kind": "sent", **message_fields(sent), "text": shown,
+                    "wire_bytes": len(wire), "wire_hex": wire.hex(" ")}]
+        if fmt == "table":
+            echo_out(f"sent {shown}  ({len(wire)} bytes on the wire)")
+            if conn.verbose:
+                echo_out(f"wire {wire.hex(' ')}")
         if reply_id is None:
+            _emit(fmt, records)
             return ExitCode.OK
         try:
             received = await asyncio.wait_for(replied, wait)
         except TimeoutError:
+            _emit(fmt, records)
             heard = (", ".join(f"{n}×{others.count(n)}" for n in sorted(set(others)))
                      or "nothing")
             raise CliError(f"{endpoint.url}: board not answering: no reply to {shown.split()[0]} "
                            f"within {wait:g} s (heard: {heard})", ExitCode.NO_ANSWER) from None
-        echo_out(f"reply {describe(received)}")
+        records.append({"kind": "reply", **message_fields(received), "text": describe(received),
+                        "wire_bytes": None, "wire_hex": None})
+        if fmt == "table":
+            echo_out(f"reply {describe(received)}")
+        _emit(fmt, records)
         if isinstance(received, ParamNack):
             raise CliError(f"{endpoint.url}: the board refused: {received.reason} (PN error "
                            f"{received.error})", ExitCode.REFUSED)
         return ExitCode.OK
+
+
+SEND_COLUMNS = (Column("kind", "kind"), Column("id", "id"), Column("counter", "counter"),
+                Column("text", "text"), Column("wire_bytes", "wire bytes"),
+                Column("wire_hex", "wire"))
+
+
+def _emit(fmt: str, records: list[dict[str, Any]]) -> None:
+    """JSON: ``{"sent": {...}, "reply": {...} or null}``; CSV: a line per message."""
+    if fmt == "json":
+        reply = records[1] if len(records) > 1 else None
+        emit_document({"sent": records[0], "reply": reply})
+    elif fmt == "csv":
+        emit_rows(fmt, SEND_COLUMNS, records)

@@ -146,6 +146,31 @@ def _seconds(value: object, name: str, where: str, low: float, high: float) -> f
     return float(value)
 
 
+#: How strongly each kind of source holds: a board chosen in a weaker place than the ports
+#: came from may name none of them, and then it does not apply.
+_STRENGTH = {COMMAND_LINE: 3, "environment": 2, "config file": 1, DEFAULT: 0}
+
+
+def _strength(source: str) -> int:
+    return next((v for k, v in _STRENGTH.items() if source.startswith(k)), 0)
+
+
+def _board_for_ports(board: str | None, ports: tuple[Endpoint, ...],
+                     sources: dict[str, str]) -> str | None:
+    """An explicit ``--port`` (or ``FPGALINK_PORT``) wins over the board selection of a
+    weaker source: ``board = "L"`` in the config file picks among the file's ports, and is
+    set aside when the ports given on the command line have no board L (``config`` says
+    so)."""
+    if board is None or any(e.name == board for e in ports):
+        return board
+    if _strength(sources["board"]) < _strength(sources["port"]):
+        where = "--port" if sources["port"] == COMMAND_LINE else sources["port"]
+        sources["board"] = (f"{sources['board']}, set aside: the ports from {where} have "
+                            f"no board {board}")
+        return None
+    return board
+
+
 def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Settings:
     """Settings from the options given after the command (``given``), before it
     (``before``), the environment, the config file and the defaults."""
@@ -201,6 +226,7 @@ def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Set
         if value is not None and not (isinstance(value, str) and value.strip()):
             raise CliError(f"{sources[name]}: {name} must be a non-empty string, got {value!r}",
                            ExitCode.BAD_INPUT)
+    board = _board_for_ports(board, ports, sources)
     if robot is not None:
         robot_path = Path(str(robot))
         if sources["robot"] == file_source and path is not None and not robot_path.is_absolute():

@@ -5,19 +5,30 @@ from __future__ import annotations
 
 import asyncio
 import math
+import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 import click
-from rich.table import Table
 
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, table_console
-from fpgalink.cli.session import Streaming, run
+from fpgalink.cli.output import (
+    EXIT_CODES_HELP,
+    CliError,
+    ExitCode,
+    FiniteRange,
+    SignedNumbers,
+    echo_out,
+    format_value,
+    note,
+    number,
+)
+from fpgalink.cli.session import Streaming, install_stop_signals, run, wait_or_stop
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
@@ -35,6 +46,8 @@ class StepMetrics:
     overshoot: float  #: % of the step size, ≥ 0
     steady_state_error: float  #: target − mean of the last 10 %, in the signal's unit
     peak: float
+    rise_start: float | None = None  #: s, when 10 % of the step was first reached
+    rise_end: float | None = None  #: s, when 90 % of the step was first reached
 
 
 def step_metrics(t: list[float], y: list[float], start: float, target: float) -> StepMetrics:
@@ -65,6 +78,8 @@ def step_metrics(t: list[float], y: list[float], start: float, target: float) ->
         overshoot=max(0.0, (peak_progress - 1.0) * 100.0),
         steady_state_error=target - sum(tail) / len(tail),
         peak=start + peak_progress * size,
+        rise_start=t_low,
+        rise_end=t_high,
     )
 
 
@@ -99,23 +114,89 @@ def split_response(samples: list[tuple[float, Telemetry]], channel: str, target:
     return response
 
 
-def save_plot(path: Path, response: StepResponse, channel: str, title: str) -> None:
-    figure = new_figure((8, 6))
+@dataclass(frozen=True, slots=True)
+class StepSetup:
+    """What the board ran the step with, read from it before the step (for the plot's title
+    and the PWM limit)."""
+
+    kp: float | None = None
+    ti: float | None = None
+    td: float | None = None
+    max_control: int | None = None
+    controller: int | None = None
+
+
+CONTROLLERS = {0: "software speed PID", 1: "hardware speed PID", 2: "software current PID",
+               3: "hardware current PID"}
+
+
+def save_plot(path: Path, response: StepResponse, channel: str, start: float, target: float,
+              metrics: StepMetrics, setup: StepSetup) -> None:
+    """Reference (dashed, so a speed on it still shows) and speed with the ±2 % band, the
+    rise (10–90 %) and settling marks; PWM with the board's limit below."""
+    figure = new_figure((9, 6.5))
     top, bottom = figure.subplots(2, 1, sharex=True, height_ratios=[2, 1])
-    top.plot(response.t, response.reference, label="reference", drawstyle="steps-post")
-    top.plot(response.t, response.speed, label="speed")
-    top.set_ylabel("deg/s")
+    size = abs(target - start)
+    band = SETTLING_BAND * size
+    top.axhspan(target - band, target + band, color="tab:green", alpha=0.12,
+                label=f"±{SETTLING_BAND:.0%} band")
+    top.plot(response.t, response.speed, color="tab:blue", linewidth=1.2, label="speed")
+    top.plot(response.t, response.reference, color="black", linestyle="--", linewidth=1.0,
+             drawstyle="steps-post", label="reference")
+    if metrics.rise_start is not None and metrics.rise_end is not None:
+        top.axvspan(metrics.rise_start, metrics.rise_end, color="tab:orange", alpha=0.15,
+                    label=f"rise 10–90 %: {metrics.rise_time:.3f} s")
+    if metrics.settling_time is not None:
+        top.axvline(metrics.settling_time, color="tab:red", linestyle=":", linewidth=1.2,
+                    label=f"settled (2 %): {metrics.settling_time:.3f} s")
+    top.set_ylabel(f"channel {channel} speed, deg/s")
+    gains = []
+    if setup.kp is not None:
+        gains.append(f"Kp {format_value(setup.kp)} PWM/(deg/s)")
+    if setup.ti is not None:
+        gains.append(f"Ti {format_value(setup.ti)} s")
+    if setup.td is not None:
+        gains.append(f"Td {format_value(setup.td)} s")
+    title = f"channel {channel}: step {start:g} → {target:g} deg/s"
+    if gains:
+        title += "\n" + ", ".join(gains)
+        if setup.controller is not None:
+            title += f" ({CONTROLLERS.get(setup.controller, f'controller {setup.controller}')})"
     top.set_title(title)
-    top.legend(loc="lower right")
+    top.legend(loc="lower right", fontsize="small")
     top.grid(True, alpha=0.3)
-    bottom.plot(response.t, response.pwm, color="tab:green", label="pwm")
-    bottom.set_ylabel(f"pwm {channel}")
-    bottom.set_xlabel("time since step, s")
+    bottom.plot(response.t, response.pwm, color="tab:green", linewidth=1.0, label="PWM")
+    if setup.max_control is not None:
+        for sign in (1, -1):
+            bottom.axhline(sign * setup.max_control, color="tab:red", linestyle="--",
+                           linewidth=1.0,
+                           label=f"limit ±{setup.max_control} (MaxControlSignal)"
+                           if sign > 0 else None)
+    bottom.set_ylabel("PWM, counts\n(±32760 = 100 %)")
+    bottom.set_xlabel("time since the step, s")
+    bottom.legend(loc="lower right", fontsize="small")
     bottom.grid(True, alpha=0.3)
     save_figure(figure, path)
 
 
-@click.command(epilog=EXIT_CODES_HELP)
+def check_reach(target: float, start: float, conn: ConnectionOptions) -> None:
+    """Say so when a reference is beyond what the wheel can turn: the speed saturates and
+    the figures will say "not reached"."""
+    from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
+
+    try:
+        robot = load_robot(str(conn.settings.robot)) if conn.settings.robot else seed_robot()
+    except DescriptionError:
+        robot = seed_robot()
+    reach = robot.max_wheel_speed
+    for label, value in (("--to", target), ("--from", start)):
+        if abs(value) > reach:
+            note(f"{label} {value:g} deg/s is beyond the wheel's reach: {robot.name}'s wheels "
+                 f"turn at most {reach:g} deg/s (max_wheel_speed): the speed will saturate "
+                 "short of it and the figures will say so")
+
+
+@click.command(cls=SignedNumbers, epilog=EXIT_CODES_HELP)
 @click.option("--channel", "-c", type=click.Choice(["A", "B"], case_sensitive=False),
               required=True, help="Channel to step (the other gets reference 0).")
 @click.option("--to", "target", type=float, required=True,
@@ -129,14 +210,16 @@ def save_plot(path: Path, response: StepResponse, channel: str, title: str) -> N
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="Save reference, speed and pwm against time to a .png, .svg or .pdf "
                    "(needs matplotlib; the path is checked before the step runs).")
+@format_option
 @connection_options()
 def step(channel: str, target: float, start: float, hold: float, pre: float,
-         plot: Path | None, conn: ConnectionOptions) -> int:
+         plot: Path | None, fmt: str, conn: ConnectionOptions) -> int:
     """Step the speed reference of one channel and measure the response.
 
     Enables the board, turns telemetry on, holds --from for --pre seconds, steps to --to and
-    records --hold seconds; then disables. Prints rise time (10-90 %), settling time (2 %
-    band), overshoot and steady-state error of the channel's speed.
+    records --hold seconds; then disables (also on Ctrl-C and SIGTERM, exit 130 and 143).
+    Prints rise time (10-90 %), settling time (2 % band), overshoot and steady-state error
+    of the channel's speed.
     """
     channel = channel.upper()
     for label, value in (("--to", target), ("--from", start)):
@@ -147,7 +230,13 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
         raise CliError("--to and --from are equal: there is no step", ExitCode.BAD_INPUT)
     if plot is not None:
         check_plot_path(plot)
-    response = run(_step(conn, channel, start, target, pre, hold), conn.single.url)
+    check_reach(target, start, conn)
+    outcome = run(_step(conn, channel, start, target, pre, hold), conn.single.url)
+    if outcome.signal is not None:
+        name = signal.Signals(outcome.signal).name
+        note(f"interrupted by {name}: the board was disabled")
+        return 128 + outcome.signal
+    response = outcome.response
     if len(response.t) < 2:
         raise CliError(f"{conn.single.url}: no telemetry arrived during the step",
                        ExitCode.NO_ANSWER)
@@ -155,9 +244,9 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
     if not after:
         raise CliError("no telemetry after the step", ExitCode.NO_ANSWER)
     metrics = step_metrics([t for t, _ in after], [v for _, v in after], start, target)
-    _print_metrics(metrics, channel, start, target, len(after))
+    _print_metrics(fmt, metrics, channel, start, target, len(after), outcome.setup)
     if plot is not None:
-        save_plot(plot, response, channel, f"channel {channel}: step {start:g} → {target:g}")
+        save_plot(plot, response, channel, start, target, metrics, outcome.setup)
         click.echo(f"plot saved to {plot}", err=True)
     return ExitCode.OK
 
@@ -166,38 +255,81 @@ def _fmt_s(value: float | None) -> str:
     return "not reached" if value is None else f"{value:.3f} s"
 
 
-def _print_metrics(m: StepMetrics, channel: str, start: float, target: float,
-                   samples: int) -> None:
-    console = table_console()
-    console.print(f"Step response, channel {channel}: {start:g} → {target:g} deg/s "
-                  f"({samples} samples after the step)")
-    table = Table()
-    table.add_column("figure")
-    table.add_column("value", justify="right")
-    rows: list[tuple[str, Any]] = [
-        ("rise time (10-90 %)", _fmt_s(m.rise_time)),
-        ("settling time (2 %)", _fmt_s(m.settling_time)),
-        ("overshoot", f"{m.overshoot:.1f} %"),
-        ("steady-state error", f"{m.steady_state_error:.3f}"),
-        ("peak", f"{m.peak:.3f}"),
+def metrics_document(m: StepMetrics, channel: str, start: float, target: float,
+                     samples: int, setup: StepSetup) -> dict[str, Any]:
+    """The figures as JSON has them: numbers, the unit in each key."""
+    return {
+        "channel": channel, "from_dps": start, "to_dps": target, "samples": samples,
+        "rise_time_s": m.rise_time, "settling_time_s": m.settling_time,
+        "overshoot_percent": m.overshoot, "steady_state_error_dps": m.steady_state_error,
+        "peak_dps": m.peak, **{key: None if value is None else number(value) for key, value in
+                               (("kp", setup.kp), ("ti_s", setup.ti), ("td_s", setup.td))},
+        "max_control_signal": setup.max_control,
+    }
+
+
+def _print_metrics(fmt: str, m: StepMetrics, channel: str, start: float, target: float,
+                   samples: int, setup: StepSetup) -> None:
+    document = metrics_document(m, channel, start, target, samples, setup)
+    if fmt == "json":
+        emit_document(document)
+        return
+    if fmt == "csv":
+        emit_rows(fmt, [Column(k, k) for k in document], [document])
+        return
+    echo_out(f"Step response, channel {channel}: {start:g} → {target:g} deg/s "
+             f"({samples} samples after the step)")
+    rows: list[dict[str, Any]] = [
+        {"figure": "rise time (10-90 %)", "value": _fmt_s(m.rise_time)},
+        {"figure": "settling time (2 %)", "value": _fmt_s(m.settling_time)},
+        {"figure": "overshoot", "value": f"{m.overshoot:.1f} %"},
+        {"figure": "steady-state error", "value": f"{m.steady_state_error:.3f} deg/s"},
+        {"figure": "peak", "value": f"{m.peak:.3f} deg/s"},
     ]
-    for name, value in rows:
-        table.add_row(name, value)
-    console.print(table)
+    emit_rows(fmt, [Column("figure", "figure"), Column("value", "value", justify="right")],
+              rows)
+
+
+@dataclass
+class StepOutcome:
+    response: StepResponse
+    setup: StepSetup
+    #: the signal (SIGINT, SIGTERM) that ended the step early, after the board was disabled
+    signal: int | None = None
+
+
+async def _read_setup(link: Any, channel: str) -> StepSetup:
+    """The controller's gains and limits for ``channel`` as the board has them; what cannot
+    be read is left out of the plot, not a reason to stop."""
+    from fpgalink.errors import FpgalinkError
+
+    code = 1 if channel == "A" else 2
+    values: dict[str, Any] = {}
+    for key, name in (("kp", "Kp_Wheel_Pid"), ("ti", "Ti_Wheel_Pid"), ("td", "Td_Wheel_Pid"),
+                      ("max_control", "MaxControlSignal"), ("controller", "ActiveController")):
+        try:
+            values[key] = await link.get_param(name, code)
+        except FpgalinkError:
+            values[key] = None
+    return StepSetup(**values)
 
 
 async def _step(conn: ConnectionOptions, channel: str, start: float, target: float,
-                pre: float, hold: float) -> StepResponse:
+                pre: float, hold: float) -> StepOutcome:
     def refs(value: float) -> tuple[float, float]:
         return (value, 0.0) if channel == "A" else (0.0, value)
 
+    stop = asyncio.Event()
+    install_stop_signals(stop)  # SIGTERM as Ctrl-C: the board is disabled on the way out
     async with conn.link(conn.single) as link:
         streaming = Streaming(link)
         await streaming.start()
+        setup = await _read_setup(link, channel)
         samples: list[tuple[float, Telemetry]] = []
         clock = BoardClock()
         loop = asyncio.get_running_loop()
         sub = link.telemetry(maxsize=1 << 20)
+        step_time = loop.time()
 
         async def collect() -> None:
             async for sample in sub:
@@ -205,31 +337,34 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
 
         collector = asyncio.ensure_future(collect())
         try:
-            with _StepProgress(pre + hold, samples) as progress:
+            with _StepProgress(pre + hold, samples, stop) as progress:
                 link.enable()
                 link.set_references(*refs(start))
-                await progress.phase(f"holding {start:g} deg/s on {channel}", pre)
-                step_time = loop.time()  # on the samples' axis: anchored to this clock
-                link.set_references(*refs(target))
-                await progress.phase(f"stepped to {target:g} deg/s", hold)
+                if await progress.phase(f"holding {start:g} deg/s on {channel}", pre):
+                    step_time = loop.time()  # on the samples' axis: anchored to this clock
+                    link.set_references(*refs(target))
+                    await progress.phase(f"stepped to {target:g} deg/s", hold)
         finally:
             link.disable()
             sub.close()
             await asyncio.gather(collector, return_exceptions=True)
             await streaming.restore()
-    return split_response(samples, channel, target, step_time)
+    fired = getattr(stop, "signal", None)
+    return StepOutcome(split_response(samples, channel, target, step_time), setup,
+                       None if fired is None else int(fired))
 
 
 
 class _StepProgress:
     """A bar on stderr while the step runs (only on a terminal, like ``record``'s)."""
 
-    def __init__(self, total: float, samples: list[Any]) -> None:
+    def __init__(self, total: float, samples: list[Any], stop: asyncio.Event) -> None:
         from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
         console = Console(stderr=True)
         self._samples = samples
+        self._stop = stop
         self._started = time.monotonic()
         self._progress = Progress(
             TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
@@ -244,10 +379,14 @@ class _StepProgress:
     def __exit__(self, *exc: object) -> None:
         self._progress.stop()
 
-    async def phase(self, description: str, seconds: float) -> None:
+    async def phase(self, description: str, seconds: float) -> bool:
+        """Run one phase; False when a signal ended it early."""
         self._progress.update(self._task, description=description)
         end = time.monotonic() + seconds
         while (left := end - time.monotonic()) > 0:
-            await asyncio.sleep(min(0.1, left))
+            await wait_or_stop(self._stop, min(0.1, left))
+            if self._stop.is_set():
+                return False
             self._progress.update(self._task, completed=time.monotonic() - self._started,
                                   samples=len(self._samples))
+        return True

@@ -97,8 +97,10 @@ def test_fixing_without_permission_says_the_command(machine: tuple[Path, Path, P
 def test_the_command_lists_what_this_machine_has() -> None:
     done = run_cli("ports", "--all", "--format", "json")
     assert done.returncode == 0, done.stderr
-    for line in done.stdout.splitlines():
-        assert {"device", "by_id", "usb_id", "verdict"} <= set(json.loads(line))
+    reports = json.loads(done.stdout)  # one document: a list, [] when there is none
+    assert isinstance(reports, list)
+    for report in reports:
+        assert {"device", "by_id", "usb_id", "verdict", "latency_timer_ms"} <= set(report)
     done = run_cli("ports")
     assert done.returncode == 0, done.stderr
     assert "Serial ports" in done.stdout or "no USB serial ports found" in done.stdout

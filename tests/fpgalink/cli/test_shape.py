@@ -72,11 +72,12 @@ def test_config_file_precedence_and_sources(
     where = f"config file {tmp_path / 'fpgalink.toml'}"
     assert shown["config_file"] == str(tmp_path / "fpgalink.toml")
     settings = shown["settings"]
-    assert settings["port"] == {"value": f"L=/nonexistent/L R={fake.url}", "source": where}
+    assert settings["port"] == {"value": [{"name": "L", "url": "/nonexistent/L"},
+                                          {"name": "R", "url": fake.url}], "source": where}
     assert settings["board"] == {"value": "R", "source": where}
-    assert settings["baud"] == {"value": "2000000", "source": "environment FPGALINK_BAUD"}
-    assert settings["timeout"] == {"value": "0.3 s", "source": "command line"}
-    assert settings["retries"] == {"value": "8", "source": "default"}
+    assert settings["baud"] == {"value": 2000000, "source": "environment FPGALINK_BAUD"}
+    assert settings["timeout_s"] == {"value": 0.3, "source": "command line"}
+    assert settings["retries"] == {"value": 8, "source": "default"}
     # The environment's port beats the file's; the command line beats both.
     done = run_cli("config", "--port", "emu://", cwd=tmp_path,
                    env=cli_env(FPGALINK_PORT="/nonexistent/env"))
@@ -109,14 +110,16 @@ def test_a_bad_config_file_is_one_line_naming_the_key(
     assert_one_line_error(done.stderr, str(path), *needles)
 
 
-@pytest.mark.parametrize("args", [
-    ["param", "get"], ["nosuchcommand"], ["param", "get", "TsTimerPeriod", "--bogus"],
-    ["--port"], ["monitor", "--format", "xml"],
+@pytest.mark.parametrize(("args", "help_of"), [
+    (["param", "get"], "fpgalink-cli param get -h"), (["nosuchcommand"], "fpgalink-cli -h"),
+    (["param", "get", "TsTimerPeriod", "--bogus"], "fpgalink-cli param get -h"),
+    (["--port"], "fpgalink-cli -h"), (["monitor", "--format", "xml"], "fpgalink-cli monitor -h"),
 ])
-def test_usage_errors_are_one_line_exit_2(args: list[str]) -> None:
+def test_usage_errors_are_one_line_exit_2(args: list[str], help_of: str) -> None:
+    # Each points at the help of the command it is about (issue 26).
     done = run_cli(*args)
     assert done.returncode == 2, done.stderr
-    assert_one_line_error(done.stderr, "fpgalink-cli -h")
+    assert_one_line_error(done.stderr, f"(see {help_of})")
 
 
 def test_the_command_list_matches_each_commands_own_help() -> None:
