@@ -13,11 +13,12 @@ from typing import Any
 import click
 from rich.table import Table
 
+from fpgalink.aio.link import LinkEvent
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, table_console
-from fpgalink.cli.session import Streaming, run
+from fpgalink.cli.session import FAULT_KINDS, Streaming, run
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
@@ -204,19 +205,28 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
                 samples.append((clock.seconds(sample.t_us, loop.time()), sample))
 
         collector = asyncio.ensure_future(collect())
+        # A fault mid-step (the board restarted, its watchdog disabled it, its telemetry
+        # stopped) ends the step: its figures would describe something else.
+        faults: list[LinkEvent] = []
+        remove = link.on_event(lambda e: faults.append(e) if e.kind in FAULT_KINDS else None)
         try:
             with _StepProgress(pre + hold, samples) as progress:
                 link.enable()
                 link.set_references(*refs(start))
-                await progress.phase(f"holding {start:g} deg/s on {channel}", pre)
+                await progress.phase(f"holding {start:g} deg/s on {channel}", pre, faults)
                 step_time = loop.time()  # on the samples' axis: anchored to this clock
                 link.set_references(*refs(target))
-                await progress.phase(f"stepped to {target:g} deg/s", hold)
+                await progress.phase(f"stepped to {target:g} deg/s", hold, faults)
         finally:
+            remove()
             link.disable()
             sub.close()
             await asyncio.gather(collector, return_exceptions=True)
             await streaming.restore()
+    if faults:
+        fault = faults[0]
+        raise CliError(f"the step was stopped: board {fault.kind.value.replace('_', ' ')} "
+                       f"({fault.detail}); no figures", ExitCode.STOPPED)
     return split_response(samples, channel, target, step_time)
 
 
@@ -244,10 +254,10 @@ class _StepProgress:
     def __exit__(self, *exc: object) -> None:
         self._progress.stop()
 
-    async def phase(self, description: str, seconds: float) -> None:
+    async def phase(self, description: str, seconds: float, faults: list[Any]) -> None:
         self._progress.update(self._task, description=description)
         end = time.monotonic() + seconds
-        while (left := end - time.monotonic()) > 0:
+        while (left := end - time.monotonic()) > 0 and not faults:
             await asyncio.sleep(min(0.1, left))
             self._progress.update(self._task, completed=time.monotonic() - self._started,
                                   samples=len(self._samples))
