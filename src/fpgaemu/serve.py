@@ -236,7 +236,7 @@ def _board_record(board: Board) -> dict[str, Any]:
     enable_cycle = board.uartcommand.last_enable_cycle
     disable = board.uartcommand.last_disable
     return {
-        "t_us": (firmware.last_tick // 100) & 0xFFFF_FFFF,
+        "t_us": ((firmware.last_tick - board.powered_at) // 100) & 0xFFFF_FFFF,
         "speed_a": firmware.channels[1].speed, "speed_b": firmware.channels[2].speed,
         "position_a": firmware.channels[1].position,
         "position_b": firmware.channels[2].position,

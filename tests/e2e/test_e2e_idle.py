@@ -21,6 +21,7 @@ import pytest
 from fpgalink import open_link
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot
+from tests.support.driving import drive_until
 from tests.support.served import PATIENCE, Serve, serve, wait_until
 
 pytestmark = [pytest.mark.timeout(120),
@@ -82,7 +83,8 @@ async def test_a_served_board_is_idle_again_after_a_step() -> None:
 async def test_a_served_robot_is_idle_again_after_a_drive() -> None:
     async with serve("--robot", "--pty", boards=2) as server:
         fresh = await cpu_share(server)
-        async with Robot.open(seed_robot(), server.ready) as robot, robot.enabled():
-            robot.drive(0.2, 0.1)
-            await wait_until(lambda: robot.pose.x > 0.05, PATIENCE, "the robot moving")
+        async with Robot.open(seed_robot(), server.ready) as robot:
+            await drive_until(robot, lambda: robot.pose.x > 0.05, "the robot moving", 0.2,
+                              0.1)
+            robot.disable()
         await back_to_idle(server, fresh)

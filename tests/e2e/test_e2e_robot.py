@@ -15,6 +15,7 @@ from fpgalink.aio.link import LinkEvent
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot
 from fpgalink.robot.supervision import State, StopReason
+from tests.support.driving import drive_until
 from tests.support.served import PATIENCE, serve, wait_until
 
 pytestmark = pytest.mark.timeout(60)
@@ -34,9 +35,9 @@ async def test_a_served_robot_moves_its_body_and_streams_the_truth() -> None:
             assert first["surface"] == "ideal"
             robot = Robot.open(seed_robot().on_surface("ideal"), server.ready)
             async with robot:
-                async with robot.enabled():
-                    robot.drive(0.2, 0.0)
-                    await wait_until(lambda: robot.pose.x > 0.2, PATIENCE, "odometry at 0.2 m")
+                await drive_until(robot, lambda: robot.pose.x > 0.2, "odometry at 0.2 m",
+                                  v=0.2)
+                robot.disable()
 
                 # The body really moved; once it rests, odometry agrees with it.
                 async def at_rest() -> dict[str, float]:

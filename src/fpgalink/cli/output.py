@@ -50,7 +50,9 @@ class ExitCode(IntEnum):
     NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
     PORT = 5  #: the port is missing, busy or failed
     TIMEOUT = 6  #: a goal was not reached in time (goto); the robot was stopped
-    STOPPED = 7  #: supervision stopped the robot (a board went silent, the deadman lapsed)
+    #: a fault stopped the robot or the step: a board went silent, restarted, disabled itself
+    #: (its watchdog: this host stalled) or its telemetry stopped; or the deadman lapsed
+    STOPPED = 7
     INTERRUPTED = 130  #: Ctrl-C (128 + SIGINT), after a clean stop
 
 
@@ -58,7 +60,9 @@ EXIT_CODES_HELP = (
     "Exit codes: 0 ok; 1 other failure; 2 bad input (usage, unknown parameter, value out of "
     "range or of the wrong type; nothing sent); 3 board refused (PN) or confirmed another "
     "value; 4 board not answering; 5 port missing or busy; 6 goal not reached in time; 7 "
-    "robot stopped by supervision; 130 interrupted (Ctrl-C)."
+    "stopped by a fault (a board silent, restarted, disabled by its watchdog, its telemetry "
+    "stopped; the deadman); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), each "
+    "after a clean stop."
 )
 
 

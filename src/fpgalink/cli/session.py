@@ -229,6 +229,9 @@ class BoardSession:
     lost_at: float | None = None
     #: (lost at, back at or None) for every time it was lost during the command
     episodes: list[tuple[float, float | None]] = field(default_factory=list)
+    #: (when, what) for each of the board's faults during the command: restarts, watchdog
+    #: lapses, telemetry stopping
+    faults: list[tuple[float, str]] = field(default_factory=list)
 
     async def follow(self, report: Callable[[str, str, float], None] | None = None) -> None:
         """Keep :attr:`lost_at` and :attr:`episodes` true to the link's events, and hand
@@ -243,6 +246,8 @@ class BoardSession:
                   and self.lost_at is not None and self.link.board_alive):
                 self.episodes[-1] = (self.lost_at, at)
                 self.lost_at = None
+            elif event.kind in FAULT_KINDS:
+                self.faults.append((at, event.detail))
             if report is not None:
                 report(event.kind.value, event.detail, at)
 
@@ -277,10 +282,20 @@ async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOption
     return sessions
 
 
+#: The link events that are a board's faults (its restarts, watchdog lapses, telemetry
+#: stopping): said on stderr, never passed over.
+FAULT_KINDS = frozenset({LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
+                         LinkEventKind.TELEMETRY_STALE})
+
+
 def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
-    """A board lost and back during the command is told on stderr; a board not answering
-    at the end ends the command with "board not answering" (exit 4), saying since when."""
+    """A board lost and back during the command, or one that restarted, disabled itself or
+    whose telemetry stopped, is told on stderr; a board not answering at the end ends the
+    command with "board not answering" (exit 4), saying since when."""
     for session in sessions:
+        for at, what in session.faults:
+            note(f"board {session.endpoint.name} {what} at {_clock(at)} "
+                 f"({at - started:.1f} s into the run)")
         for lost, back in session.episodes:
             if back is not None:
                 note(f"board {session.endpoint.name} was not answering from "

@@ -13,6 +13,7 @@ from typing import Any
 
 import click
 
+from fpgalink.aio.link import LinkEvent
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
@@ -28,7 +29,7 @@ from fpgalink.cli.output import (
     note,
     number,
 )
-from fpgalink.cli.session import Streaming, install_stop_signals, run, wait_or_stop
+from fpgalink.cli.session import FAULT_KINDS, Streaming, install_stop_signals, run, wait_or_stop
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
@@ -336,20 +337,30 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
                 samples.append((clock.seconds(sample.t_us, loop.time()), sample))
 
         collector = asyncio.ensure_future(collect())
+        # A fault mid-step (the board restarted, its watchdog disabled it, its telemetry
+        # stopped) ends the step: its figures would describe something else.
+        faults: list[LinkEvent] = []
+        remove = link.on_event(lambda e: faults.append(e) if e.kind in FAULT_KINDS else None)
         try:
             with _StepProgress(pre + hold, samples, stop) as progress:
                 link.enable()
                 link.set_references(*refs(start))
-                if await progress.phase(f"holding {start:g} deg/s on {channel}", pre):
+                if await progress.phase(f"holding {start:g} deg/s on {channel}", pre,
+                                        faults):
                     step_time = loop.time()  # on the samples' axis: anchored to this clock
                     link.set_references(*refs(target))
-                    await progress.phase(f"stepped to {target:g} deg/s", hold)
+                    await progress.phase(f"stepped to {target:g} deg/s", hold, faults)
         finally:
+            remove()
             link.disable()
             sub.close()
             await asyncio.gather(collector, return_exceptions=True)
             await streaming.restore()
     fired = getattr(stop, "signal", None)
+    if faults and fired is None:
+        fault = faults[0]
+        raise CliError(f"the step was stopped: board {fault.kind.value.replace('_', ' ')} "
+                       f"({fault.detail}); no figures", ExitCode.STOPPED)
     return StepOutcome(split_response(samples, channel, target, step_time), setup,
                        None if fired is None else int(fired))
 
@@ -379,14 +390,14 @@ class _StepProgress:
     def __exit__(self, *exc: object) -> None:
         self._progress.stop()
 
-    async def phase(self, description: str, seconds: float) -> bool:
-        """Run one phase; False when a signal ended it early."""
+    async def phase(self, description: str, seconds: float, faults: list[Any]) -> bool:
+        """Run one phase; False when a signal or a fault ended it early."""
         self._progress.update(self._task, description=description)
         end = time.monotonic() + seconds
-        while (left := end - time.monotonic()) > 0:
+        while (left := end - time.monotonic()) > 0 and not faults:
             await wait_or_stop(self._stop, min(0.1, left))
             if self._stop.is_set():
                 return False
             self._progress.update(self._task, completed=time.monotonic() - self._started,
                                   samples=len(self._samples))
-        return True
+        return not faults

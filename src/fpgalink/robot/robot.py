@@ -342,7 +342,8 @@ class Robot:
             self._link_event(name, link, event)
 
     def _link_event(self, name: str, link: Link, event: LinkEvent) -> None:
-        kind, now = event.kind, self._now()
+        # The robot reacts in the callback that noticed: its events carry that moment.
+        kind, now = event.kind, event.at
         if kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST, LinkEventKind.CLOSED):
             what = kind.value.replace("_", " ")
             detail = f"{what} ({event.detail})" if event.detail else what

