@@ -8,7 +8,13 @@ from typing import Any
 
 import click
 
-from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
+from fpgalink.cli.formats import (
+    Column,
+    console_width,
+    emit_document,
+    emit_rows,
+    format_option,
+)
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, ExitCode, echo_out
 from fpgalink.cli.settings import Settings, config_paths
@@ -80,10 +86,27 @@ def config(fmt: str, conn: ConnectionOptions) -> int:
         echo_out(f"config file: {settings.config_file}")
     else:
         echo_out(f"config file: none (looked for {' and '.join(searched)})")
+    # One port per line; a value too long for the terminal beside its source has the
+    # source on the line below, so nothing is cut and the other rows stay aligned.
+    lines = [(name, value.split(" ") if name == "port" else [value], source)
+             for name, value, source in rows]
     width = max(len(name) for name, _, _ in rows)
-    value_width = max(len(value) for _, value, _ in rows)
-    for name, value, source in rows:
-        echo_out(f"  {name:<{width}}  {value:<{value_width}}  ({source})")
+    room = console_width() - width - 6
+    fitting = [len(v) for _, values, source in lines for v in values
+               if len(v) + len(source) + 2 <= room]
+    value_width = max(fitting, default=0)
+    for name, values, source in lines:
+        label = name
+        for i, value in enumerate(values):
+            last = i == len(values) - 1
+            if not last:
+                echo_out(f"  {label:<{width}}  {value}")
+            elif len(value) <= value_width:
+                echo_out(f"  {label:<{width}}  {value:<{value_width}}  ({source})")
+            else:
+                echo_out(f"  {label:<{width}}  {value}")
+                echo_out(f"  {'':<{width}}  {'':<{value_width}}  ({source})")
+            label = ""
     if settings.emulated:
         echo_out("no port configured: commands run against the built-in emulator (emu://)")
     return ExitCode.OK
