@@ -3,6 +3,7 @@ codes for a timeout and a supervision stop, plots and recordings, bad descriptio
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import pytest
@@ -45,6 +46,19 @@ def test_drive_records_odometry_truth_and_commands(tmp_path: Path) -> None:
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
     assert topics["/robot/odometry"] > 10 and topics["/robot/truth"] > 10
     assert topics["/robot/command"] > 5
+    # What was driven, every sample of both boards (issue 26: these were empty), so plot
+    # of the recording shows the wheels turning against their references.
+    assert topics["/board/L/telemetry"] > 300 and topics["/board/R/telemetry"] > 300
+    with record.open("rb") as f:
+        rows = [json.loads(m.data) for _, _, m in
+                make_reader(f).iter_messages(topics=["/board/L/telemetry"])]
+    reference = max(abs(r["a_ref"]) for r in rows)
+    assert reference > 0  # the wheel was driven, and it turned
+    assert max(abs(r["a_speed"]) for r in rows if r["a_speed"] is not None) > reference / 2
+    png = tmp_path / "drive.png"
+    done = run_cli("plot", str(record), "-o", str(png))
+    assert done.returncode == 0, done.stderr
+    assert png.read_bytes().startswith(PNG)
 
 
 def test_drive_says_when_a_command_is_scaled_to_the_limits() -> None:
