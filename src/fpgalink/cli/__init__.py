@@ -44,6 +44,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
               "List serial ports, mark the board's USB-UART, check its latency timer."),
     "config": ("fpgalink.cli.config", "config",
                "Show the connection settings in force and where each came from."),
+    "router": ("fpgalink.cli.router", "router",
+               "Share each board among several local clients: one controller, observers "
+               "read-only."),
     "codegen": ("fpgalink.cli.codegen", "codegen",
                 "Generate the board's protocol code (C: header, codec, self-test, Makefile) "
                 "into OUTDIR."),

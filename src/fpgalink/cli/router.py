@@ -1,0 +1,306 @@
+"""``router``: one process owns the boards' ports and offers each board to several local
+clients, as mavlink-router does for a MAVLink vehicle, so ``monitor --passive`` or
+``record --passive`` can watch while ``drive`` or ``step`` commands.
+
+Each board gets a TCP port on loopback (``socket://127.0.0.1:PORT``, which ``open_link``
+and every command take as ``--port``). Arbitration (docs/cli.md, ``router``):
+
+* every client receives every whole frame the board sends, in order;
+* the first client to send a frame is the board's **controller**: its frames go to the
+  board; the others are **observers**: every frame they send is refused (not passed on) and
+  counted, and the router says so on stderr the first time. When the controller leaves, the
+  router sends ``RD`` (a motor is never left driven by a client that went away) and the next
+  client to send becomes the controller;
+* a client that does not read falls behind alone: once its socket's buffer holds more than
+  ``--client-buffer`` bytes, the board's frames are dropped for it (whole frames, counted),
+  never for the others and never by stalling the board's line.
+
+Every count is exact per client and printed when the client leaves and when the router
+stops (``--format json`` for scripts). Noise and broken frames on the board's line are
+counted by the router and not passed on; clients' links see only whole frames."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import click
+
+from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
+from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, note
+from fpgalink.cli.session import install_stop_signals, run
+from fpgalink.protocol.framing import DEFAULT_FRAMING, FrameDecoder, encode_frame
+
+__all__ = ["BoardRoute", "ClientStats", "router"]
+
+#: Loopback only: the router is for the clients on this machine (a remote client would
+#: reach a motor controller over the network without any authentication).
+HOST = "127.0.0.1"
+DISABLE = encode_frame(b"RD", DEFAULT_FRAMING)
+
+
+@dataclass
+class ClientStats:
+    """One client's exact accounting."""
+
+    client: int  #: the client's number on this board, from 1
+    peer: str
+    role: str = "observer"
+    frames_to_client: int = 0  #: the board's frames delivered to it
+    bytes_to_client: int = 0
+    dropped_frames: int = 0  #: the board's frames not delivered: its buffer was full
+    frames_to_board: int = 0  #: its frames passed to the board (as the controller)
+    refused_frames: int = 0  #: its frames not passed on (an observer's writes)
+    refused_by_id: Counter[str] = field(default_factory=Counter)
+    noise_bytes: int = 0  #: bytes it sent that were not part of a whole frame
+    connected: bool = True
+
+
+class _Client(asyncio.Protocol):
+    def __init__(self, route: BoardRoute) -> None:
+        self.route = route
+        self.transport: asyncio.Transport | None = None
+        self.decoder = FrameDecoder(route.framing)
+        self.stats = ClientStats(0, "")
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        peer = transport.get_extra_info("peername")
+        self.route.joined(self, f"{peer[0]}:{peer[1]}" if peer else "?")
+
+    def data_received(self, data: bytes) -> None:
+        for item in self.decoder.feed(data):
+            if isinstance(item, bytes):
+                self.route.from_client(self, item)
+        self.stats.noise_bytes = self.decoder.stats.dropped_bytes
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.route.left(self)
+
+
+class _Board(asyncio.Protocol):
+    def __init__(self, route: BoardRoute) -> None:
+        self.route = route
+        self.lost: asyncio.Future[Exception | None] = \
+            asyncio.get_running_loop().create_future()
+
+    def data_received(self, data: bytes) -> None:
+        self.route.from_board(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.lost.done():
+            self.lost.set_result(exc)
+
+
+@dataclass
+class BoardRoute:
+    """One board's port shared among its clients."""
+
+    name: str
+    url: str
+    client_buffer: int
+    framing: Any = DEFAULT_FRAMING
+    board: asyncio.BaseTransport | None = None
+    decoder: FrameDecoder = field(default_factory=lambda: FrameDecoder(DEFAULT_FRAMING))
+    clients: list[_Client] = field(default_factory=list)
+    controller: _Client | None = None
+    history: list[ClientStats] = field(default_factory=list)
+    frames_from_board: int = 0
+    board_framing_errors: int = 0
+    next_client: int = 1
+    #: RD sent because the controller left (or the router stopped with one connected)
+    disables_sent: int = 0
+    server: asyncio.Server | None = None
+
+    # --- the board ----------------------------------------------------------------------
+
+    def from_board(self, data: bytes) -> None:
+        for item in self.decoder.feed(data):
+            if not isinstance(item, bytes):
+                self.board_framing_errors += 1
+                continue
+            self.frames_from_board += 1
+            wire = encode_frame(item, self.framing)
+            for client in self.clients:
+                transport = client.transport
+                if transport is None or transport.is_closing():
+                    continue
+                if transport.get_write_buffer_size() > self.client_buffer:
+                    client.stats.dropped_frames += 1
+                    continue
+                transport.write(wire)
+                client.stats.frames_to_client += 1
+                client.stats.bytes_to_client += len(wire)
+
+    def to_board(self, wire: bytes) -> None:
+        board = self.board
+        if isinstance(board, asyncio.WriteTransport) and not board.is_closing():
+            board.write(wire)
+
+    # --- the clients --------------------------------------------------------------------
+
+    def joined(self, client: _Client, peer: str) -> None:
+        client.stats = ClientStats(self.next_client, peer)
+        self.next_client += 1
+        self.clients.append(client)
+        self.history.append(client.stats)
+        note(f"board {self.name}: client #{client.stats.client} connected ({peer})")
+
+    def from_client(self, client: _Client, content: bytes) -> None:
+        stats = client.stats
+        if self.controller is None:
+            self.controller = client
+            stats.role = "controller"
+            note(f"board {self.name}: client #{stats.client} ({stats.peer}) is the "
+                 "controller")
+        if client is self.controller:
+            self.to_board(encode_frame(content, self.framing))
+            stats.frames_to_board += 1
+            return
+        message_id = content[:2].decode("ascii", "replace")
+        if stats.refused_frames == 0:
+            note(f"board {self.name}: client #{stats.client} is an observer: its {message_id} "
+                 f"was refused (client #{self.controller.stats.client} controls the board); "
+                 "run it with --passive, or after the controller")
+        stats.refused_frames += 1
+        stats.refused_by_id[message_id] += 1
+
+    def left(self, client: _Client) -> None:
+        with contextlib.suppress(ValueError):
+            self.clients.remove(client)
+        stats = client.stats
+        stats.connected = False
+        if client is self.controller:
+            self.controller = None
+            self.to_board(DISABLE)  # the board is not left driven by a client that is gone
+            self.disables_sent += 1
+        note(f"board {self.name}: client #{stats.client} ({stats.role}) left: "
+             f"{stats.frames_to_client} frames to it, {stats.dropped_frames} dropped, "
+             f"{stats.frames_to_board} to the board, {stats.refused_frames} refused")
+
+
+def _rows(routes: list[BoardRoute]) -> list[dict[str, Any]]:
+    rows = []
+    for route in routes:
+        for stats in route.history:
+            row = dataclasses.asdict(stats)
+            row["refused_by_id"] = dict(stats.refused_by_id)
+            rows.append({"board": route.name, **row})
+    return rows
+
+
+SUMMARY_COLUMNS = (
+    Column("board", "board"), Column("client", "client", justify="right"),
+    Column("role", "role"), Column("peer", "peer", drop=2),
+    Column("frames_to_client", "frames to it", justify="right"),
+    Column("dropped_frames", "dropped", justify="right"),
+    Column("frames_to_board", "to board", justify="right"),
+    Column("refused_frames", "refused", justify="right"),
+    Column("bytes_to_client", "bytes to it", justify="right", drop=1),
+)
+
+
+@click.command(epilog=EXIT_CODES_HELP)
+@click.option("--tcp", "first_port", type=click.IntRange(0, 65535), default=0,
+              show_default=True,
+              help="TCP port of the first board on 127.0.0.1, the next board's one more; 0: "
+                   "any free ports (the ready lines say which).")
+@click.option("--client-buffer", type=click.IntRange(4096, 1 << 30), default=1 << 20,
+              show_default=True,
+              help="Bytes a client may leave unread before the board's frames are dropped "
+                   "for it (counted).")
+@format_option
+@connection_options(multi=True)
+def router(first_port: int, client_buffer: int, fmt: str, conn: ConnectionOptions) -> int:
+    """Share each board among several local clients: one controller, observers read-only.
+
+    Opens every board's port (--port NAME=URL, repeatable) and serves each on
+    127.0.0.1 over TCP, printing "ready NAME socket://127.0.0.1:PORT" once all are served;
+    give that URL as --port to any command or to open_link. Every client receives every
+    frame its board sends. The first client to send is the controller; frames from the
+    others are refused and counted (run watchers with --passive). When the controller
+    leaves, the board gets RD. Ctrl-C or SIGTERM stops the router and prints each
+    client's counts (frames delivered, dropped for a full buffer, passed, refused).
+    """
+    routes = [BoardRoute(e.name, e.url, client_buffer) for e in conn.endpoints]
+    code = run(_route(conn, routes, first_port), ", ".join(r.url for r in routes))
+    rows = _rows(routes)
+    if fmt == "json":
+        emit_document({"boards": [{"board": r.name, "url": r.url,
+                                   "frames_from_board": r.frames_from_board,
+                                   "board_framing_errors": r.board_framing_errors,
+                                   "disables_sent": r.disables_sent}
+                                  for r in routes], "clients": rows})
+    else:
+        emit_rows(fmt, SUMMARY_COLUMNS, rows, title="Router clients")
+    return code
+
+
+async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: int) -> int:
+    from fpgalink.aio.transport import open_transport
+
+    stop = asyncio.Event()
+    install_stop_signals(stop)
+    boards: list[_Board] = []
+    try:
+        for index, route in enumerate(routes):
+            holder: list[_Board] = []
+
+            def factory(route: BoardRoute = route, holder: list[_Board] = holder) -> _Board:
+                holder.append(_Board(route))
+                return holder[-1]
+
+            route.board, _ = await open_transport(route.url, conn.baud, factory)
+            boards.append(holder[0])
+            port = first_port + index if first_port else 0
+            try:
+                route.server = await asyncio.get_running_loop().create_server(
+                    lambda route=route: _Client(route), HOST, port)  # type: ignore[misc]
+            except OSError as exc:
+                raise CliError(f"board {route.name}: cannot listen on {HOST}:{port}: "
+                               f"{exc.strerror or exc}", ExitCode.PORT) from None
+        for route in routes:
+            assert route.server is not None
+            port = route.server.sockets[0].getsockname()[1]
+            echo_out(f"ready {route.name} socket://{HOST}:{port}")
+        lost: list[asyncio.Future[Any]] = [asyncio.ensure_future(b.lost) for b in boards]
+        stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
+        done, _ = await asyncio.wait([stopped, *lost], return_when=asyncio.FIRST_COMPLETED)
+        stopped.cancel()
+        for future in lost:
+            future.cancel()
+        gone = [r for r, f in zip(routes, lost, strict=True) if f in done]
+        return _lost(gone) if gone else ExitCode.OK
+    finally:
+        await _close(routes)
+
+
+def _lost(gone: list[BoardRoute]) -> int:
+    for route in gone:
+        note(f"board {route.name}: its port {route.url} closed: the router stops")
+    return ExitCode.PORT
+
+
+async def _close(routes: list[BoardRoute]) -> None:
+    for route in routes:
+        if route.server is not None:
+            route.server.close()
+        if route.controller is not None:
+            route.controller = None
+            route.to_board(DISABLE)
+            route.disables_sent += 1
+        for client in list(route.clients):
+            if client.transport is not None:
+                client.transport.close()
+    for route in routes:
+        if route.board is not None:
+            route.board.close()
+        if route.server is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.wait_for(route.server.wait_closed(), 1.0)

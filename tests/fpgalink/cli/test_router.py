@@ -1,0 +1,192 @@
+"""``fpgalink-cli router`` (issue 26): an emulated robot's two boards shared by one
+controller (``drive``) and two observers (``record --passive``), every observer seeing
+every ``TM`` of the controller's run; an observer's writes refused and counted; the board
+disabled when its controller goes; the accounting exact per client."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+
+from tests.support.cli import CLI, ROOT, cli_env
+from tests.support.waiting import wait_until_sync
+
+pytestmark = pytest.mark.timeout(180)
+
+_SCRIPT = Path(sys.executable).parent / "fpgalink-cli"
+SCRIPT = [str(_SCRIPT)] if _SCRIPT.exists() else CLI
+
+
+class Router:
+    def __init__(self, tmp_path: Path, *args: str) -> None:
+        self.err_path = tmp_path / "router.err"
+        self.err = self.err_path.open("w")
+        self.proc = subprocess.Popen([*SCRIPT, "router", "--format", "json", *args],
+                                     stdout=subprocess.PIPE, stderr=self.err, text=True,
+                                     cwd=ROOT, env=cli_env())
+        assert self.proc.stdout is not None
+        self.urls: dict[str, str] = {}
+        while len(self.urls) < args.count("--port"):
+            line = self.proc.stdout.readline()
+            assert line.startswith("ready "), (line, self.stderr())
+            _, name, url = line.split()
+            self.urls[name] = url
+
+    def ports(self) -> list[str]:
+        return [a for name, url in self.urls.items() for a in ("--port", f"{name}={url}")]
+
+    def stderr(self) -> str:
+        return self.err_path.read_text()
+
+    def stop(self) -> dict[str, Any]:
+        self.proc.send_signal(signal.SIGINT)
+        out, _ = self.proc.communicate(timeout=30)
+        self.err.close()
+        assert self.proc.returncode == 0, self.stderr()
+        assert "Traceback" not in self.stderr()
+        summary: dict[str, Any] = json.loads(out)
+        return summary
+
+    def kill(self) -> None:
+        if self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait(timeout=10)
+        self.err.close()
+
+
+@pytest.fixture
+def robot_router(tmp_path: Path) -> Iterator[Router]:
+    query = "surface=ideal"
+    router = Router(tmp_path, "--port", f"L=emu://robot/L?{query}",
+                    "--port", f"R=emu://robot/R?{query}")
+    yield router
+    router.kill()
+
+
+def _tm_counters(path: Path, topic: str) -> list[int]:
+    with path.open("rb") as f:
+        return [json.loads(m.data)["counter"] for _, _, m in
+                make_reader(f).iter_messages(topics=[topic])]
+
+
+def test_two_observers_see_every_tm_of_the_controllers_run(robot_router: Router,
+                                                           tmp_path: Path) -> None:
+    router = robot_router
+    observers = [subprocess.Popen(
+        [*SCRIPT, "record", "--passive", str(tmp_path / f"observer{i}.mcap"), "--duration",
+         "25", *router.ports()], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        cwd=ROOT, env=cli_env()) for i in (1, 2)]
+    try:
+        wait_until_sync(lambda: router.stderr().count("client #2 connected") == 2, 30,
+                        "both observers on both boards")
+        controller = tmp_path / "controller.mcap"
+        drive = subprocess.run([*SCRIPT, "drive", "--v", "0.1", "--for", "1", "--record",
+                                str(controller), *router.ports()], capture_output=True,
+                               text=True, cwd=ROOT, env=cli_env(), timeout=60)
+        assert drive.returncode == 0, drive.stderr
+        for observer in observers:
+            _, err = observer.communicate(timeout=60)  # its --duration: it reads to the end
+            assert observer.returncode == 0, err
+    finally:
+        for observer in observers:
+            if observer.poll() is None:
+                observer.kill()
+    summary = router.stop()
+    for board in ("L", "R"):
+        driven = _tm_counters(controller, f"/board/{board}/telemetry")
+        assert len(driven) > 500
+        for i in (1, 2):
+            seen = set(_tm_counters(tmp_path / f"observer{i}.mcap", f"/board/{board}/telemetry"))
+            assert set(driven) <= seen, f"observer {i} missed TMs of board {board}"
+    clients = summary["clients"]
+    assert isinstance(clients, list)
+    by_role = {(c["board"], c["client"]): c for c in clients}
+    for board in ("L", "R"):
+        assert by_role[(board, 1)]["role"] == by_role[(board, 2)]["role"] == "observer"
+        assert by_role[(board, 3)]["role"] == "controller"
+        assert by_role[(board, 3)]["frames_to_board"] > 0
+        for n in (1, 2, 3):
+            assert by_role[(board, n)]["dropped_frames"] == 0
+            assert by_role[(board, n)]["refused_frames"] == 0
+        # The observers, connected before and after the run, got at least what it got.
+        assert by_role[(board, 1)]["frames_to_client"] > by_role[(board, 3)]["frames_to_client"]
+
+
+def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
+    router = Router(tmp_path, "--port", "emu://")
+    try:
+        (url,) = router.urls.values()
+        controller = subprocess.Popen([*SCRIPT, "monitor", "--duration", "20", "--format",
+                                       "jsonl", "--port", url], stdout=subprocess.PIPE,
+                                      stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
+        try:
+            wait_until_sync(lambda: "is the controller" in router.stderr(), 30, "a controller")
+            # An observer that tries to enable the board and to set a parameter.
+            enable = subprocess.run([*SCRIPT, "send", "RE", "--port", url],
+                                    capture_output=True, text=True, cwd=ROOT, env=cli_env(),
+                                    timeout=60)
+            assert enable.returncode == 0, enable.stderr
+            refused = subprocess.run([*SCRIPT, "--retries", "2", "param", "set",
+                                      "TsTimerPeriod", "5", "--port", url],
+                                     capture_output=True, text=True, cwd=ROOT,
+                                     env=cli_env(), timeout=60)
+            assert refused.returncode == 4, refused.stderr  # no answer: it never reached it
+            assert "is an observer" in router.stderr()
+        finally:
+            controller.send_signal(signal.SIGINT)
+            controller.communicate(timeout=30)
+        summary = router.stop()
+    finally:
+        router.kill()
+    clients = {c["client"]: c for c in summary["clients"]}
+    assert clients[1]["role"] == "controller" and clients[1]["refused_frames"] == 0
+    assert clients[2]["refused_by_id"] == {"RE": 1} and clients[2]["frames_to_board"] == 0
+    assert clients[3]["refused_by_id"] == {"PS": 2}  # --retries 2: both tries refused
+
+
+def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
+    router = Router(tmp_path, "--port", "emu://")
+    try:
+        (url,) = router.urls.values()
+        # A controller that enables the board and is killed (no RD of its own).
+        code = ("import asyncio, os, signal\n"
+                "from fpgalink.aio.link import open_link\n"
+                "async def main():\n"
+                f"    async with open_link({url!r}) as link:\n"
+                "        await link.set_param('GetDataPeriodical', 1)\n"
+                "        link.enable()\n"
+                "        async for tm in link.telemetry():\n"
+                "            if tm.a.flags & 1:\n"
+                "                print('enabled', flush=True)\n"
+                "                os.kill(os.getpid(), signal.SIGKILL)\n"
+                "asyncio.run(main())\n")
+        killed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                                cwd=ROOT, env=cli_env(), timeout=60)
+        assert killed.stdout == "enabled\n", killed.stderr
+        # The next client sees the board disabled at once, well before its 300 ms watchdog
+        # would have: the router sent RD when the controller's connection closed.
+        watch = ("import asyncio\n"
+                 "from fpgalink.aio.link import open_link\n"
+                 "async def main():\n"
+                 f"    async with open_link({url!r}) as link:\n"
+                 "        await link.set_param('GetDataPeriodical', 1)\n"
+                 "        tm = await anext(aiter(link.telemetry()))\n"
+                 "        print(tm.a.flags & 1)\n"
+                 "asyncio.run(main())\n")
+        seen = subprocess.run([sys.executable, "-c", watch], capture_output=True, text=True,
+                              cwd=ROOT, env=cli_env(), timeout=60)
+        assert seen.stdout == "0\n", seen.stderr
+        assert "client #1 (controller) left" in router.stderr()
+        summary = router.stop()
+    finally:
+        router.kill()
+    (board,) = summary["boards"]
+    assert board["disables_sent"] == 2  # one per controller that left: killed, then watcher
