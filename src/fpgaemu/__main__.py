@@ -160,7 +160,8 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
                       "removed on exit."),
     click.option("--fault", "faults", multiple=True, metavar="[BOARD:]SPEC",
                  help="Fault injection, repeatable (BOARD: only that board, e.g. "
-                      "L:wheel-stuck=A); see docs/reliability.md:\n" + FAULT_HELP),
+                      "L:wheel-stuck=A): the SPECs are in the table below, the long form in "
+                      "docs/reliability.md."),
     click.option("--robot", "robot", is_flag=True, default=None,
                  help="Serve a robot: its boards (L, R) move one emulated body; the true "
                       "pose streams from a truth endpoint (see --truth)."),
@@ -202,7 +203,11 @@ def cli(ctx: click.Context, /, **given: Any) -> None:
     ctx.obj = Options({k: v for k, v in given.items() if v not in (None, ())})
 
 
-@cli.command()
+#: The fault table kept as a table (``\b``: click does not rewrap the paragraph).
+SERVE_EPILOG = "\b\nFault SPECs (--fault [BOARD:]SPEC):\n" + FAULT_HELP.rstrip("\n")
+
+
+@cli.command(epilog=SERVE_EPILOG)
 @with_serve_options
 @click.pass_context
 def serve(ctx: click.Context, /, **given: Any) -> None:

@@ -27,12 +27,25 @@ def _fail(message: str, code: int = 2) -> None:
     sys.exit(code)
 
 
+#: The exit codes, as the CLI's table gives its own (docs/ros2.md).
+EXIT_CODES_TABLE = """\
+exit codes:
+  0    stopped by SIGINT or SIGTERM, the robot stopped and the boards disabled
+  2    bad input: usage, a robot description, a --port
+  3    ROS 2 is not installed (the message says how to install it)
+  4    the boards could not be reached, or a link failed while running"""
+
+
 def _parser() -> argparse.ArgumentParser:
+    from fpgalink import __version__
+
     parser = argparse.ArgumentParser(
         prog=PROG, description="The robot as the ROS 2 node 'fpgalink': joint_states, odom, "
         "diagnostics, cmd_vel, wheel_refs, goal_pose, enable, and the boards' parameters.",
-        epilog="ROS arguments go after --ros-args (-r __ns:=/robot, -p joint_state_rate:=200, "
-        "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.")
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog="ROS arguments go after --ros-args (-r __ns:=/robot, -p joint_state_rate:=200,\n"
+        "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.\n\n" + EXIT_CODES_TABLE)
+    parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     parser.add_argument("--robot", metavar="FILE", help="robot description (TOML); default: "
                         "the seed's robot")
     parser.add_argument("--surface", metavar="NAME", help="the surface the robot is on "
@@ -56,6 +69,8 @@ def main(argv: list[str] | None = None) -> None:
         _parser().print_help()
         print(f"\nROS 2: {ROS2_INSTALL_HINT}.")
         sys.exit(0)
+    if "--version" in before_ros:  # answers without ROS 2, as --help does
+        _parser().parse_args(["--version"])
     if not available():
         _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
     import rclpy

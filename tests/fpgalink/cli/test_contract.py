@@ -296,3 +296,16 @@ def test_step_beyond_the_wheels_reach_says_so() -> None:
     done = cli("step", "--channel", "A", "--to", "1e9", "--pre", "0.05", "--hold", "0.2",
                "--port", "emu://")
     assert "beyond the wheel's reach" in done.stderr, done.stderr
+
+
+def test_fpgaemu_serve_help_keeps_the_fault_table() -> None:
+    from fpgaemu.faults import FAULT_HELP
+
+    script = Path(sys.executable).parent / "fpgaemu"
+    command = [str(script)] if script.exists() else [sys.executable, "-m", "fpgaemu"]
+    done = subprocess.run([*command, "serve", "--help"], capture_output=True, text=True,
+                          cwd=ROOT, env=cli_env(COLUMNS="100"), timeout=60)
+    assert done.returncode == 0, done.stderr
+    shown = [line.strip() for line in done.stdout.splitlines()]
+    for row in FAULT_HELP.splitlines():  # each row of the table on a line of its own
+        assert row.strip() in shown, row

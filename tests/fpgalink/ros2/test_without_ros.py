@@ -40,3 +40,16 @@ def test_the_library_and_the_cli_do_not_need_ros2() -> None:
                  "print('ok')")
     assert result.returncode == 0, result.stderr
     assert result.stdout.strip() == "ok"
+
+
+def test_version_and_the_exit_code_table_without_ros2() -> None:
+    # issue 26: --version as the CLI has it, and the exit codes in --help.
+    result = run("from fpgalink.ros2.__main__ import main\nmain(['fpgalink-ros2', '--version'])")
+    assert result.returncode == 0, result.stderr
+    from fpgalink import __version__
+
+    assert result.stdout.strip() == f"fpgalink-ros2 {__version__}"
+    result = run("from fpgalink.ros2.__main__ import main\nmain(['fpgalink-ros2', '--help'])")
+    assert result.returncode == 0
+    table = result.stdout[result.stdout.index("exit codes:"):].splitlines()
+    assert [line.split()[0] for line in table[1:5]] == ["0", "2", "3", "4"]
