@@ -52,12 +52,15 @@ def render(sessions: list[BoardSession], started: float, duration: float | None)
     telemetry = Table(title="Telemetry", title_justify="left")
     for column in ("board", "ch", "position", "speed deg/s", "current A", "pwm", "ref",
                    "flags"):
-        telemetry.add_column(column, justify="left" if column in ("board", "ch") else "right")
+        telemetry.add_column(column, justify="left" if column in ("board", "ch") else "right",
+                             overflow="fold")
+    # Nothing is cut with an ellipsis in a narrow terminal: a long port folds onto a second
+    # line rather than two boards' ports reading the same ("/tmp/fpga…" twice).
     link = Table(title="Link", title_justify="left")
     for column in ("board", "port", "board status", "TM/s", "lost", "errors", "retries",
-                   "heartbeats (E)"):
+                   "E rx"):
         link.add_column(column, justify="left" if column in ("board", "port", "board status")
-                        else "right")
+                        else "right", overflow="fold")
     for session in sessions:
         sample = session.link.latest
         for label in ("A", "B"):

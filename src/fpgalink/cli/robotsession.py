@@ -449,7 +449,7 @@ class RobotRun:
         state = robot.odometry_state
         table = Table(title=status, title_justify="left")
         for column in ("", "x m", "y m", "θ deg", "v m/s", "ω deg/s"):
-            table.add_column(column, justify="right" if column else "left")
+            table.add_column(column, justify="right" if column else "left", overflow="fold")
         p = state.pose
         table.add_row("odometry", f"{p.x:.3f}", f"{p.y:.3f}", f"{math.degrees(p.theta):.1f}",
                       f"{state.v:.3f}", f"{math.degrees(state.omega):.1f}")
@@ -465,7 +465,7 @@ class RobotRun:
         wheels = Table(title="wheels", title_justify="left")
         for column in ("wheel", "board", "ref deg/s", "speed deg/s", "pwm", "link"):
             wheels.add_column(column, justify="left" if column in ("wheel", "board", "link")
-                              else "right")
+                              else "right", overflow="fold")
         for wheel in self.description.wheels:
             link = robot.links[wheel.board]
             latest = link.latest

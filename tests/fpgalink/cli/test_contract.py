@@ -11,6 +11,7 @@ import io
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -309,3 +310,38 @@ def test_fpgaemu_serve_help_keeps_the_fault_table() -> None:
     shown = [line.strip() for line in done.stdout.splitlines()]
     for row in FAULT_HELP.splitlines():  # each row of the table on a line of its own
         assert row.strip() in shown, row
+
+
+@pytest.mark.skipif(shutil.which("script") is None, reason="needs util-linux's script (a tty)")
+def test_monitor_on_an_80_column_terminal_tells_the_boards_ports_apart(tmp_path: Path) -> None:
+    links = {name: tmp_path / f"fpga-board-with-a-long-name-{name}" for name in "LR"}
+    serve = subprocess.Popen(
+        [sys.executable, "-m", "fpgaemu", "serve", "--pty", "--boards", "2",
+         *[a for name, path in links.items() for a in ("--link", f"{name}={path}")]],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
+    try:
+        assert serve.stdout is not None
+        for _ in links:
+            assert serve.stdout.readline().startswith("ready ")
+        command = " ".join([*SCRIPT, "monitor", "--duration", "1",
+                            *[a for name, path in links.items()
+                              for a in ("--port", f"{name}={path}")]])
+        done = subprocess.run(["script", "-qec", f"stty cols 80 rows 60; {command}",
+                               "/dev/null"], capture_output=True, text=True, cwd=ROOT,
+                              env=cli_env(COLUMNS="80"), timeout=60)
+        assert done.returncode == 0, done.stdout + done.stderr
+    finally:
+        serve.terminate()
+        serve.wait(timeout=10)
+    screen = re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", done.stdout)
+    last = screen[screen.rindex("Link"):]  # the last frame of the live view
+    rows = [li for li in last.splitlines() if li.startswith("│")]
+    assert all(len(li) <= 80 for li in last.splitlines())
+    assert "…" not in last
+    ports: dict[str, str] = {}
+    board = ""
+    for row in rows:  # the port column folds: a board's whole path, in pieces
+        cells = [c.strip() for c in row.split("│")]
+        board = cells[1] or board
+        ports[board] = ports.get(board, "") + cells[2]
+    assert ports == {name: str(path) for name, path in links.items()}, last
