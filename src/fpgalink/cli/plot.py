@@ -305,11 +305,28 @@ def read_recording(path: Path, topics: list[str] | None, fields: list[str],
     return ranked, bool(state["complete"]), available
 
 
+def _collapse(keys: list[str]) -> list[str]:
+    """An array's elements as one entry (``pose.covariance.0..35``), so the names that
+    matter are not buried under a covariance matrix."""
+    out: list[str] = []
+    ranges: dict[str, list[int]] = {}
+    for key in keys:
+        head, _, last = key.rpartition(".")
+        if head and last.isdigit():
+            if head not in ranges:
+                ranges[head] = []
+                out.append(head)
+            ranges[head].append(int(last))
+        else:
+            out.append(key)
+    return [f"{k}.{min(ranges[k])}..{max(ranges[k])}" if k in ranges else k for k in out]
+
+
 def _listing(available: dict[str, list[str]], topics: list[str]) -> str:
     """What the recording has, for an error that says what to ask for instead."""
     parts = []
     for topic in topics:
-        keys = available.get(topic, [])
+        keys = _collapse(available.get(topic, []))
         shown = ", ".join(keys[:40]) + (f", … ({len(keys)} in all)" if len(keys) > 40 else "")
         parts.append(f"{topic} has {shown or 'no numeric fields'}")
     return "; ".join(parts)

@@ -184,3 +184,19 @@ def test_a_full_disk_stops_the_bag_complete_up_to_there(tmp_path: Path) -> None:
     topics = read_bag(bag)
     assert sum(len(v) for v in topics.values()) == said > 1000
     assert not (bag / ".fpgalink-reserve").exists()
+
+
+def test_plot_reads_the_bag_the_cli_wrote(driven: tuple[Path, str], tmp_path: Path) -> None:
+    # issue 26: plot of a --rosbag2 directory (CDR through rosbags): each wheel's velocity
+    # and the body's twist by default, and a field that is not there named with what is.
+    bag, _ = driven
+    png = tmp_path / "bag.png"
+    done = run_cli("plot", str(bag), "-o", str(png), timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert png.read_bytes().startswith(b"\x89PNG")
+    assert "from 2 topic(s)" in done.stderr
+    done = run_cli("plot", str(bag), "--topic", "/odom", "--fields", "twist.nosuch",
+                   "-o", str(png), timeout=60)
+    assert done.returncode == 2
+    assert_one_line_error(done.stderr, "no field twist.nosuch", "twist.twist.linear.x",
+                          "/joint_states")
