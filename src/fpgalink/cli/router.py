@@ -3,7 +3,8 @@ clients, as mavlink-router does for a MAVLink vehicle, so ``monitor --passive`` 
 ``record --passive`` can watch while ``drive`` or ``step`` commands.
 
 Each board gets a TCP port on loopback (``socket://127.0.0.1:PORT``, which ``open_link``
-and every command take as ``--port``). Arbitration (docs/cli.md, ``router``):
+and every command take as ``--port``), and with ``--pty N`` N pseudo-terminals, one client
+each (a client is connected while it has the pty open). Arbitration (docs/cli.md, ``router``):
 
 * every client receives every whole frame the board sends, in order;
 * the first client to send a frame is the board's **controller**: its frames go to the
@@ -24,6 +25,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import dataclasses
+import os
+import select
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
@@ -62,11 +65,28 @@ class ClientStats:
 
 
 class _Client(asyncio.Protocol):
+    """A client over TCP: connected from accept to close."""
+
     def __init__(self, route: BoardRoute) -> None:
         self.route = route
         self.transport: asyncio.Transport | None = None
         self.decoder = FrameDecoder(route.framing)
         self.stats = ClientStats(0, "")
+
+    def backlog(self) -> int | None:
+        """Bytes written for it and not yet taken; ``None`` when it cannot take any."""
+        transport = self.transport
+        if transport is None or transport.is_closing():
+            return None
+        return transport.get_write_buffer_size()
+
+    def send(self, wire: bytes) -> None:
+        assert self.transport is not None
+        self.transport.write(wire)
+
+    def close(self) -> None:
+        if self.transport is not None:
+            self.transport.close()
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
@@ -82,6 +102,109 @@ class _Client(asyncio.Protocol):
 
     def connection_lost(self, exc: Exception | None) -> None:
         self.route.left(self)
+
+
+#: How often a pty slot nobody has open is looked at for a client opening it, s.
+PTY_POLL_S = 0.02
+
+
+class _PtyClient:
+    """A client slot on a pseudo-terminal: a client is connected while some process has
+    the slave side open (the master sees a hang-up otherwise); each opening is a new client.
+    The router does not hold the slave open itself, so it sees a client leave."""
+
+    def __init__(self, route: BoardRoute) -> None:
+        import tty
+
+        self.route = route
+        self.master, slave = os.openpty()
+        tty.setraw(slave)  # kept by the pty: nothing echoes before the client sets it up
+        self.path = os.ttyname(slave)
+        os.close(slave)
+        os.set_blocking(self.master, False)
+        self.decoder = FrameDecoder(route.framing)
+        self.stats = ClientStats(0, self.path)
+        self.connected = False
+        self._out = bytearray()
+        self._writing = False
+        self._poll = select.poll()
+        self._poll.register(self.master, select.POLLIN | select.POLLHUP)
+        self._timer: asyncio.TimerHandle | None = None
+
+    def start(self) -> None:
+        self._check()
+
+    def _check(self) -> None:
+        """Connected when the master no longer reports a hang-up; polled only while nobody
+        has the slot (a connected client's leaving shows as a failed read)."""
+        self._timer = None
+        hung_up = any(events & select.POLLHUP for _, events in self._poll.poll(0))
+        loop = asyncio.get_running_loop()
+        if not hung_up:
+            self.connected = True
+            self.decoder = FrameDecoder(self.route.framing)
+            self.route.joined(self, self.path)
+            loop.add_reader(self.master, self._readable)
+            return
+        self._timer = loop.call_later(PTY_POLL_S, self._check)
+
+    def _readable(self) -> None:
+        try:
+            data = os.read(self.master, 65536)
+        except BlockingIOError:
+            return
+        except OSError:  # EIO: the last process with the slave open closed it
+            self._hang_up()
+            return
+        for item in self.decoder.feed(data):
+            if isinstance(item, bytes):
+                self.route.from_client(self, item)
+        self.stats.noise_bytes = self.decoder.stats.dropped_bytes
+
+    def _hang_up(self) -> None:
+        loop = asyncio.get_running_loop()
+        loop.remove_reader(self.master)
+        if self._writing:
+            loop.remove_writer(self.master)
+            self._writing = False
+        self._out.clear()  # what it did not read is not kept for the next client
+        self.connected = False
+        self.route.left(self)
+        self._timer = loop.call_later(PTY_POLL_S, self._check)
+
+    def backlog(self) -> int | None:
+        return len(self._out) if self.connected else None
+
+    def send(self, wire: bytes) -> None:
+        self._out += wire
+        self._flush()
+
+    def _flush(self) -> None:
+        try:
+            written = os.write(self.master, self._out)
+            del self._out[:written]
+        except BlockingIOError:
+            pass
+        except OSError:
+            pass  # hung up: the next read says so
+        loop = asyncio.get_running_loop()
+        if self._out and not self._writing:
+            loop.add_writer(self.master, self._flush)
+            self._writing = True
+        elif not self._out and self._writing:
+            loop.remove_writer(self.master)
+            self._writing = False
+
+    def close(self) -> None:
+        loop = asyncio.get_running_loop()
+        if self._timer is not None:
+            self._timer.cancel()
+        with contextlib.suppress(Exception):
+            loop.remove_reader(self.master)
+        with contextlib.suppress(Exception):
+            loop.remove_writer(self.master)
+        with contextlib.suppress(OSError):
+            os.close(self.master)
 
 
 class _Board(asyncio.Protocol):
@@ -108,8 +231,9 @@ class BoardRoute:
     framing: Any = DEFAULT_FRAMING
     board: asyncio.BaseTransport | None = None
     decoder: FrameDecoder = field(default_factory=lambda: FrameDecoder(DEFAULT_FRAMING))
-    clients: list[_Client] = field(default_factory=list)
-    controller: _Client | None = None
+    clients: list[_Client | _PtyClient] = field(default_factory=list)
+    controller: _Client | _PtyClient | None = None
+    ptys: list[_PtyClient] = field(default_factory=list)
     history: list[ClientStats] = field(default_factory=list)
     frames_from_board: int = 0
     board_framing_errors: int = 0
@@ -128,13 +252,13 @@ class BoardRoute:
             self.frames_from_board += 1
             wire = encode_frame(item, self.framing)
             for client in self.clients:
-                transport = client.transport
-                if transport is None or transport.is_closing():
+                backlog = client.backlog()
+                if backlog is None:
                     continue
-                if transport.get_write_buffer_size() > self.client_buffer:
+                if backlog > self.client_buffer:
                     client.stats.dropped_frames += 1
                     continue
-                transport.write(wire)
+                client.send(wire)
                 client.stats.frames_to_client += 1
                 client.stats.bytes_to_client += len(wire)
 
@@ -145,14 +269,14 @@ class BoardRoute:
 
     # --- the clients --------------------------------------------------------------------
 
-    def joined(self, client: _Client, peer: str) -> None:
+    def joined(self, client: _Client | _PtyClient, peer: str) -> None:
         client.stats = ClientStats(self.next_client, peer)
         self.next_client += 1
         self.clients.append(client)
         self.history.append(client.stats)
         note(f"board {self.name}: client #{client.stats.client} connected ({peer})")
 
-    def from_client(self, client: _Client, content: bytes) -> None:
+    def from_client(self, client: _Client | _PtyClient, content: bytes) -> None:
         stats = client.stats
         if self.controller is None:
             self.controller = client
@@ -171,7 +295,7 @@ class BoardRoute:
         stats.refused_frames += 1
         stats.refused_by_id[message_id] += 1
 
-    def left(self, client: _Client) -> None:
+    def left(self, client: _Client | _PtyClient) -> None:
         with contextlib.suppress(ValueError):
             self.clients.remove(client)
         stats = client.stats
@@ -211,13 +335,17 @@ SUMMARY_COLUMNS = (
               show_default=True,
               help="TCP port of the first board on 127.0.0.1, the next board's one more; 0: "
                    "any free ports (the ready lines say which).")
+@click.option("--pty", "ptys", type=click.IntRange(0, 16), default=0, show_default=True,
+              help="Also offer each board on this many pseudo-terminals, one client each "
+                   "(a path such as /dev/pts/7, given as --port).")
 @click.option("--client-buffer", type=click.IntRange(4096, 1 << 30), default=1 << 20,
               show_default=True,
               help="Bytes a client may leave unread before the board's frames are dropped "
                    "for it (counted).")
 @format_option
 @connection_options(multi=True)
-def router(first_port: int, client_buffer: int, fmt: str, conn: ConnectionOptions) -> int:
+def router(first_port: int, ptys: int, client_buffer: int, fmt: str,
+           conn: ConnectionOptions) -> int:
     """Share each board among several local clients: one controller, observers read-only.
 
     Opens every board's port (--port NAME=URL, repeatable) and serves each on
@@ -229,7 +357,7 @@ def router(first_port: int, client_buffer: int, fmt: str, conn: ConnectionOption
     client's counts (frames delivered, dropped for a full buffer, passed, refused).
     """
     routes = [BoardRoute(e.name, e.url, client_buffer) for e in conn.endpoints]
-    code = run(_route(conn, routes, first_port), ", ".join(r.url for r in routes))
+    code = run(_route(conn, routes, first_port, ptys), ", ".join(r.url for r in routes))
     rows = _rows(routes)
     if fmt == "json":
         emit_document({"boards": [{"board": r.name, "url": r.url,
@@ -242,7 +370,8 @@ def router(first_port: int, client_buffer: int, fmt: str, conn: ConnectionOption
     return code
 
 
-async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: int) -> int:
+async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: int,
+                 ptys: int) -> int:
     from fpgalink.aio.transport import open_transport
 
     stop = asyncio.Event()
@@ -265,10 +394,18 @@ async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: 
             except OSError as exc:
                 raise CliError(f"board {route.name}: cannot listen on {HOST}:{port}: "
                                f"{exc.strerror or exc}", ExitCode.PORT) from None
+            try:
+                route.ptys = [_PtyClient(route) for _ in range(ptys)]
+            except OSError as exc:
+                raise CliError(f"board {route.name}: cannot make a pty: "
+                               f"{exc.strerror or exc}", ExitCode.PORT) from None
         for route in routes:
             assert route.server is not None
             port = route.server.sockets[0].getsockname()[1]
             echo_out(f"ready {route.name} socket://{HOST}:{port}")
+            for slot in route.ptys:
+                echo_out(f"ready {route.name} {slot.path}")
+                slot.start()
         lost: list[asyncio.Future[Any]] = [asyncio.ensure_future(b.lost) for b in boards]
         stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
         done, _ = await asyncio.wait([stopped, *lost], return_when=asyncio.FIRST_COMPLETED)
@@ -296,8 +433,10 @@ async def _close(routes: list[BoardRoute]) -> None:
             route.to_board(DISABLE)
             route.disables_sent += 1
         for client in list(route.clients):
-            if client.transport is not None:
-                client.transport.close()
+            if isinstance(client, _Client):
+                client.close()
+        for slot in route.ptys:
+            slot.close()
     for route in routes:
         if route.board is not None:
             route.board.close()

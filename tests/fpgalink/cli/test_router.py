@@ -190,3 +190,44 @@ def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
         router.kill()
     (board,) = summary["boards"]
     assert board["disables_sent"] == 2  # one per controller that left: killed, then watcher
+
+
+def _counters(text: str) -> list[int]:
+    return [json.loads(line)["counter"] for line in text.splitlines()
+            if line.startswith("{") and '"counter"' in line]
+
+
+def test_a_pty_observer_sees_every_tm_of_a_tcp_controller(tmp_path: Path) -> None:
+    router = Router(tmp_path, "--pty", "1", "--port", "emu://")
+    observed = tmp_path / "observer.jsonl"
+    try:
+        assert router.urls  # the TCP endpoint; the pty's ready line follows it
+        assert router.proc.stdout is not None
+        _, _, pty = router.proc.stdout.readline().split()
+        with observed.open("w") as out:
+            observer = subprocess.Popen([*SCRIPT, "monitor", "--passive", "--format", "jsonl",
+                                         "--port", pty], stdout=out, stderr=subprocess.PIPE,
+                                        text=True, cwd=ROOT, env=cli_env())
+        try:
+            wait_until_sync(lambda: "client #1 connected (/dev/" in router.stderr(), 30,
+                            "the observer on the pty")
+            (url,) = router.urls.values()
+            controller = subprocess.run([*SCRIPT, "monitor", "--duration", "1", "--format",
+                                         "jsonl", "--port", url], capture_output=True,
+                                        text=True, cwd=ROOT, env=cli_env(), timeout=60)
+            assert controller.returncode == 0, controller.stderr
+            driven = _counters(controller.stdout)
+            assert len(driven) > 200
+            # The observer writes each sample as it reads it: wait until it has the last.
+            wait_until_sync(lambda: max(driven) in _counters(observed.read_text()), 30,
+                            "the observer to read the controller's last TM")
+        finally:
+            observer.send_signal(signal.SIGINT)
+            observer.communicate(timeout=30)
+        summary = router.stop()
+    finally:
+        router.kill()
+    assert set(driven) <= set(_counters(observed.read_text()))
+    clients = {c["client"]: c for c in summary["clients"]}
+    assert clients[1]["peer"].startswith("/dev/") and clients[1]["role"] == "observer"
+    assert clients[1]["dropped_frames"] == 0 and clients[2]["role"] == "controller"
