@@ -21,7 +21,14 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import CAN_MOUNT, ROOT, cli_env, cli_on_small_disk, run_cli
+from tests.support.cli import (
+    CAN_MOUNT,
+    ROOT,
+    cli_env,
+    cli_on_small_disk,
+    run_cli,
+    run_driving,
+)
 
 _missing = next((f"{name} is not installed (the ros2 extra)" for name in ("rclpy", "rosbags")
                  if importlib.util.find_spec(name) is None), None)
@@ -59,7 +66,7 @@ def stamp_ns(message: Any) -> int:
 @pytest.fixture(scope="module")
 def driven(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     bag = tmp_path_factory.mktemp("bags") / "drive"
-    done = run_cli("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--rosbag2",
+    done = run_driving("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--rosbag2",
                    str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     return bag, done.stdout + done.stderr

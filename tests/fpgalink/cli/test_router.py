@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from tests.support.cli import CLI, ROOT, cli_env
+from tests.support.cli import CLI, ROOT, STALL_FAULTS, cli_env
 from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(180)
@@ -88,9 +88,12 @@ def test_two_observers_see_every_tm_of_the_controllers_run(robot_router: Router,
         wait_until_sync(lambda: router.stderr().count("client #2 connected") == 2, 30,
                         "both observers on both boards")
         controller = tmp_path / "controller.mcap"
-        drive = subprocess.run([*SCRIPT, "drive", "--v", "0.1", "--for", "1", "--record",
-                                str(controller), *router.ports()], capture_output=True,
-                               text=True, cwd=ROOT, env=cli_env(), timeout=60)
+        for _ in range(3):  # a loaded machine's own stall (exit 7) is driven through again
+            drive = subprocess.run([*SCRIPT, "drive", "--v", "0.1", "--for", "1", "--record",
+                                    str(controller), *router.ports()], capture_output=True,
+                                   text=True, cwd=ROOT, env=cli_env(), timeout=60)
+            if drive.returncode != 7 or not any(f in drive.stderr for f in STALL_FAULTS):
+                break
         assert drive.returncode == 0, drive.stderr
         for observer in observers:
             _, err = observer.communicate(timeout=60)  # its --duration: it reads to the end
@@ -108,16 +111,16 @@ def test_two_observers_see_every_tm_of_the_controllers_run(robot_router: Router,
             assert set(driven) <= seen, f"observer {i} missed TMs of board {board}"
     clients = summary["clients"]
     assert isinstance(clients, list)
-    by_role = {(c["board"], c["client"]): c for c in clients}
     for board in ("L", "R"):
-        assert by_role[(board, 1)]["role"] == by_role[(board, 2)]["role"] == "observer"
-        assert by_role[(board, 3)]["role"] == "controller"
-        assert by_role[(board, 3)]["frames_to_board"] > 0
-        for n in (1, 2, 3):
-            assert by_role[(board, n)]["dropped_frames"] == 0
-            assert by_role[(board, n)]["refused_frames"] == 0
+        mine = {c["client"]: c for c in clients if c["board"] == board}
+        assert mine[1]["role"] == mine[2]["role"] == "observer"
+        controller_stats = mine[max(mine)]  # the drive (the last one, if it was run again)
+        assert controller_stats["role"] == "controller"
+        assert controller_stats["frames_to_board"] > 0
+        for stats in mine.values():
+            assert stats["dropped_frames"] == 0 and stats["refused_frames"] == 0
         # The observers, connected before and after the run, got at least what it got.
-        assert by_role[(board, 1)]["frames_to_client"] > by_role[(board, 3)]["frames_to_client"]
+        assert mine[1]["frames_to_client"] > controller_stats["frames_to_client"]
 
 
 def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
