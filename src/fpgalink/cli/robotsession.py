@@ -261,7 +261,7 @@ class RobotRun:
                           for name in self.description.boards]
             if self.rosbag_path is not None:
                 self._open_bag(robot)
-                tasks = self._bag_tasks(robot)
+                tasks += self._bag_tasks(robot)  # beside --record's, not instead of them
             self._started = time.monotonic()
             tasks.append(asyncio.ensure_future(self._sample()))
             try:

@@ -207,3 +207,15 @@ def test_plot_reads_the_bag_the_cli_wrote(driven: tuple[Path, str], tmp_path: Pa
     assert done.returncode == 2
     assert_one_line_error(done.stderr, "no field twist.nosuch", "twist.twist.linear.x",
                           "/joint_states")
+
+
+def test_record_and_rosbag2_together_write_both(tmp_path: Path) -> None:
+    # The bag's tasks used to replace --record's telemetry tasks: both run side by side.
+    bag, record = tmp_path / "bag", tmp_path / "run.mcap"
+    done = run_driving("drive", "--v", "0.1", "--for", "1", "--record", str(record),
+                       "--rosbag2", str(bag), timeout=60)
+    assert done.returncode == 0, done.stderr
+    with record.open("rb") as f:
+        topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
+    assert topics.count("/board/L/telemetry") > 300 and topics.count("/board/R/telemetry") > 300
+    assert len(read_bag(bag)["/joint_states"]) > 100
