@@ -58,7 +58,7 @@ def render(sessions: list[BoardSession], started: float, duration: float | None)
     # line rather than two boards' ports reading the same ("/tmp/fpga…" twice).
     link = Table(title="Link", title_justify="left")
     for column in ("board", "port", "board status", "TM/s", "lost", "errors", "retries",
-                   "E rx"):
+                   "heartbeats (E)"):
         link.add_column(column, justify="left" if column in ("board", "port", "board status")
                         else "right", overflow="fold")
     for session in sessions:
