@@ -48,8 +48,10 @@ def test_param_set_get_step_and_monitor(c_board: str) -> None:
             for line in step.stdout.splitlines() if line.count("│") == 3}
     # the default tuning settles a 45 deg/s step without overshoot (docs/emulator.md)
     assert rows["overshoot"] == "0.0 %", step.stdout
-    assert float(rows["peak"]) == pytest.approx(45.0, abs=0.05)
-    assert float(rows["steady-state error"]) == pytest.approx(0.0, abs=0.05)
+    # every figure gives its unit (issue 26)
+    assert rows["peak"].endswith(" deg/s") and rows["steady-state error"].endswith(" deg/s")
+    assert float(rows["peak"].split()[0]) == pytest.approx(45.0, abs=0.05)
+    assert float(rows["steady-state error"].split()[0]) == pytest.approx(0.0, abs=0.05)
     monitor = run_cli("monitor", "--duration", "0.6", "--format", "csv", "--port", c_board)
     assert monitor.returncode == 0, monitor.stderr
     samples = list(csv.DictReader(io.StringIO(monitor.stdout)))
