@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from tests.support.cli import run_cli, serve_pty
+from tests.support.cli import run_cli, run_driving, serve_pty
 from tests.support.firmwares import require_c_firmware
 
 pytestmark = pytest.mark.timeout(120)
@@ -41,7 +41,7 @@ def test_param_set_get_step_and_monitor(c_board: str) -> None:
     # a value the host refuses before sending: exit 2
     bad = run_cli("param", "set", "TsTimerPeriod", "0", "--port", c_board)
     assert bad.returncode == 2 and "TsTimerPeriod" in bad.stderr
-    step = run_cli("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
+    step = run_driving("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
                    "--port", c_board, timeout=60)
     assert step.returncode == 0, step.stderr
     rows = {line.split("│")[1].strip(): line.split("│")[2].strip()

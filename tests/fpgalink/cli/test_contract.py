@@ -43,6 +43,16 @@ def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 60,
 NUMBER_WITH_UNIT = re.compile(r"^[-+]?\d+(\.\d+)?(e[-+]?\d+)?\s*(s|ms|%|deg/s|B|m|A)$")
 
 
+def cli_through_stalls(*args: str, **options: Any) -> subprocess.CompletedProcess[str]:
+    """``cli`` for a command that enables the board for something else: run again when a
+    loaded machine's own stall stopped it (exit 7), as tests/support/cli.run_driving."""
+    for _ in range(3):
+        done = cli(*args, **options)
+        if done.returncode != 7 or not any(f in done.stderr for f in STALL_FAULTS):
+            break
+    return done
+
+
 def numbers_only(value: Any, path: str = "") -> None:
     """No number in a JSON document is written as a string with a unit ("0.05 s")."""
     if isinstance(value, dict):
@@ -120,8 +130,8 @@ def test_ports_json_is_one_array_even_when_empty() -> None:
 
 
 def test_step_json_has_the_figures_as_numbers() -> None:
-    done = cli("step", "--channel", "A", "--to", "45", "--pre", "0.1", "--hold", "0.6",
-               "--format", "json", "--port", "emu://")
+    done = cli_through_stalls("step", "--channel", "A", "--to", "45", "--pre", "0.1",
+                              "--hold", "0.6", "--format", "json", "--port", "emu://")
     assert done.returncode == 0, done.stderr
     document = json.loads(done.stdout)
     assert document["channel"] == "A" and document["to_dps"] == 45
@@ -131,8 +141,8 @@ def test_step_json_has_the_figures_as_numbers() -> None:
 
 
 def test_step_table_gives_a_unit_for_every_figure() -> None:
-    done = cli("step", "--channel", "A", "--to", "45", "--pre", "0.1", "--hold", "0.6",
-               "--port", "emu://")
+    done = cli_through_stalls("step", "--channel", "A", "--to", "45", "--pre", "0.1",
+                              "--hold", "0.6", "--port", "emu://")
     assert done.returncode == 0, done.stderr
     rows = [li for li in done.stdout.splitlines() if li.startswith("│")]
     figures = [r for r in rows if "figure" not in r]
@@ -226,10 +236,7 @@ def test_negative_numbers_as_written(args: list[str], needle: str) -> None:
 
 
 def test_goto_a_negative_goal_arrives() -> None:
-    for _ in range(3):  # a loaded machine's own stall (exit 7) is driven through again
-        done = cli("goto", "-0.2", "0", "--format", "json", timeout=90)
-        if done.returncode != 7 or not any(f in done.stderr for f in STALL_FAULTS):
-            break
+    done = cli_through_stalls("goto", "-0.2", "0", "--format", "json", timeout=90)
     assert done.returncode == 0, done.stderr
     document = json.loads(done.stdout)
     assert document["arrived"] is True and document["goal"]["x_m"] == -0.2

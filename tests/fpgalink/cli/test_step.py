@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from fpgalink.cli.step import step_metrics
-from tests.support.cli import Board, run_cli
+from tests.support.cli import Board, run_cli, run_driving
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -54,8 +54,8 @@ def test_step_plot_against_the_emulator(board: Board, tmp_path: Path) -> None:
     if not board.has_dynamics:
         pytest.skip("the scripted fake board has no plant: step needs the emulator")
     png = tmp_path / "step.png"
-    done = run_cli("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
-                   "--plot", str(png), "--port", board.url, timeout=30)
+    done = run_driving("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
+                       "--plot", str(png), "--port", board.url, timeout=30)
     assert done.returncode == 0, done.stderr
     for figure in ("rise time", "settling time", "overshoot", "steady-state error"):
         assert figure in done.stdout
