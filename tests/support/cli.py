@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import atexit
 import dataclasses
+import itertools
 import os
 import select
 import shutil
@@ -122,20 +123,37 @@ def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = N
 
 
 #: What a loaded machine's own stall looks like to a robot command (exit 7): the host or
-#: the in-process emulated robot was not scheduled for longer than a fault's threshold.
-STALL_FAULTS = ("telemetry stopped", "watchdog", "disabled itself", "not answering")
+#: the in-process emulated robot was not scheduled for longer than a fault's threshold (a
+#: silence long enough is also taken for a restart).
+STALL_FAULTS = ("telemetry stopped", "watchdog", "disabled itself", "not answering",
+                "after a silence")
+#: Options whose file or directory a run writes, removed before it is run again.
+_OUTPUTS = ("--record", "--rosbag2", "--plot", "-o", "--output")
+
+
+def stalled(done: subprocess.CompletedProcess[str]) -> bool:
+    """Exit 7 for a fault of the loaded machine's own making (see STALL_FAULTS)."""
+    return done.returncode == 7 and any(f in done.stderr for f in STALL_FAULTS)
 
 
 def run_driving(*args: str, tries: int = 3, **options: Any
                 ) -> subprocess.CompletedProcess[str]:
-    """``run_cli`` for a test whose command drives the robot for something else (a
-    recording, a plot, a parser): a run stopped by a fault of the loaded machine's own
-    making (exit 7, a stall named in the message) is run again, as tests/support/driving.py
-    drives on through them in the library's tests. Any other outcome is returned as is."""
+    """``run_cli`` for a test whose command drives the robot (or steps a wheel) for
+    something else (a recording, a plot, a parser, an exit code): a run stopped by a fault
+    of the loaded machine's own making is run again, its outputs removed first, as
+    tests/support/driving.py drives on through them in the library's tests. Any other
+    outcome is returned as is."""
     done = run_cli(*args, **options)
     for _ in range(tries - 1):
-        if done.returncode != 7 or not any(f in done.stderr for f in STALL_FAULTS):
+        if not stalled(done):
             break
+        for option, value in itertools.pairwise(args):
+            if option in _OUTPUTS:
+                path = Path(value)
+                if path.is_dir():
+                    shutil.rmtree(path)
+                elif path.exists():
+                    path.unlink()
         done = run_cli(*args, **options)
     return done
 

@@ -27,6 +27,7 @@ import contextlib
 import dataclasses
 import os
 import select
+import socket
 from collections import Counter
 from dataclasses import dataclass, field
 from typing import Any
@@ -91,6 +92,13 @@ class _Client(asyncio.Protocol):
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
         assert isinstance(transport, asyncio.Transport)
         self.transport = transport
+        # The kernel's send buffer counts towards what may wait for a client, or a client
+        # that does not read would hold megabytes (loopback autotuning) before --client-
+        # buffer applied at all.
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            with contextlib.suppress(OSError):
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, self.route.client_buffer)
         peer = transport.get_extra_info("peername")
         self.route.joined(self, f"{peer[0]}:{peer[1]}" if peer else "?")
 

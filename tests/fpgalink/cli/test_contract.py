@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import CLI, ROOT, STALL_FAULTS, BoardThread, cli_env
+from tests.support.cli import CLI, ROOT, BoardThread, cli_env, stalled
 from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(120)
@@ -48,7 +48,7 @@ def cli_through_stalls(*args: str, **options: Any) -> subprocess.CompletedProces
     loaded machine's own stall stopped it (exit 7), as tests/support/cli.run_driving."""
     for _ in range(3):
         done = cli(*args, **options)
-        if done.returncode != 7 or not any(f in done.stderr for f in STALL_FAULTS):
+        if not stalled(done):
             break
     return done
 

@@ -29,7 +29,7 @@ def test_goto_arrives_and_plots_odometry_against_truth(tmp_path: Path) -> None:
 
 
 def test_goto_out_of_time_exits_6() -> None:
-    done = run_cli("goto", "3", "0", "--time-limit", "1.5", timeout=60)
+    done = run_driving("goto", "3", "0", "--time-limit", "1.5", timeout=60)
     assert done.returncode == 6, done.stderr
     errors = [li for li in done.stderr.splitlines() if li.startswith("fpgalink-cli: error:")]
     assert len(errors) == 1 and "not at (3, 0) after 1.5 s" in errors[0]
@@ -44,8 +44,9 @@ def test_drive_records_odometry_truth_and_commands(tmp_path: Path) -> None:
         topics: dict[str, int] = {}
         for _, channel, _ in make_reader(f).iter_messages():
             topics[channel.topic] = topics.get(channel.topic, 0) + 1
-    assert topics["/robot/odometry"] > 10 and topics["/robot/truth"] > 10
-    assert topics["/robot/command"] > 5
+    # 20 Hz for 1 s; fewer when a loaded machine delays the sampling task
+    assert topics["/robot/odometry"] > 5 and topics["/robot/truth"] > 5
+    assert topics["/robot/command"] > 2
     # What was driven, every sample of both boards (issue 26: these were empty), so plot
     # of the recording shows the wheels turning against their references.
     assert topics["/board/L/telemetry"] > 300 and topics["/board/R/telemetry"] > 300

@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from tests.support.cli import CLI, ROOT, STALL_FAULTS, cli_env
+from tests.support.cli import CLI, ROOT, cli_env, stalled
 from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(180)
@@ -92,7 +92,7 @@ def test_two_observers_see_every_tm_of_the_controllers_run(robot_router: Router,
             drive = subprocess.run([*SCRIPT, "drive", "--v", "0.1", "--for", "1", "--record",
                                     str(controller), *router.ports()], capture_output=True,
                                    text=True, cwd=ROOT, env=cli_env(), timeout=60)
-            if drive.returncode != 7 or not any(f in drive.stderr for f in STALL_FAULTS):
+            if not stalled(drive):
                 break
         assert drive.returncode == 0, drive.stderr
         for observer in observers:
@@ -133,10 +133,12 @@ def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
         try:
             wait_until_sync(lambda: "is the controller" in router.stderr(), 30, "a controller")
             # An observer that tries to enable the board and to set a parameter.
-            enable = subprocess.run([*SCRIPT, "send", "RE", "--port", url],
-                                    capture_output=True, text=True, cwd=ROOT, env=cli_env(),
-                                    timeout=60)
-            assert enable.returncode == 0, enable.stderr
+            # (It stays a while: a client that closes with frames unread resets the
+            # connection, and the kernel may then discard what it sent last, unread.)
+            enable = subprocess.run([*SCRIPT, "send", "RE", "--reply", "PA", "--wait", "2",
+                                     "--port", url], capture_output=True, text=True,
+                                    cwd=ROOT, env=cli_env(), timeout=60)
+            assert enable.returncode == 4, enable.stderr  # no PA: nothing reached the board
             refused = subprocess.run([*SCRIPT, "--retries", "2", "param", "set",
                                       "TsTimerPeriod", "5", "--port", url],
                                      capture_output=True, text=True, cwd=ROOT,
@@ -234,3 +236,35 @@ def test_a_pty_observer_sees_every_tm_of_a_tcp_controller(tmp_path: Path) -> Non
     clients = {c["client"]: c for c in summary["clients"]}
     assert clients[1]["peer"].startswith("/dev/") and clients[1]["role"] == "observer"
     assert clients[1]["dropped_frames"] == 0 and clients[2]["role"] == "controller"
+
+
+def test_a_client_that_does_not_read_loses_frames_alone_and_counted(tmp_path: Path) -> None:
+    import socket
+
+    router = Router(tmp_path, "--client-buffer", "4096", "--port", "emu://")
+    try:
+        (url,) = router.urls.values()
+        host, port = url.removeprefix("socket://").rsplit(":", 1)
+        stuck = socket.socket()  # connects, never reads (a small window: little in flight)
+        stuck.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
+        stuck.connect((host, int(port)))
+        try:
+            wait_until_sync(lambda: "client #1 connected" in router.stderr(), 30, "it")
+            controller = subprocess.run([*SCRIPT, "monitor", "--duration", "2", "--format",
+                                         "jsonl", "--port", url], capture_output=True,
+                                        text=True, cwd=ROOT, env=cli_env(), timeout=60)
+            assert controller.returncode == 0, controller.stderr
+            summary = router.stop()
+        finally:
+            stuck.close()
+    finally:
+        router.kill()
+    clients = {c["client"]: c for c in summary["clients"]}
+    # The one that does not read: whole frames dropped once its buffer was full, and every
+    # frame of the controller's run accounted for (delivered or dropped); the controller
+    # lost nothing.
+    assert clients[1]["dropped_frames"] > 100
+    assert (clients[1]["frames_to_client"] + clients[1]["dropped_frames"]
+            >= clients[2]["frames_to_client"])
+    assert clients[2]["role"] == "controller" and clients[2]["dropped_frames"] == 0
+    assert len(_counters(controller.stdout)) > 500
