@@ -11,6 +11,7 @@ Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the tes
 
 from __future__ import annotations
 
+import bisect
 import itertools
 import json
 import math
@@ -37,6 +38,8 @@ from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 PATIENCE = 30.0
+#: A truth line's tick is found among the published stamps within this (a tick is 1 ms).
+STAMP_TOLERANCE_NS = 200_000
 NODE = "fpgalink"
 
 
@@ -296,19 +299,25 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
     by_speeds: dict[tuple[float, ...], list[int]] = {}
     for stamp, velocity, _ in peer.joints:
         by_speeds.setdefault(tuple(velocity[:2]), []).append(stamp)
-    votes: dict[int, int] = {}  # candidate offsets, ns, from every speed match
+    # The node maps board time onto ROS time through an offset it estimates continuously
+    # (fpgalink.boardclock): once locked it moves by microseconds, far less than the 1 ms
+    # between ticks. Candidate offsets from every speed match, voted in 0.1 ms bins.
+    votes: dict[int, list[int]] = {}
     for line in lines:
         for stamp in by_speeds.get(tuple(expected(line, "L")), []):
             offset = stamp - line["boards"]["L"]["t_us"] * 1000
-            votes[offset] = votes.get(offset, 0) + 1
-    offset = max(votes, key=lambda o: votes[o]) if votes else 0
-    published = {stamp: velocity for stamp, velocity, _ in peer.joints}
+            votes.setdefault(round(offset / 100_000), []).append(offset)
+    best = max(votes.values(), key=len) if votes else [0]
+    offset = sorted(best)[len(best) // 2]
+    published = sorted((stamp, velocity) for stamp, velocity, _ in peer.joints)
+    published_stamps = [stamp for stamp, _ in published]
     at_stamp = equal_left = equal_right = 0
     for line in lines:
-        found = published.get(offset + line["boards"]["L"]["t_us"] * 1000)
-        if found is None:
+        wanted = offset + line["boards"]["L"]["t_us"] * 1000
+        i = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
+        if i == len(published) or published_stamps[i] > wanted + STAMP_TOLERANCE_NS:
             continue
-        velocity = found
+        velocity = published[i][1]
         at_stamp += 1
         equal_left += velocity[:2] == expected(line, "L")
         equal_right += velocity[2:] == expected(line, "R")
@@ -316,7 +325,7 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
     gaps_ms = [(b - a) / 1e6 for a, b in itertools.pairwise(stamps)]
     moving = sum(1 for line in lines if any(expected(line, "L")))
     return {"truth_lines": len(lines), "moving_lines": moving,
-            "offset_votes": votes.get(offset, 0), "at_stamp": at_stamp,
+            "offset_votes": len(best), "at_stamp": at_stamp,
             "equal_left": equal_left, "equal_right": equal_right,
             "messages": len(stamps), "distinct_stamps": len(set(stamps)),
             "increasing": all(g > 0 for g in gaps_ms), "min_gap_ms": min(gaps_ms, default=0),

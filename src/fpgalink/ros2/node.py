@@ -437,8 +437,9 @@ class RosBridge:
         text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
             f" ({event.detail})" if event.detail else "")
         if event.kind is LinkEventKind.BOARD_RESTARTED:
-            # Its clock starts again: stamps anchor afresh (not a wrap, not a jump back).
-            self._clocks[board] = BoardClock()
+            # Its clock starts again: the mapping starts afresh (not a wrap, not a jump
+            # back), the drift estimate kept.
+            self._clocks[board].restart()
         if event.kind in _FAULT_KINDS or (event.kind is LinkEventKind.BOARD_RESYNCED
                                           and "failed" in event.detail):
             self.log.error(text)

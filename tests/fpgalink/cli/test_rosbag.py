@@ -7,6 +7,7 @@ Reading needs the ros2 extra (rclpy): without it these tests skip, unless
 
 from __future__ import annotations
 
+import collections
 import importlib.util
 import itertools
 import math
@@ -20,6 +21,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
+from fpgalink.boardclock import MAX_SLEW
 from tests.fpgalink.cli.test_errors import assert_one_line_error
 from tests.support.cli import CAN_MOUNT, ROOT, cli_env, cli_on_small_disk, run_cli
 
@@ -87,8 +89,19 @@ def test_joint_states_are_every_set_of_samples_on_the_boards_clock(
     assert all(list(m.name) == ["FL", "BL", "FR", "BR"] for m in joints)
     stamps = [stamp_ns(m) for m in joints]
     gaps = [b - a for a, b in itertools.pairwise(stamps)]
-    # Board time: every gap is a whole number of the boards' 1 ms ticks, never 0.
-    assert all(g > 0 and g % 1_000_000 == 0 for g in gaps), sorted(set(gaps))[:5]
+    # Board time: every gap is a whole number k of the boards' 1 ms ticks, never 0, less
+    # what the clock's offset slews down by (at most 5 % of it: a first sample's delay, or
+    # the in-process emulator's catch-up burst at start, worked off) and plus what a drift
+    # correction adds (microseconds).
+    def whole_ticks(gap: int) -> bool:
+        k = max(1, math.ceil((gap - 50_000) / 1_000_000))
+        return (1 - MAX_SLEW) * k * 1_000_000 - 1 <= gap
+
+    assert all(g > 0 and whole_ticks(g) for g in gaps), [
+        (i, g) for i, g in enumerate(gaps) if not (g > 0 and whole_ticks(g))][:5]
+    # Most of them exactly so: the offset moves only while a smaller delay is found.
+    exact = sum(g % 1_000_000 == 0 for g in gaps)
+    assert exact > len(gaps) // 2, collections.Counter(gaps).most_common(5)
     # Driving forward and turning left: the right wheels faster, all forward.
     steady = joints[len(joints) // 2:]
     assert all(min(m.velocity) > 0 for m in steady)
