@@ -2,10 +2,11 @@
 ``fpgaemu serve`` and ``fpgalink-ros2`` as processes, talks to the node over ROS, reads what
 really happened from the emulator's truth endpoint, and prints one JSON line per check.
 
-    python -m tests.ros2.peer main|kill      (inside tests/ros2/netns.sh: loopback only)
+    python -m tests.ros2.peer main|kill|fault   (inside tests/ros2/netns.sh: loopback only)
 
 ``main``: joint_states against the boards' telemetry, cmd_vel against the body, goal_pose,
 the enable deadman, SetParameters. ``kill``: one board's serving process killed.
+``fault``: a board restarting mid-drive, then one board's telemetry stopping.
 Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the test to assert).
 """
 
@@ -31,15 +32,16 @@ from geometry_msgs.msg import PoseStamped, Twist
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
-from rcl_interfaces.srv import GetParameters, SetParameters
+from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.node import Node
 from rclpy.qos import qos_profile_sensor_data
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
 PATIENCE = 30.0
-#: A truth line's tick is found among the published stamps within this (a tick is 1 ms).
-STAMP_TOLERANCE_NS = 200_000
+#: A truth line's tick is found among the published stamps within this of where the
+#: offset followed so far puts it (a tick is 1 ms).
+STAMP_TOLERANCE_NS = 450_000
 NODE = "fpgalink"
 
 
@@ -107,13 +109,15 @@ class Peer(Node):
         self.diagnostics: list[DiagnosticArray] = []
         self.create_subscription(JointState, "joint_states", self._on_joints,
                                  qos_profile_sensor_data)
-        self.create_subscription(Odometry, "odom", self.odom.append, 10)
-        self.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 10)
+        # Deep queues: a busy peer must not lose the messages it checks.
+        self.create_subscription(Odometry, "odom", self.odom.append, 1000)
+        self.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
         self.enable = self.create_publisher(Bool, "enable", 10)
         self.cmd = self.create_publisher(Twist, "cmd_vel", 10)
         self.goal = self.create_publisher(PoseStamped, "goal_pose", 10)
         self.set_client = self.create_client(SetParameters, f"{NODE}/set_parameters")
         self.get_client = self.create_client(GetParameters, f"{NODE}/get_parameters")
+        self.list_client = self.create_client(ListParameters, f"{NODE}/list_parameters")
 
     def _on_joints(self, message: JointState) -> None:
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
@@ -171,6 +175,24 @@ class Peer(Node):
         request = GetParameters.Request()
         request.names = [name]
         return float(self.call(self.get_client, request).values[0].double_value)
+
+    def board_parameters(self, board: str) -> dict[str, float]:
+        """Every ROS parameter of ``board`` (``L.Kp_Wheel_Pid.A``), by its board name
+        (``Kp_Wheel_PidA``, as the truth stream names it)."""
+        listing = ListParameters.Request()
+        listing.prefixes = [board]
+        listing.depth = 0
+        names = [n for n in self.call(self.list_client, listing).result.names
+                 if n.startswith(f"{board}.")]
+        request = GetParameters.Request()
+        request.names = names
+        values = self.call(self.get_client, request).values
+        out: dict[str, float] = {}
+        for name, value in zip(names, values, strict=True):
+            number = (value.integer_value if value.type == ParameterType.PARAMETER_INTEGER
+                      else value.double_value)
+            out["".join(name.split(".")[1:])] = float(number)
+        return out
 
 
 def start_node(ports: dict[str, str], *ros_args: str) -> Process:
@@ -300,27 +322,36 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
     for stamp, velocity, _ in peer.joints:
         by_speeds.setdefault(tuple(velocity[:2]), []).append(stamp)
     # The node maps board time onto ROS time through an offset it estimates continuously
-    # (fpgalink.boardclock): once locked it moves by microseconds, far less than the 1 ms
-    # between ticks. Candidate offsets from every speed match, voted in 0.1 ms bins.
-    votes: dict[int, list[int]] = {}
-    for line in lines:
+    # (fpgalink.boardclock): it moves down by fractions of a millisecond while smaller
+    # delays are found, less than the 1 ms between ticks. Candidate offsets from every
+    # speed match, voted in 0.1 ms bins, give where to start; from that line on, forwards
+    # and backwards, each line's message is the one stamped nearest its tick at the offset
+    # followed so far (within 0.45 ms), and its speeds are compared.
+    votes: dict[int, list[tuple[int, int]]] = {}  # bin: (offset, line index)
+    for index, line in enumerate(lines):
         for stamp in by_speeds.get(tuple(expected(line, "L")), []):
             offset = stamp - line["boards"]["L"]["t_us"] * 1000
-            votes.setdefault(round(offset / 100_000), []).append(offset)
-    best = max(votes.values(), key=len) if votes else [0]
-    offset = sorted(best)[len(best) // 2]
+            votes.setdefault(round(offset / 100_000), []).append((offset, index))
+    chosen: list[tuple[int, int]] = max(votes.values(), key=len) if votes else [(0, 0)]
+    best = sorted(chosen)
+    start_offset, start = best[len(best) // 2]
     published = sorted((stamp, velocity) for stamp, velocity, _ in peer.joints)
     published_stamps = [stamp for stamp, _ in published]
     at_stamp = equal_left = equal_right = 0
-    for line in lines:
-        wanted = offset + line["boards"]["L"]["t_us"] * 1000
-        i = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
-        if i == len(published) or published_stamps[i] > wanted + STAMP_TOLERANCE_NS:
-            continue
-        velocity = published[i][1]
-        at_stamp += 1
-        equal_left += velocity[:2] == expected(line, "L")
-        equal_right += velocity[2:] == expected(line, "R")
+    for indices in (range(start, len(lines)), range(start - 1, -1, -1)):
+        offset = start_offset
+        for index in indices:
+            line = lines[index]
+            wanted = offset + line["boards"]["L"]["t_us"] * 1000
+            i = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
+            if i == len(published) or published_stamps[i] > wanted + STAMP_TOLERANCE_NS:
+                continue
+            stamp, velocity = published[i]
+            at_stamp += 1
+            if velocity[:2] == expected(line, "L"):
+                equal_left += 1
+                offset = stamp - line["boards"]["L"]["t_us"] * 1000
+            equal_right += velocity[2:] == expected(line, "R")
     stamps = [stamp for stamp, _, _ in peer.joints]
     gaps_ms = [(b - a) / 1e6 for a, b in itertools.pairwise(stamps)]
     moving = sum(1 for line in lines if any(expected(line, "L")))
@@ -356,6 +387,207 @@ def kill_scenario(peer: Peer) -> None:
     finally:
         report("node_exit", code=node.stop())
         right.stop()
+        left.stop()  # killed above, unless something failed first: it holds our output
+
+
+#: Emulated seconds at which the fault scenario's first fault comes, doubled on a machine
+#: too busy to be driving by then (the times of --fault are fixed when serve starts).
+FAULT_AT_S = 8.0
+#: A body faster than this never drove the seed robot in these tests: between two odom
+#: messages the pose moves at most this much per second of stamp (a lost message is no
+#: jump; an encoder reset taken as motion is).
+TOP_SPEED = 0.5
+
+
+def _stamp_ns(header: Any) -> int:
+    return int(header.stamp.sec) * 1_000_000_000 + int(header.stamp.nanosec)
+
+
+def _statuses(array: DiagnosticArray) -> dict[str, tuple[int, str]]:
+    out = {}
+    for status in array.status:
+        level = status.level
+        out[str(status.name).removeprefix(f"{NODE}: ")] = (
+            level[0] if isinstance(level, bytes) else int(level), str(status.message))
+    return out
+
+
+def _epoch_of(lines: list[dict[str, Any]], t: float) -> float:
+    """The host epoch time at which the emulator's clock read ``t`` (the truth stream
+    says which host instant each record's boards were advanced to)."""
+    line = min(lines, key=lambda line: abs(line["t"] - t))
+    return float(line["host_time"]) - (float(line["t"]) - t)
+
+
+class FaultRun:
+    """``fpgaemu serve --robot`` with one fault at a fixed emulated time, the node, and
+    the peer driving; ``None`` from :meth:`start` when the machine was too slow to be
+    driving before the fault."""
+
+    def __init__(self, peer: Peer, fault: str, at: float) -> None:
+        self.peer, self.at = peer, at
+        self.serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
+                             "--surface", "ideal", "--fault", fault)
+        ready = {line[1]: line[2] for line in self.serve.ready_lines(3)}
+        self.truth = Truth(ready.pop("truth"))
+        self.node = start_node(ready)
+
+    def driving_before_the_fault(self) -> bool:
+        peer, truth = self.peer, self.truth
+        peer.spin_until(lambda: len(peer.joints) > 20, "joint_states")
+        peer.spin_until(lambda: truth.latest["v"] > 0.05
+                        and _status(peer, "supervision") == (0, "enabled"),
+                        "the robot driving", lambda: peer.drive(0.2, 0.0))
+        return bool(truth.latest["t"] < self.at - 1.0)
+
+    def stop(self) -> dict[str, Any]:
+        codes = {"node_exit": self.node.stop(), "serve_exit": self.serve.stop()}
+        self.truth.close()
+        return codes
+
+
+def fault_scenario(peer: Peer) -> None:
+    """A board restarting mid-drive, then (in a second serve) one board's telemetry
+    stopping. Each timing is taken on the node's own stamps or the emulator's clock."""
+    _fault_run(peer, "restart", _restart_run)
+    _fault_run(peer, "stale", _stale_run)
+
+
+def _fault_run(peer: Peer, check: str, body: Any) -> None:
+    at = FAULT_AT_S
+    for attempt in range(3):
+        fault = (f"L:restart={at:g}" if check == "restart" else f"R:tm-loss={at:g}:1")
+        run = FaultRun(peer, fault, at)
+        try:
+            peer.odom.clear()
+            peer.joints.clear()
+            peer.diagnostics.clear()
+            if run.driving_before_the_fault():
+                facts = body(peer, run)
+                facts.update(run.stop(), attempts=attempt + 1, fault=fault)
+                report(check, **facts)
+                return
+        finally:
+            run.stop()
+        at *= 2
+    report(check, too_slow=True)
+
+
+def _first_error(peer: Peer, board: str, since_ns: int, text: str = ""
+                 ) -> tuple[int, dict[str, tuple[int, str]]] | None:
+    for array in list(peer.diagnostics):
+        statuses = _statuses(array)
+        level, message = statuses.get(f"board {board}", (-1, ""))
+        stamp = _stamp_ns(array.header)
+        if stamp >= since_ns and level == 2 and text in message:
+            return stamp, statuses
+    return None
+
+
+def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
+    truth = run.truth
+    # A parameter set through ROS at run time, before the restart.
+    kp_ok, kp_reason = peer.set_double("L.Kp_Wheel_Pid.A", 400.0)
+    params_before = peer.board_parameters("L")
+    drive = lambda: peer.drive(0.2, 0.0)  # noqa: E731
+    peer.spin_until(lambda: truth.latest["t"] > run.at, "the restart", drive, timeout=60)
+    restart_ns = round(_epoch_of(truth.lines, run.at) * 1e9)
+    # Driving on (enable held all along): the node must refuse until L is reconfigured,
+    # then the enable drives again.
+    peer.spin_until(lambda: _first_error(peer, "L", restart_ns, "restarted") is not None,
+                    "board L's restart in diagnostics", drive)
+    peer.spin_until(lambda: _status(peer, "board L")[0] in (0, 1)
+                    and _status(peer, "supervision") == (0, "enabled"),
+                    "board L no longer ERROR and the robot enabled again", drive)
+    ok_ns = _stamp_ns(peer.diagnostics[-1].header)
+    x_again = truth.latest["x"]
+    peer.spin_until(lambda: truth.latest["x"] > x_again + 0.1, "driving again", drive)
+    peer.spin_for(0.3, drive)
+    peer.spin_for(0.5, lambda: peer.drive(0.0, 0.0))
+
+    first = _first_error(peer, "L", restart_ns)
+    assert first is not None
+    first_ns, at_first = first
+    restarted = _first_error(peer, "L", restart_ns, "restarted")
+    assert restarted is not None
+    lines = list(truth.lines)
+    # R's enable fell after the restart: by the node's RD (or its own watchdog).
+    after = [line for line in lines if line["t"] >= run.at]
+    r_off = next((line["boards"]["R"] for line in after
+                  if not line["boards"]["R"]["enabled"]), None)
+    odom = [(_stamp_ns(m.header), m.pose.pose.position.x, m.pose.pose.position.y)
+            for m in peer.odom]
+    jumps = [math.dist(a[1:], b[1:]) - TOP_SPEED * max(0, b[0] - a[0]) / 1e9
+             for a, b in itertools.pairwise(odom)]
+    board_now = truth.latest["boards"]["L"]["params"]
+    ros_now = peer.board_parameters("L")
+    return {
+        "kp_ok": kp_ok, "kp_reason": kp_reason,
+        "kp_ros_before": params_before.get("Kp_Wheel_PidA"),
+        "first_error_after_ms": (first_ns - restart_ns) / 1e6,
+        "first_error": at_first,
+        "restarted_message": restarted[1]["board L"][1],
+        "l_status_after": _status(peer, "board L"),
+        "ok_after_ms": (ok_ns - restart_ns) / 1e6,
+        "r_disabled_after_ms": None if r_off is None or r_off["disabled_s"] is None
+        else (r_off["disabled_s"] - run.at) * 1000,
+        "r_disabled_by": None if r_off is None else r_off["disabled_by"],
+        "r_pwm_when_off": None if r_off is None else [r_off["pwm_a"], r_off["pwm_b"]],
+        "ros_params": ros_now, "board_params": board_now,
+        "differing": sorted(name for name, value in ros_now.items()
+                            if float32(value) != float32(board_now.get(name, math.nan))),
+        "odom_messages": len(odom), "odom_worst_jump_m": max(jumps, default=math.inf),
+        "odom_worst_jump": _around_worst(odom, jumps, restart_ns),
+        "odom_after_ok": sum(1 for stamp, _, _ in odom if stamp > ok_ns),
+        "joints_after_ok": sum(1 for stamp, _, _ in peer.joints if stamp > ok_ns),
+        "x_driven_again": truth.latest["x"] - x_again,
+        "l_enabled_end": truth.latest["boards"]["L"]["enabled"],
+    }
+
+
+def _around_worst(odom: list[tuple[int, float, float]], jumps: list[float], since_ns: int
+                  ) -> list[tuple[float, float, float]]:
+    """The odom messages around the worst jump: (ms after ``since_ns``, x, y)."""
+    if not jumps:
+        return []
+    worst = jumps.index(max(jumps))
+    return [((stamp - since_ns) / 1e6, x, y) for stamp, x, y in odom[max(0, worst - 3):worst + 4]]
+
+
+def _stale_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
+    truth = run.truth
+    drive = lambda: peer.drive(0.2, 0.0)  # noqa: E731
+    peer.spin_until(lambda: truth.latest["t"] > run.at, "the telemetry loss", drive,
+                    timeout=60)
+    loss_ns = round(_epoch_of(truth.lines, run.at) * 1e9)
+    peer.spin_until(lambda: _first_error(peer, "R", loss_ns, "telemetry") is not None,
+                    "board R's telemetry stopped in diagnostics", drive)
+    peer.spin_until(lambda: truth.latest["t"] > run.at + 1.2
+                    and _status(peer, "board R")[0] in (0, 1)  # WARN: its TMs were lost
+                    and _status(peer, "supervision") == (0, "enabled"),
+                    "board R no longer ERROR and the robot enabled again", drive)
+    x_again = truth.latest["x"]
+    peer.spin_until(lambda: truth.latest["x"] > x_again + 0.1, "driving again", drive)
+    peer.spin_for(0.5, lambda: peer.drive(0.0, 0.0))
+    first = _first_error(peer, "R", loss_ns, "telemetry")
+    assert first is not None
+    first_ns, at_first = first
+    message = at_first["board R"][1]
+    silent_ms = float(message.split("none for ")[1].split(" ms")[0])
+    # The last joint_states before the ERROR: stamped on the boards' clock.
+    last_joint = max((stamp for stamp, _, _ in peer.joints if stamp < first_ns), default=0)
+    after = [line for line in truth.lines if line["t"] >= run.at]
+    l_off = next((line["boards"]["L"] for line in after
+                  if not line["boards"]["L"]["enabled"]), None)
+    return {
+        "first_error": at_first, "silent_ms": silent_ms,
+        "error_after_last_joint_ms": (first_ns - last_joint) / 1e6,
+        "error_after_loss_ms": (first_ns - loss_ns) / 1e6,
+        "l_disabled_after_ms": None if l_off is None or l_off["disabled_s"] is None
+        else (l_off["disabled_s"] - run.at) * 1000,
+        "l_disabled_by": None if l_off is None else l_off["disabled_by"],
+        "x_driven_again": truth.latest["x"] - x_again,
+    }
 
 
 def _status(peer: Peer, name: str) -> tuple[int, str]:
@@ -374,7 +606,7 @@ def main() -> None:
     rclpy.init()
     peer = Peer(namespace="/bot" if scenario == "kill" else "")
     try:
-        {"main": main_scenario, "kill": kill_scenario}[scenario](peer)
+        {"main": main_scenario, "kill": kill_scenario, "fault": fault_scenario}[scenario](peer)
     finally:
         peer.destroy_node()
         rclpy.shutdown()

@@ -2,9 +2,10 @@
 plain rclpy), with ``fpgaemu serve`` boards over ptys. Every process that creates a DDS
 participant runs inside tests/ros2/netns.sh: a private network namespace with loopback only.
 
-Both scenarios start at once (each in its own namespace) and each test waits for its
-scenario's verdicts. Without the ``ros2`` extra, or where network namespaces cannot be made,
-the tests skip, unless ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
+The scenarios run each in its own namespace (``main``, ``kill`` and ``docs`` at once,
+``fault`` after them) and each test waits for its scenario's verdicts. Without the ``ros2``
+extra, or where network namespaces cannot be made, the tests skip, unless
+``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
 
 from __future__ import annotations
 
@@ -70,15 +71,23 @@ class Scenario:
             [str(NETNS), *command], cwd=ROOT, env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self._checks: dict[str, dict[str, Any]] | None = None
+        self._ran_over = False
         self.output = ""
 
-    def checks(self) -> dict[str, dict[str, Any]]:
-        if self._checks is None:
+    def finish(self) -> bool:
+        """Wait for the peer to end (killed after the time limit); False if it ran over."""
+        if self.proc.returncode is None:
             try:
                 self.output, _ = self.proc.communicate(timeout=SCENARIO_TIMEOUT_S)
             except subprocess.TimeoutExpired:
                 self.kill()
                 self.output, _ = self.proc.communicate()
+                self._ran_over = True
+        return not self._ran_over
+
+    def checks(self) -> dict[str, dict[str, Any]]:
+        if self._checks is None:
+            if not self.finish():
                 pytest.fail(f"peer {self.name} ran over {SCENARIO_TIMEOUT_S} s:\n{self.output}")
             self._checks = {}
             if self.proc.returncode != 0:
@@ -99,10 +108,27 @@ class Scenario:
         return checks[name]
 
 
+class Scenarios(dict[str, Scenario]):
+    """The scenarios by name: ``main``, ``kill`` and ``docs`` start at once, side by side;
+    ``fault`` when first asked for, after they have ended: its timings are the node's and
+    the emulator's own, but three other ROS graphs starting beside it on two cores starve
+    its processes past the boards' request timeouts before anything is measured."""
+
+    def __init__(self, log_dir: Path) -> None:
+        super().__init__({name: Scenario(name, log_dir) for name in ("main", "kill", "docs")})
+        self.log_dir = log_dir
+
+    def __missing__(self, name: str) -> Scenario:
+        assert name == "fault", name
+        for scenario in list(self.values()):
+            scenario.finish()
+        self[name] = Scenario(name, self.log_dir)
+        return self[name]
+
+
 @pytest.fixture(scope="module")
 def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Scenario]]:
-    log_dir = tmp_path_factory.mktemp("roslog")
-    running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs")}
+    running = Scenarios(tmp_path_factory.mktemp("roslog"))
     yield running
     for scenario in running.values():
         scenario.kill()  # whatever it started too, finished or not
@@ -215,3 +241,55 @@ def test_the_example_session_in_the_docs_runs_as_shown(scenarios: dict[str, Scen
     assert ("set L.Kp_Wheel_Pid.A = -1.0: successful=False board L: Kp_Wheel_Pid must be a "
             "float ≥ 0 (and fit a float32); got -1.0") in printed
     assert "node exit 0" in printed
+
+
+def test_a_board_restarting_mid_drive_stops_the_robot_and_is_reconfigured(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["fault"].check("restart")
+    assert not facts.get("too_slow"), facts
+    # A Kp set through ROS at run time, before the restart.
+    assert facts["kp_ok"] and facts["kp_ros_before"] == 400.0, facts
+    # The node's first ERROR for board L after the restart (published in the callback that
+    # noticed it, stamped on the node's clock) already shows the robot stopped: the stop
+    # came with the first sign, not later.
+    level, message = facts["first_error"]["supervision"]
+    assert level == 2 and message.startswith("disabled: stopped:"), facts["first_error"]
+    assert facts["restarted_message"].startswith("restarted: reconfiguring"), facts
+    assert facts["l_status_after"] == [0, "alive"]  # then OK
+    # On the emulator's clock: board R's enable fell after L's power-cycle, its PWM 0.
+    assert facts["r_disabled_after_ms"] is not None and facts["r_disabled_after_ms"] >= 0
+    assert facts["r_pwm_when_off"] == [0, 0]
+    # Every ROS parameter of L reads back equal from the board afterwards, Kp 400 too.
+    assert facts["differing"] == [], facts["differing"]
+    assert facts["ros_params"]["Kp_Wheel_PidA"] == facts["board_params"]["Kp_Wheel_PidA"] \
+        == 400.0
+    assert facts["board_params"]["GetDataPeriodical"] == 1
+    # Odometry continuous across the restart (the encoder's reset is not motion); odom and
+    # joint_states flowing again; the enable held all along drives again once L is ready.
+    assert facts["odom_worst_jump_m"] < 0.01, facts["odom_worst_jump_m"]
+    assert facts["odom_after_ok"] > 10 and facts["joints_after_ok"] > 10, facts
+    assert facts["x_driven_again"] > 0.1
+
+
+def test_one_boards_telemetry_stopping_is_an_error_within_100_ms(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["fault"].check("stale")
+    assert not facts.get("too_slow"), facts
+    level, message = facts["first_error"]["board R"]
+    assert level == 2 and message.startswith("telemetry stopped: none for"), message
+    # The silence the node judged, on its own running time (a stalled node does not count
+    # its own stall), before it said ERROR: within 100 ms.
+    assert facts["silent_ms"] <= 100.0, facts
+    # That ERROR already shows the robot stopped; board L got the stop (its enable fell
+    # after R's telemetry stopped, on the emulator's clock); and it drives again after.
+    level, message = facts["first_error"]["supervision"]
+    assert level == 2 and message.startswith("disabled: stopped:"), facts["first_error"]
+    assert facts["l_disabled_after_ms"] is not None and facts["l_disabled_after_ms"] >= 0
+    assert facts["x_driven_again"] > 0.1
+
+
+def test_the_fault_runs_end_cleanly(scenarios: dict[str, Scenario]) -> None:
+    for check in ("restart", "stale"):
+        facts = scenarios["fault"].check(check)
+        assert facts["node_exit"] == 0 and facts["serve_exit"] == 0, facts
+    assert "Traceback" not in scenarios["fault"].output
