@@ -3,8 +3,8 @@ plain rclpy), with ``fpgaemu serve`` boards over ptys. Every process that create
 participant runs inside tests/ros2/netns.sh: a private network namespace with loopback only.
 
 The scenarios run each in its own namespace (``main``, ``kill`` and ``docs`` at once,
-``fault`` after them) and each test waits for its scenario's verdicts. Without the ``ros2``
-extra, or where network namespaces cannot be made, the tests skip, unless
+``fault`` and ``ddc`` after them) and each test waits for its scenario's verdicts. Without
+the ``ros2`` extra, or where network namespaces cannot be made, the tests skip, unless
 ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
 
 from __future__ import annotations
@@ -108,21 +108,26 @@ class Scenario:
         return checks[name]
 
 
+#: Scenarios started together once the first three have ended.
+LATER = ("fault", "ddc")
+
+
 class Scenarios(dict[str, Scenario]):
     """The scenarios by name: ``main``, ``kill`` and ``docs`` start at once, side by side;
-    ``fault`` when first asked for, after they have ended: its timings are the node's and
-    the emulator's own, but three other ROS graphs starting beside it on two cores starve
-    its processes past the boards' request timeouts before anything is measured."""
+    ``fault`` and ``ddc`` when first asked for, after they have ended: the fault timings
+    are the node's and the emulator's own, but five ROS graphs starting at once on two
+    cores starve serve past the boards' request timeouts before anything is measured."""
 
     def __init__(self, log_dir: Path) -> None:
         super().__init__({name: Scenario(name, log_dir) for name in ("main", "kill", "docs")})
         self.log_dir = log_dir
 
     def __missing__(self, name: str) -> Scenario:
-        assert name == "fault", name
+        assert name in LATER, name
         for scenario in list(self.values()):
             scenario.finish()
-        self[name] = Scenario(name, self.log_dir)
+        for later in LATER:
+            self[later] = Scenario(later, self.log_dir)
         return self[name]
 
 
@@ -293,3 +298,55 @@ def test_the_fault_runs_end_cleanly(scenarios: dict[str, Scenario]) -> None:
         facts = scenarios["fault"].check(check)
         assert facts["node_exit"] == 0 and facts["serve_exit"] == 0, facts
     assert "Traceback" not in scenarios["fault"].output
+
+
+# --- as diff_drive_controller's users expect (issue 28) -----------------------------------
+
+
+def test_the_first_cmd_vel_before_its_enable_is_held_and_sent(
+        scenarios: dict[str, Scenario]) -> None:
+    # One cmd_vel, taken by the node before any enable (it said it holds it), then only
+    # enable: the body moved on that one command, and came to rest by cmd_vel_timeout.
+    facts = scenarios["ddc"].check("first_cmd_vel")
+    assert facts["held"].startswith("command held: the robot is not enabled"), facts
+    assert facts["moving_v"] > 0.05
+    assert facts["supervision"] == [0, "enabled"]
+
+
+def test_a_flood_of_non_finite_cmd_vel_is_warned_about_not_logged_per_message(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("non_finite")
+    warnings = facts["warnings"]
+    # 3 s of them at up to 100 a second: one warning per 2 s, the next saying how many
+    # were not shown; the body never moved.
+    assert 1 <= len(warnings) <= 3, warnings
+    assert all(w.startswith("cmd_vel ignored: not finite (nan, 0.0)") for w in warnings)
+    assert len(warnings) == 1 or "more like it not shown" in warnings[1]
+    assert abs(facts["body_v"]) < 0.01
+
+
+def test_a_publisher_of_the_other_twist_type_is_named(scenarios: dict[str, Scenario]) -> None:
+    line = scenarios["ddc"].check("wrong_type")["line"]
+    assert "/stamped_teleop publishes geometry_msgs/msg/TwistStamped" in line
+    assert "use_stamped_vel:=true" in line
+    line = scenarios["ddc"].check("stamped")["line"]
+    assert "/peer publishes geometry_msgs/msg/Twist," in line
+    assert "use_stamped_vel:=false" in line
+
+
+def test_use_stamped_vel_drives_on_twist_stamped(scenarios: dict[str, Scenario]) -> None:
+    assert scenarios["ddc"].check("stamped")["driven_m"] > 0.1
+    assert scenarios["ddc"].check("stamped_node_exit")["code"] == 0
+
+
+def test_without_require_enable_cmd_vel_alone_drives_and_no_deadman_lapses(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("no_enable")
+    assert facts["ok"] and facts["reason"] == "", facts
+    # Driven on cmd_vel alone (the test waited for it), at rest after it stopped, and a
+    # second later (twice the deadman time, nothing on enable) still enabled.
+    assert facts["supervision"] == [0, "enabled"], facts
+    assert facts["enabled"] == {"L": True, "R": True}
+    assert facts["deadman_lines"] == []
+    assert scenarios["ddc"].check("node_exit")["code"] == 0
+    assert scenarios["ddc"].check("serve_exit")["code"] == 0

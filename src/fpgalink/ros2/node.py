@@ -30,7 +30,7 @@ import rclpy
 import rclpy.task
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -65,6 +65,9 @@ NODE_NAME = "fpgalink"
 DIAGNOSTICS_PERIOD_S = 1.0
 #: Twist/JointState references older than this bring the wheels to rest (a parameter).
 DEFAULT_CMD_TIMEOUT_S = 0.5
+#: A warning repeated within this is counted, not printed (a flood of bad cmd_vel).
+WARNING_PERIOD_S = 2.0
+CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/TwistStamped"}
 
 
 def board_parameter_name(board: str, param: Param, channel: int) -> str:
@@ -192,6 +195,13 @@ class RosBridge:
         self._last_odom_ns = 0
         self._last_command_at: float | None = None
         self._command_is_zero = True
+        #: a command that came while the robot was not enabled (the enable on its own
+        #: topic may come after it): sent when the robot is enabled, if still fresh
+        self._pending: tuple[Callable[[], object], bool, float] | None = None
+        #: warnings by kind: when one was last printed, and how many since were not
+        self._warned: dict[str, tuple[float, int]] = {}
+        self._wrong_cmd_vel_types: set[str] = set()
+        self._unnamed_checks: dict[str, int] = {}
         self._goal: asyncio.Task[None] | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
@@ -205,7 +215,10 @@ class RosBridge:
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
-        node.create_subscription(Twist, "cmd_vel", self._threadsafe(self._on_cmd_vel), 10)
+        stamped = bool(self._value("use_stamped_vel"))
+        self.cmd_vel_sub = node.create_subscription(
+            TwistStamped if stamped else Twist, "cmd_vel",
+            self._threadsafe(self._on_cmd_vel), 10)
         node.create_subscription(JointState, "wheel_refs",
                                  self._threadsafe(self._on_wheel_refs), 10)
         node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
@@ -237,6 +250,18 @@ class RosBridge:
             description="a board's telemetry missing for this many timer periods is a fault: "
                         "the robot stops until it comes again (50: 50 ms at 1 kHz)",
             integer_range=[IntegerRange(from_value=2, to_value=100_000, step=1)]))
+        double("enable_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
+               "with require_enable: true on enable at least this often keeps the robot "
+               "enabled (the seed's /globalEnable deadman), s")
+        node.declare_parameter("require_enable", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL,
+            description="true: the robot drives only while true arrives on enable (the "
+                        "deadman); false: cmd_vel enables it, cmd_vel_timeout brings the "
+                        "wheels to rest (as diff_drive_controller)"))
+        node.declare_parameter("use_stamped_vel", False, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="cmd_vel is geometry_msgs/TwistStamped (true, diff_drive_controller's "
+                        "Jazzy default) or Twist (false, Nav2's and teleop's default)"))
         for name, default in (("odom_frame", "odom"), ("base_frame", "base_link")):
             node.declare_parameter(name, default, ParameterDescriptor(
                 type=ParameterType.PARAMETER_STRING, description=f"frame id: {name}"))
@@ -248,7 +273,9 @@ class RosBridge:
         """Cache the node's own parameters (read per message at up to 1 kHz)."""
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
-            "base_frame", "telemetry_timeout_periods")}
+            "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
+            "use_stamped_vel")}
+        self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
             link.connection.stale_periods = int(self._node_values["telemetry_timeout_periods"])
@@ -319,10 +346,11 @@ class RosBridge:
             self.loop.call_soon_threadsafe(handler, message)
         return forward
 
-    def _on_cmd_vel(self, message: Twist) -> None:
-        v, omega = float(message.linear.x), float(message.angular.z)
+    def _on_cmd_vel(self, message: Twist | TwistStamped) -> None:
+        twist = message.twist if isinstance(message, TwistStamped) else message
+        v, omega = float(twist.linear.x), float(twist.angular.z)
         if not (math.isfinite(v) and math.isfinite(omega)):
-            self.log.warning(f"cmd_vel ignored: not finite ({v}, {omega})")
+            self._throttled_warning("non-finite", f"cmd_vel ignored: not finite ({v}, {omega})")
             return
         self._cancel_goal()
         self._command(lambda: self.robot.drive(v, omega), v == 0.0 and omega == 0.0)
@@ -358,32 +386,54 @@ class RosBridge:
         self._command(send, all(v == 0.0 for v in values))
 
     def _command(self, send: Callable[[], object], zero: bool) -> None:
+        if not self._value("require_enable") and self.robot.state is not State.ENABLED:
+            # Without the deadman a command is the request to drive.
+            try:
+                self.robot.enable()
+            except RobotStopped as exc:
+                self._throttled_warning("refused", f"command ignored: {exc}")
+                return
         try:
             send()
         except RobotStopped as exc:
-            self._throttled_warning(f"command ignored: {exc} (publish true on enable)")
+            # The enable, on its own topic, may come just after the command it goes with:
+            # held, and sent if the robot is enabled within cmd_vel_timeout.
+            self._pending = (send, zero, self.loop.time())
+            self._throttled_warning("not enabled", f"command held: {exc} (publish true on "
+                                    f"enable within cmd_vel_timeout to send it)")
             return
         except FpgalinkError as exc:
             self.log.warning(f"command ignored: {exc}")
             return
+        self._pending = None
         self._last_command_at = self.loop.time()
         self._command_is_zero = zero
 
-    _last_warning = 0.0
-
-    def _throttled_warning(self, text: str) -> None:
+    def _throttled_warning(self, kind: str, text: str) -> None:
+        """At most one warning of a kind per :data:`WARNING_PERIOD_S`, saying how many of
+        that kind were not printed since the last."""
         now = time.monotonic()
-        if now - self._last_warning > 2.0:
-            self._last_warning = now
-            self.log.warning(text)
+        last, quiet = self._warned.get(kind, (-math.inf, 0))
+        if now - last < WARNING_PERIOD_S:
+            self._warned[kind] = (last, quiet + 1)
+            return
+        self._warned[kind] = (now, 0)
+        self.log.warning(text + (f" ({quiet} more like it not shown)" if quiet else ""))
 
     def _on_enable(self, message: Bool) -> None:
         if message.data:
+            was = self.robot.state
             try:
                 self.robot.enable()
             except RobotStopped as exc:
-                self._throttled_warning(f"enable refused: {exc}")
+                self._throttled_warning("refused", f"enable refused: {exc}")
+                return
+            pending, self._pending = self._pending, None
+            if (was is not State.ENABLED and pending is not None
+                    and self.loop.time() - pending[2] <= float(self._value("cmd_vel_timeout"))):
+                self._command(pending[0], pending[1])
         elif self.robot.state is State.ENABLED:
+            self._pending = None
             self.robot.disable()
 
     def _on_goal(self, message: PoseStamped) -> None:
@@ -423,6 +473,7 @@ class RosBridge:
             self._tasks.append(asyncio.ensure_future(self._follow(board, link)))
         self._tasks += [asyncio.ensure_future(self._diagnostics_loop()),
                         asyncio.ensure_future(self._command_watchdog()),
+                        asyncio.ensure_future(self._enable_keeper()),
                         asyncio.ensure_future(self._supervision_log())]
         try:
             await asyncio.gather(*self._tasks)
@@ -549,6 +600,38 @@ class RosBridge:
         while True:
             await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
             self._publish_diagnostics()
+            self._check_cmd_vel_publishers()
+
+    async def _enable_keeper(self) -> None:
+        """Without ``require_enable`` this node renews the enable itself while the robot is
+        enabled (a fault still stops it; the next command asks again)."""
+        while True:
+            await asyncio.sleep(float(self._value("enable_timeout")) / 4)
+            if not self._value("require_enable") and self.robot.state is State.ENABLED:
+                with contextlib.suppress(RobotStopped):
+                    self.robot.enable()
+
+    def _check_cmd_vel_publishers(self) -> None:
+        """A publisher of the other Twist type on cmd_vel never matches this subscription:
+        its commands would vanish without a word. Said once per type."""
+        ours = CMD_VEL_TYPES[bool(self._value("use_stamped_vel"))]
+        topic = self.cmd_vel_sub.topic_name
+        for info in self.node.get_publishers_info_by_topic(topic):
+            kind = info.topic_type
+            if kind == ours or kind in self._wrong_cmd_vel_types:
+                continue
+            unknown = info.node_name.startswith("_NODE_NAME_UNKNOWN")
+            if unknown and self._unnamed_checks.get(kind, 0) < 3:
+                # Discovery gives the endpoint before its node's name: a moment more.
+                self._unnamed_checks[kind] = self._unnamed_checks.get(kind, 0) + 1
+                continue
+            who = ("a publisher (no ROS node name)" if unknown
+                   else f"{info.node_namespace.rstrip('/')}/{info.node_name}")
+            self._wrong_cmd_vel_types.add(kind)
+            self.log.error(
+                f"{topic}: {who} publishes {kind}, this node takes {ours}: those commands "
+                f"do not arrive (set "
+                f"use_stamped_vel:={'false' if ours.endswith('Stamped') else 'true'})")
 
     def _publish_diagnostics(self) -> None:
         self.diag_pub.publish(self.diagnostics(self.loop.time()))
