@@ -4,7 +4,7 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint demo bench clean iverilog cc firmware
+.PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
 
 # The ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags) is part of the test set-up: its
 # transitive pins are in ros2-constraints.txt.
@@ -32,6 +32,27 @@ ifeq ($(CC_FOUND),)
 	else sudo apt-get update -qq && sudo apt-get install -y -qq gcc libc6-dev >/dev/null; fi
 endif
 
+# CMake builds tf2_msgs (below) with the rosidl generators; a Debian package.
+CMAKE_FOUND := $(shell command -v cmake 2>/dev/null)
+cmake:
+ifeq ($(CMAKE_FOUND),)
+	@if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq cmake >/dev/null; \
+	else sudo apt-get update -qq && sudo apt-get install -y -qq cmake >/dev/null; fi
+endif
+
+# tf2_msgs (/tf, /tf_static) has no Jazzy wheel on PyPI: generated from the rosidl wheels that
+# are, its type hash checked against Jazzy's, installed into the venv (ros2/build_tf2_msgs.py).
+# Part of the tests' set-up only: the node runs without /tf where it is absent.
+TF2_STAMP := $(VENV)/.tf2-msgs-stamp
+$(TF2_STAMP): $(STAMP) ros2/build-requirements.txt ros2/build_tf2_msgs.py \
+		ros2/tf2_msgs/CMakeLists.txt ros2/tf2_msgs/package.xml ros2/tf2_msgs/msg/TFMessage.msg
+	$(PY) -m pip install --quiet -r ros2/build-requirements.txt -c ros2-constraints.txt
+	$(PY) ros2/build_tf2_msgs.py
+	touch $(TF2_STAMP)
+
+tf2-msgs: cmake cc
+	@$(MAKE) --no-print-directory $(TF2_STAMP)
+
 # The firmware core and the protocol code generated for it, built for this host (sizes printed).
 firmware: $(STAMP) cc
 	$(MAKE) -C firmware PYTHON=$(abspath $(PY))
@@ -39,7 +60,7 @@ firmware: $(STAMP) cc
 setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
-test: $(STAMP) iverilog cc
+test: $(STAMP) iverilog cc tf2-msgs
 	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 

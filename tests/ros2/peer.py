@@ -38,9 +38,15 @@ from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.srv import GetParameters, ListParameters, SetParameters
 from rclpy.context import Context
 from rclpy.node import Node
-from rclpy.qos import qos_profile_sensor_data
+from rclpy.qos import (
+    DurabilityPolicy,
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_sensor_data,
+)
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
+from tf2_msgs.msg import TFMessage
 
 PATIENCE = 30.0
 #: A truth line's tick is found among the published stamps within this of where the
@@ -116,8 +122,14 @@ class Peer(Node):
         # Deep queues: a busy peer must not lose the messages it checks.
         self.create_subscription(Odometry, "odom", self.odom.append, 1000)
         self.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
+        self.tf: list[TFMessage] = []
+        self.create_subscription(TFMessage, "/tf", self.tf.append, 1000)
         self.logs: list[tuple[int, str]] = []  # the node's /rosout: (level, text)
-        self.create_subscription(Log, "/rosout", self._on_log, 1000)
+        # As rcl publishes it: transient local, so what a node logs before discovery is
+        # delivered too.
+        self.create_subscription(Log, "/rosout", self._on_log, QoSProfile(
+            depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+            reliability=ReliabilityPolicy.RELIABLE))
         self.enable = self.create_publisher(Bool, "enable", 10)
         self.cmd = self.create_publisher(Twist, "cmd_vel", 10)
         self.goal = self.create_publisher(PoseStamped, "goal_pose", 10)
@@ -529,6 +541,7 @@ def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
                     and _status(peer, "supervision") == (0, "enabled"),
                     "board L no longer ERROR and the robot enabled again", drive)
     ok_ns = _stamp_ns(peer.diagnostics[-1].header)
+    l_after = _status(peer, "board L")  # (later a loaded machine may add faults of its own)
     x_again = truth.latest["x"]
     peer.spin_until(lambda: truth.latest["x"] > x_again + 0.1, "driving again", drive)
     peer.spin_for(0.3, drive)
@@ -557,7 +570,7 @@ def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
         "first_error_after_ms": (first_ns - restart_ns) / 1e6,
         "first_error": at_first,
         "restarted_message": restarted[1]["board L"][1],
-        "l_status_after": _status(peer, "board L"),
+        "l_status_after": l_after,
         "ok_after_ms": (ok_ns - restart_ns) / 1e6,
         "r_disabled_after_ms": None if r_off is None or r_off["disabled_s"] is None
         else (r_off["disabled_s"] - run.at) * 1000,
@@ -640,6 +653,31 @@ def other_participant(name: str) -> Iterator[Node]:
         rclpy.shutdown(context=context)
 
 
+#: fpgalink-ros2 where ``import tf2_msgs`` fails.
+WITHOUT_TF2_MSGS = ("import runpy, sys; sys.modules['tf2_msgs'] = None; "
+                    "sys.argv[0] = 'fpgalink-ros2'; "
+                    "runpy.run_module('fpgalink.ros2', run_name='__main__')")
+
+
+def _tf_against_odom(peer: Peer) -> dict[str, Any]:
+    """Each /tf transform against the odom message of the same stamp."""
+    odom = {_stamp_ns(m.header): m for m in peer.odom}
+    pairs = equal = 0
+    frames = set()
+    for message in peer.tf:
+        for transform in message.transforms:
+            frames.add((str(transform.header.frame_id), str(transform.child_frame_id)))
+            match = odom.get(_stamp_ns(transform.header))
+            if match is None:
+                continue
+            pairs += 1
+            t, p = transform.transform, match.pose.pose
+            equal += (t.translation.x == p.position.x and t.translation.y == p.position.y
+                      and t.translation.z == 0.0 and t.rotation == p.orientation)
+    return {"tf_messages": len(peer.tf), "odom_messages": len(peer.odom), "pairs": pairs,
+            "equal": equal, "frames": sorted(frames)}
+
+
 def ddc_scenario(peer: Peer) -> None:
     with contextlib.ExitStack() as exits:
         _ddc(peer, exits)
@@ -668,6 +706,7 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         moving_v = truth.latest["v"]
         peer.spin_until(lambda: abs(truth.latest["v"]) < 1e-3,
                         "at rest after cmd_vel_timeout, the enable held", peer.hold_enable)
+        report("tf", **_tf_against_odom(peer))
         report("first_cmd_vel", moving_v=moving_v, held=peer.logged("command held")[0],
                supervision=_status(peer, "supervision"))
 
@@ -710,11 +749,15 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
     finally:
         report("node_exit", code=node.stop())
     # use_stamped_vel: a node taking TwistStamped; this peer's Twist publisher is named.
-    node = start_node(ready, "-p", "use_stamped_vel:=true", *patient)
+    # This node runs where tf2_msgs cannot be imported: it says so, once, and runs.
+    peer.logs.clear()
+    started_ns = peer.get_clock().now().nanoseconds  # the node before it has ended
+    node = Process(sys.executable, "-c", WITHOUT_TF2_MSGS, *(f"--port={name}={url}"
+                   for name, url in ready.items()),
+                   "--ros-args", "-p", "use_stamped_vel:=true", *patient)
     try:
         teleop = exits.enter_context(other_participant("stamped_teleop"))
         stamped = teleop.create_publisher(TwistStamped, "cmd_vel", 10)
-        peer.logs.clear()
         peer.diagnostics.clear()
         peer.spin_until(lambda: peer.diagnostics, "the stamped node up")
         command = TwistStamped()
@@ -730,7 +773,9 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         peer.spin_until(lambda: peer.logged("publishes geometry_msgs/msg/Twist,"),
                         "the plain Twist publisher named", peer.hold_enable)
         report("stamped", driven_m=truth.latest["x"] - x0,
-               line=peer.logged("publishes geometry_msgs/msg/Twist,")[0])
+               line=peer.logged("publishes geometry_msgs/msg/Twist,")[0],
+               no_tf_lines=peer.logged("tf2_msgs is not installed"), tf_messages=sum(
+                   1 for m in peer.tf for t in m.transforms if _stamp_ns(t.header) > started_ns))
     finally:
         report("stamped_node_exit", code=node.stop())
         report("serve_exit", code=serve.stop())

@@ -30,7 +30,7 @@ import rclpy
 import rclpy.task
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, Twist, TwistStamped
+from geometry_msgs.msg import PoseStamped, TransformStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -44,7 +44,12 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_service import ParameterService
-from rclpy.qos import QoSProfile, qos_profile_parameters, qos_profile_sensor_data
+from rclpy.qos import (
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_parameters,
+    qos_profile_sensor_data,
+)
 from sensor_msgs.msg import JointState
 from std_msgs.msg import Bool
 
@@ -205,7 +210,7 @@ class RosBridge:
         self._goal: asyncio.Task[None] | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
-        self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0}
+        self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
         self._declare_node_parameters()
         self._read_node_parameters()
         self._sets = SampleSets(robot.description.boards, self._publish_period)
@@ -215,6 +220,13 @@ class RosBridge:
         self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", 10)
         self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
+        self.tf_type = _tf_message_type()
+        # /tf as tf2_ros's broadcaster publishes it (absolute, reliable, depth 100).
+        self.tf_pub = None if self.tf_type is None else node.create_publisher(
+            self.tf_type, "/tf", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        if self.tf_type is None and self._value("publish_odom_tf"):
+            self.log.warning("publish_odom_tf: tf2_msgs is not installed (Jazzy has no wheel "
+                             "of it; `make tf2-msgs` generates it): running without /tf")
         stamped = bool(self._value("use_stamped_vel"))
         self.cmd_vel_sub = node.create_subscription(
             TwistStamped if stamped else Twist, "cmd_vel",
@@ -258,6 +270,9 @@ class RosBridge:
             description="true: the robot drives only while true arrives on enable (the "
                         "deadman); false: cmd_vel enables it, cmd_vel_timeout brings the "
                         "wheels to rest (as diff_drive_controller)"))
+        node.declare_parameter("publish_odom_tf", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL,
+            description="publish odom_frame -> base_frame on /tf with each odom"))
         node.declare_parameter("use_stamped_vel", False, ParameterDescriptor(
             type=ParameterType.PARAMETER_BOOL, read_only=True,
             description="cmd_vel is geometry_msgs/TwistStamped (true, diff_drive_controller's "
@@ -274,7 +289,7 @@ class RosBridge:
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
             "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
-            "use_stamped_vel")}
+            "use_stamped_vel", "publish_odom_tf")}
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
@@ -573,6 +588,16 @@ class RosBridge:
         message.pose.covariance = state.covariance_6x6()
         self.odom_pub.publish(message)
         self.published["odom"] += 1
+        if self.tf_pub is not None and self.tf_type is not None \
+                and self._value("publish_odom_tf"):
+            transform = TransformStamped()
+            transform.header = message.header
+            transform.child_frame_id = message.child_frame_id
+            transform.transform.translation.x = message.pose.pose.position.x
+            transform.transform.translation.y = message.pose.pose.position.y
+            transform.transform.rotation = message.pose.pose.orientation
+            self.tf_pub.publish(self.tf_type(transforms=[transform]))
+            self.published["tf"] += 1
         truth = self.robot.truth()
         if truth is not None and self.truth_pub is not None:
             true = Odometry()
@@ -648,6 +673,16 @@ class RosBridge:
 _FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
                           LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
                           LinkEventKind.TELEMETRY_STALE})
+
+
+def _tf_message_type() -> Any:
+    """tf2_msgs/msg/TFMessage, or ``None`` where tf2_msgs is not installed (ROS 2 Jazzy has
+    no PyPI wheel of it: ``make tf2-msgs`` generates it from the rosidl wheels)."""
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        return None
+    return TFMessage
 
 
 def diagnostic_status(status: Status) -> DiagnosticStatus:
