@@ -683,7 +683,18 @@ def ddc_scenario(peer: Peer) -> None:
         _ddc(peer, exits)
 
 
+def _bad_values() -> None:
+    """A bad ``-p`` at start: exit 2 with one line naming the parameter and its range."""
+    facts = {}
+    for value in ("cmd_vel_timeout:=-1.0", "joint_state_rate:=fast", "L.Kp_Wheel_Pid.A:=-5.0"):
+        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2", "--ros-args", "-p", value],
+                              capture_output=True, text=True, timeout=PATIENCE, check=False)
+        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
+    report("bad_values", **facts)
+
+
 def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
+    _bad_values()
     """What a diff_drive_controller user relies on: the first cmd_vel after enable not
     dropped, a flood of non-finite commands warned about without flooding the log, a
     publisher of the other Twist type named, driving on cmd_vel alone without the enable

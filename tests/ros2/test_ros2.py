@@ -374,3 +374,18 @@ def test_without_require_enable_cmd_vel_alone_drives_and_no_deadman_lapses(
         assert level == 2 and message.startswith("disabled: stopped:"), facts
     assert scenarios["ddc"].check("node_exit")["code"] == 0
     assert scenarios["ddc"].check("serve_exit")["code"] == 0
+
+
+def test_a_bad_ros_args_value_at_start_exits_2_with_one_line(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("bad_values")
+    expected = {"cmd_vel_timeout:=-1.0": ("cmd_vel_timeout", "Min: 0.05, Max: 10.0"),
+                "joint_state_rate:=fast": ("joint_state_rate", "expecting type 'DOUBLE'"),
+                "L.Kp_Wheel_Pid.A:=-5.0": ("L.Kp_Wheel_Pid.A", "must be a float ≥ 0")}
+    for value, (name, range_text) in expected.items():
+        result = facts[value]
+        assert result["code"] == 2, (value, result)
+        assert len(result["stderr"]) == 1, (value, result)
+        line = result["stderr"][0]
+        assert line.startswith("fpgalink-ros2: error: --ros-args -p: ") and name in line \
+            and range_text in line, line

@@ -55,7 +55,7 @@ from std_msgs.msg import Bool
 
 from fpgalink.aio.link import LinkEvent, LinkEventKind
 from fpgalink.boardclock import BOARD_CLOCK_WRAP_US, BoardClock
-from fpgalink.errors import FpgalinkError
+from fpgalink.errors import FpgalinkError, ParameterError, ParameterRefused, ValueMismatch
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, channel_name
 from fpgalink.protocol.robot import WHEEL_NAMES
@@ -64,7 +64,7 @@ from fpgalink.robot.health import Status
 from fpgalink.robot.joints import SampleSets
 from fpgalink.robot.supervision import State, StopReason
 
-__all__ = ["NODE_NAME", "RosBridge", "board_parameter_name", "spin_in_thread"]
+__all__ = ["NODE_NAME", "BadOverride", "RosBridge", "board_parameter_name", "spin_in_thread"]
 
 NODE_NAME = "fpgalink"
 DIAGNOSTICS_PERIOD_S = 1.0
@@ -73,6 +73,11 @@ DEFAULT_CMD_TIMEOUT_S = 0.5
 #: A warning repeated within this is counted, not printed (a flood of bad cmd_vel).
 WARNING_PERIOD_S = 2.0
 CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/TwistStamped"}
+
+
+class BadOverride(Exception):
+    """A board parameter's ``--ros-args -p`` value that the board (or the host's check of
+    its range) does not take: a usage error."""
 
 
 def board_parameter_name(board: str, param: Param, channel: int) -> str:
@@ -313,7 +318,12 @@ class RosBridge:
                     declared = self.node.declare_parameter(
                         name, on_board, _descriptor(param, board)).value
                     if declared != on_board:  # an override from the command line
-                        confirmed = await link.set_param(param.id, declared, channel or None)
+                        try:
+                            confirmed = await link.set_param(param.id, declared,
+                                                             channel or None)
+                        except (ParameterError, ParameterRefused, ValueMismatch) as exc:
+                            # The value given is wrong (a board not answering is not).
+                            raise BadOverride(f"{name}: {exc}") from None
                         self.node.set_parameters([Parameter(name, value=confirmed)])
 
     async def set_parameter(self, parameter: Parameter) -> SetParametersResult:
