@@ -121,7 +121,11 @@ class Peer(Node):
                                  qos_profile_sensor_data)
         # Deep queues: a busy peer must not lose the messages it checks.
         self.create_subscription(Odometry, "odom", self.odom.append, 1000)
-        self.create_subscription(DiagnosticArray, "diagnostics", self.diagnostics.append, 100)
+        self.create_subscription(DiagnosticArray, "/diagnostics", self.diagnostics.append, 100)
+        # joint_states again, reliable (as robot_state_publisher subscribes): counted
+        self.reliable_joints: list[int] = []  # stamps, ns
+        self.create_subscription(JointState, "joint_states", self._on_reliable_joints,
+                                 QoSProfile(depth=10, reliability=ReliabilityPolicy.RELIABLE))
         self.tf: list[TFMessage] = []
         self.create_subscription(TFMessage, "/tf", self.tf.append, 1000)
         self.logs: list[tuple[int, str]] = []  # the node's /rosout: (level, text)
@@ -143,6 +147,9 @@ class Peer(Node):
 
     def logged(self, text: str) -> list[str]:
         return [line for _, line in self.logs if text in line]
+
+    def _on_reliable_joints(self, message: JointState) -> None:
+        self.reliable_joints.append(_stamp_ns(message.header))
 
     def _on_joints(self, message: JointState) -> None:
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
@@ -455,6 +462,8 @@ class FaultRun:
 
     def __init__(self, peer: Peer, fault: str, at: float) -> None:
         self.peer, self.at = peer, at
+        #: messages stamped before this are an earlier run's, arriving late
+        self.started_ns = peer.get_clock().now().nanoseconds
         self.serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
                              "--surface", "ideal", "--fault", fault)
         ready = {line[1]: line[2] for line in self.serve.ready_lines(3)}
@@ -558,7 +567,7 @@ def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
     r_off = next((line["boards"]["R"] for line in after
                   if not line["boards"]["R"]["enabled"]), None)
     odom = [(_stamp_ns(m.header), m.pose.pose.position.x, m.pose.pose.position.y)
-            for m in peer.odom]
+            for m in peer.odom if _stamp_ns(m.header) >= run.started_ns]
     jumps = [math.dist(a[1:], b[1:]) - TOP_SPEED * max(0, b[0] - a[0]) / 1e9
              for a, b in itertools.pairwise(odom)]
     board_now = truth.latest["boards"]["L"]["params"]
@@ -718,6 +727,8 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         peer.spin_until(lambda: abs(truth.latest["v"]) < 1e-3,
                         "at rest after cmd_vel_timeout, the enable held", peer.hold_enable)
         report("tf", **_tf_against_odom(peer))
+        report("joint_states_qos", reliable=len(peer.reliable_joints),
+               best_effort=len(peer.joints))
         report("first_cmd_vel", moving_v=moving_v, held=peer.logged("command held")[0],
                supervision=_status(peer, "supervision"))
 
@@ -743,6 +754,12 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
                             "the other type named", peer.hold_enable)
         report("wrong_type", line=peer.logged("publishes geometry_msgs/msg/TwistStamped")[0])
 
+        # Another node of the node's own name: the node warns.
+        with other_participant(NODE):
+            peer.spin_until(lambda: peer.logged("another node is named"), "the name clash said",
+                            peer.hold_enable)
+        report("name_clash", lines=peer.logged("another node is named"))
+
         # require_enable false: cmd_vel alone drives; silence brings the wheels to rest by
         # cmd_vel_timeout and the robot stays enabled (no deadman).
         ok, reason = peer.set_bool("require_enable", False)
@@ -765,7 +782,8 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
     started_ns = peer.get_clock().now().nanoseconds  # the node before it has ended
     node = Process(sys.executable, "-c", WITHOUT_TF2_MSGS, *(f"--port={name}={url}"
                    for name, url in ready.items()),
-                   "--ros-args", "-p", "use_stamped_vel:=true", *patient)
+                   "--ros-args", "-p", "use_stamped_vel:=true",
+                   "-p", "joint_states_best_effort:=true", *patient)
     try:
         teleop = exits.enter_context(other_participant("stamped_teleop"))
         stamped = teleop.create_publisher(TwistStamped, "cmd_vel", 10)
@@ -785,8 +803,11 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
                         "the plain Twist publisher named", peer.hold_enable)
         report("stamped", driven_m=truth.latest["x"] - x0,
                line=peer.logged("publishes geometry_msgs/msg/Twist,")[0],
-               no_tf_lines=peer.logged("tf2_msgs is not installed"), tf_messages=sum(
-                   1 for m in peer.tf for t in m.transforms if _stamp_ns(t.header) > started_ns))
+               no_tf_lines=peer.logged("tf2_msgs is not installed"),
+               reliable_joints=sum(1 for stamp in peer.reliable_joints if stamp > started_ns),
+               best_effort_joints=sum(1 for stamp, _, _ in peer.joints if stamp > started_ns),
+               tf_messages=sum(1 for m in peer.tf for t in m.transforms
+                               if _stamp_ns(t.header) > started_ns))
     finally:
         report("stamped_node_exit", code=node.stop())
         report("serve_exit", code=serve.stop())

@@ -273,7 +273,7 @@ def test_a_board_restarting_mid_drive_stops_the_robot_and_is_reconfigured(
     assert facts["board_params"]["GetDataPeriodical"] == 1
     # Odometry continuous across the restart (the encoder's reset is not motion); odom and
     # joint_states flowing again; the enable held all along drives again once L is ready.
-    assert facts["odom_worst_jump_m"] < 0.01, facts["odom_worst_jump_m"]
+    assert facts["odom_worst_jump_m"] < 0.01, (facts["odom_worst_jump_m"], facts["odom_worst_jump"])
     assert facts["odom_after_ok"] > 10 and facts["joints_after_ok"] > 10, facts
     assert facts["x_driven_again"] > 0.1
 
@@ -389,3 +389,17 @@ def test_a_bad_ros_args_value_at_start_exits_2_with_one_line(
         line = result["stderr"][0]
         assert line.startswith("fpgalink-ros2: error: --ros-args -p: ") and name in line \
             and range_text in line, line
+
+
+def test_joint_states_are_reliable_by_default_and_best_effort_on_request(
+        scenarios: dict[str, Scenario]) -> None:
+    # A reliable subscriber (robot_state_publisher's) matches only a reliable publisher.
+    facts = scenarios["ddc"].check("joint_states_qos")
+    assert facts["reliable"] > 20 and facts["best_effort"] > 20, facts
+    facts = scenarios["ddc"].check("stamped")  # that node: joint_states_best_effort:=true
+    assert facts["reliable_joints"] == 0 and facts["best_effort_joints"] > 20, facts
+
+
+def test_another_node_of_the_same_name_is_warned_about(scenarios: dict[str, Scenario]) -> None:
+    lines = scenarios["ddc"].check("name_clash")["lines"]
+    assert len(lines) == 1 and lines[0].startswith("another node is named /fpgalink"), lines

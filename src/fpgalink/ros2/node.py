@@ -8,7 +8,9 @@ the board, so a set reports success only after the board's echo matched.
 
 Topics (relative names, so ``--ros-args -r __ns:=/robot`` and remaps work): see
 docs/ros2.md. ROS parameters: the node's own (``joint_state_rate``, ``cmd_vel_timeout``,
-``goal_tolerance``, ``odom_frame``, ``base_frame``) and every board parameter as
+``goal_tolerance``, ``odom_frame``, ``base_frame``, ``telemetry_timeout_periods``,
+``require_enable``, ``enable_timeout``, ``use_stamped_vel``, ``publish_odom_tf``,
+``joint_states_best_effort``) and every board parameter as
 ``BOARD.NAME`` or ``BOARD.NAME.CHANNEL`` (``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``).
 """
 
@@ -203,6 +205,7 @@ class RosBridge:
         self._board_params: dict[str, tuple[str, Param, int]] = {}
         self._clocks = {board: BoardClock() for board in robot.description.boards}
         self._last_odom_ns = 0
+        self._set_stamps: dict[str, int] = {}  #: each board's stamp of the last set
         self._last_command_at: float | None = None
         self._command_is_zero = True
         #: a command that came while the robot was not enabled (the enable on its own
@@ -212,6 +215,7 @@ class RosBridge:
         self._warned: dict[str, tuple[float, int]] = {}
         self._wrong_cmd_vel_types: set[str] = set()
         self._unnamed_checks: dict[str, int] = {}
+        self._name_clash_said = False
         self._goal: asyncio.Task[None] | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
@@ -219,10 +223,17 @@ class RosBridge:
         self._declare_node_parameters()
         self._read_node_parameters()
         self._sets = SampleSets(robot.description.boards, self._publish_period)
-        sensor: QoSProfile = qos_profile_sensor_data
-        self.joint_pub = node.create_publisher(JointState, "joint_states", sensor)
+        # Reliable as joint_state_broadcaster's (robot_state_publisher and most consumers
+        # subscribe reliable, which never matches a best-effort publisher); sensor-data QoS
+        # on request.
+        joint_qos: QoSProfile = (qos_profile_sensor_data if self._value("joint_states_best_effort")
+                                 else QoSProfile(depth=10,
+                                                 reliability=ReliabilityPolicy.RELIABLE))
+        self.joint_pub = node.create_publisher(JointState, "joint_states", joint_qos)
         self.odom_pub = node.create_publisher(Odometry, "odom", 10)
-        self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", 10)
+        # Absolute, as diagnostic_updater publishes it (one /diagnostics for the whole
+        # graph, the statuses named after the node).
+        self.diag_pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
         self.tf_type = _tf_message_type()
@@ -275,6 +286,9 @@ class RosBridge:
             description="true: the robot drives only while true arrives on enable (the "
                         "deadman); false: cmd_vel enables it, cmd_vel_timeout brings the "
                         "wheels to rest (as diff_drive_controller)"))
+        node.declare_parameter("joint_states_best_effort", False, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="joint_states with sensor-data QoS (best effort) instead of reliable"))
         node.declare_parameter("publish_odom_tf", True, ParameterDescriptor(
             type=ParameterType.PARAMETER_BOOL,
             description="publish odom_frame -> base_frame on /tf with each odom"))
@@ -294,7 +308,7 @@ class RosBridge:
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
             "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
-            "use_stamped_vel", "publish_odom_tf")}
+            "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort")}
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
@@ -553,10 +567,9 @@ class RosBridge:
         if states is None:
             return None
         now_ns = self.node.get_clock().now().nanoseconds
-        boards = self.robot.description.boards
-        stamp_ns = self._clocks[boards[0]].ns(samples[boards[0]].t_us, now_ns)
-        for board in boards[1:]:
-            self._clocks[board].ns(samples[board].t_us, now_ns)
+        self._set_stamps = {board: self._clocks[board].ns(samples[board].t_us, now_ns)
+                            for board in self.robot.description.boards}
+        stamp_ns = self._set_stamps[self.robot.description.boards[0]]
         message = JointState()
         message.header.stamp = _time_msg(stamp_ns)
         message.name = list(states.names)
@@ -568,19 +581,23 @@ class RosBridge:
         return stamp_ns
 
     def _odometry_stamp(self, samples: dict[str, Telemetry], stamp_ns: int) -> int:
-        """The stamp of the robot's odometry now: the first board's sample it integrated
-        last, on the same mapping as ``stamp_ns`` (of ``samples``). The robot follows the
-        telemetry in its own task: on a loaded host this node's sets may lag it by tens of
-        ms, and a pose stamped with the set's time would run ahead of its stamp (2 cm at
-        0.2 m/s measured, a jump to any consumer that interpolates). Never earlier than the
-        odom before it."""
-        board = self.robot.description.boards[0]
-        latest = self.robot.latest.get(board)
-        if latest is not None:
+        """The stamp of the robot's odometry now: the robot follows the telemetry in its
+        own tasks, which on a loaded host run ahead of this node's sets by tens of ms, and a
+        pose stamped with the set's time ran ahead of its stamp (2 cm at 0.2 m/s measured,
+        a jump to any consumer that interpolates). The odometry steps once every board has
+        reported: its time is the earliest of the boards' latest samples, each mapped as
+        its sample in ``samples`` was. Never earlier than the odom before it."""
+        times = []
+        for board, set_ns in self._set_stamps.items():
+            latest = self.robot.latest.get(board)
+            if latest is None:
+                continue
             ahead_us = (latest.t_us - samples[board].t_us + BOARD_CLOCK_WRAP_US // 2) \
                 % BOARD_CLOCK_WRAP_US - BOARD_CLOCK_WRAP_US // 2
-            if abs(ahead_us) < 1_000_000:  # else a restart between them: the set's own
-                stamp_ns += ahead_us * 1000
+            if abs(ahead_us) < 1_000_000:  # else a restart between them: not comparable
+                times.append(set_ns + ahead_us * 1000)
+        if times:
+            stamp_ns = min(times)
         stamp_ns = max(stamp_ns, self._last_odom_ns + 1000)
         self._last_odom_ns = stamp_ns
         return stamp_ns
@@ -636,6 +653,7 @@ class RosBridge:
             await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
             self._publish_diagnostics()
             self._check_cmd_vel_publishers()
+            self._check_name_clash()
 
     async def _enable_keeper(self) -> None:
         """Without ``require_enable`` this node renews the enable itself while the robot is
@@ -645,6 +663,18 @@ class RosBridge:
             if not self._value("require_enable") and self.robot.state is State.ENABLED:
                 with contextlib.suppress(RobotStopped):
                     self.robot.enable()
+
+    def _check_name_clash(self) -> None:
+        """Another node of this name in this namespace: its parameters, services and
+        diagnostics would be mistaken for this one's. Said once."""
+        if self._name_clash_said:
+            return
+        me = (self.node.get_name(), self.node.get_namespace())
+        if self.node.get_node_names_and_namespaces().count(me) > 1:
+            self._name_clash_said = True
+            self.log.warning(f"another node is named {me[1].rstrip('/')}/{me[0]}: its "
+                             "parameters, services and diagnostics will be mistaken for this "
+                             "one's (rename one: -r __node:=NAME)")
 
     def _check_cmd_vel_publishers(self) -> None:
         """A publisher of the other Twist type on cmd_vel never matches this subscription:
@@ -675,7 +705,8 @@ class RosBridge:
     def diagnostics(self, now: float) -> DiagnosticArray:
         array = DiagnosticArray()
         array.header.stamp = self.node.get_clock().now().to_msg()
-        array.status = [diagnostic_status(status) for status in self.robot.health(now)]
+        array.status = [diagnostic_status(status, self.node.get_name())
+                        for status in self.robot.health(now)]
         return array
 
 
@@ -695,8 +726,8 @@ def _tf_message_type() -> Any:
     return TFMessage
 
 
-def diagnostic_status(status: Status) -> DiagnosticStatus:
-    return DiagnosticStatus(level=bytes([status.level]), name=f"{NODE_NAME}: {status.name}",
+def diagnostic_status(status: Status, node_name: str = NODE_NAME) -> DiagnosticStatus:
+    return DiagnosticStatus(level=bytes([status.level]), name=f"{node_name}: {status.name}",
                             message=status.message, hardware_id=status.hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in status.values])
 
