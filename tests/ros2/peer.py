@@ -714,9 +714,12 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
     truth = Truth(ready.pop("truth"))
     # As in the main scenario: a loaded machine's late telemetry is not what is tested here.
     patient = ("-p", "telemetry_timeout_periods:=1000")
-    node = start_node(ready, *patient)
+    # A misspelt -p: said, not silently ignored.
+    node = start_node(ready, *patient, "-p", "cmd_vel_timout:=1.0")
     try:
         peer.spin_until(lambda: len(peer.joints) > 20 and peer.diagnostics, "the node up")
+        peer.spin_until(lambda: peer.logged("-p cmd_vel_timout"), "the misspelt -p said")
+        report("unknown_parameter", lines=peer.logged("-p cmd_vel_timout"))
         # The first cmd_vel, before any enable: held (the node says so), then sent when
         # the enable comes. Nothing else is published on cmd_vel.
         peer.cmd.publish(_twist(0.2, 0.0))

@@ -403,3 +403,10 @@ def test_joint_states_are_reliable_by_default_and_best_effort_on_request(
 def test_another_node_of_the_same_name_is_warned_about(scenarios: dict[str, Scenario]) -> None:
     lines = scenarios["ddc"].check("name_clash")["lines"]
     assert len(lines) == 1 and lines[0].startswith("another node is named /fpgalink"), lines
+
+
+def test_a_p_value_for_no_parameter_of_the_node_is_said(scenarios: dict[str, Scenario]) -> None:
+    lines = scenarios["ddc"].check("unknown_parameter")["lines"]
+    assert len(lines) == 1 and lines[0].startswith(
+        "-p cmd_vel_timout: this node has no such parameter: ignored (did you mean "
+        "cmd_vel_timeout"), lines

@@ -20,6 +20,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import dataclasses
+import difflib
 import functools
 import math
 import threading
@@ -339,6 +340,16 @@ class RosBridge:
                             # The value given is wrong (a board not answering is not).
                             raise BadOverride(f"{name}: {exc}") from None
                         self.node.set_parameters([Parameter(name, value=confirmed)])
+        self._warn_unknown_overrides()
+
+    def _warn_unknown_overrides(self) -> None:
+        """A ``-p NAME:=VALUE`` for a parameter this node does not have is not silently
+        ignored: one warning per name, with the nearest names it has."""
+        overrides = getattr(self.node, "_parameter_overrides", {})  # rclpy keeps them here
+        for name in sorted(set(overrides) - {p for p in self.node._parameters}):
+            near = difflib.get_close_matches(name, list(self.node._parameters), n=3)
+            self.log.warning(f"-p {name}: this node has no such parameter: ignored"
+                             + (f" (did you mean {', '.join(near)}?)" if near else ""))
 
     async def set_parameter(self, parameter: Parameter) -> SetParametersResult:
         """One parameter from a ``set_parameters`` call (on the executor's thread)."""
