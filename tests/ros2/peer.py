@@ -668,6 +668,16 @@ WITHOUT_TF2_MSGS = ("import runpy, sys; sys.modules['tf2_msgs'] = None; "
                     "runpy.run_module('fpgalink.ros2', run_name='__main__')")
 
 
+def _turn_difference(peer: Peer) -> float:
+    """Turning in place at 0.1 rad/s on cmd_vel for 1.5 s: the median over its last 0.5 s
+    of the right side's measured wheel speed minus the left's, rad/s."""
+    start = time.monotonic()
+    peer.spin_for(1.5, lambda: peer.cmd.publish(_twist(0.0, 0.1)))
+    settled = [v for _, v, arrived in peer.joints if arrived > start + 1.0]
+    differences = sorted((v[2] + v[3] - v[0] - v[1]) / 2 for v in settled)
+    return differences[len(differences) // 2] if differences else math.nan
+
+
 def _tf_against_odom(peer: Peer) -> dict[str, Any]:
     """Each /tf transform against the odom message of the same stamp."""
     odom = {_stamp_ns(m.header): m for m in peer.odom}
@@ -777,6 +787,17 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
                supervision=_status(peer, "supervision"),
                enabled={n: b["enabled"] for n, b in truth.latest["boards"].items()},
                deadman_lines=peer.logged("deadman"))
+
+        # Kinematics as parameters: χ doubled at run time doubles the sides' wheel speed
+        # difference for the same turn (joint_states: the boards' measured speeds).
+        chi = peer.get_double("wheel_separation_multiplier")
+        turn_before = _turn_difference(peer)
+        chi_ok, chi_reason = peer.set_double("wheel_separation_multiplier", 2 * chi)
+        turn_after = _turn_difference(peer)
+        peer.spin_until(lambda: abs(truth.latest["omega"]) < 1e-3, "at rest after turning")
+        report("kinematics", chi=chi, separation=peer.get_double("wheel_separation"),
+               radius=peer.get_double("wheel_radius"), chi_ok=chi_ok, chi_reason=chi_reason,
+               before=turn_before, after=turn_after)
     finally:
         report("node_exit", code=node.stop())
     # use_stamped_vel: a node taking TwistStamped; this peer's Twist publisher is named.
@@ -786,7 +807,8 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
     node = Process(sys.executable, "-c", WITHOUT_TF2_MSGS, *(f"--port={name}={url}"
                    for name, url in ready.items()),
                    "--ros-args", "-p", "use_stamped_vel:=true",
-                   "-p", "joint_states_best_effort:=true", *patient)
+                   "-p", "joint_states_best_effort:=true", "-p", "wheel_separation:=0.7",
+                   *patient)
     try:
         teleop = exits.enter_context(other_participant("stamped_teleop"))
         stamped = teleop.create_publisher(TwistStamped, "cmd_vel", 10)
@@ -805,6 +827,7 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         peer.spin_until(lambda: peer.logged("publishes geometry_msgs/msg/Twist,"),
                         "the plain Twist publisher named", peer.hold_enable)
         report("stamped", driven_m=truth.latest["x"] - x0,
+               separation=peer.get_double("wheel_separation"),
                line=peer.logged("publishes geometry_msgs/msg/Twist,")[0],
                no_tf_lines=peer.logged("tf2_msgs is not installed"),
                reliable_joints=sum(1 for stamp in peer.reliable_joints if stamp > started_ns),

@@ -410,3 +410,18 @@ def test_a_p_value_for_no_parameter_of_the_node_is_said(scenarios: dict[str, Sce
     assert len(lines) == 1 and lines[0].startswith(
         "-p cmd_vel_timout: this node has no such parameter: ignored (did you mean "
         "cmd_vel_timeout"), lines
+
+
+def test_kinematics_are_ros_parameters_set_at_start_and_at_run_time(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("kinematics")
+    # The robot file's by default (the seed's 0.66 m track, 0.2 m wheels, χ 1.65 on gravel).
+    assert (facts["separation"], facts["radius"]) == (0.66, 0.2)
+    assert facts["chi"] > 1.0
+    assert facts["chi_ok"] and facts["chi_reason"] == "", facts
+    # χ doubled: the same turn asks twice the wheel speed difference (measured speeds, so
+    # within what the wheels' PI loops let through).
+    assert facts["before"] > 0.1
+    assert facts["after"] / facts["before"] == pytest.approx(2.0, rel=0.15), facts
+    # -p wheel_separation:=0.7 at start: taken, not ignored.
+    assert scenarios["ddc"].check("stamped")["separation"] == 0.7

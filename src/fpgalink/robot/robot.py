@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import functools
 import math
 from collections.abc import AsyncIterator, Callable, Mapping
@@ -27,7 +28,7 @@ from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import BoardResynced, Event, RequestDone, WatchdogLapsed
 from fpgalink.protocol import Telemetry
-from fpgalink.protocol.robot import Pose, RobotDescription
+from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot.drive import WheelCommand, wheel_command
 from fpgalink.robot.goto import GoTo, GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, WireUse, board_status, supervision_status
@@ -446,6 +447,26 @@ class Robot:
                 self._set_resolution(board, event.channel, int(event.value))
         elif event.param.name == "TorqueCoef":
             self.torque_coef[(board, event.channel)] = float(event.value)
+
+    def set_kinematics(self, *, wheel_radius: float | None = None, track: float | None = None,
+                       chi: float | None = None) -> SkidSteer:
+        """Drive and compute odometry with another wheel radius (m), track (m, between the
+        left and right wheels' centres) or skid-steer factor χ (≥ 1; it differs per
+        surface) from now on; the others kept. The pose so far stays. ``ValueError`` for a
+        value that is not finite and positive (χ: ≥ 1), and nothing changes."""
+        model = self.kinematics
+        radius = model.wheel_radius if wheel_radius is None else wheel_radius
+        new_track = model.track if track is None else track
+        new_chi = model.chi if chi is None else chi
+        for name, value, low in (("wheel_radius", radius, 0.0), ("track", new_track, 0.0),
+                                 ("chi", new_chi, 1.0)):
+            if not (math.isfinite(value) and (value > low if low == 0.0 else value >= low)):
+                raise ValueError(f"{name} must be a finite number "
+                                 f"{'> 0' if low == 0.0 else '≥ 1'}, got {value!r}")
+        self.kinematics = SkidSteer(radius, new_track, new_chi)
+        self.description = dataclasses.replace(self.description, wheel_radius=radius)
+        self.odometry.set_kinematics(self.description, self.kinematics)
+        return self.kinematics
 
     # --- driving --------------------------------------------------------------------------
 

@@ -279,6 +279,14 @@ class RosBridge:
             description="a board's telemetry missing for this many timer periods is a fault: "
                         "the robot stops until it comes again (50: 50 ms at 1 kHz)",
             integer_range=[IntegerRange(from_value=2, to_value=100_000, step=1)]))
+        model = self.robot.kinematics
+        double("wheel_radius", model.wheel_radius, 0.005, 5.0,
+               "wheel radius, m (default: the robot file's)")
+        double("wheel_separation", model.track, 0.05, 20.0,
+               "between the left and right wheels' centres, m (default: the robot file's)")
+        double("wheel_separation_multiplier", model.chi, 1.0, 20.0,
+               "the skid-steer factor χ: the effective track is χ × wheel_separation; it "
+               "differs per surface (default: the robot file's for its surface)")
         double("enable_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
                "with require_enable: true on enable at least this often keeps the robot "
                "enabled (the seed's /globalEnable deadman), s")
@@ -309,7 +317,15 @@ class RosBridge:
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
             "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
-            "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort")}
+            "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort", "wheel_radius",
+            "wheel_separation", "wheel_separation_multiplier")}
+        values = self._node_values
+        model = self.robot.kinematics
+        wanted = (float(values["wheel_radius"]), float(values["wheel_separation"]),
+                  float(values["wheel_separation_multiplier"]))
+        if wanted != (model.wheel_radius, model.track, model.chi):
+            # Drive and odometry with them from now on (ranges checked by the descriptors).
+            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2])
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
