@@ -150,7 +150,9 @@ def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
     # offset that maps board time onto ROS time, the message stamped at that tick holds
     # that tick's speeds, float32 then rad/s, exactly.
     assert facts["moving_lines"] >= 20
-    assert facts["at_stamp"] >= 10, facts
+    # A loaded host's node publishes a fraction of the 1 kHz sets (a set is skipped, never
+    # delayed); of those at a truth line's tick, every one must hold that tick's speeds.
+    assert facts["at_stamp"] >= 5, facts
     assert facts["equal_left"] == facts["at_stamp"], facts
     # The right board's sample is its latest at publishing: at most a tick from the left's.
     assert facts["equal_right"] >= 1, facts
