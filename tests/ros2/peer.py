@@ -471,8 +471,14 @@ class FaultRun:
         self.node = start_node(ready)
 
     def driving_before_the_fault(self) -> bool:
+        """False when it was not: too slow, or the node gave up at start (a loaded
+        machine's emulator not answering its first requests in time: exit 4)."""
         peer, truth = self.peer, self.truth
-        peer.spin_until(lambda: len(peer.joints) > 20, "joint_states")
+        peer.spin_until(lambda: len(peer.joints) > 20 or self.node.proc.poll() is not None,
+                        "joint_states")
+        if self.node.proc.poll() is not None:
+            print(f"the node exited {self.node.proc.returncode} at start: again", flush=True)
+            return False
         peer.spin_until(lambda: truth.latest["v"] > 0.05
                         and _status(peer, "supervision") == (0, "enabled"),
                         "the robot driving", lambda: peer.drive(0.2, 0.0))
@@ -508,7 +514,7 @@ def _fault_run(peer: Peer, check: str, body: Any) -> None:
                     return
                 print(f"{check}: the robot was stopped before the fault (a loaded machine's "
                       f"own fault): again", flush=True)
-            else:
+            elif run.node.proc.poll() is None:
                 at *= 2
         finally:
             run.stop()
