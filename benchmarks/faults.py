@@ -15,6 +15,7 @@ figures worth quoting: a loaded one adds its own delays (and its own faults).
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import math
 import os
@@ -33,7 +34,6 @@ from benchmarks._common import (
 )
 from fpgaemu.board import Board
 from fpgaemu.timeline import CLOCK_HZ
-from fpgalink.aio.link import LinkEvent, LinkEventKind
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot, RobotStopped
 from fpgalink.robot.supervision import State, SupervisionEvent
@@ -107,7 +107,7 @@ async def _in_process(fault: str, faulty: str, window_s: float) -> dict[str, flo
         fault_cycle = FAULT_AT_S * CLOCK_HZ
         truth = robot.truth()
         assert truth is not None
-        jumps = [math.dist(a, b) for a, b in zip(poses, poses[1:], strict=False)]
+        jumps = [math.dist(a, b) for a, b in itertools.pairwise(poses)]
         result = {
             "stopped_ms": (stop_cycle[0] - fault_cycle) / CLOCK_HZ * 1e3,
             "other_board_disabled_ms": (other_fell[0] - fault_cycle) / CLOCK_HZ * 1e3
