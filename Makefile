@@ -48,6 +48,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.link
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2
+	$(PY) -m benchmarks.flood --mb 5
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist

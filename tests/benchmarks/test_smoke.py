@@ -256,3 +256,18 @@ def test_ros2_quick(tmp_path: Path) -> None:
         assert result["matched"] > 0 and result["mismatched"] == 0
         latency = result["latency_ms"]
         assert latency["p50"] <= latency["p99"] <= latency["max"]
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_flood_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("flood", tmp_path)
+    assert "every byte" in stdout
+    assert set(report["cases"]) == {"pty", "tcp"}
+    for where, case in report["cases"].items():
+        assert case["exit_code"] == 0, where
+        # Every byte of the flood reached the board, none discarded, and the request after
+        # it was answered no sooner than the line could carry them.
+        assert case["every_byte_delivered"], (where, case["board"])
+        assert case["board"]["discarded"] == 0 and case["board"]["held_back"] >= 1, where
+        assert case["answer_s"] >= case["line_s"], where
+        assert case["rss_peak_kb"] >= case["rss_before_kb"] > 0, where
