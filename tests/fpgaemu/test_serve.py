@@ -123,3 +123,52 @@ def test_skipping_quiescent_ticks_changes_nothing() -> None:
     assert digest(trace(fast)) == digest(trace(full))
     fast_firmware: Any = fast.peripherals["firmware"]
     assert fast_firmware.timing.periods == firmware.timing.periods
+
+
+async def test_emu_transport_buffers_what_the_host_writes_and_pauses_the_protocol() -> None:
+    # emu:// dropped what the host wrote beyond the 4 KiB backlog; now it keeps it, feeds the
+    # line as it makes room, and tells the protocol to pause and resume as asyncio's
+    # transports do.
+    import asyncio
+
+    from fpgaemu.serve import open_emulated_transport
+    from fpgalink.protocol import ParamAck, ParamGet
+    from tests.support.flood import noise
+    from tests.support.wire import received
+
+    class Host(asyncio.Protocol):
+        def __init__(self) -> None:
+            self.calls: list[str] = []
+            self.wire = b""
+
+        def pause_writing(self) -> None:
+            self.calls.append("pause")
+
+        def resume_writing(self) -> None:
+            self.calls.append("resume")
+
+        def data_received(self, data: bytes) -> None:
+            self.wire += data
+
+    transport, protocol = await open_emulated_transport("emu://", 1_000_000, Host)
+    assert isinstance(protocol, Host) and isinstance(transport, asyncio.Transport)
+    transport.set_write_buffer_limits(high=8192)
+    assert transport.get_write_buffer_limits() == (2048, 8192)
+    payload = noise(20_000) + sent(ParamGet(1, 0))
+    for start in range(0, len(payload), 1000):
+        transport.write(payload[start:start + 1000])
+    assert protocol.calls == ["pause"]
+    # Held in the transport beyond what the line takes (a little more may have gone out
+    # while the writes were made: the line drains 100 bytes a millisecond).
+    assert 8192 < transport.get_write_buffer_size() <= len(payload) - RX_BACKLOG_BYTES
+    board: Any = transport.get_extra_info("board")
+    try:
+        async with asyncio.timeout(10):
+            while not any(isinstance(e, ParamAck) for e in received(protocol.wire)):
+                await asyncio.sleep(0.01)
+    finally:
+        transport.close()
+    assert protocol.calls == ["pause", "resume"]
+    assert transport.get_write_buffer_size() == 0
+    assert board.uartread.stats.bytes_sent == len(payload)  # every byte, none dropped
+    assert board.uartcommand.stats.noise_bytes == 20_000
