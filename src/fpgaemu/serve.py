@@ -980,8 +980,9 @@ TRUTH_SNDBUF_BYTES = 64 * 1024
 class _TruthReader(asyncio.Protocol):
     """One reader of the truth stream. What it sends is not even read."""
 
-    def __init__(self, endpoint: TruthEndpoint) -> None:
+    def __init__(self, endpoint: TruthEndpoint, connection: socket.socket) -> None:
         self.endpoint = endpoint
+        self.connection = connection  #: the accepted socket, while it is being attached
         self.transport: asyncio.WriteTransport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
@@ -1009,7 +1010,7 @@ class TruthEndpoint:
         self.listener = _Listener(host, port, self._accepted, _error_line(
             "busy: serve has no file descriptor left"), backlog=64)
         self._readers: set[_TruthReader] = set()
-        self._attaching = 0
+        self._attaching: set[socket.socket] = set()  #: accepted, not yet readers
         self._timer: asyncio.Handle | None = None
         self._tasks: set[asyncio.Task[None]] = set()
         self.publications = 0  #: lines built (each sent to every reader)
@@ -1036,7 +1037,7 @@ class TruthEndpoint:
         self.listener.open()
 
     def _accepted(self, connection: socket.socket) -> None:
-        if len(self._readers) + self._attaching >= MAX_TRUTH_READERS:
+        if len(self._readers) + len(self._attaching) >= MAX_TRUTH_READERS:
             self.turned_away += 1
             _turn_away(connection, _error_line(
                 f"busy: {MAX_TRUTH_READERS} truth readers are connected, the most serve "
@@ -1044,7 +1045,7 @@ class TruthEndpoint:
             return
         with contextlib.suppress(OSError):
             connection.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TRUTH_SNDBUF_BYTES)
-        self._attaching += 1
+        self._attaching.add(connection)
         task = asyncio.ensure_future(self._attach(connection))
         self._tasks.add(task)
         task.add_done_callback(self._tasks.discard)
@@ -1052,13 +1053,15 @@ class TruthEndpoint:
     async def _attach(self, connection: socket.socket) -> None:
         try:
             await asyncio.get_running_loop().connect_accepted_socket(
-                lambda: _TruthReader(self), connection)
+                lambda: _TruthReader(self, connection), connection)
         except OSError:
             connection.close()
         finally:
-            self._attaching -= 1
+            self._attaching.discard(connection)
 
     def _joined(self, reader: _TruthReader) -> None:
+        # A reader from now on, counted once: no longer among those being attached.
+        self._attaching.discard(reader.connection)
         self._readers.add(reader)
         if self._timer is None:  # the first reader: publish now, then every period
             self._timer = asyncio.get_running_loop().call_soon(self._publish)

@@ -112,7 +112,7 @@ async def start_serve(*args: str, boards: int = 1, **popen: Any) -> Serve:
                                   f"{(await server.stderr_text()).strip()}")
             word, name, where, *pointed = line.split()  # "ready L LINK -> /dev/pts/N"
             assert word == "ready", line
-            server.ready[name] = where
+            server.ready.setdefault(name, where)  # the first of a board's addresses
             if pointed:
                 server.links[name] = pointed[-1]
     except BaseException:
