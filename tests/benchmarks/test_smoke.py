@@ -277,3 +277,18 @@ def test_crc_ber_quick(tmp_path: Path) -> None:
             assert fast["accepted_corrupt"] == 0 and fast["crc_failures"] > 0, key
         else:
             assert fast["accepted_corrupt"] > 0, key  # without it, some get through
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_flood_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("flood", tmp_path)
+    assert "every byte" in stdout
+    assert set(report["cases"]) == {"pty", "tcp"}
+    for where, case in report["cases"].items():
+        assert case["exit_code"] == 0, where
+        # Every byte of the flood reached the board, none discarded, and the request after
+        # it was answered no sooner than the line could carry them.
+        assert case["every_byte_delivered"], (where, case["board"])
+        assert case["board"]["discarded"] == 0 and case["board"]["held_back"] >= 1, where
+        assert case["answer_s"] >= case["line_s"], where
+        assert case["rss_peak_kb"] >= case["rss_before_kb"] > 0, where

@@ -28,7 +28,7 @@ wheels slip sideways and the body turns slower than the speed difference says::
 from __future__ import annotations
 
 import math
-import tomllib
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -36,8 +36,10 @@ from typing import Any
 from fpgalink.protocol.errors import FpgalinkError, ParameterError
 from fpgalink.protocol.paramfile import Setting, parse_parameter_table
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
+from fpgalink.protocol.tomlfile import TomlFileError, load_toml, parse_toml
 
 __all__ = [
+    "BOARD_NAME",
     "LEFT_WHEELS",
     "RIGHT_WHEELS",
     "SEED_ROBOT_TOML",
@@ -48,6 +50,7 @@ __all__ = [
     "RobotDescription",
     "SkidSteer",
     "WheelMount",
+    "check_board_name",
     "integrate_arc",
     "load_robot",
     "parse_robot",
@@ -131,6 +134,26 @@ Kp_Wheel_Pid = 520.0
 Ti_Wheel_Pid = 0.24
 Td_Wheel_Pid = 0.0
 """
+
+#: A board's name: what the robot file's ``board``, ``[ports]`` keys, ``--port NAME=URL``
+#: and ``fpgaemu serve`` use; it appears in ready lines, topics and messages, so it is one
+#: word of letters, digits, ``_`` and ``-``.
+BOARD_NAME = re.compile(r"[A-Za-z0-9_-]+")
+
+# Geometry and limits below these make no robot: a wheel of zero radius, wheels of one side
+# on the centre line, a top speed nobody could drive at. The bounds are far below any real
+# robot (the seed's: radius 0.20 m, track 0.66 m, wheel base 0.58 m) and far above the
+# values (1e-300, 5e-324) whose divisions overflow the odometry.
+#: m: a 1 cm wheel (a micro-robot's) is the smallest
+MIN_WHEEL_RADIUS = 0.01
+#: m from the centre line to a wheel (the track is at least twice that)
+MIN_WHEEL_OFFSET = 0.01
+#: the smallest gear ratio (an overdrive of 100:1)
+MIN_GEAR_RATIO = 0.01
+#: deg/s at the wheel, m/s, deg/s of the body: the lowest top speeds accepted
+MIN_WHEEL_SPEED = 0.1
+MIN_LINEAR_SPEED = 0.001
+MIN_ANGULAR_SPEED = 0.1
 
 _TOP_KEYS = frozenset({"name", "wheel_radius", "gear_ratio", "max_wheel_speed",
                        "max_linear_speed", "max_angular_speed", "surface", "surfaces",
@@ -302,6 +325,21 @@ class RobotDescription:
         return list(chosen.values())
 
 
+def check_board_name(name: object, where: str) -> str:
+    """``name`` if it is a board name (:data:`BOARD_NAME`), else :class:`DescriptionError`
+    naming ``where``."""
+    if not isinstance(name, str) or not BOARD_NAME.fullmatch(name):
+        raise DescriptionError(f"{where}: a board name is letters, digits, _ and - (such as "
+                               f"\"L\"), got {_shown(name)}")
+    return name
+
+
+def _shown(value: object) -> str:
+    """``repr(value)`` cut to a line's worth: a hostile value is not echoed whole."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _number(table: Mapping[str, Any], key: str, where: str, *, low: float = 0.0,
             low_open: bool = True, high: float = math.inf) -> float:
     if key not in table:
@@ -312,7 +350,8 @@ def _number(table: Mapping[str, Any], key: str, where: str, *, low: float = 0.0,
         bound = f"> {low:g}" if low_open else f"≥ {low:g}"
         if high != math.inf:
             bound += f" and ≤ {high:g}"
-        raise DescriptionError(f"{where}{key}: must be a finite number {bound}, got {value!r}")
+        raise DescriptionError(f"{where}{key}: must be a finite number {bound}, got "
+                               f"{_shown(value)}")
     return float(value)
 
 
@@ -328,19 +367,37 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     :class:`DescriptionError` naming ``source`` and the key otherwise."""
     if isinstance(document, str):
         try:
-            document = tomllib.loads(document)
-        except tomllib.TOMLDecodeError as exc:
-            raise DescriptionError(f"{source}: not valid TOML: {exc}") from None
-    where = f"{source}: "
+            document = parse_toml(document, source)
+        except TomlFileError as exc:
+            raise DescriptionError(str(exc)) from None
+    if not isinstance(document, Mapping):
+        raise DescriptionError(f"{source}: not a robot description (a TOML table)")
+    try:
+        return _parse_robot(document, f"{source}: ")
+    except (TypeError, ValueError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:
+        if isinstance(exc, DescriptionError):
+            raise
+        # A value of a type no check above foresaw: still one line naming the file.
+        raise DescriptionError(f"{source}: a value of the wrong type "
+                               f"({type(exc).__name__}: {exc})") from None
+
+
+def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
     _unknown(document, _TOP_KEYS, where)
     name = document.get("name", "robot")
     if not isinstance(name, str):
-        raise DescriptionError(f"{where}name: must be a string, got {name!r}")
-    radius = _number(document, "wheel_radius", where, high=10.0)
-    gear = _number(document, "gear_ratio", where)
-    max_wheel = _number(document, "max_wheel_speed", where, high=1e5)
-    max_v = _number(document, "max_linear_speed", where, high=100.0)
-    max_w = _number(document, "max_angular_speed", where, high=1e4)
+        raise DescriptionError(f"{where}name: must be a string, got {_shown(name)}")
+    radius = _number(document, "wheel_radius", where, low=MIN_WHEEL_RADIUS, low_open=False,
+                     high=10.0)
+    gear = _number(document, "gear_ratio", where, low=MIN_GEAR_RATIO, low_open=False,
+                   high=1e4)
+    max_wheel = _number(document, "max_wheel_speed", where, low=MIN_WHEEL_SPEED,
+                        low_open=False, high=1e5)
+    max_v = _number(document, "max_linear_speed", where, low=MIN_LINEAR_SPEED,
+                    low_open=False, high=100.0)
+    max_w = _number(document, "max_angular_speed", where, low=MIN_ANGULAR_SPEED,
+                    low_open=False, high=1e4)
 
     surfaces_table = document.get("surfaces", {"ideal": 1.0})
     if not isinstance(surfaces_table, dict) or not surfaces_table:
@@ -348,8 +405,8 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     surfaces = {str(k): _number(surfaces_table, k, f"{where}surfaces.", low=1.0,
                                 low_open=False, high=10.0) for k in surfaces_table}
     surface = document.get("surface", next(iter(surfaces)))
-    if surface not in surfaces:
-        raise DescriptionError(f"{where}surface: {surface!r} is not in [surfaces] "
+    if not isinstance(surface, str) or surface not in surfaces:
+        raise DescriptionError(f"{where}surface: {_shown(surface)} is not in [surfaces] "
                                f"({', '.join(sorted(surfaces))})")
 
     wheels_table = document.get("wheels")
@@ -364,24 +421,25 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
         if not isinstance(entry, dict):
             raise DescriptionError(f"{where}wheels.{wheel_name}: missing")
         _unknown(entry, _WHEEL_KEYS, at)
-        board = entry.get("board")
-        if not isinstance(board, str) or not board.strip():
-            raise DescriptionError(f"{at}board: must be a board name such as \"L\", "
-                                   f"got {board!r}")
+        board = check_board_name(entry.get("board"), f"{at}board")
         channel = entry.get("channel")
-        if channel not in _CHANNELS:
-            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got {channel!r}")
+        if not isinstance(channel, str) or channel not in _CHANNELS:
+            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got "
+                                   f"{_shown(channel)}")
         forward = entry.get("forward", 1)
-        if forward not in (1, -1) or isinstance(forward, bool):
-            raise DescriptionError(f"{at}forward: must be 1 or -1, got {forward!r}")
+        if isinstance(forward, bool) or not isinstance(forward, int) or forward not in (1, -1):
+            raise DescriptionError(f"{at}forward: must be 1 or -1, got {_shown(forward)}")
         x = _number(entry, "x", at, low=-100.0, low_open=False, high=100.0)
         y = _number(entry, "y", at, low=-100.0, low_open=False, high=100.0)
         if (y > 0) != (wheel_name in LEFT_WHEELS) or y == 0:
             side = "left (y > 0)" if wheel_name in LEFT_WHEELS else "right (y < 0)"
             raise DescriptionError(f"{at}y: {wheel_name} is a {side} wheel in REP-103 "
                                    f"(x forward, y left), got {y!r}")
-        wheels.append(WheelMount(wheel_name, board.strip(), _CHANNELS[channel], x, y,
-                                 int(forward)))
+        if abs(y) < MIN_WHEEL_OFFSET:
+            raise DescriptionError(f"{at}y: a wheel at least {MIN_WHEEL_OFFSET:g} m from the "
+                                   f"centre line (the track is at least "
+                                   f"{2 * MIN_WHEEL_OFFSET:g} m), got {y!r}")
+        wheels.append(WheelMount(wheel_name, board, _CHANNELS[channel], x, y, int(forward)))
     used: dict[tuple[str, int], str] = {}
     for wheel in wheels:
         other = used.setdefault((wheel.board, wheel.channel), wheel.name)
@@ -405,7 +463,7 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     if not isinstance(board_table, dict):
         raise DescriptionError(f"{where}board_parameters: must be tables [board_parameters.NAME]")
     for board_name, table in board_table.items():
-        if board_name not in boards:
+        if not isinstance(board_name, str) or board_name not in boards:
             raise DescriptionError(f"{where}board_parameters.{board_name}: no such board "
                                    f"(the wheels name {', '.join(boards)})")
         per_board[board_name] = _settings(table, f"{where}board_parameters.{board_name}")
@@ -418,6 +476,13 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     if description.track <= 0 or description.wheelbase < 0:
         raise DescriptionError(f"{where}wheels: the left wheels must be left of the right "
                                "ones and the front wheels ahead of the rear ones")
+    for front, rear in (("FL", "BL"), ("FR", "BR")):
+        base = description.wheel(front).x - description.wheel(rear).x
+        if base < 2 * radius:
+            raise DescriptionError(
+                f"{where}wheels.{front}.x: the front and rear wheels of a side overlap: "
+                f"their centres are {base:g} m apart, less than a wheel's diameter "
+                f"({2 * radius:g} m)")
     return description
 
 
@@ -434,12 +499,10 @@ def load_robot(path: str, text: str | None = None) -> RobotDescription:
     """The robot file at ``path`` (``text`` when the caller already read it)."""
     if text is None:
         try:
-            with open(path, encoding="utf-8") as stream:
-                text = stream.read()
-        except OSError as exc:
-            raise DescriptionError(f"{path}: cannot read: {exc.strerror or exc}") from None
-        except UnicodeDecodeError:
-            raise DescriptionError(f"{path}: not UTF-8 text") from None
+            document = load_toml(path)
+        except TomlFileError as exc:
+            raise DescriptionError(str(exc)) from None
+        return parse_robot(document, path)
     return parse_robot(text, path)
 
 
