@@ -11,7 +11,7 @@ from urllib.parse import parse_qs, urlsplit
 from fpgaemu.board import Board, BoardConfig
 from fpgaemu.faults import parse_faults
 from fpgaemu.firmware import attach_firmware
-from fpgaemu.motor import GEARS, Motors
+from fpgaemu.motor import GEARS, DrivenMotors, Motors
 from fpgaemu.uart import DEFAULT_BAUD
 
 __all__ = ["EMU_OPTIONS", "board_from_url", "build_board", "parse_emu_options", "seed_option"]
@@ -29,13 +29,17 @@ def build_board(
     faults: list[str] | None = None,
     tx_byte_gap: int = 0,
     current_noise_a: float = 0.0,
+    wheels: str = "identified",
+    uart_rx: str = "edge",
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
     byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
-    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded). ``ValueError`` for
-    anything invalid."""
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``wheels`` what turns
+    the wheels: ``"identified"`` (the seed's identified plant, :class:`~fpgaemu.motor.Motors`)
+    or ``"driven"`` (motors as torque sources for a body's physics,
+    :class:`~fpgaemu.motor.DrivenMotors`). ``ValueError`` for anything invalid."""
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     wanted = parse_faults(faults or [])
@@ -43,7 +47,10 @@ def build_board(
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
     board = Board(config)
     attach_firmware(board, settings or {})
-    board.add_peripheral("motors", Motors(gear, current_noise_a))
+    if wheels not in ("identified", "driven"):
+        raise ValueError(f"wheels must be 'identified' or 'driven', got {wheels!r}")
+    motors = Motors if wheels == "identified" else DrivenMotors
+    board.add_peripheral("motors", motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())
     return board
 

@@ -96,20 +96,21 @@ def test_emulator_quick(tmp_path: Path) -> None:
     assert config["reps"] == 1 and config["emulated_s"] == 1.0
 
     assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "board.idle",
-                                    "robot"}
+                                    "robot", "robot.mujoco"}
     idle = report["cases"].pop("board.idle")
     (rep,) = idle["repetitions"]
     assert rep["periods"] == 10_000 and rep["tm_sent"] == 0 and rep["missed"] == 0
     for key, case in report["cases"].items():
         (rep,) = case["repetitions"]
-        boards = 2 if key == "robot" else 1
+        boards = 2 if key.startswith("robot") else 1
         assert rep["periods"] == 1000 and rep["missed"] == 0, key
         assert rep["tm_dropped"] == 0, key
         # Every period queued its TM; the last may still be on the wire when the run ends.
         assert rep["tm_sent"] == rep["periods"] * boards, key
         assert rep["tm_sent"] - boards <= rep["tm_finished"] <= rep["tm_sent"], key
         assert rep["rv_handled"] == rep["rv_sent"], key
-        expected_rv = {"board.tm_only": 0, "robot": 200}.get(key, 1000)  # robot: 2 × 100
+        # robot: 2 × 100
+        expected_rv = {"board.tm_only": 0, "robot": 200, "robot.mujoco": 200}.get(key, 1000)
         assert rep["rv_sent"] == expected_rv, key
         # A tick each (a TM nobody waits for has no event at its end), and an RV's STOP each.
         assert case["events"] >= boards * case["periods"] + rep["rv_sent"], key
@@ -121,7 +122,8 @@ def test_emulator_quick(tmp_path: Path) -> None:
         else:
             assert rep["tm_received"] is None, key
 
-    assert [t["case"] for t in report["targets"]] == ["board", "board.idle", "robot"]
+    assert [t["case"] for t in report["targets"]] == ["board", "board.idle", "robot",
+                                                      "robot.mujoco"]
     assert all(isinstance(t["pass"], bool) for t in report["targets"])
 
 

@@ -23,7 +23,7 @@ def idle_then_drive(skip_quiet: bool) -> tuple[EmulatedRobot, dict[str, Any], in
     """2 s idle from power-up, then enable and references arrive (mid-millisecond) and the
     robot drives for 0.5 s; returns the robot, what each board sent, and how many times the
     body was moved."""
-    robot = EmulatedRobot()
+    robot = EmulatedRobot(body="kinematic")
     follows = 0
     body_follow = robot.body.follow
 
