@@ -12,12 +12,13 @@ from fpgaemu.board import Board, BoardConfig
 from fpgaemu.faults import parse_faults
 from fpgaemu.firmware import attach_firmware
 from fpgaemu.motor import GEARS, DrivenMotors, Motors
-from fpgaemu.uart import DEFAULT_BAUD
+from fpgaemu.uart import DEFAULT_BAUD, UART_RX_MODES
 
-__all__ = ["EMU_OPTIONS", "board_from_url", "build_board", "parse_emu_options", "seed_option"]
+__all__ = ["EMU_OPTIONS", "UART_RX_MODES", "board_from_url", "build_board",
+           "parse_emu_options", "seed_option"]
 
 #: The query options an ``emu://`` URL understands.
-EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap")
+EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap", "uart_rx")
 
 
 def build_board(
@@ -36,15 +37,19 @@ def build_board(
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
     byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
-    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``wheels`` what turns
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``uart_rx`` how the
+    receiver finds a start bit (``edge`` or ``level``, :data:`UART_RX_MODES`); ``wheels`` what turns
     the wheels: ``"identified"`` (the seed's identified plant, :class:`~fpgaemu.motor.Motors`)
     or ``"driven"`` (motors as torque sources for a body's physics,
     :class:`~fpgaemu.motor.DrivenMotors`). ``ValueError`` for anything invalid."""
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
+    if uart_rx not in UART_RX_MODES:
+        raise ValueError(f"uart_rx must be {' or '.join(UART_RX_MODES)}, got {uart_rx!r}")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
-                         tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
+                         tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap,
+                         uart_rx=uart_rx)
     board = Board(config)
     attach_firmware(board, settings or {})
     if wheels not in ("identified", "driven"):
@@ -72,8 +77,8 @@ def seed_option(options: dict[str, list[str]]) -> int:
 
 
 def board_from_url(url: str, baud: int) -> Board:
-    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2`` → a board (``fault``
-    repeats)."""
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2&uart_rx=level`` → a board
+    (``fault`` repeats)."""
     parts = urlsplit(url)
     if parts.scheme != "emu" or parts.netloc or parts.path not in ("", "/"):
         raise ValueError(f"expected emu:// with optional ?{'&'.join(EMU_OPTIONS)} options")
@@ -83,4 +88,5 @@ def board_from_url(url: str, baud: int) -> Board:
         raise ValueError(f"emu:// tx_gap must be a whole number of cycles, got {gap_text!r}")
     return build_board(baud=baud, seed=seed_option(options),
                        gear=options.get("gear", ["high"])[-1],
-                       faults=options.get("fault", []), tx_byte_gap=int(gap_text))
+                       faults=options.get("fault", []), tx_byte_gap=int(gap_text),
+                       uart_rx=options.get("uart_rx", ["edge"])[-1])

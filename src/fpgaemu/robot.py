@@ -42,10 +42,13 @@ _log = logging.getLogger("fpgaemu")
 _said_fallback = False
 
 
-def default_body() -> str:
-    """``mujoco`` where MuJoCo is installed, else ``kinematic`` (said once, on the
-    ``fpgaemu`` logger)."""
+def default_body(surface: str | None = None) -> str:
+    """``mujoco`` where MuJoCo is installed (said once on the ``fpgaemu`` logger when it is
+    not), unless ``surface`` is one only the kinematic body knows (``ideal``: no slip, which
+    no physical ground gives, or a robot file's own): then ``kinematic``."""
     global _said_fallback
+    if surface is not None and surface not in physics.SURFACES:
+        return "kinematic"
     missing = physics.why_unavailable()
     if missing is None:
         return "mujoco"
@@ -67,10 +70,14 @@ def check_body(body: str, surface: str | None, description: RobotDescription) ->
             raise ValueError(f"surface {surface!r}: the mujoco body knows "
                              f"{', '.join(physics.SURFACES)}")
     elif surface is not None and surface not in description.surfaces:
+        known = f"the kinematic body knows {', '.join(description.surfaces)}"
+        ground = physics.SURFACES.get(surface)
+        if ground is None:
+            raise ValueError(f"surface {surface!r}: {known}; the mujoco body "
+                             f"{', '.join(physics.SURFACES)}")
         flat = " (it is flat: slopes and stairs need the mujoco body)" \
-            if surface in physics.SURFACES else ""
-        raise ValueError(f"surface {surface!r}: the kinematic body knows "
-                         f"{', '.join(description.surfaces)}{flat}")
+            if ground.slope_deg or ground.steps else ""
+        raise ValueError(f"surface {surface!r}: {known}{flat}")
 
 
 class EmulatedRobot:
@@ -92,13 +99,11 @@ class EmulatedRobot:
         physics_step_cycles: int = physics.STEP_CYCLES,
     ) -> None:
         self.description = description or seed_robot()
-        self.body_kind = body = body if body is not None else default_body()
-        check_body(body, surface, self.description)
         surface = surface or self.description.surface
+        self.body_kind = body = body if body is not None else default_body(surface)
+        check_body(body, surface, self.description)
         if surface in self.description.surfaces:
             self.description = self.description.on_surface(surface)
-        elif body == "mujoco" and surface not in physics.SURFACES:
-            check_body(body, surface, self.description)
         faults = faults or {}
         unknown = sorted(set(faults) - set(self.description.boards))
         if unknown:
