@@ -9,10 +9,10 @@ on a free joint; per wheel, two hinges about the axle: the motor's rotor and the
 coupled by the gearbox's compliance (a fixed tendon), with the parameters of
 :func:`fpgaemu.motor.drive_train`, so that a wheel in the air answers its duty as the
 seed's identified model does. The winding's torque (from the board's PWM through the
-motor's current, :meth:`WheelDrive.torque_over`) drives the rotor. Each tyre is a capsule
-along its axle, so its contacts' frames follow the wheel and friction can differ along and
-across it (MuJoCo's explicit contact pairs, five coefficients: across, along, torsional,
-rolling twice).
+motor's current, :meth:`WheelDrive.torque_over`) drives the rotor. Each tyre touches the
+ground at one point (a sphere of the wheel's radius: one contact per wheel keeps the solver
+fast), through an explicit contact pair with the surface's sliding, torsional and rolling
+friction (MuJoCo's elliptic cones).
 
 **Surfaces** (:data:`SURFACES`): contact parameters per ground, calibrated against the
 seed's §3.6 runs (docs/robot.md); gravel has a seeded stochastic friction field (the
@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from fpgaemu.motor import DriveTrain, WheelDrive
+from fpgaemu.motor import MAX_DUTY, DriveTrain, WheelDrive
 from fpgaemu.timeline import CLOCK_HZ, ms
 from fpgalink.protocol.robot import WHEEL_NAMES, Pose, RobotDescription, wrap_angle
 
@@ -71,6 +71,9 @@ HOLD_SHARE = 0.5
 #: still and the physics sleeps.
 SLEEP_SPEED = 2e-3
 STANDARD_GRAVITY = 9.81
+#: The IMU's mean is taken over every this many steps (8 ms: far above its output rate).
+IMU_PERIOD_STEPS = 4
+_DEGREES = 180.0 / math.pi
 #: At most this long (s) to let the body settle on the ground before time starts.
 SETTLE_S = 3.0
 
@@ -90,13 +93,12 @@ def available() -> bool:
 
 @dataclass(frozen=True, slots=True)
 class Surface:
-    """A ground and its contact with the tyres. Friction coefficients are MuJoCo's: sliding
-    across and along the tyre (dimensionless), torsional and rolling (m: the torque per newton
-    of load)."""
+    """A ground and its contact with the tyres, in MuJoCo's terms: sliding friction
+    (dimensionless), torsional and rolling friction (m: the torque per newton of load that
+    resists spinning on the spot and rolling)."""
 
     name: str
-    across: float  #: sliding friction across the tyre (sideways)
-    along: float  #: sliding friction along the tyre (its rolling direction)
+    sliding: float
     torsional: float = 0.0
     rolling: float = 0.0
     #: the friction field's relative spread (0: uniform) and correlation length (m)
@@ -111,19 +113,19 @@ class Surface:
 
 #: The grounds the physics body knows (docs/robot.md: calibration and assumptions).
 SURFACES: dict[str, Surface] = {s.name: s for s in (
-    Surface("gravel", across=0.76, along=0.80, torsional=0.005, rolling=0.002,
-            field_spread=0.10, field_length=0.4,
-            note="loose 0.8–1.1 cm gravel over soil (§3.6.2–3.6.6): less grip across the "
-                 "tyre (the stones roll like bearings), patchy"),
-    Surface("marble", across=0.85, along=0.80, torsional=0.005, rolling=0.0005,
-            note="a smooth marble floor (§3.6.4)"),
-    Surface("grass", across=0.60, along=0.60, torsional=0.01, rolling=0.01,
-            field_spread=0.15, field_length=0.6,
+    Surface("gravel", sliding=0.8, torsional=0.005, field_spread=0.10, field_length=0.4,
+            note="loose 0.8–1.1 cm gravel over soil (§3.6.2–3.6.6): the stones roll under "
+                 "the tyres (little torsional friction), and cover the ground unevenly "
+                 "(a friction field)"),
+    Surface("marble", sliding=0.8, torsional=0.08,
+            note="a smooth marble floor (§3.6.4): the tyres' whole contact patch grips, so "
+                 "turning on the spot meets more torsional friction"),
+    Surface("grass", sliding=0.6, torsional=0.02, rolling=0.01, field_spread=0.15,
+            field_length=0.6,
             note="short grass (§3.6.6 drove on it; no figure given): assumed"),
-    Surface("slope45-sand", across=1.05, along=1.05, torsional=0.02, rolling=0.005,
-            slope_deg=45.0,
+    Surface("slope45-sand", sliding=1.05, torsional=0.02, rolling=0.005, slope_deg=45.0,
             note="a 45° sandy slope with stones up to 4 cm (§3.6.7); sinking not modelled"),
-    Surface("stairs", across=0.8, along=0.8, torsional=0.005, rolling=0.001, steps=3,
+    Surface("stairs", sliding=0.8, torsional=0.005, steps=3,
             note="three 40° steps down, 0.17 m rise, 0.20 m run (§3.6.8: a 40° stair)"),
 )}
 
@@ -145,7 +147,6 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
     ``lifted``: the chassis fixed in the air, the wheels free (the motor test bench)."""
     body = description.body
     radius = description.wheel_radius
-    half_width = body.wheel_width / 2
     cx, cy, cz = body.chassis_com(description.wheels)
     ixx, iyy, izz = body.chassis_inertia
     length, width, height = body.chassis
@@ -165,8 +166,7 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
             f'armature="{_f(max(train.wheel_inertia - wheel_inertia, 0.0))}"/>'
             f'<inertial pos="0 0 0" mass="{_f(body.wheel_mass)}" '
             f'diaginertia="{_v((lateral, wheel_inertia, lateral))}"/>'
-            f'<geom name="{w.name}_tyre" type="capsule" size="{_f(radius)}" '
-            f'fromto="0 {_f(-half_width)} 0 0 {_f(half_width)} 0" contype="2" '
+            f'<geom name="{w.name}_tyre" type="sphere" size="{_f(radius)}" contype="2" '
             'conaffinity="0" group="1" rgba="0.15 0.15 0.15 1"/></body>')
         tendons.append(
             f'<fixed name="{w.name}_gearbox" stiffness="{_f(train.stiffness)}" '
@@ -176,15 +176,19 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
     ground_names, ground_xml = _grounds(surface, radius)
     for w in description.wheels:
         for ground in ground_names:
-            friction = (surface.across, surface.along, surface.torsional, surface.rolling,
-                        surface.rolling)
-            pairs.append(f'<pair geom1="{w.name}_tyre" geom2="{ground}" condim="6" '
-                         f'friction="{_v(friction)}"/>')
+            friction = (surface.sliding, surface.sliding, surface.torsional,
+                        surface.rolling, surface.rolling)
+            # Rolling friction (condim 6) triples the contact solver's cost: only where
+            # the ground has any.
+            condim = 6 if surface.rolling else 4
+            pairs.append(f'<pair geom1="{w.name}_tyre" geom2="{ground}" '
+                         f'condim="{condim}" friction="{_v(friction)}"/>')
     start = _start(surface, radius, lifted)
     root = "" if lifted else '<freejoint name="root"/>'
     return f"""<mujoco model="{description.name}">
   <compiler angle="radian"/>
-  <option timestep="{_f(step_s)}" integrator="implicitfast" cone="elliptic" impratio="1"/>
+  <option timestep="{_f(step_s)}" integrator="implicitfast" cone="elliptic" impratio="1"
+          tolerance="1e-6"/>
   <size memory="4M"/>
   <worldbody>
     <light pos="0 -2 4" dir="0 0.5 -1"/>
@@ -331,6 +335,11 @@ class PhysicsBody:
         self._pair_wheel = np.array([names.index(tyre[:-5]) for tyre in tyres])
         self._base_friction = model.pair_friction[:, :2].copy()
         self._hold = HOLD_SHARE * train.stall_torque_nm
+        motor = train.motor
+        tau = motor.inductance_h / motor.resistance_ohm
+        #: for the drives' torque over a step (WheelDrive.torque_over, written out)
+        self._electrics = (motor.supply_v, motor.resistance_ohm, train.torque_constant,
+                           tau / self.dt * (1.0 - math.exp(-self.dt / tau)))
         self._held = [True] * len(names)
         for drive in self.drives:
             drive.on_stall = self._stall_changed
@@ -407,33 +416,49 @@ class PhysicsBody:
         if cycle1 - cycle0 != self.step_cycles:
             raise ValueError(f"an awake physics body steps {self.step_cycles} cycles at a "
                              f"time, not {cycle1 - cycle0}")
-        mujoco, model, data, dt = self._mujoco, self.model, self.data, self.dt
-        held = self._held
+        model, data, dt = self.model, self.data, self.dt
+        held, stalled = self._held, self._stalled
+        # The drives' torques over the step (WheelDrive.torque_over) and the worm gears'
+        # holds, written out: this runs every physics step.
+        supply, resistance, k, share = self._electrics
+        torques = []
+        powered = False
         for i, drive in enumerate(drives):
-            hold = not drive.duty and abs(drive.wheel_speed_dps) < HOLD_BAND_DPS
-            if hold != held[i] and not self._stalled[i]:
+            duty = drive.duty
+            if duty:
+                powered = True
+            hold = not duty and -HOLD_BAND_DPS < drive.wheel_speed_dps < HOLD_BAND_DPS
+            if hold != held[i] and not stalled[i]:
                 held[i] = hold
                 model.dof_frictionloss[self._rotor_dof[i]] = self._hold if hold else 0.0
-        data.ctrl[:] = [drive.torque_over(dt) for drive in drives]
-        if self._field.active and self.steps % FIELD_PERIOD_STEPS == 0:
-            self._update_friction()
-        mujoco.mj_step(model, data)
-        self.steps += 1
+            steady = (supply * duty / MAX_DUTY - k * drive.rotor_speed) / resistance
+            torques.append(k * (steady + (drive.current - steady) * share))
+        data.ctrl[:] = torques
+        steps = self.steps
+        if not steps % FIELD_PERIOD_STEPS:
+            if self._field.active:
+                self._update_friction()
+            if not self.lifted:
+                self._track_distance()
+        self._mujoco.mj_step(model, data)
+        self.steps = steps + 1
         self.cycle = cycle1
-        self._imu_sum += data.sensordata[:6]
-        self._imu_steps += 1
+        if not steps % IMU_PERIOD_STEPS:
+            self._imu_sum += data.sensordata[:6]
+            self._imu_steps += 1
         positions = data.qpos[self._gather].tolist()
         n = len(drives)
         wheels, rotors = positions[:n], positions[n:]
-        degrees = math.degrees
+        angles, last_rotors = self._angles, self._rotors
+        to_degrees = _DEGREES
         for i, drive in enumerate(drives):
-            moved = wheels[i] - self._angles[i]
-            drive.follow_physics(cycle0, cycle1, degrees(wheels[i]), degrees(moved / dt),
-                                 (rotors[i] - self._rotors[i]) / dt)
+            # WheelDrive.follow_physics, written out
+            drive._c0, drive._a0 = cycle0, drive._a1
+            drive._c1, drive._a1 = cycle1, wheels[i] * to_degrees
+            drive.wheel_speed_dps = (wheels[i] - angles[i]) * to_degrees / dt
+            drive.rotor_speed = (rotors[i] - last_rotors[i]) / dt
         self._angles, self._rotors = wheels, rotors
-        if self.steps % FIELD_PERIOD_STEPS == 0 and not self.lifted:
-            self._track_distance()
-        if all(held) and not any(d.duty for d in drives):
+        if not powered and all(held):
             self._maybe_sleep()
 
     def _update_friction(self) -> None:
