@@ -71,6 +71,9 @@ HOLD_SHARE = 0.5
 #: still and the physics sleeps.
 SLEEP_SPEED = 2e-3
 STANDARD_GRAVITY = 9.81
+#: The rotor body's own mass (kg; its inertia is the joint's armature), taken off the
+#: chassis's so the robot weighs what its description says.
+ROTOR_MASS = 0.05
 #: The IMU's mean is taken over every this many steps (8 ms: far above its output rate).
 IMU_PERIOD_STEPS = 4
 _DEGREES = 180.0 / math.pi
@@ -160,7 +163,8 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
             f'<body name="{w.name}_rotor" pos="{_v((w.x, w.y, 0.0))}">'
             f'<joint name="{w.name}_rotor" axis="{axis}" armature="{_f(train.rotor_inertia)}" '
             f'damping="{_f(train.rotor_friction)}" frictionloss="{_f(hold)}"/>'
-            '<inertial pos="0 0 0" mass="0.05" diaginertia="1e-4 1e-4 1e-4"/></body>'
+            f'<inertial pos="0 0 0" mass="{_f(ROTOR_MASS)}" diaginertia="1e-4 1e-4 1e-4"/>'
+            '</body>'
             f'<body name="{w.name}_link" pos="{_v((w.x, w.y, 0.0))}">'
             f'<joint name="{w.name}" axis="{axis}" '
             f'armature="{_f(max(train.wheel_inertia - wheel_inertia, 0.0))}"/>'
@@ -195,7 +199,7 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
     {ground_xml}
     <body name="base_link" pos="{_v(start[0])}" quat="{_v(start[1])}">
       {root}
-      <inertial pos="{_v((cx, cy, cz))}" mass="{_f(body.chassis_mass)}"
+      <inertial pos="{_v((cx, cy, cz))}" mass="{_f(body.chassis_mass - 4 * ROTOR_MASS)}"
                 diaginertia="{_v((ixx, iyy, izz))}"/>
       <geom name="chassis" type="box" size="{_v((length / 2, width / 2, height / 2))}"
             pos="0 0 {_f(body.chassis_z)}" mass="0" contype="1" conaffinity="0"
@@ -271,11 +275,16 @@ class ImuReading:
     linear_acceleration: tuple[float, float, float]
     #: the body's true orientation (w, x, y, z), for a consumer that wants one
     orientation: tuple[float, float, float, float]
+    #: the noise's variance per axis in this reading ((rad/s)², (m/s²)²)
+    angular_velocity_variance: float = 0.0
+    linear_acceleration_variance: float = 0.0
 
     def record(self) -> dict[str, Any]:
         return {"t": self.t, "angular_velocity": list(self.angular_velocity),
                 "linear_acceleration": list(self.linear_acceleration),
-                "orientation": list(self.orientation)}
+                "orientation": list(self.orientation),
+                "angular_velocity_variance": self.angular_velocity_variance,
+                "linear_acceleration_variance": self.linear_acceleration_variance}
 
 
 @dataclass(frozen=True, slots=True)
@@ -527,19 +536,27 @@ class PhysicsBody:
         """The IMU's reading: the sensors' mean since the previous reading, with noise."""
         if self._imu_steps:
             mean = self._imu_sum / self._imu_steps
+        elif self.asleep:
+            # Still: no rotation, and the accelerometer feels only the ground holding the
+            # body up against gravity: g along the world's z, in the IMU's frame.
+            rotation = np.empty(9)
+            self._mujoco.mju_quat2Mat(rotation, self.data.qpos[3:7] if not self.lifted
+                                      else np.array([1.0, 0.0, 0.0, 0.0]))
+            mean = np.concatenate([np.zeros(3), STANDARD_GRAVITY * rotation[6:9]])
         else:
             mean = np.array(self.data.sensordata[:6])
         self._imu_sum[:] = 0.0
         self._imu_steps = 0
         imu = self.imu
         rng = self._rng
-        gyro = mean[:3] + self._gyro_bias + rng.normal(
-            0.0, imu.gyro_noise + imu.gyro_rate_noise * abs(float(mean[2])), 3)
+        gyro_sigma = imu.gyro_noise + imu.gyro_rate_noise * abs(float(mean[2]))
+        gyro = mean[:3] + self._gyro_bias + rng.normal(0.0, gyro_sigma, 3)
         accel = mean[3:] + self._accel_bias + rng.normal(0.0, imu.accel_noise, 3)
         q = self.data.qpos[3:7] if not self.lifted else np.array([1.0, 0.0, 0.0, 0.0])
         return ImuReading(self.t, (float(gyro[0]), float(gyro[1]), float(gyro[2])),
                           (float(accel[0]), float(accel[1]), float(accel[2])),
-                          (float(q[0]), float(q[1]), float(q[2]), float(q[3])))
+                          (float(q[0]), float(q[1]), float(q[2]), float(q[3])),
+                          gyro_sigma**2, imu.accel_noise**2)
 
     def wheel_speeds(self) -> dict[str, float]:
         """Each wheel's true speed (deg/s, physical sign)."""

@@ -258,3 +258,22 @@ def test_ros2_quick(tmp_path: Path) -> None:
         assert result["matched"] > 0 and result["mismatched"] == 0
         latency = result["latency_ms"]
         assert latency["p50"] <= latency["p99"] <= latency["max"]
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_seed_table_quick(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    stdout, report = run_quick("seed_table", tmp_path)
+    assert "§3.6.7" in stdout and "odometry" in stdout
+    assert set(report["table"]) == {
+        "gravel-0/50-rate", "gravel-0/50-radius", "gravel-50/-50-rate", "gravel-15/50-rate",
+        "gravel-25/50-radius", "marble-70/-70-rate"}
+    for row in report["table"].values():
+        assert {"seed", "kinematic", "mujoco", "mujoco_fields"} <= set(row)
+        assert len(row["mujoco_fields"]) in (1, 3)
+    assert 0 <= report["step_halved"]["largest"] < 1
+    assert len(report["wander_60s"]) == 3
+    assert {"ratio", "front_load_n", "rear_load_n"} <= set(report["slope"])
+    assert {"ax_on_stair", "az_on_stair", "max_pitch_deg"} <= set(report["stairs"])
+    bodies = {o["body"] for o in report["odometry"].values()}
+    assert bodies == {"kinematic", "mujoco"}

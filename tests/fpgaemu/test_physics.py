@@ -127,7 +127,8 @@ def test_the_truth_record_carries_the_imu_and_attitude() -> None:
     assert record["body"] == "mujoco" and record["surface"] == "gravel"
     assert {"z", "roll", "pitch", "imu"} <= set(record)
     assert set(record["imu"]) == {"t", "angular_velocity", "linear_acceleration",
-                                  "orientation"}
+                                  "orientation", "angular_velocity_variance",
+                                  "linear_acceleration_variance"}
     kinematic = EmulatedRobot(body="kinematic").truth().record()
     assert kinematic["body"] == "kinematic" and "imu" not in kinematic
 

@@ -188,3 +188,51 @@ def stairs_imu(*, speed: float = 25.0, seconds: float = 16.0, seed: int = 0,
     return {"ax_level": level[0], "az_level": level[2], "ax_on_stair": ax, "az_on_stair": az,
             "g_tilt_deg": math.degrees(math.atan2(-ax, az)),
             "max_pitch_deg": math.degrees(pitch), "descended_m": first.z - min_z}
+
+
+#: The seed's runs with their lengths (s), for odometry against truth: (key, surface, left,
+#: right, seconds, section). Left 0, not blocked: the host drives both boards.
+ODOMETRY_RUNS: list[tuple[str, str, float, float, float, str]] = [
+    ("gravel 0/50", "gravel", 0, 50, 40.0, "§3.6.2"),
+    ("gravel 50/-50", "gravel", 50, -50, 60.0, "§3.6.3"),
+    ("marble 70/-70", "marble", 70, -70, 50.0, "§3.6.4"),
+    ("gravel 50/15", "gravel", 50, 15, 80.0, "§3.6.5"),
+    ("gravel 25/50", "gravel", 25, 50, 80.0, "§3.6.6"),
+    ("slope 15/15", "slope45-sand", 15, 15, 10.0, "§3.6.7"),
+    ("stairs 25/25", "stairs", 25, 25, 16.0, "§3.6.8"),
+]
+
+
+@dataclass(frozen=True)
+class OdometryError:
+    seconds: float
+    travelled: float  #: m, the body's true path
+    turned_deg: float  #: the body's true turn (unwrapped)
+    position: float  #: m, odometry's end position from the truth's
+    heading_deg: float  #: odometry's end heading from the truth's (wrapped)
+
+
+def odometry_against_truth(surface: str, left: float, right: float, body: str,
+                           seconds: float, seed: int = 0) -> OdometryError:
+    """The host's odometry (1 kHz telemetry, the robot file's χ for the surface, or its
+    default surface's where it has none) against the body's truth after ``seconds`` with
+    the wheels held."""
+    from tests.support.robotsim import RobotSim
+
+    sim = RobotSim.make(surface, body=body, seed=seed)
+    sim.hold_wheels(left, right)
+    start = sim.robot.truth()
+    # The odometry starts from the truth's pose (a slope's start is not at the origin).
+    sim.odometry.reset(start.pose)
+    turned, last = 0.0, start.pose.theta
+    for _ in range(round(seconds / 0.1)):
+        sim.run(0.1)
+        theta = sim.truth.theta
+        turned += math.remainder(theta - last, math.tau)
+        last = theta
+    end = sim.robot.truth()
+    odometry = sim.odometry.pose
+    return OdometryError(
+        seconds, end.distance - start.distance, math.degrees(turned),
+        math.hypot(odometry.x - end.pose.x, odometry.y - end.pose.y),
+        math.degrees(math.remainder(odometry.theta - end.pose.theta, math.tau)))
