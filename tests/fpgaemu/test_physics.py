@@ -169,3 +169,27 @@ def test_the_physics_step_is_a_whole_number_of_board_periods() -> None:
     robot = EmulatedRobot(body="mujoco")
     assert robot.physics is not None
     assert robot.physics.model.opt.timestep == pytest.approx(physics.STEP_CYCLES / CLOCK_HZ)
+
+
+@pytest.mark.parametrize("surface", ["gravel", "marble"])
+def test_go_to_arrives_on_the_physics_body(surface: str) -> None:
+    """Algorithm 1 (fpgalink.robot.goto) on odometry, the body slipping under it: the
+    controller arrives, and the body is really there, within what odometry lost."""
+    from tests.support.robotsim import RobotSim
+
+    sim = RobotSim.make(surface, body="mujoco")
+    controller = sim.go_to(1.0, 0.5, limit_s=40.0)
+    assert controller.done
+    odometry, truth = sim.odometry.pose, sim.truth
+    assert math.hypot(odometry.x - 1.0, odometry.y - 0.5) < 0.06  # the controller's Tr
+    error = math.hypot(truth.x - odometry.x, truth.y - odometry.y)
+    assert math.hypot(truth.x - 1.0, truth.y - 0.5) < 0.15
+    # On this body odometry is not the truth (it is on the kinematic one).
+    assert error > 0.005
+    # and back, behind the robot: odometry's error grows with the way (the turns on
+    # gravel cost it most), the body ends within a few percent of it from the goal
+    controller = sim.go_to(0.0, 0.0, limit_s=40.0)
+    assert controller.done
+    travelled = sim.robot.truth().distance
+    assert travelled > 2.0
+    assert math.hypot(sim.truth.x, sim.truth.y) < 0.15 * travelled
