@@ -22,7 +22,8 @@ wheels slip sideways and the body turns slower than the speed difference says::
     R = √(ICR_x² + ICR_y²)              (2.23)
 
 χ depends on the surface; the seed's measurements (§3.6) give about 1.65 on gravel and
-1.85 on marble (docs/robot.md has the calibration).
+1.85 on marble (docs/robot.md has the calibration); grass, which the seed drove on without
+a figure, takes the 1.63 the emulator's physics body shows there.
 """
 
 from __future__ import annotations
@@ -76,6 +77,7 @@ surface = "gravel"         # the chi odometry and driving use
 ideal = 1.0
 gravel = 1.65
 marble = 1.85
+grass = 1.63               # no seed figure: what the emulator's physics body shows on grass
 
 # Wheel positions from the seed's URDF, in REP-103 (x forward, y left). forward: the sign
 # of the board's speed that drives the robot forward.
@@ -450,7 +452,7 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
                      high=1.0)
         for key in _ODOMETRY_KEYS if key in odometry_table})
 
-    body = _body(document.get("body", {}), radius, f"{where}body.")
+    body = _body(document.get("body", {}), f"{where}body.")
 
     boards = tuple(dict.fromkeys(w.board for w in wheels))
     common = _settings(document.get("parameters", {}), f"{where}parameters")
@@ -488,7 +490,7 @@ def _vector(table: Mapping[str, Any], key: str, where: str, limit: float) -> tup
                     high=limit))
 
 
-def _body(table: object, radius: float, where: str) -> BodyShape:
+def _body(table: object, where: str) -> BodyShape:
     if not isinstance(table, dict):
         raise DescriptionError(f"{where[:-1]}: must be a table")
     _unknown(table, _BODY_KEYS, where)
