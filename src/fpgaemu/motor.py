@@ -623,10 +623,26 @@ class DrivenMotors:
         for code, wheel in self.wheels.items():
             io = channels[code]
             pwm = io.pwm
-            wheel.duty = pwm.duty_register if pwm.global_enable else 0
-            if wheel.duty or wheel.current or wheel.rotor_speed:
+            wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
+            if duty or wheel.current or wheel.rotor_speed:
                 wheel.hold_current(cycle - start)
-            io.encoder.follow(start, wheel.angle_at(start), cycle, wheel.angle_at(cycle))
+            # WheelDrive.angle_at at both ends, written out: this runs for every wheel at
+            # every tick and every PWM change.
+            c0, c1, a0, a1 = wheel._c0, wheel._c1, wheel._a0, wheel._a1
+            if c1 == c0 or start >= c1:
+                begin = a1
+            elif start <= c0:
+                begin = a0
+            else:
+                begin = a0 + (a1 - a0) * (start - c0) / (c1 - c0)
+            if c1 == c0 or cycle >= c1:
+                end = a1
+            elif cycle <= c0:
+                end = a0
+            else:
+                end = a0 + (a1 - a0) * (cycle - c0) / (c1 - c0)
+            if begin != end:
+                io.encoder.follow(start, begin, cycle, end)
             io.current_a = wheel.current if self._noise is None else (
                 wheel.current + float(self._noise.normal(0.0, self.current_noise_a)))
         self._cycle = cycle

@@ -26,6 +26,12 @@ next burst arrives or, if none does, when its stop bit ends (the line was idle).
 Simplification: a break or cut acts only on bit slots sent during it (an idle line held low
 produces nothing here, where a real receiver would see one falling edge).
 
+Per board the receiver can instead be level-triggered (``rx_mode="level"``,
+:class:`LevelReceiver`): a 16550's, verilog-uart's and OpenTitan's way, a start on any low
+level with the start bit checked again at mid-bit (checked against OpenTitan's ``uart_rx``
+RTL). The two modes agree on clean traffic and data faults and part after low stop bits,
+breaks and lost start bits.
+
 Rate-based faults are decided per burst before any bit is laid out, so a burst nothing hits
 still takes the fast path: at a bit-error rate of 1e-4 about 95 % of 55-byte frames do. Each
 kind of random fault draws from its own generator (``Timeline.rng(line + "." + kind)``), so
