@@ -55,6 +55,7 @@ __all__ = [
     "Surface",
     "available",
     "mjcf",
+    "render",
     "why_unavailable",
 ]
 
@@ -171,7 +172,11 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
             f'<inertial pos="0 0 0" mass="{_f(body.wheel_mass)}" '
             f'diaginertia="{_v((lateral, wheel_inertia, lateral))}"/>'
             f'<geom name="{w.name}_tyre" type="sphere" size="{_f(radius)}" contype="2" '
-            'conaffinity="0" group="1" rgba="0.15 0.15 0.15 1"/></body>')
+            'conaffinity="0" group="3"/>'
+            # What a picture shows (no contact, no mass): the wheel as it is.
+            f'<geom name="{w.name}_wheel" type="cylinder" '
+            f'size="{_f(radius)} {_f(body.wheel_width / 2)}" zaxis="0 1 0" contype="0" '
+            'conaffinity="0" mass="0" group="1" rgba="0.12 0.12 0.12 1"/></body>')
         tendons.append(
             f'<fixed name="{w.name}_gearbox" stiffness="{_f(train.stiffness)}" '
             f'damping="{_f(train.damping)}"><joint joint="{w.name}_rotor" coef="1"/>'
@@ -194,6 +199,12 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
   <option timestep="{_f(step_s)}" integrator="implicitfast" cone="elliptic" impratio="1"
           tolerance="1e-6"/>
   <size memory="4M"/>
+  <visual><headlight ambient="0.35 0.35 0.35" diffuse="0.5 0.5 0.5"/></visual>
+  <asset>
+    <texture name="ground" type="2d" builtin="checker" width="256" height="256"
+             rgb1="0.50 0.46 0.40" rgb2="0.42 0.38 0.33"/>
+    <material name="ground" texture="ground" texrepeat="8 8" texuniform="true"/>
+  </asset>
   <worldbody>
     <light pos="0 -2 4" dir="0 0.5 -1"/>
     {ground_xml}
@@ -220,19 +231,19 @@ def _grounds(surface: Surface, radius: float) -> tuple[list[str], str]:
     """The ground's geoms: their names (each tyre gets a contact pair with each) and XML."""
     out: list[str] = []
     geoms: list[str] = []
-    rgba = 'rgba="0.45 0.42 0.38 1"'
+    look = 'material="ground"'
     if surface.slope_deg:
         # The plane through the origin, rising ahead (+x): turned about +y by −α.
         a = math.radians(surface.slope_deg)
         quat = (math.cos(-a / 2), 0.0, math.sin(-a / 2), 0.0)
         geoms.append(f'<geom name="ground" type="plane" size="0 0 1" quat="{_v(quat)}" '
-                     f'contype="1" conaffinity="3" {rgba}/>')
+                     f'contype="1" conaffinity="3" {look}/>')
         out.append("ground")
     elif surface.steps:
         # A landing ending 5 cm ahead of the front tyres, then the steps down, then the floor.
         edge = 0.05 + 0.29 + radius
         geoms.append(f'<geom name="landing" type="box" size="5 5 0.5" '
-                     f'pos="{_f(edge - 5)} 0 -0.5" contype="1" conaffinity="3" {rgba}/>')
+                     f'pos="{_f(edge - 5)} 0 -0.5" contype="1" conaffinity="3" {look}/>')
         out.append("landing")
         for i in range(1, surface.steps + 1):
             top = -i * surface.step_rise
@@ -240,15 +251,15 @@ def _grounds(surface: Surface, radius: float) -> tuple[list[str], str]:
             geoms.append(f'<geom name="step{i}" type="box" '
                          f'size="{_f(surface.step_run / 2)} 5 0.5" '
                          f'pos="{_f(x0 + surface.step_run / 2)} 0 {_f(top - 0.5)}" '
-                         f'contype="1" conaffinity="3" {rgba}/>')
+                         f'contype="1" conaffinity="3" {look}/>')
             out.append(f"step{i}")
         floor = -(surface.steps + 1) * surface.step_rise
         geoms.append(f'<geom name="ground" type="plane" size="0 0 1" pos="0 0 {_f(floor)}" '
-                     f'contype="1" conaffinity="3" {rgba}/>')
+                     f'contype="1" conaffinity="3" {look}/>')
         out.append("ground")
     else:
         geoms.append(f'<geom name="ground" type="plane" size="0 0 1" contype="1" '
-                     f'conaffinity="3" {rgba}/>')
+                     f'conaffinity="3" {look}/>')
         out.append("ground")
     return out, "".join(geoms)
 
@@ -577,6 +588,25 @@ class PhysicsBody:
                     self._mujoco.mj_contactForce(model, data, i, force)
                     out[name[:-5]] += float(force[0])
         return out
+
+
+def render(body: PhysicsBody, width: int = 640, height: int = 480, *,
+           azimuth: float = 135.0, elevation: float = -20.0, distance: float = 2.5
+           ) -> np.ndarray[Any, Any]:
+    """A picture of the body as it is (RGB, ``height`` × ``width`` × 3), the camera aimed at
+    the chassis. Needs an OpenGL MuJoCo can use without a display: ``MUJOCO_GL=egl`` (Mesa's
+    software EGL works on a machine without a GPU) or ``osmesa``."""
+    mujoco = body._mujoco
+    renderer = mujoco.Renderer(body.model, height, width)
+    try:
+        camera = mujoco.MjvCamera()
+        camera.lookat[:] = body.data.xpos[body.model.body("base_link").id]
+        camera.azimuth, camera.elevation, camera.distance = azimuth, elevation, distance
+        renderer.update_scene(body.data, camera)
+        image: np.ndarray[Any, Any] = renderer.render()
+        return image
+    finally:
+        renderer.close()
 
 
 class _FrictionField:

@@ -6,6 +6,9 @@ options are checked."""
 from __future__ import annotations
 
 import math
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -193,3 +196,19 @@ def test_go_to_arrives_on_the_physics_body(surface: str) -> None:
     travelled = sim.robot.truth().distance
     assert travelled > 2.0
     assert math.hypot(sim.truth.x, sim.truth.y) < 0.15 * travelled
+
+
+def test_the_body_renders_headless_where_an_opengl_is_there() -> None:
+    """fpgaemu.physics.render with Mesa's software EGL (no display, no GPU): a picture
+    that is not blank. Skipped where the machine has no EGL."""
+    program = ("from fpgaemu.physics import render\n"
+               "from fpgaemu.robot import EmulatedRobot\n"
+               "image = render(EmulatedRobot(body='mujoco').physics, 64, 48)\n"
+               "print(image.shape, float(image.std()))\n")
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                          timeout=60, env={**os.environ, "MUJOCO_GL": "egl"})
+    if done.returncode != 0 and ("EGL" in done.stderr or "GL" in done.stderr):
+        pytest.skip(f"no headless OpenGL here: {done.stderr.strip().splitlines()[-1]}")
+    assert done.returncode == 0, done.stderr
+    shape, spread = done.stdout.split(")")
+    assert shape == "(48, 64, 3" and float(spread) > 5.0  # something drawn, not one colour
