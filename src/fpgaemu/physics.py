@@ -220,6 +220,8 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
     </body>
   </worldbody>
   <tendon>{"".join(tendons)}</tendon>
+  <equality>{"".join(f'<joint name="{w.name}_blocked" joint1="{w.name}" active="false"/>'
+                      for w in description.wheels)}</equality>
   <actuator>{"".join(actuators)}</actuator>
   <contact>{"".join(pairs)}</contact>
   <sensor><gyro name="gyro" site="imu"/><accelerometer name="accelerometer" site="imu"/></sensor>
@@ -361,9 +363,9 @@ class PhysicsBody:
         self._electrics = (motor.supply_v, motor.resistance_ohm, train.torque_constant,
                            tau / self.dt * (1.0 - math.exp(-self.dt / tau)))
         self._held = [True] * len(names)
+        self._stalled = [False] * len(names)
         for drive in self.drives:
             drive.on_stall = self._stall_changed
-        self._stalled = [False] * len(names)
         angles = self.data.qpos[self._gather].tolist()
         self._angles = angles[:len(names)]
         self._rotors = angles[len(names):]
@@ -381,6 +383,9 @@ class PhysicsBody:
         self._accel_bias = self._rng.normal(0.0, self.imu.accel_bias, 3)
         self._field = _FrictionField(seed, self.surface)
         self._settle()
+        for drive in self.drives:  # a wheel stalled before the body existed (a fault)
+            if drive.stalled:
+                self._stall_changed(drive)
 
     def _settle(self) -> None:
         """Let the body come to rest on its wheels (held) before time starts: the ground
@@ -510,12 +515,16 @@ class PhysicsBody:
             drive.body_asleep = False
 
     def _stall_changed(self, drive: WheelDrive) -> None:
+        """A blocked wheel (``WheelDrive.stall``, the ``wheel-stuck`` fault): its joint held
+        where it is by an equality constraint until released."""
         i = self.drives.index(drive)
         self._stalled[i] = drive.stalled
-        self.model.dof_frictionloss[self._rotor_dof[i]] = (
-            1e3 * self._hold if drive.stalled else self._hold if self._held[i] else 0.0)
+        name = self.description.wheels[i].name
+        blocked = self.model.equality(f"{name}_blocked").id
         if drive.stalled:
-            self._wake()
+            self.model.eq_data[blocked, 0] = self.data.qpos[self._wheel_q[i]]
+        self.data.eq_active[blocked] = 1 if drive.stalled else 0
+        self._wake()
 
     # --- reading ---------------------------------------------------------------------------
 

@@ -212,3 +212,20 @@ def test_the_body_renders_headless_where_an_opengl_is_there() -> None:
     assert done.returncode == 0, done.stderr
     shape, spread = done.stdout.split(")")
     assert shape == "(48, 64, 3" and float(spread) > 5.0  # something drawn, not one colour
+
+
+def test_a_stuck_wheel_is_held_and_the_robot_drags_it() -> None:
+    """The wheel-stuck fault on the physics body: the wheel's joint held, its loop winds up
+    to full duty and 24 A (V/R, as on the kinematic body), the others drive on and the
+    body turns towards the stuck wheel."""
+    run = Run.make("gravel", "mujoco", faults={"L": ["wheel-stuck=A"]})
+    run.hold_wheels(40.0, 40.0)
+    run.run(3.0)
+    assert run.robot.physics is not None
+    speeds = run.robot.physics.wheel_speeds()
+    assert abs(speeds["FL"]) < 0.1 and speeds["BL"] == pytest.approx(40.0, rel=0.02)
+    assert run.pwm()["FL"] == MAX_DUTY
+    firmware = run.robot.boards["L"].peripherals["firmware"]
+    assert firmware.channels[1].current == pytest.approx(24.0, rel=0.02)  # type: ignore[attr-defined]
+    truth = run.robot.truth()
+    assert truth.pose.x > 0.2 and truth.pose.theta > 0.01  # left side slower: turns left
