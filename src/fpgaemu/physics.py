@@ -317,7 +317,9 @@ class Imu:
 
 class PhysicsBody:
     """The robot on MuJoCo. :meth:`advance` steps the physics over one step with the
-    drives' torques and hands each drive its wheel's motion; read :meth:`state`."""
+    drives' torques and hands each drive its wheel's motion; read :meth:`pose`,
+    :meth:`attitude`, :meth:`twist`, :meth:`read_imu` (:class:`fpgaemu.robot.EmulatedRobot`
+    makes its truth of them)."""
 
     def __init__(self, description: RobotDescription, drives: Mapping[str, WheelDrive],
                  mount: Mapping[str, int], surface: str = "gravel", *, seed: int = 0,
@@ -351,7 +353,6 @@ class PhysicsBody:
         self._wheel_dof = [int(model.joint(n).dofadr[0]) for n in names]
         self._gather = np.array(self._wheel_q + self._rotor_q)
         self._wheel_bodies = np.array([int(model.body(f"{n}_link").id) for n in names])
-        self._pairs = np.arange(model.npair)
         tyres = [next(n for g in pair if (n := model.geom(int(g)).name).endswith("_tyre"))
                  for pair in zip(model.pair_geom1, model.pair_geom2, strict=True)]
         self._pair_wheel = np.array([names.index(tyre[:-5]) for tyre in tyres])
