@@ -29,8 +29,8 @@ from fpgaemu.motor import PHYSICS_STEP_CYCLES, DrivenMotors, Motors
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink.protocol.robot import RobotDescription, WheelMount, load_robot, seed_robot
 
-__all__ = ["BODIES", "ROBOT_OPTIONS", "EmulatedRobot", "default_body", "robot_from_options",
-           "robot_from_url"]
+__all__ = ["BODIES", "ROBOT_OPTIONS", "EmulatedRobot", "check_body", "default_body",
+           "robot_from_options", "robot_from_url"]
 
 #: The query options of an ``emu://robot/NAME`` URL: ``fault=L:SPEC`` names the board a
 #: fault applies to, ``robot`` a robot file (default: the seed's robot), ``body`` the body.
