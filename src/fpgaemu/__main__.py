@@ -21,9 +21,11 @@ from typing import Any, NoReturn
 
 import click
 
-from fpgaemu.build import build_board
+from fpgaemu.build import UART_RX_MODES, build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
-from fpgaemu.robot import EmulatedRobot
+from fpgaemu.physics import SURFACES
+from fpgaemu.physics import why_unavailable as physics_missing
+from fpgaemu.robot import BODIES, EmulatedRobot, check_body, default_body
 from fpgaemu.serve import (
     IDLE_TIMEOUT_S,
     MAX_TRUTH_READERS,
@@ -180,8 +182,21 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--robot-file", "robot_file", callback=_file_name, metavar="FILE",
                  help="The robot description (TOML; default: the seed's robot)."),
     click.option("--surface", metavar="NAME",
-                 help="What the robot drives on: a surface of its description (the seed's "
-                      "robot: ideal, gravel, marble)  [default: the description's]"),
+                 help="What the robot drives on: with --body mujoco one of "
+                      f"{', '.join(SURFACES)}; with --body kinematic a surface of the robot "
+                      "description (the seed's robot: ideal, gravel, marble, grass)  "
+                      "[default: the description's]"),
+    click.option("--body", "body", metavar="|".join(BODIES),
+                 help="The robot's body: mujoco (a physics engine: the wheels slip, carry "
+                      "the ground's load, an IMU feels it) or kinematic (the odometry's own "
+                      "model: fast and exact)  [default: mujoco where MuJoCo is installed]"),
+    click.option("--uart-rx", "uart_rx", metavar="|".join(UART_RX_MODES),
+                 help="How each board's UART receiver finds a start bit: edge (LiteX's: a "
+                      "falling edge) or level (verilog-uart's, a 16550's: a low level, "
+                      "checked again at mid-bit)  [default: edge]"),
+    click.option("--tx-gap", "tx_gap", type=click.IntRange(0, 10_000), metavar="CYCLES",
+                 help="Idle cycles each board's UART leaves after a stop bit between "
+                      "back-to-back bytes (2 = LiteX's PHY)  [default: 0]"),
     click.option("--truth", "truth", metavar="HOST:PORT",
                  help="With --robot: where the true pose streams as JSON lines, to up to "
                       f"{MAX_TRUTH_READERS} readers  [default: 127.0.0.1:0]"),
@@ -198,7 +213,8 @@ DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 
                             "seed": 0, "gear": "high", "config_path": None,
                             "assignments": (), "links": (), "faults": (), "robot": False,
                             "robot_file": None, "surface": None, "truth": None,
-                            "firmware": "python", "idle_timeout": None}
+                            "firmware": "python", "idle_timeout": None,
+                            "body": None, "uart_rx": "edge", "tx_gap": 0}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -234,8 +250,14 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         raise ServeError("give exactly one of --pty or --tcp HOST:PORT", EXIT_BAD_INPUT)
     host, port = parse_tcp(tcp) if tcp is not None else ("127.0.0.1", 0)
     robot = _robot(value) if value["robot"] else None
-    if robot is None and any(value[k] is not None for k in ("robot_file", "surface", "truth")):
-        raise ServeError("--robot-file, --surface and --truth go with --robot", EXIT_BAD_INPUT)
+    if robot is None and any(value[k] is not None
+                             for k in ("robot_file", "surface", "truth", "body")):
+        raise ServeError("--robot-file, --surface, --body and --truth go with --robot",
+                         EXIT_BAD_INPUT)
+    if value["uart_rx"] not in UART_RX_MODES:
+        raise ServeError(f"--uart-rx {value['uart_rx']!r}: choose "
+                         f"{' or '.join(UART_RX_MODES)}", EXIT_BAD_INPUT)
+    body = _body(value, robot) if robot is not None else None
     names = list(robot.boards) if robot else board_names(value["boards"])
     links = parse_links(value["links"], names)
     if links and not use_pty:
@@ -254,7 +276,9 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
                          EXIT_BAD_INPUT)
     try:
         paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
-                              settings, faults, value["firmware"])
+                              settings, faults, value["firmware"], body=body,
+                              uart_rx=value["uart_rx"], tx_gap=value["tx_gap"],
+                              surface=value["surface"])
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
     with asyncio.Runner(loop_factory=serve_loop) as runner:
@@ -266,14 +290,31 @@ def _robot(value: dict[str, Any]) -> RobotDescription:
     try:
         description = load_robot(str(value["robot_file"])) if value["robot_file"] \
             else seed_robot()
-        if value["surface"] is not None:
-            description = description.on_surface(value["surface"])
     except DescriptionError as exc:
         raise ServeError(str(exc), EXIT_BAD_INPUT) from None
     if value["boards"] not in (1, len(description.boards)):
         raise ServeError(f"--robot serves the robot's {len(description.boards)} boards; "
                          "leave out --boards", EXIT_BAD_INPUT)
     return description
+
+
+def _body(value: dict[str, Any], description: RobotDescription) -> str:
+    """The body to serve, checked with the surface: one line and exit 2 otherwise; when
+    MuJoCo is missing and no body was asked for, the kinematic one, said once."""
+    body = value["body"]
+    surface = value["surface"] or description.surface
+    if body is None:
+        body = default_body(surface)
+        if body == "kinematic" and physics_missing() is not None:
+            print("fpgaemu: MuJoCo is not installed: the robot's body is the kinematic one "
+                  "(pip install 'fpgalink[physics]' for the physics body)", file=sys.stderr,
+                  flush=True)
+    try:
+        check_body(body, surface, description)
+    except ValueError as exc:
+        flag = "--surface" if str(exc).startswith("surface") else "--body"
+        raise ServeError(f"{flag}: {exc}", EXIT_BAD_INPUT) from None
+    return str(body)
 
 
 def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
@@ -296,16 +337,19 @@ def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
 
 def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, seed: int,
                   gear: str, settings: dict[str, int | float],
-                  faults: dict[str, list[str]], firmware: str = "python"
-                  ) -> dict[str, PacedBoard]:
+                  faults: dict[str, list[str]], firmware: str = "python", *,
+                  body: str | None = None, uart_rx: str = "edge", tx_gap: int = 0,
+                  surface: str | None = None) -> dict[str, PacedBoard]:
     if robot is not None:
-        emulated = EmulatedRobot(robot, baud=baud, seed=seed, gear=gear, faults=faults,
-                                 settings=settings, firmware=firmware)
+        emulated = EmulatedRobot(robot, surface, baud=baud, seed=seed, gear=gear,
+                                 faults=faults, settings=settings, body=body,
+                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware)
         paced_robot = PacedRobot(emulated)
         return {name: paced_robot.side(name) for name in names}
     return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
                                          settings=settings, faults=faults[name],
-                                         firmware=firmware))
+                                         firmware=firmware, uart_rx=uart_rx,
+                                         tx_byte_gap=tx_gap))
             for index, name in enumerate(names)}
 
 

@@ -258,10 +258,7 @@ class PacedRobot:
     def truth_record(self) -> dict[str, Any]:
         """The body's true state, and each board as the emulator sees it (for tests and
         tools that check what a host reports against what happened)."""
-        state = self.robot.truth()
-        return {"t": state.t, "x": state.pose.x, "y": state.pose.y,
-                "theta": state.pose.theta, "v": state.v, "omega": state.omega,
-                "distance": state.distance, "surface": state.surface,
+        return {**self.robot.truth().record(),
                 "boards": {name: _board_record(board)
                            for name, board in self.robot.boards.items()}}
 

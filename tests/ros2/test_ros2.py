@@ -100,7 +100,7 @@ class Scenario:
 @pytest.fixture(scope="module")
 def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Scenario]]:
     log_dir = tmp_path_factory.mktemp("roslog")
-    running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs")}
+    running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs", "imu")}
     yield running
     for scenario in running.values():
         scenario.kill()  # whatever it started too, finished or not
@@ -212,3 +212,19 @@ def test_the_example_session_in_the_docs_runs_as_shown(scenarios: dict[str, Scen
     assert ("set L.Kp_Wheel_Pid.A = -1.0: successful=False board L: Kp_Wheel_Pid must be a "
             "float ≥ 0 (and fit a float32); got -1.0") in printed
     assert "node exit 0" in printed
+
+
+def test_the_emulated_bodys_imu_is_published_on_imu_data(
+        scenarios: dict[str, Scenario]) -> None:
+    rest = scenarios["imu"].check("imu_rest")
+    assert rest["frame_id"] == "ImuALink"
+    assert rest["rate_hz"] > 25  # 50 Hz nominal, on a loaded machine fewer
+    assert rest["orientation_covariance"] == -1.0  # a 6-axis IMU gives no orientation
+    assert rest["gyro_variance"] > 0 and rest["accel_variance"] > 0
+    assert math.isclose(rest["az"], 9.81, abs_tol=0.3) and abs(rest["ax"]) < 0.3
+    assert abs(rest["gz"]) < math.radians(2)
+    turning = scenarios["imu"].check("imu_turning")
+    assert turning["samples"] > 20
+    assert turning["truth_omega"] > 0.1
+    assert math.isclose(turning["gz"], turning["truth_omega"], rel_tol=0.2, abs_tol=0.03)
+    assert scenarios["imu"].check("imu_node_exit")["code"] == 0

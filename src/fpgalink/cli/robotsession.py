@@ -90,7 +90,7 @@ def description_options(func: Callable[..., T]) -> Callable[..., T]:
                           "seed's robot)."),
         click.option("--surface", metavar="NAME",
                      help="The surface it drives on, for the skid-steer χ (the seed's robot: "
-                          "ideal, gravel, marble)  [default: the description's]"),
+                          "ideal, gravel, marble, grass)  [default: the description's]"),
         click.option("--truth", "truth_url", metavar="URL",
                      help="An emulated robot's truth endpoint (socket://HOST:PORT, printed by "
                           "fpgaemu serve --robot); built in for the in-process robot."),

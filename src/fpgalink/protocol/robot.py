@@ -22,7 +22,8 @@ wheels slip sideways and the body turns slower than the speed difference says::
     R = √(ICR_x² + ICR_y²)              (2.23)
 
 χ depends on the surface; the seed's measurements (§3.6) give about 1.65 on gravel and
-1.85 on marble (docs/robot.md has the calibration).
+1.85 on marble (docs/robot.md has the calibration); grass, which the seed drove on without
+a figure, takes the 1.63 the emulator's physics body shows there.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ __all__ = [
     "RIGHT_WHEELS",
     "SEED_ROBOT_TOML",
     "WHEEL_NAMES",
+    "BodyShape",
     "DescriptionError",
     "OdometryNoise",
     "Pose",
@@ -78,6 +80,7 @@ surface = "gravel"         # the chi odometry and driving use
 ideal = 1.0
 gravel = 1.65
 marble = 1.85
+grass = 1.63               # no seed figure: what the emulator's physics body shows on grass
 
 # Wheel positions from the seed's URDF, in REP-103 (x forward, y left). forward: the sign
 # of the board's speed that drives the robot forward.
@@ -108,6 +111,19 @@ channel = "B"
 x = -0.29
 y = -0.33
 forward = 1
+
+# The chassis, for a physics body and the URDF (docs/robot.md: what the seed gives and what
+# is assumed). Positions in m from base_link, which the seed's URDF puts at the centre of
+# the wheel axles; REP-103 axes.
+[body]
+mass = 60.0                # kg, the whole robot on the seed's scales (§2.5.3)
+centre_of_mass = [-0.048, -0.012, -0.10]  # x, y from the scales (§2.5.3); z calibrated
+wheel_mass = 2.5           # kg each, assumed (a 0.40 m wheel with its hub)
+wheel_width = 0.10         # m, assumed
+chassis = [0.80, 0.50, 0.30]   # m, length, width, height of the chassis box (§3.1: 80 cm long)
+chassis_z = 0.05           # m, the box's centre above base_link (0.10 m ground clearance)
+imu = [0.125, -0.03, 0.11]     # the seed's ImuALink (§3.3.4), y flipped to REP-103
+lidar = [0.39, 0.02, 0.23]     # the seed's laser (§3.3.4), facing backwards (yaw 180°)
 
 [odometry]                 # how fast the pose covariance grows
 distance_noise = 1e-4      # m² of position variance per m travelled
@@ -157,9 +173,11 @@ MIN_ANGULAR_SPEED = 0.1
 
 _TOP_KEYS = frozenset({"name", "wheel_radius", "gear_ratio", "max_wheel_speed",
                        "max_linear_speed", "max_angular_speed", "surface", "surfaces",
-                       "wheels", "odometry", "parameters", "board_parameters"})
+                       "wheels", "odometry", "parameters", "board_parameters", "body"})
 _WHEEL_KEYS = frozenset({"board", "channel", "x", "y", "forward"})
 _ODOMETRY_KEYS = frozenset({"distance_noise", "turn_noise", "drift_noise"})
+_BODY_KEYS = frozenset({"mass", "centre_of_mass", "wheel_mass", "wheel_width", "chassis",
+                        "chassis_z", "imu", "lidar"})
 
 
 class DescriptionError(FpgalinkError, ValueError):
@@ -263,6 +281,41 @@ class OdometryNoise:
 
 
 @dataclass(frozen=True, slots=True)
+class BodyShape:
+    """The chassis as a rigid body (for a physics body and the URDF): m, kg, REP-103, from
+    base_link (the centre of the wheel axles, as the seed's URDF has it)."""
+
+    mass: float = 60.0  #: the whole robot, wheels included
+    centre_of_mass: tuple[float, float, float] = (-0.048, -0.012, -0.10)  #: whole robot
+    wheel_mass: float = 2.5  #: each
+    wheel_width: float = 0.10
+    chassis: tuple[float, float, float] = (0.80, 0.50, 0.30)  #: box: length, width, height
+    chassis_z: float = 0.05  #: the box's centre above base_link
+    imu: tuple[float, float, float] = (0.125, -0.03, 0.11)
+    lidar: tuple[float, float, float] = (0.39, 0.02, 0.23)
+
+    @property
+    def chassis_mass(self) -> float:
+        return self.mass - 4 * self.wheel_mass
+
+    def chassis_com(self, wheels: tuple[WheelMount, ...]) -> tuple[float, float, float]:
+        """The chassis's own centre of mass: the whole robot's, less its wheels'."""
+        cx, cy, cz = self.centre_of_mass
+        wx = sum(w.x for w in wheels) * self.wheel_mass
+        wy = sum(w.y for w in wheels) * self.wheel_mass
+        m = self.chassis_mass
+        return ((cx * self.mass - wx) / m, (cy * self.mass - wy) / m, cz * self.mass / m)
+
+    @property
+    def chassis_inertia(self) -> tuple[float, float, float]:
+        """Principal moments about the chassis's centre of mass: a uniform box."""
+        length, width, height = self.chassis
+        m = self.chassis_mass / 12.0
+        return (m * (width**2 + height**2), m * (length**2 + height**2),
+                m * (length**2 + width**2))
+
+
+@dataclass(frozen=True, slots=True)
 class RobotDescription:
     """A robot: its wheels and boards, geometry, limits, surfaces and start-up parameters."""
 
@@ -279,6 +332,7 @@ class RobotDescription:
     #: settings loaded into every board at start, then each board's own
     parameters: tuple[Setting, ...] = ()
     board_parameters: Mapping[str, tuple[Setting, ...]] = field(default_factory=dict)
+    body: BodyShape = field(default_factory=BodyShape)
 
     @property
     def boards(self) -> tuple[str, ...]:
@@ -456,6 +510,8 @@ def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
                      high=1.0)
         for key in _ODOMETRY_KEYS if key in odometry_table})
 
+    body = _body(document.get("body", {}), f"{where}body.")
+
     boards = tuple(dict.fromkeys(w.board for w in wheels))
     common = _settings(document.get("parameters", {}), f"{where}parameters")
     per_board: dict[str, tuple[Setting, ...]] = {}
@@ -472,7 +528,7 @@ def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
         name=name, wheel_radius=radius, gear_ratio=gear, max_wheel_speed=max_wheel,
         max_linear_speed=max_v, max_angular_speed=max_w, wheels=tuple(wheels),
         surfaces=surfaces, surface=str(surface), odometry=noise, parameters=common,
-        board_parameters=per_board)
+        board_parameters=per_board, body=body)
     if description.track <= 0 or description.wheelbase < 0:
         raise DescriptionError(f"{where}wheels: the left wheels must be left of the right "
                                "ones and the front wheels ahead of the rear ones")
@@ -484,6 +540,45 @@ def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
                 f"their centres are {base:g} m apart, less than a wheel's diameter "
                 f"({2 * radius:g} m)")
     return description
+
+
+def _vector(table: Mapping[str, Any], key: str, where: str, limit: float) -> tuple[
+        float, float, float]:
+    value = table[key]
+    if not isinstance(value, list) or len(value) != 3:
+        raise DescriptionError(f"{where}{key}: must be [x, y, z], got {value!r}")
+    return (_number({"x": value[0]}, "x", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit),
+            _number({"y": value[1]}, "y", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit),
+            _number({"z": value[2]}, "z", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit))
+
+
+def _body(table: object, where: str) -> BodyShape:
+    if not isinstance(table, dict):
+        raise DescriptionError(f"{where[:-1]}: must be a table")
+    _unknown(table, _BODY_KEYS, where)
+    values: dict[str, Any] = {}
+    for key in ("mass", "wheel_mass", "wheel_width"):
+        if key in table:
+            values[key] = _number(table, key, where, high=1e5)
+    if "chassis_z" in table:
+        values["chassis_z"] = _number(table, "chassis_z", where, low=-10.0, low_open=False,
+                                      high=10.0)
+    for key in ("centre_of_mass", "imu", "lidar"):
+        if key in table:
+            values[key] = _vector(table, key, where, 100.0)
+    if "chassis" in table:
+        size = _vector(table, "chassis", where, 100.0)
+        if min(size) <= 0:
+            raise DescriptionError(f"{where}chassis: sizes must be > 0, got {list(size)}")
+        values["chassis"] = size
+    body = BodyShape(**values)
+    if body.chassis_mass <= 0:
+        raise DescriptionError(f"{where}mass: the four wheels ({4 * body.wheel_mass:g} kg) "
+                               f"weigh more than the robot ({body.mass:g} kg)")
+    return body
 
 
 def _settings(table: object, where: str) -> tuple[Setting, ...]:
