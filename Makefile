@@ -6,12 +6,12 @@ PYTEST_ARGS ?=
 
 .PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
 
-# The ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags) is part of the test set-up: its
-# transitive pins are in ros2-constraints.txt.
+# The ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags) and the physics extra (MuJoCo) are
+# part of the test set-up: the ros2 extra's transitive pins are in ros2-constraints.txt.
 $(STAMP): pyproject.toml ros2-constraints.txt
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e '.[dev,ros2]' -c ros2-constraints.txt
+	$(PY) -m pip install --quiet -e '.[dev,ros2,physics]' -c ros2-constraints.txt
 	touch $(STAMP)
 
 # Icarus Verilog simulates the reference UART the emulator's is checked against
@@ -83,6 +83,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2
 	$(PY) -m benchmarks.crc_ber
+	$(PY) -m benchmarks.flood --mb 5
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

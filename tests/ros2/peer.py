@@ -2,12 +2,14 @@
 ``fpgaemu serve`` and ``fpgalink-ros2`` as processes, talks to the node over ROS, reads what
 really happened from the emulator's truth endpoint, and prints one JSON line per check.
 
-    python -m tests.ros2.peer main|kill|fault|ddc   (in tests/ros2/netns.sh: loopback only)
+    python -m tests.ros2.peer main|kill|fault|ddc|imu   (in tests/ros2/netns.sh: loopback only)
 
 ``main``: joint_states against the boards' telemetry, cmd_vel against the body, goal_pose,
 the enable deadman, SetParameters. ``kill``: one board's serving process killed.
 ``fault``: a board restarting mid-drive, then one board's telemetry stopping. ``ddc``:
-what a diff_drive_controller user relies on (issue 28).
+what a diff_drive_controller user relies on (issue 28). ``imu``: the node on the emulated
+robot in its own process (MuJoCo body): ``imu/data`` at rest and turning, against the
+node's ``truth``.
 Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the test to assert).
 """
 
@@ -44,7 +46,7 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool
 from tf2_msgs.msg import TFMessage
 
@@ -239,8 +241,10 @@ def start_node(ports: dict[str, str], *ros_args: str) -> Process:
 
 
 def main_scenario(peer: Peer) -> None:
+    # The kinematic body: these checks are of the node's plumbing, against a body whose
+    # motion odometry describes exactly (the imu scenario has the physics body).
     serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                    "--surface", "gravel")
+                    "--surface", "gravel", "--body", "kinematic")
     ready = {line[1]: line[2] for line in serve.ready_lines(3)}
     truth = Truth(ready.pop("truth"))
     # This scenario checks what holds when nothing goes wrong. On a loaded machine the
@@ -857,6 +861,38 @@ def _status(peer: Peer, name: str) -> tuple[int, str]:
     return -1, ""
 
 
+def imu_scenario(peer: Peer) -> None:
+    imu: list[Imu] = []
+    truth: list[Odometry] = []
+    peer.create_subscription(Imu, "imu/data", imu.append, qos_profile_sensor_data)
+    peer.create_subscription(Odometry, "truth", truth.append, 10)
+    node = start_node({})  # no port: the emulated robot in the node's process
+    try:
+        peer.spin_until(lambda: len(imu) >= 50, "imu/data")
+        first = time.monotonic()
+        count = len(imu)
+        peer.spin_for(2.0)
+        rate = (len(imu) - count) / (time.monotonic() - first)
+        rest = imu[-50:]
+        report("imu_rest", rate_hz=rate, frame_id=rest[-1].header.frame_id,
+               orientation_covariance=rest[-1].orientation_covariance[0],
+               gyro_variance=rest[-1].angular_velocity_covariance[0],
+               accel_variance=rest[-1].linear_acceleration_covariance[0],
+               ax=sum(m.linear_acceleration.x for m in rest) / len(rest),
+               az=sum(m.linear_acceleration.z for m in rest) / len(rest),
+               gz=sum(m.angular_velocity.z for m in rest) / len(rest))
+        peer.spin_for(3.0, lambda: peer.drive(0.0, 0.3))  # turning on the spot
+        imu.clear()
+        truth.clear()
+        peer.spin_for(2.0, lambda: peer.drive(0.0, 0.3))
+        report("imu_turning", gz=sum(m.angular_velocity.z for m in imu) / max(1, len(imu)),
+               truth_omega=sum(t.twist.twist.angular.z for t in truth) / max(1, len(truth)),
+               samples=len(imu))
+        peer.spin_for(0.5, lambda: peer.drive(0.0, 0.0))
+    finally:
+        report("imu_node_exit", code=node.stop(signal.SIGINT))
+
+
 def main() -> None:
     scenario = sys.argv[1]
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
@@ -864,7 +900,7 @@ def main() -> None:
     peer = Peer(namespace="/bot" if scenario == "kill" else "")
     try:
         {"main": main_scenario, "kill": kill_scenario, "fault": fault_scenario,
-         "ddc": ddc_scenario}[scenario](peer)
+         "ddc": ddc_scenario, "imu": imu_scenario}[scenario](peer)
     finally:
         peer.destroy_node()
         rclpy.shutdown()

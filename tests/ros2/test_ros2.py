@@ -3,7 +3,7 @@ plain rclpy), with ``fpgaemu serve`` boards over ptys. Every process that create
 participant runs inside tests/ros2/netns.sh: a private network namespace with loopback only.
 
 The scenarios run each in its own namespace (``main``, ``kill`` and ``docs`` at once,
-``fault`` and ``ddc`` after them) and each test waits for its scenario's verdicts. Without
+``fault``, ``ddc`` and ``imu`` after them) and each test waits for its scenario's verdicts. Without
 the ``ros2`` extra, or where network namespaces cannot be made, the tests skip, unless
 ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
 
@@ -111,14 +111,14 @@ class Scenario:
 
 
 #: Scenarios started together once the first three have ended.
-LATER = ("fault", "ddc")
+LATER = ("fault", "ddc", "imu")
 
 
 class Scenarios(dict[str, Scenario]):
     """The scenarios by name: ``main``, ``kill`` and ``docs`` start at once, side by side;
-    ``fault`` and ``ddc`` when first asked for, after they have ended: the fault timings
-    are the node's and the emulator's own, but five ROS graphs starting at once on two
-    cores starve serve past the boards' request timeouts before anything is measured."""
+    ``fault``, ``ddc`` and ``imu`` when first asked for, after they have ended: the fault
+    timings are the node's and the emulator's own, but six ROS graphs starting at once on
+    two cores starve serve past the boards' request timeouts before anything is measured."""
 
     def __init__(self, log_dir: Path) -> None:
         super().__init__({name: Scenario(name, log_dir) for name in ("main", "kill", "docs")})
@@ -427,3 +427,19 @@ def test_kinematics_are_ros_parameters_set_at_start_and_at_run_time(
     assert facts["after"] / facts["before"] == pytest.approx(2.0, rel=0.15), facts
     # -p wheel_separation:=0.7 at start: taken, not ignored.
     assert scenarios["ddc"].check("stamped")["separation"] == 0.7
+
+
+def test_the_emulated_bodys_imu_is_published_on_imu_data(
+        scenarios: dict[str, Scenario]) -> None:
+    rest = scenarios["imu"].check("imu_rest")
+    assert rest["frame_id"] == "ImuALink"
+    assert rest["rate_hz"] > 25  # 50 Hz nominal, on a loaded machine fewer
+    assert rest["orientation_covariance"] == -1.0  # a 6-axis IMU gives no orientation
+    assert rest["gyro_variance"] > 0 and rest["accel_variance"] > 0
+    assert math.isclose(rest["az"], 9.81, abs_tol=0.3) and abs(rest["ax"]) < 0.3
+    assert abs(rest["gz"]) < math.radians(2)
+    turning = scenarios["imu"].check("imu_turning")
+    assert turning["samples"] > 20
+    assert turning["truth_omega"] > 0.1
+    assert math.isclose(turning["gz"], turning["truth_omega"], rel_tol=0.2, abs_tol=0.03)
+    assert scenarios["imu"].check("imu_node_exit")["code"] == 0

@@ -20,7 +20,7 @@ import click
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
 
-__all__ = ["Series", "field_value", "plot", "read_series"]
+__all__ = ["Reading", "Series", "field_value", "plot", "read_series"]
 
 DEFAULT_FIELDS = "a.speed+a.ref,b.speed+b.ref"
 TELEMETRY_SUFFIX = "/telemetry"
@@ -76,15 +76,38 @@ def _messages(stream: IO[bytes], topics: list[str] | None) -> tuple[Iterator[Any
     return NonSeekingReader(stream).iter_messages(topics=topics, log_time_order=False), False
 
 
+@dataclass
+class Reading:
+    """What :func:`read_series` found: the series, whether the file was complete, and how
+    many messages of the chosen topics were skipped because they could not be read as a
+    JSON record (not JSON, nested too deeply, a number beyond any float …)."""
+
+    series: list[Series]
+    complete: bool
+    skipped: int = 0
+
+
+def _values(data: bytes, fields: list[str]) -> list[tuple[str, float]]:
+    """The finite values of ``fields`` in one message; ``ValueError`` when the message is
+    not a JSON record whose numbers are floats."""
+    try:
+        record = json.loads(data)
+        values = [(name, field_value(record, name)) for name in fields]
+    except (ValueError, UnicodeDecodeError, RecursionError, OverflowError) as exc:
+        raise ValueError(str(exc)) from None
+    return [(name, v) for name, v in values if v is not None and math.isfinite(v)]
+
+
 def read_series(path: Path, topics: list[str] | None, fields: list[str],
-                clock: str = "publish") -> tuple[list[Series], bool]:
-    """Each (topic, field) pair as a time series, and whether the file was complete.
-    ``topics=None``: every ``/board/NAME/telemetry`` topic in the file."""
+                clock: str = "publish") -> Reading:
+    """Each (topic, field) pair as a time series, whether the file was complete, and the
+    messages skipped. ``topics=None``: every ``/board/NAME/telemetry`` topic in the file."""
     series: dict[tuple[str, str], Series] = {}
     if topics is not None:
         series = {(t, f): Series(t, f) for t in topics for f in fields}
     origin: float | None = None
     complete = False
+    skipped = 0
     try:
         with path.open("rb") as stream:
             messages, complete = _messages(stream, topics)
@@ -93,18 +116,17 @@ def read_series(path: Path, topics: list[str] | None, fields: list[str],
                 if topics is None and not topic.endswith(TELEMETRY_SUFFIX):
                     continue
                 try:
-                    record = json.loads(message.data)
-                except (ValueError, UnicodeDecodeError):
-                    continue  # not JSON: nothing to plot in it
+                    values = _values(message.data, fields)
+                except ValueError:
+                    skipped += 1  # one bad message: said, and the rest still plotted
+                    continue
                 stamp = (message.publish_time if clock == "publish" else message.log_time) / 1e9
                 origin = stamp if origin is None else min(origin, stamp)
-                for name in fields:
-                    value = field_value(record, name)
-                    if value is not None and math.isfinite(value):
-                        line = series.get((topic, name)) or series.setdefault(
-                            (topic, name), Series(topic, name))
-                        line.t.append(stamp)
-                        line.values.append(value)
+                for name, value in values:
+                    line = series.get((topic, name)) or series.setdefault(
+                        (topic, name), Series(topic, name))
+                    line.t.append(stamp)
+                    line.values.append(value)
     except OSError as exc:
         raise CliError(f"{path}: cannot read: {exc.strerror or exc}", ExitCode.FAILURE) from None
     except _UNREADABLE as exc:
@@ -118,7 +140,8 @@ def read_series(path: Path, topics: list[str] | None, fields: list[str],
         order = sorted(range(len(line.t)), key=line.t.__getitem__)
         line.t = [line.t[i] - (origin or 0.0) for i in order]
         line.values = [line.values[i] for i in order]
-    return sorted(series.values(), key=lambda s: (s.topic, fields.index(s.field))), complete
+    return Reading(sorted(series.values(), key=lambda s: (s.topic, fields.index(s.field))),
+                   complete, skipped)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
@@ -148,9 +171,13 @@ def plot(recording: Path, topics: tuple[str, ...], fields: str, clock: str,
         raise CliError("--fields: give at least one field name", ExitCode.BAD_INPUT)
     output = output or recording.with_suffix(".png")
     check_plot_path(output, "--output")
-    series, complete = read_series(recording, list(topics) or None, names, clock)
-    if not complete:
+    reading = read_series(recording, list(topics) or None, names, clock)
+    series = reading.series
+    if not reading.complete:
         note(f"{recording} was not closed (no summary): plotting the complete chunks it holds")
+    if reading.skipped:
+        note(f"skipped {reading.skipped} message(s) that are not JSON records with plottable "
+             "numbers (not JSON, nested too deeply, or a number beyond a float's range)")
     chosen = sorted({s.topic for s in series})
     if not chosen:
         where = ", ".join(topics) if topics else "any /board/NAME/telemetry topic"

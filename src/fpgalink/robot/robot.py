@@ -115,6 +115,8 @@ class Robot:
         #: boards restarted and not yet reconfigured, and boards whose telemetry stopped
         self._reconfiguring: set[str] = set()
         self._stale: dict[str, str] = {}
+        #: boards heard again after a silence, not yet known whether they restarted
+        self._checking: set[str] = set()
         #: encoder counts each wheel had before its board's restarts (joint angles go on)
         self._count_offset: dict[tuple[str, int], int] = {}
         #: the exception that stopped the robot for good, if one did
@@ -368,12 +370,21 @@ class Robot:
         elif kind is LinkEventKind.TELEMETRY_RESUMED:
             if self._stale.pop(name, None) is not None:
                 self._board_recovered(name, "telemetry flowing again", now)
+        elif kind is LinkEventKind.BOARD_BACK:
+            self._checking.discard(name)
+            self._board_recovered(name, event.detail, now)
         elif link.board_alive:
             self.supervisor.board_alive(name, True, now)
+            if link.connection.verifying:
+                # Heard again after a silence: whether it restarted meanwhile is being
+                # asked; not ready until the answer comes.
+                self._checking.add(name)
+                self.supervisor.blocked[name] = "heard again: checking whether it restarted"
 
     def _restarted(self, name: str, detail: str, now: float) -> None:
         """The board restarted: stop, forget its counts (a reset is not motion), and wait
         for its link to set again what it holds."""
+        self._checking.discard(name)
         self._reconfiguring.add(name)
         self._stale.pop(name, None)
         latest = self.latest.pop(name, None)
@@ -415,6 +426,8 @@ class Robot:
         """One of the board's faults cleared: ready again once none is left."""
         if name in self._reconfiguring:
             self.supervisor.blocked[name] = "restarted: reconfiguring"
+        elif name in self._checking:
+            self.supervisor.blocked[name] = "heard again: checking whether it restarted"
         elif name in self._stale:
             self.supervisor.blocked[name] = self._stale[name]
         else:

@@ -53,7 +53,7 @@ from rclpy.qos import (
     qos_profile_parameters,
     qos_profile_sensor_data,
 )
-from sensor_msgs.msg import JointState
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool
 
 from fpgalink.aio.link import LinkEvent, LinkEventKind
@@ -73,6 +73,9 @@ NODE_NAME = "fpgalink"
 DIAGNOSTICS_PERIOD_S = 1.0
 #: Twist/JointState references older than this bring the wheels to rest (a parameter).
 DEFAULT_CMD_TIMEOUT_S = 0.5
+#: ``imu/data`` from an emulated body's IMU: its rate, and its frame (the seed's URDF link).
+IMU_RATE_HZ = 50.0
+IMU_FRAME = "ImuALink"
 #: A warning repeated within this is counted, not printed (a flood of bad cmd_vel).
 WARNING_PERIOD_S = 2.0
 CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/TwistStamped"}
@@ -248,6 +251,7 @@ class RosBridge:
         self.cmd_vel_sub = node.create_subscription(
             TwistStamped if stamped else Twist, "cmd_vel",
             self._threadsafe(self._on_cmd_vel), 10)
+        self.imu_pub = self._imu_publisher()
         node.create_subscription(JointState, "wheel_refs",
                                  self._threadsafe(self._on_wheel_refs), 10)
         node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
@@ -541,6 +545,8 @@ class RosBridge:
                         asyncio.ensure_future(self._command_watchdog()),
                         asyncio.ensure_future(self._enable_keeper()),
                         asyncio.ensure_future(self._supervision_log())]
+        if self.imu_pub is not None:
+            self._tasks.append(asyncio.ensure_future(self._imu_loop()))
         try:
             await asyncio.gather(*self._tasks)
         finally:
@@ -661,6 +667,46 @@ class RosBridge:
             true.twist.twist.linear.x = float(truth["v"])
             true.twist.twist.angular.z = float(truth["omega"])
             self.truth_pub.publish(true)
+
+    # --- the emulated body's IMU ---------------------------------------------------------
+
+    def _imu_publisher(self) -> Any:
+        """``imu/data`` when the robot's body is emulated in this process with an IMU (the
+        physics body's truth carries one); ``None`` otherwise."""
+        truth = self.robot.truth()
+        if truth is None or truth.get("imu") is None:
+            return None
+        self.published["imu"] = 0
+        return self.node.create_publisher(Imu, "imu/data", qos_profile_sensor_data)
+
+    async def _imu_loop(self) -> None:
+        """sensor_msgs/Imu at :data:`IMU_RATE_HZ`: angular velocity and linear acceleration
+        (each the mean since the previous reading, with the emulated IMU's noise and bias,
+        their variances on the diagonals); no orientation (covariance[0] = −1), as a
+        6-axis IMU gives none."""
+        while True:
+            await asyncio.sleep(1.0 / IMU_RATE_HZ)
+            truth = self.robot.truth()
+            reading = truth.get("imu") if truth is not None else None
+            if reading is None or self.imu_pub is None:
+                continue
+            message = Imu()
+            message.header.stamp = self.node.get_clock().now().to_msg()
+            message.header.frame_id = IMU_FRAME
+            gyro, accel = reading["angular_velocity"], reading["linear_acceleration"]
+            (message.angular_velocity.x, message.angular_velocity.y,
+             message.angular_velocity.z) = (float(v) for v in gyro)
+            (message.linear_acceleration.x, message.linear_acceleration.y,
+             message.linear_acceleration.z) = (float(v) for v in accel)
+            gyro_var = float(reading.get("angular_velocity_variance", 0.0))
+            accel_var = float(reading.get("linear_acceleration_variance", 0.0))
+            message.angular_velocity_covariance = [gyro_var, 0.0, 0.0, 0.0, gyro_var, 0.0,
+                                                   0.0, 0.0, gyro_var]
+            message.linear_acceleration_covariance = [accel_var, 0.0, 0.0, 0.0, accel_var,
+                                                      0.0, 0.0, 0.0, accel_var]
+            message.orientation_covariance = [-1.0] + [0.0] * 8
+            self.imu_pub.publish(message)
+            self.published["imu"] += 1
 
     async def _command_watchdog(self) -> None:
         while True:
