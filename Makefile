@@ -5,7 +5,7 @@ STAMP  := $(VENV)/.installed-stamp
 DEMO_STAMP := $(VENV)/.demo-stamp
 PYTEST_ARGS ?=
 
-.PHONY: setup test lint demo bench clean iverilog cc firmware
+.PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
 
 # The demo's set-up: the package and matplotlib for step.png, nothing else (README,
 # "Installing", gives the size).
@@ -20,10 +20,11 @@ $(DEMO_STAMP): pyproject.toml
 	touch $(DEMO_STAMP)
 
 # The test set-up is every extra: the ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags;
-# its transitive pins are in ros2-constraints.txt), the C co-simulation, the benchmarks'
-# peers and the developer tools; setuptools back (cffi builds through it).
+# its transitive pins are in ros2-constraints.txt), the physics body (MuJoCo), the C
+# co-simulation, the benchmarks' peers and the developer tools; setuptools back (cffi
+# builds through it).
 $(STAMP): $(DEMO_STAMP) ros2-constraints.txt
-	$(PY) -m pip install --quiet -e '.[dev,ros2,cosim,bench,plot]' setuptools -c ros2-constraints.txt
+	$(PY) -m pip install --quiet -e '.[dev,ros2,physics,cosim,bench,plot]' setuptools -c ros2-constraints.txt
 	touch $(STAMP)
 
 # Icarus Verilog simulates the reference UART the emulator's is checked against
@@ -44,6 +45,27 @@ ifeq ($(CC_FOUND),)
 	else sudo apt-get update -qq && sudo apt-get install -y -qq gcc libc6-dev >/dev/null; fi
 endif
 
+# CMake builds tf2_msgs (below) with the rosidl generators; a Debian package.
+CMAKE_FOUND := $(shell command -v cmake 2>/dev/null)
+cmake:
+ifeq ($(CMAKE_FOUND),)
+	@if [ "$$(id -u)" = 0 ]; then apt-get update -qq && apt-get install -y -qq cmake >/dev/null; \
+	else sudo apt-get update -qq && sudo apt-get install -y -qq cmake >/dev/null; fi
+endif
+
+# tf2_msgs (/tf, /tf_static) has no Jazzy wheel on PyPI: generated from the rosidl wheels that
+# are, its type hash checked against Jazzy's, installed into the venv (ros2/build_tf2_msgs.py).
+# Part of the tests' set-up only: the node runs without /tf where it is absent.
+TF2_STAMP := $(VENV)/.tf2-msgs-stamp
+$(TF2_STAMP): $(STAMP) ros2/build-requirements.txt ros2/build_tf2_msgs.py \
+		ros2/tf2_msgs/CMakeLists.txt ros2/tf2_msgs/package.xml ros2/tf2_msgs/msg/TFMessage.msg
+	$(PY) -m pip install --quiet -r ros2/build-requirements.txt -c ros2-constraints.txt
+	$(PY) ros2/build_tf2_msgs.py
+	touch $(TF2_STAMP)
+
+tf2-msgs: cmake cc
+	@$(MAKE) --no-print-directory $(TF2_STAMP)
+
 # The firmware core and the protocol code generated for it, built for this host (sizes printed).
 firmware: $(STAMP) cc
 	$(MAKE) -C firmware PYTHON=$(abspath $(PY))
@@ -51,7 +73,7 @@ firmware: $(STAMP) cc
 setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
-test: $(STAMP) iverilog cc
+test: $(STAMP) iverilog cc tf2-msgs
 	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
@@ -75,6 +97,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2
 	$(PY) -m benchmarks.crc_ber
+	$(PY) -m benchmarks.flood --mb 5
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

@@ -23,14 +23,15 @@ Cases:
 * ``board.idle``: a board left alone (telemetry off, nothing received, wheels still): its
   timer ticks change nothing and run as a count only, so an idle board is nearly free;
 * ``robot``: the emulated robot (``fpgaemu.robot.EmulatedRobot``): boards L and R and the
-  body their four wheels move, 1 kHz ``TM`` from both, ``RV`` to both every 10 ms (a gentle
-  arc: 0.1 m/s, 10 deg/s), ``RE`` every 100 ms; the emulator's cost, as ``board``.
+  kinematic body their four wheels move, 1 kHz ``TM`` from both, ``RV`` to both every 10 ms
+  (a gentle arc: 0.1 m/s, 10 deg/s), ``RE`` every 100 ms; the emulator's cost, as ``board``;
+* ``robot.mujoco``: the same robot with the physics body (MuJoCo, on gravel).
 
 Reported per case: ``x_real_time`` (emulated s / wall s), ``events_per_s`` (timeline events
 per wall second: every event the board's ``Timeline`` scheduled, read from its sequence
 counter, so counting costs nothing; the ~10/s cancelled watchdog re-arms are included) and
 the wall time. Targets (reported, not asserted): ``board`` ≥ 40×, ``board.idle`` ≥ 300×,
-``robot`` ≥ 20× real time.
+``robot`` ≥ 20×, ``robot.mujoco`` ≥ 15× real time.
 Every run is checked: 10,000 periods, no missed ``TM``, both wheels at their references.
 
 Run ``python -m benchmarks.emulator`` from the repository root; ``--quick`` is one
@@ -206,9 +207,10 @@ ROBOT_COMMAND = (0.1, 0.17453292519943295)  #: 0.1 m/s, 10 deg/s
 ROBOT_RV_EVERY_MS = 10
 
 
-def robot_scenario(seconds: float) -> Callable[[], Outcome]:
+def robot_scenario(seconds: float, body: str = "kinematic") -> Callable[[], Outcome]:
     """Both boards of the emulated robot and its body; figures summed over the boards."""
-    robot = EmulatedRobot(baud=BAUD, settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
+    robot = EmulatedRobot(baud=BAUD, settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1},
+                          body=body)
     hosts = {name: Connection(baud=BAUD) for name in robot.boards}
     references = wheel_command(robot.description, *ROBOT_COMMAND).references
     end_ms = round(seconds * 1000)
@@ -252,7 +254,7 @@ def robot_scenario(seconds: float) -> Callable[[], Outcome]:
             missed=sum(t.missed_count for t in timings),
             tm_wire_bytes=sum(t.tx_wire_bytes for t in timings),
             speed_a=left.channels[1].speed,  # type: ignore[attr-defined]
-            speed_b=robot.body.distance,
+            speed_b=robot.truth().distance,
             tm_sent=sum(s.telemetry_sent for s in stats),
             tm_finished=sum(t.tm_finished for t in timings),
             tm_dropped=sum(s.telemetry_dropped for s in stats),
@@ -340,17 +342,20 @@ CASES = (
     ("board.idle", "board left alone: telemetry off, nothing received", False, False),
     ("robot", "robot: boards L+R and the body, TM every 1 ms each, RV every 10 ms", False,
      True),
+    ("robot.mujoco", "as robot, with the MuJoCo body (gravel)", False, True),
 )
 TARGET_IDLE_X_REAL_TIME = 300.0
 #: the idle case runs this many times longer, so its wall time is measurable
 IDLE_STRETCH = 10
 TARGET_ROBOT_X_REAL_TIME = 20.0  #: the robot case (two boards and the body)
+TARGET_MUJOCO_X_REAL_TIME = 15.0  #: the robot with the MuJoCo body
 
 
 def _targets(cases: dict[str, Case]) -> list[dict[str, Any]]:
     targets = []
     for key, threshold in (("board", TARGET_X_REAL_TIME), ("board.idle", TARGET_IDLE_X_REAL_TIME),
-                           ("robot", TARGET_ROBOT_X_REAL_TIME)):
+                           ("robot", TARGET_ROBOT_X_REAL_TIME),
+                           ("robot.mujoco", TARGET_MUJOCO_X_REAL_TIME)):
         measured = cases[key].summary()["x_real_time"]["median"]
         targets.append({
             "case": key,
@@ -407,13 +412,14 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.error("--reps must be ≥ 1 and --seconds ≥ 0.01")
 
     started = time.perf_counter()
-    cases = [Case(key, text, decode, rv, robot=key == "robot", idle=key == "board.idle")
-             for key, text, decode, rv in CASES]
+    cases = [Case(key, text, decode, rv, robot=key.startswith("robot"),
+                  idle=key == "board.idle") for key, text, decode, rv in CASES]
     # Reps interleave the cases, so a slow spell on the machine spreads over all of them.
     for rep in range(reps):
         for case in cases:
             if case.robot:
-                run = robot_scenario(seconds)
+                run = robot_scenario(seconds, "mujoco" if case.key == "robot.mujoco"
+                                     else "kinematic")
             elif case.idle:
                 run = idle_scenario(seconds * IDLE_STRETCH)
             else:

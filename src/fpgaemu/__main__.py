@@ -11,7 +11,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import ipaddress
-import selectors
+import math
 import signal
 import sys
 from collections.abc import Callable
@@ -21,20 +21,26 @@ from typing import Any, NoReturn
 
 import click
 
-from fpgaemu.build import build_board
+from fpgaemu.build import UART_RX_MODES, build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
-from fpgaemu.robot import EmulatedRobot
+from fpgaemu.physics import SURFACES
+from fpgaemu.physics import why_unavailable as physics_missing
+from fpgaemu.robot import BODIES, EmulatedRobot, check_body, default_body
 from fpgaemu.serve import (
+    IDLE_TIMEOUT_S,
+    MAX_TRUTH_READERS,
     PacedBoard,
     PacedRobot,
     PtyEndpoint,
     RobotSide,
     TcpEndpoint,
     TruthEndpoint,
+    serve_loop,
 )
 from fpgalink.protocol import ParameterError
-from fpgalink.protocol.paramfile import parse_parameter_file, parse_parameter_table
+from fpgalink.protocol.paramfile import parse_parameter_table
 from fpgalink.protocol.robot import DescriptionError, RobotDescription, load_robot, seed_robot
+from fpgalink.protocol.tomlfile import TomlFileError, load_toml
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = ["cli", "main"]
@@ -89,11 +95,10 @@ def parse_settings(config: Path | None, assignments: tuple[str, ...]) -> dict[st
     try:
         if config is not None:
             try:
-                text = config.read_text(encoding="utf-8")
-            except (OSError, UnicodeDecodeError) as exc:
-                raise ServeError(f"--config {config}: cannot read: {exc}",
-                                 EXIT_BAD_INPUT) from None
-            for param, channel, value in parse_parameter_file(text, str(config)):
+                document = load_toml(str(config), f"--config {config}")
+            except TomlFileError as exc:
+                raise ServeError(str(exc), EXIT_BAD_INPUT) from None
+            for param, channel, value in parse_parameter_table(document, str(config)):
                 settings[param.full_name(channel)] = value
         table: dict[str, object] = {}
         for item in assignments:
@@ -137,6 +142,16 @@ class Options:
     given: dict[str, Any] = field(default_factory=dict)
 
 
+def _file_name(ctx: click.Context, param: click.Parameter, value: str | None) -> Path | None:
+    """A file option's value as a path; an empty name is an error, not "no file"."""
+    if value is None:
+        return None
+    if not value.strip():
+        raise ServeError(f"--{(param.name or '').replace('_path', '').replace('_', '-')}: "
+                         "empty file name", EXIT_BAD_INPUT)
+    return Path(value)
+
+
 SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--pty", "use_pty", is_flag=True, default=None,
                  help="Serve each board on a pseudo-terminal."),
@@ -150,7 +165,7 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--seed", type=int, help="Seed for noise and faults  [default: 0]"),
     click.option("--gear", type=click.Choice(["high", "low"]),
                  help="Gearbox stage of the wheels  [default: high]"),
-    click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path),
+    click.option("--config", "config_path", callback=_file_name, metavar="FILE",
                  help="Initial parameter values: the TOML file `fpgalink-cli param dump` "
                       "writes (NAME = VALUE, tables [A] and [B])."),
     click.option("--set", "assignments", multiple=True, metavar="NAME=VALUE",
@@ -165,24 +180,42 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--robot", "robot", is_flag=True, default=None,
                  help="Serve a robot: its boards (L, R) move one emulated body; the true "
                       "pose streams from a truth endpoint (see --truth)."),
-    click.option("--robot-file", "robot_file", type=click.Path(dir_okay=False, path_type=Path),
+    click.option("--robot-file", "robot_file", callback=_file_name, metavar="FILE",
                  help="The robot description (TOML; default: the seed's robot)."),
     click.option("--surface", metavar="NAME",
-                 help="What the robot drives on: a surface of its description (the seed's "
-                      "robot: ideal, gravel, marble)  [default: the description's]"),
+                 help="What the robot drives on: with --body mujoco one of "
+                      f"{', '.join(SURFACES)}; with --body kinematic a surface of the robot "
+                      "description (the seed's robot: ideal, gravel, marble, grass)  "
+                      "[default: the description's]"),
+    click.option("--body", "body", metavar="|".join(BODIES),
+                 help="The robot's body: mujoco (a physics engine: the wheels slip, carry "
+                      "the ground's load, an IMU feels it) or kinematic (the odometry's own "
+                      "model: fast and exact)  [default: mujoco where MuJoCo is installed]"),
+    click.option("--uart-rx", "uart_rx", metavar="|".join(UART_RX_MODES),
+                 help="How each board's UART receiver finds a start bit: edge (LiteX's: a "
+                      "falling edge) or level (verilog-uart's, a 16550's: a low level, "
+                      "checked again at mid-bit)  [default: edge]"),
+    click.option("--tx-gap", "tx_gap", type=click.IntRange(0, 10_000), metavar="CYCLES",
+                 help="Idle cycles each board's UART leaves after a stop bit between "
+                      "back-to-back bytes (2 = LiteX's PHY)  [default: 0]"),
     click.option("--truth", "truth", metavar="HOST:PORT",
-                 help="With --robot: where the true pose streams as JSON lines  "
-                      "[default: 127.0.0.1:0]"),
+                 help="With --robot: where the true pose streams as JSON lines, to up to "
+                      f"{MAX_TRUTH_READERS} readers  [default: 127.0.0.1:0]"),
     click.option("--firmware", "firmware", type=click.Choice(["python", "c"]),
                  help="The MicroBlaze software: the Python model, or the C core of firmware/ "
                       "(built on first use with the system C compiler; docs/firmware.md)  "
                       "[default: python]"),
+    click.option("--idle-timeout", "idle_timeout", type=float, metavar="SECONDS",
+                 help="With --tcp: disconnect a host that has sent nothing this long after "
+                      "connecting; 0: never  [default: "
+                      f"{IDLE_TIMEOUT_S:g}]"),
 ]
 DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 1_000_000,
                             "seed": 0, "gear": "high", "config_path": None,
                             "assignments": (), "links": (), "faults": (), "robot": False,
                             "robot_file": None, "surface": None, "truth": None,
-                            "firmware": "python"}
+                            "firmware": "python", "idle_timeout": None,
+                            "body": None, "uart_rx": "edge", "tx_gap": 0}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -222,8 +255,14 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         raise ServeError("give exactly one of --pty or --tcp HOST:PORT", EXIT_BAD_INPUT)
     host, port = parse_tcp(tcp) if tcp is not None else ("127.0.0.1", 0)
     robot = _robot(value) if value["robot"] else None
-    if robot is None and any(value[k] is not None for k in ("robot_file", "surface", "truth")):
-        raise ServeError("--robot-file, --surface and --truth go with --robot", EXIT_BAD_INPUT)
+    if robot is None and any(value[k] is not None
+                             for k in ("robot_file", "surface", "truth", "body")):
+        raise ServeError("--robot-file, --surface, --body and --truth go with --robot",
+                         EXIT_BAD_INPUT)
+    if value["uart_rx"] not in UART_RX_MODES:
+        raise ServeError(f"--uart-rx {value['uart_rx']!r}: choose "
+                         f"{' or '.join(UART_RX_MODES)}", EXIT_BAD_INPUT)
+    body = _body(value, robot) if robot is not None else None
     names = list(robot.boards) if robot else board_names(value["boards"])
     links = parse_links(value["links"], names)
     if links and not use_pty:
@@ -231,35 +270,56 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     settings = parse_settings(value["config_path"], value["assignments"])
     faults = _board_faults(list(value["faults"]), names)
     truth = parse_tcp(value["truth"] or "127.0.0.1:0") if robot else None
+    idle_timeout = value["idle_timeout"]
+    if idle_timeout is None:
+        idle_timeout = IDLE_TIMEOUT_S
+    elif use_pty:
+        raise ServeError("--idle-timeout goes with --tcp (a pty has no connection to drop)",
+                         EXIT_BAD_INPUT)
+    elif not (math.isfinite(idle_timeout) and idle_timeout >= 0):
+        raise ServeError(f"--idle-timeout {idle_timeout!r}: expected seconds ≥ 0 (0: never)",
+                         EXIT_BAD_INPUT)
     try:
         paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
-                              settings, faults, value["firmware"])
+                              settings, faults, value["firmware"], body=body,
+                              uart_rx=value["uart_rx"], tx_gap=value["tx_gap"],
+                              surface=value["surface"])
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
-    with asyncio.Runner(loop_factory=_precise_loop) as runner:
-        code = runner.run(_serve(use_pty, host, port, paced, links, truth))
+    with asyncio.Runner(loop_factory=serve_loop) as runner:
+        code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout))
     sys.exit(code)
-
-
-def _precise_loop() -> asyncio.AbstractEventLoop:
-    """An event loop whose timers wake on time to the microsecond: epoll and poll round a
-    wait up to whole milliseconds, which would put every reply a millisecond late; select()
-    does not, and serve watches only a few descriptors."""
-    return asyncio.SelectorEventLoop(selectors.SelectSelector())
 
 
 def _robot(value: dict[str, Any]) -> RobotDescription:
     try:
         description = load_robot(str(value["robot_file"])) if value["robot_file"] \
             else seed_robot()
-        if value["surface"] is not None:
-            description = description.on_surface(value["surface"])
     except DescriptionError as exc:
         raise ServeError(str(exc), EXIT_BAD_INPUT) from None
     if value["boards"] not in (1, len(description.boards)):
         raise ServeError(f"--robot serves the robot's {len(description.boards)} boards; "
                          "leave out --boards", EXIT_BAD_INPUT)
     return description
+
+
+def _body(value: dict[str, Any], description: RobotDescription) -> str:
+    """The body to serve, checked with the surface: one line and exit 2 otherwise; when
+    MuJoCo is missing and no body was asked for, the kinematic one, said once."""
+    body = value["body"]
+    surface = value["surface"] or description.surface
+    if body is None:
+        body = default_body(surface)
+        if body == "kinematic" and physics_missing() is not None:
+            print("fpgaemu: MuJoCo is not installed: the robot's body is the kinematic one "
+                  "(pip install 'fpgalink[physics]' for the physics body)", file=sys.stderr,
+                  flush=True)
+    try:
+        check_body(body, surface, description)
+    except ValueError as exc:
+        flag = "--surface" if str(exc).startswith("surface") else "--body"
+        raise ServeError(f"{flag}: {exc}", EXIT_BAD_INPUT) from None
+    return str(body)
 
 
 def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
@@ -282,16 +342,19 @@ def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
 
 def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, seed: int,
                   gear: str, settings: dict[str, int | float],
-                  faults: dict[str, list[str]], firmware: str = "python"
-                  ) -> dict[str, PacedBoard]:
+                  faults: dict[str, list[str]], firmware: str = "python", *,
+                  body: str | None = None, uart_rx: str = "edge", tx_gap: int = 0,
+                  surface: str | None = None) -> dict[str, PacedBoard]:
     if robot is not None:
-        emulated = EmulatedRobot(robot, baud=baud, seed=seed, gear=gear, faults=faults,
-                                 settings=settings, firmware=firmware)
+        emulated = EmulatedRobot(robot, surface, baud=baud, seed=seed, gear=gear,
+                                 faults=faults, settings=settings, body=body,
+                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware)
         paced_robot = PacedRobot(emulated)
         return {name: paced_robot.side(name) for name in names}
     return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
                                          settings=settings, faults=faults[name],
-                                         firmware=firmware))
+                                         firmware=firmware, uart_rx=uart_rx,
+                                         tx_byte_gap=tx_gap))
             for index, name in enumerate(names)}
 
 
@@ -310,7 +373,8 @@ def _make_link(path: Path, target: str) -> None:
 
 
 async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoard],
-                 links: dict[str, Path], truth: tuple[str, int] | None) -> int:
+                 links: dict[str, Path], truth: tuple[str, int] | None,
+                 idle_timeout: float = IDLE_TIMEOUT_S) -> int:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -318,9 +382,12 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
     endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
     made: list[Path] = []
     truth_endpoint: TruthEndpoint | None = None
+    loop.add_signal_handler(signal.SIGUSR1, lambda: _report_all(endpoints, truth_endpoint,
+                                                                 final=False))
     # Printed once every endpoint is up: a script that connects on the first ready line
     # must not reach a board that is about to go because a later one could not be served.
     ready: list[str] = []
+    served = False
     try:
         for index, (name, board) in enumerate(paced.items()):
             if use_pty:
@@ -332,16 +399,19 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                     _make_link(links[name], pty.path)
                     made.append(links[name])
                     where = f"{links[name]} -> {pty.path}"
+                ready.append(f"ready {name} {where}")
             else:
-                tcp = TcpEndpoint(board, host, port + index if port else 0)
+                tcp = TcpEndpoint(board, host, port + index if port else 0,
+                                  idle_timeout=idle_timeout)
                 try:
                     await tcp.start()
                 except OSError as exc:
                     raise ServeError(f"cannot serve board {name} on {tcp.url}: "
                                      f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
                 endpoints.append((name, tcp))
-                where = tcp.url
-            ready.append(f"ready {name} {where}")
+                # One line per listening socket (IPv4 and IPv6 of a wildcard address), each
+                # an address a client can use.
+                ready += [f"ready {name} {url}" for url in tcp.urls]
         sides = [b for b in paced.values() if isinstance(b, RobotSide)]
         if truth is not None and sides:
             truth_endpoint = TruthEndpoint(sides[0].robot, *truth)
@@ -350,8 +420,9 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             except OSError as exc:
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
-            ready.append(f"ready truth {truth_endpoint.url}")
+            ready += [f"ready truth {url}" for url in truth_endpoint.urls]
         print("\n".join(ready), flush=True)
+        served = True
         await stop.wait()
     finally:
         if truth_endpoint is not None:
@@ -362,22 +433,54 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             with contextlib.suppress(OSError):
                 if path.is_symlink():
                     path.unlink()
-        for name, endpoint in endpoints:
-            _report(name, endpoint)
+        if served:  # a serve that could not start says only why (one line)
+            _report_all(endpoints, truth_endpoint, final=True)
     return 0
+
+
+def _report_all(endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]],
+                truth: TruthEndpoint | None, *, final: bool) -> None:
+    """Each board's byte counts (and its troubles) on stderr: on exit, and on SIGUSR1."""
+    for name, endpoint in endpoints:
+        _report(name, endpoint)
+    if truth is not None:
+        notes = [f"{truth.readers} reader(s) now"] if not final else []
+        if truth.turned_away:
+            notes.append(f"{truth.turned_away} reader(s) turned away (at most "
+                         f"{MAX_TRUTH_READERS} at once)")
+        if truth.aborted:
+            notes.append(f"{truth.aborted} reader(s) let go for not reading")
+        if truth.listener.refused_no_descriptor:
+            notes.append(f"{truth.listener.refused_no_descriptor} connection(s) turned away "
+                         "for want of a file descriptor")
+        if notes:
+            print(f"truth: {'; '.join(notes)}", file=sys.stderr, flush=True)
 
 
 def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
     paced = endpoint.paced
-    notes = []
-    if paced.dropped_rx:
-        notes.append(f"dropped {paced.dropped_rx} host bytes written faster than "
-                     f"{paced.board.config.baud:,} Bd carries")
+    board = paced.board
+    rx, command, tx = board.uartread.stats, board.uartcommand.stats, board.uartwrite.stats
+    # What crossed the cable, both ways: the accounting a test or a user checks the
+    # "nothing the host wrote is lost" promise against.
+    counts = (f"host → board {rx.bytes_sent:,} bytes ({command.bytes_received:,} received: "
+              f"{command.noise_bytes:,} noise between frames, {command.frames:,} frames; "
+              f"held back {endpoint.flow.pauses:,} times; {paced.discarded_rx:,} discarded "
+              f"when a host left); board → host {tx.bytes_sent:,} bytes")
+    notes = [counts]
     if endpoint.dropped_tx:
         notes.append(f"dropped {endpoint.dropped_tx} TX bytes nobody read in time")
     if paced.lag.lag_events:
         notes.append(f"fell behind real time {paced.lag.lag_events} times, worst "
                      f"{paced.lag.worst_lag_s * 1000:.1f} ms (caught up, no bytes lost)")
+    if isinstance(endpoint, TcpEndpoint):
+        if endpoint.turned_away:
+            notes.append(f"{endpoint.turned_away} host(s) told busy")
+        if endpoint.idle_closed:
+            notes.append(f"{endpoint.idle_closed} host(s) disconnected for sending nothing")
+        if endpoint.listener.refused_no_descriptor:
+            notes.append(f"{endpoint.listener.refused_no_descriptor} connection(s) turned "
+                         "away for want of a file descriptor")
     for note in notes:
         print(f"{name}: {note}", file=sys.stderr, flush=True)
 

@@ -62,6 +62,9 @@ class BoardConfig:
     #: (the seed's uartwrite as modelled: one stop bit exactly), 2 for LiteX's PHY (1,002
     #: cycles a byte at 1 MBd), 1 for amaranth-stdio's (docs/emulator.md)
     tx_byte_gap: int = 0
+    #: how ``uartread`` finds a start bit: ``edge`` (LiteX's) or ``level`` (a 16550's,
+    #: verilog-uart's): :data:`fpgaemu.uart.UART_RX_MODES`
+    uart_rx: str = "edge"
 
 
 class Peripheral(Protocol):
@@ -101,7 +104,8 @@ class Board:
             self.timeline, self.blk_mem_gen_rx, config.framing, config.watchdog_cycles
         )
         self.uartread = UartRead(
-            self.timeline, self.uartcommand.receive, config.baud, config.rx_faults
+            self.timeline, self.uartcommand.receive, config.baud, config.rx_faults,
+            config.uart_rx,
         )
         self.uartwrite = UartWrite(self.timeline, config.baud, config.tx_faults,
                                    config.tx_byte_gap)

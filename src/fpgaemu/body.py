@@ -14,6 +14,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
+from typing import Any
 
 from fpgalink.protocol.robot import (
     LEFT_WHEELS,
@@ -36,6 +37,25 @@ class BodyState:
     omega: float  #: rad/s over the last step
     distance: float  #: m travelled
     surface: str
+    #: which body: ``kinematic`` (this module) or ``mujoco`` (:mod:`fpgaemu.physics`)
+    body: str = "kinematic"
+    z: float = 0.0  #: m, base_link's height (a physics body; 0 for the planar one)
+    roll: float = 0.0  #: rad
+    pitch: float = 0.0  #: rad, positive nose down (REP-103)
+    #: the IMU's reading (a physics body's): :class:`fpgaemu.physics.ImuReading`
+    imu: Any = None
+
+    def record(self) -> dict[str, Any]:
+        """The state as the truth stream's JSON record (docs/emulator.md §17)."""
+        record: dict[str, Any] = {
+            "t": self.t, "x": self.pose.x, "y": self.pose.y, "theta": self.pose.theta,
+            "v": self.v, "omega": self.omega, "distance": self.distance,
+            "surface": self.surface, "body": self.body}
+        if self.body != "kinematic":
+            record.update(z=self.z, roll=self.roll, pitch=self.pitch)
+        if self.imu is not None:
+            record["imu"] = self.imu.record()
+        return record
 
 
 class Body:

@@ -12,14 +12,14 @@ from urllib.parse import parse_qs, urlsplit
 from fpgaemu.board import Board, BoardConfig
 from fpgaemu.faults import parse_faults
 from fpgaemu.firmware import attach_firmware
-from fpgaemu.motor import GEARS, Motors
-from fpgaemu.uart import DEFAULT_BAUD
+from fpgaemu.motor import GEARS, DrivenMotors, Motors
+from fpgaemu.uart import DEFAULT_BAUD, UART_RX_MODES
 
-__all__ = ["EMU_OPTIONS", "FIRMWARES", "board_from_url", "build_board", "parse_emu_options",
-           "seed_option"]
+__all__ = ["EMU_OPTIONS", "FIRMWARES", "UART_RX_MODES", "board_from_url", "build_board",
+           "parse_emu_options", "seed_option"]
 
 #: The query options an ``emu://`` URL understands.
-EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap", "firmware")
+EMU_OPTIONS = ("seed", "gear", "fault", "tx_gap", "uart_rx", "firmware")
 #: The MicroBlaze software: the Python model, or the C core (firmware/) through cffi.
 FIRMWARES = ("python", "c")
 
@@ -34,30 +34,42 @@ def build_board(
     tx_byte_gap: int = 0,
     current_noise_a: float = 0.0,
     firmware: str = "python",
+    wheels: str = "identified",
+    uart_rx: str = "edge",
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
     byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
-    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``firmware`` the
-    MicroBlaze software, ``"python"`` (the model) or ``"c"`` (the C core, built on first use;
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``uart_rx`` how the
+    receiver finds a start bit (``edge`` or ``level``, :data:`UART_RX_MODES`); ``wheels`` what turns
+    the wheels: ``"identified"`` (the seed's identified plant, :class:`~fpgaemu.motor.Motors`)
+    or ``"driven"`` (motors as torque sources for a body's physics,
+    :class:`~fpgaemu.motor.DrivenMotors`); ``firmware`` the MicroBlaze software, ``"python"``
+    (the model) or ``"c"`` (the C core, built on first use;
     :class:`~fpgaemu.cfirmware.CFirmwareUnavailable` without a C compiler). ``ValueError``
     for anything invalid."""
     if firmware not in FIRMWARES:
         raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
+    if uart_rx not in UART_RX_MODES:
+        raise ValueError(f"uart_rx must be {' or '.join(UART_RX_MODES)}, got {uart_rx!r}")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
-                         tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap)
+                         tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap,
+                         uart_rx=uart_rx)
     board = Board(config)
+    if wheels not in ("identified", "driven"):
+        raise ValueError(f"wheels must be 'identified' or 'driven', got {wheels!r}")
     if firmware == "c":
         from fpgaemu.cfirmware import attach_c_firmware
 
         attach_c_firmware(board, settings or {})
     else:
         attach_firmware(board, settings or {})
-    board.add_peripheral("motors", Motors(gear, current_noise_a))
+    motors = Motors if wheels == "identified" else DrivenMotors
+    board.add_peripheral("motors", motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())
     return board
 
@@ -79,7 +91,7 @@ def seed_option(options: dict[str, list[str]]) -> int:
 
 
 def board_from_url(url: str, baud: int) -> Board:
-    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2&firmware=c`` → a board
+    """``emu://?seed=3&gear=low&fault=drop-frames=PS:1&tx_gap=2&uart_rx=level&firmware=c`` → a board
     (``fault`` repeats)."""
     parts = urlsplit(url)
     if parts.scheme != "emu" or parts.netloc or parts.path not in ("", "/"):
@@ -91,4 +103,5 @@ def board_from_url(url: str, baud: int) -> Board:
     return build_board(baud=baud, seed=seed_option(options),
                        gear=options.get("gear", ["high"])[-1],
                        faults=options.get("fault", []), tx_byte_gap=int(gap_text),
+                       uart_rx=options.get("uart_rx", ["edge"])[-1],
                        firmware=options.get("firmware", ["python"])[-1])

@@ -55,6 +55,7 @@ from __future__ import annotations
 
 import cmath
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -70,10 +71,14 @@ __all__ = [
     "REST_CURRENT_A",
     "REST_SPEED_DPS",
     "ContinuousModel",
+    "DriveTrain",
+    "DrivenMotors",
     "MotorConstants",
     "Motors",
+    "WheelDrive",
     "WheelPlant",
     "continuous_model",
+    "drive_train",
     "identified_response",
     "turn",
 ]
@@ -407,6 +412,246 @@ class Motors:
                 io.encoder.follow(start, angle0, cycle, wheel.angle_deg)
             else:
                 turn(wheel, io.encoder, start, cycle)
+            io.current_a = wheel.current if self._noise is None else (
+                wheel.current + float(self._noise.normal(0.0, self.current_noise_a)))
+        self._cycle = cycle
+
+
+# --- the wheel as a torque source, for a body whose physics turns it --------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class DriveTrain:
+    """The motor and gearbox of one wheel as a two-mass system, in wheel units (everything
+    reflected through the gearbox): the motor's rotor (``rotor_inertia``, with its own
+    friction ``rotor_friction`` and the winding's torque) is coupled to the wheel side
+    (``wheel_inertia``) by a compliant transmission (``stiffness``, ``damping``), and the
+    ground loads the wheel side. The winding: ``L·di/dt = V·duty − k·ω_rotor − R·i``, torque
+    ``k·i`` (``k`` = ``torque_constant``, k_t = k_e in SI units).
+
+    The parameters are solved so that, with the wheel in the air, duty → wheel speed is the
+    seed's identified model (:func:`continuous_model`: three poles and a real zero) with its
+    DC gain (:func:`drive_train`); the winding adds a pole near R/L = 1,000 rad/s that the
+    identification at Ts = 0.05 s could not see."""
+
+    gear: str
+    rotor_inertia: float  #: kg·m²
+    wheel_inertia: float  #: kg·m²
+    stiffness: float  #: N·m/rad, rotor to wheel
+    damping: float  #: N·m·s/rad, rotor to wheel
+    rotor_friction: float  #: N·m·s/rad, viscous, on the rotor
+    torque_constant: float  #: N·m/A (= V·s/rad) at the wheel
+    motor: MotorConstants
+
+    @property
+    def stall_torque_nm(self) -> float:
+        """Wheel torque at full duty, at rest: k·V/R."""
+        return self.torque_constant * self.motor.supply_v / self.motor.resistance_ohm
+
+
+def drive_train(gear: str = "high", motor: MotorConstants | None = None) -> DriveTrain:
+    """The two-mass drive whose air response is the identified model of ``gear``.
+
+    With the rotor carrying all viscous friction (b = back-EMF k²/R + ``rotor_friction``)
+    and none on the wheel side, G(s) = k·V/R · (c·s + K) / (J_m·J_w·s³ + (b·J_w + c·J)·s² +
+    (K·J + c·b)·s + K·b), J = J_m + J_w. Matching the identified denominator
+    s³ + a₂s² + a₁s + a₀, zero −z and DC gain ω_max/V·R/k gives, in turn, b = stall torque /
+    full speed, q = K/(J_m·J_w) = a₀/b, J = (a₁ − q·b/z)/q, J_m = b/(a₂ − q·J/z), J_w =
+    J − J_m, K = q·J_m·J_w, c = K/z. The low gear is a different reduction of the same motor:
+    its torque constant at the wheel is the high gear's over the ratio of their full-duty
+    speeds (0.349), so its stall torque is about 950 N·m (the seed's §3.1 gives 1,000 N·m as
+    the robot's maximum wheel torque)."""
+    motor = motor or MotorConstants()
+    model = continuous_model(gear)
+    p0, p1, p2 = model.poles
+    a2 = -(p0 + p1 + p2).real
+    a1 = (p0 * p1 + p0 * p2 + p1 * p2).real
+    a0 = -(p0 * p1 * p2).real
+    full_speed = _radians(MAX_SPEED_HIGH_DPS * model.dc_gain / _dc_gain("high"))
+    k_high = motor.ke_v_s_per_rad * GEAR_RATIO
+    k = k_high * _radians(MAX_SPEED_HIGH_DPS) / full_speed
+    b = k * motor.supply_v / motor.resistance_ohm / full_speed
+    z = model.zero_c
+    q = a0 / b
+    total = (a1 - q * b / z) / q
+    rotor = b / (a2 - q * total / z)
+    wheel = total - rotor
+    stiffness = q * rotor * wheel
+    back_emf = k * k / motor.resistance_ohm
+    if min(rotor, wheel, stiffness, b - back_emf) <= 0:  # pragma: no cover - model data
+        raise ValueError(f"no passive two-mass drive matches the {gear} gear's model")
+    return DriveTrain(gear, rotor, wheel, stiffness, stiffness / z, b - back_emf, k, motor)
+
+
+class WheelDrive:
+    """One wheel's motor as a torque source for a body's physics: the winding's current
+    (exact over any interval with the duty and the rotor's speed held) and the torque it
+    gives; the wheel's angle comes from the physics (:meth:`follow_physics`), one physics
+    step at a time, and is interpolated linearly within the step for the encoder.
+
+    It has :class:`WheelPlant`'s reading interface (``duty``, ``speed_dps``, ``angle_deg``,
+    ``current_a``, ``stall``, ``at_rest``), so the board cannot tell them apart."""
+
+    def __init__(self, train: DriveTrain) -> None:
+        self.train = train
+        self.duty = 0
+        self.current = 0.0  #: A
+        self.stalled = False
+        #: the physics step the wheel is in: (cycle, angle deg) at its start and end, and
+        #: the rotor's mean speed over it (rad/s at the wheel, for the back-EMF)
+        self._c0 = 0
+        self._a0 = 0.0
+        self._c1 = 0
+        self._a1 = 0.0
+        self.rotor_speed = 0.0
+        self.wheel_speed_dps = 0.0  #: the wheel's speed at the end of the step
+        m = train.motor
+        self._tau = m.inductance_h / m.resistance_ohm
+        self._decay: dict[int, float] = {}
+        #: set by the body: whether its physics is asleep (nothing moves until driven)
+        self.body_asleep = True
+        #: the body's hook for :meth:`stall` (it holds the wheel's joint)
+        self.on_stall: Callable[[WheelDrive], None] | None = None
+
+    @property
+    def speed_dps(self) -> float:
+        return 0.0 if self.stalled else self.wheel_speed_dps
+
+    @property
+    def angle_deg(self) -> float:
+        return self._a1
+
+    @property
+    def current_a(self) -> float:
+        return self.current
+
+    def angle_at(self, cycle: int) -> float:
+        """The wheel's angle (deg) at ``cycle`` within the present physics step."""
+        c0, c1 = self._c0, self._c1
+        if cycle >= c1 or c1 == c0:
+            return self._a1
+        if cycle <= c0:
+            return self._a0
+        return self._a0 + (self._a1 - self._a0) * (cycle - c0) / (c1 - c0)
+
+    def follow_physics(self, cycle0: int, cycle1: int, angle_deg: float, speed_dps: float,
+                       rotor_speed: float) -> None:
+        """The physics has moved the wheel to ``angle_deg`` at ``cycle1`` (from where it was
+        at ``cycle0``), with the rotor at ``rotor_speed`` (rad/s, its mean over the step)."""
+        self._c0, self._a0 = cycle0, self._a1
+        self._c1, self._a1 = cycle1, angle_deg
+        self.wheel_speed_dps = speed_dps
+        self.rotor_speed = rotor_speed
+
+    def hold_current(self, cycles: int) -> None:
+        """The winding over ``cycles`` with the duty and the rotor's speed held (exact)."""
+        m = self.train.motor
+        decay = self._decay.get(cycles)
+        if decay is None:
+            decay = math.exp(-cycles / CLOCK_HZ / self._tau)
+            if len(self._decay) < 64:
+                self._decay[cycles] = decay
+        steady = (m.supply_v * self.duty / MAX_DUTY
+                  - self.train.torque_constant * self.rotor_speed) / m.resistance_ohm
+        self.current = steady + (self.current - steady) * decay
+        if not self.duty and abs(self.current) < REST_CURRENT_A and not self.rotor_speed:
+            self.current = 0.0
+
+    def torque_over(self, seconds: float) -> float:
+        """The winding's mean torque (N·m at the wheel) over the next ``seconds`` if the duty
+        and the rotor's speed stay as they are (exact then): what the physics applies over
+        its next step."""
+        m = self.train.motor
+        steady = (m.supply_v * self.duty / MAX_DUTY
+                  - self.train.torque_constant * self.rotor_speed) / m.resistance_ohm
+        share = self._tau / seconds * (1.0 - math.exp(-seconds / self._tau))
+        return self.train.torque_constant * (steady + (self.current - steady) * share)
+
+    @property
+    def at_rest(self) -> bool:
+        """Unpowered, no current, and the body's physics asleep: nothing will move."""
+        return self.duty == 0 and self.current == 0.0 and self.body_asleep
+
+    def stall(self, stalled: bool = True) -> None:
+        """Block the wheel (the physics holds its joint while this is set)."""
+        self.stalled = stalled
+        if self.on_stall is not None:
+            self.on_stall(self)
+
+
+class DrivenMotors:
+    """:class:`Motors` for a board whose wheels a body's physics turns (a board peripheral):
+    each channel's PWM drives a :class:`WheelDrive`, whose current the Hall sensor reads and
+    whose wheel (moved by the physics) turns the channel's encoder. The physics is stepped
+    by its owner (:class:`fpgaemu.robot.EmulatedRobot`), which hands each drive the wheel's
+    motion over a step before the board runs through it."""
+
+    def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
+        if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
+            raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
+        self.gear = gear
+        self.train = drive_train(gear)
+        self.current_noise_a = current_noise_a
+        self.wheels: dict[int, WheelDrive] = {}
+        self._board: Board | None = None
+        self._cycle = 0
+        self._noise: Any = None
+
+    def attach(self, board: Board) -> None:
+        self._board = board
+        self._cycle = board.now
+        if self.current_noise_a > 0:
+            self._noise = board.timeline.rng("hall")
+        for code, io in board.channels.items():
+            self.wheels[code] = WheelDrive(self.train)
+            io.pwm.on_change(self.advance_to)
+        board.on_settle(self.advance_to)
+
+    @property
+    def at_rest(self) -> bool:
+        return all(wheel.at_rest for wheel in self.wheels.values())
+
+    def prepare_step(self, cycle: int) -> None:
+        """Before the physics steps from ``cycle``: the windings up to it, and each drive's
+        duty as its PWM applies it now (a write at this very cycle included)."""
+        self.advance_to(cycle)
+        assert self._board is not None
+        channels = self._board.channels
+        for code, wheel in self.wheels.items():
+            pwm = channels[code].pwm
+            wheel.duty = pwm.duty_register if pwm.global_enable else 0
+
+    def advance_to(self, cycle: int) -> None:
+        """The windings up to ``cycle`` with the duty their PWM applies now, and the
+        encoders along the wheels' motion (interpolated within the physics step)."""
+        start = self._cycle
+        if cycle <= start:
+            return
+        assert self._board is not None
+        channels = self._board.channels
+        for code, wheel in self.wheels.items():
+            io = channels[code]
+            pwm = io.pwm
+            wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
+            if duty or wheel.current or wheel.rotor_speed:
+                wheel.hold_current(cycle - start)
+            # WheelDrive.angle_at at both ends, written out: this runs for every wheel at
+            # every tick and every PWM change.
+            c0, c1, a0, a1 = wheel._c0, wheel._c1, wheel._a0, wheel._a1
+            if c1 == c0 or start >= c1:
+                begin = a1
+            elif start <= c0:
+                begin = a0
+            else:
+                begin = a0 + (a1 - a0) * (start - c0) / (c1 - c0)
+            if c1 == c0 or cycle >= c1:
+                end = a1
+            elif cycle <= c0:
+                end = a0
+            else:
+                end = a0 + (a1 - a0) * (cycle - c0) / (c1 - c0)
+            if begin != end:
+                io.encoder.follow(start, begin, cycle, end)
             io.current_a = wheel.current if self._noise is None else (
                 wheel.current + float(self._noise.normal(0.0, self.current_noise_a)))
         self._cycle = cycle

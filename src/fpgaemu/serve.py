@@ -9,14 +9,26 @@ event that may change something a host could see, or the next TX byte's stop bit
 host bytes arrive; an idle board is not woken for timer ticks that change nothing. If the
 process is starved of CPU the board falls behind real time; it then catches up in bounded
 slices, loses nothing, and the lag (how late a deadline was met) is reported.
+
+Nothing a host writes is lost: a host that writes faster than the line carries is held
+back (backpressure), as a real port's driver holds back a writer. Serve reads the pty or
+socket only while fewer than :data:`RX_BACKLOG_BYTES` wait for the line, so the host's
+``write`` waits in its kernel buffer and serve's memory stays bounded; ``emu://`` does the
+same in asyncio terms. A host that does not read what the board sends may lose it, counted,
+as a real port's receive buffer overflows.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import errno
 import json
 import os
+import select
+import selectors
+import socket
+import sys
 import time
 import tty
 from collections.abc import Callable
@@ -32,16 +44,21 @@ from fpgalink.protocol import PARAMETERS
 PARAMETERS_BY_ID = {p.id: p for p in PARAMETERS}
 
 __all__ = [
+    "MAX_TRUTH_READERS",
+    "RX_BACKLOG_BYTES",
     "TRUTH_EXTRA",
     "EmulatedTransport",
     "LagReport",
     "PacedBoard",
     "PacedRobot",
+    "PreciseEpollSelector",
     "PtyEndpoint",
     "RobotSide",
     "TcpEndpoint",
     "TruthEndpoint",
     "open_emulated_transport",
+    "say",
+    "serve_loop",
 ]
 
 #: Longest slice of emulated time run in one go while catching up, so I/O stays served.
@@ -52,11 +69,14 @@ LAG_THRESHOLD_S = 0.005
 MAX_SLEEP_S = 1.0
 
 
-#: The USB-UART's buffer toward the board (the CmodA7's FT2232H holds 4 KiB per channel).
-#: Bytes a host writes while this much is still waiting for the line are dropped and
-#: counted: a real chip would hold the host's write back, but the emulator cannot block its
-#: host, and an unbounded queue would apply the host's bytes seconds late.
-HOST_FIFO_BYTES = 4096
+#: Host bytes serve lets wait for the RX line, as the USB-UART's buffer toward the board
+#: holds them (the CmodA7's FT2232H: 4 KiB per channel). While this much is waiting, serve
+#: stops reading the pty or socket, so the host's write waits in its kernel buffer — as on
+#: a real port — and nothing the host wrote is lost.
+RX_BACKLOG_BYTES = 4096
+#: Reading resumes once the backlog has drained to this (10 ms of line at 1 MBd, plenty for
+#: the loop to wake): a host writing without pause keeps the line busy.
+RX_RESUME_BYTES = 1024
 
 
 @dataclass(slots=True)
@@ -90,35 +110,51 @@ class PacedBoard:
     def __post_init__(self) -> None:
         self._origin = self.clock() - self.board.now / CLOCK_HZ
         self._due: int | None = None  #: the deadline the last wake-up was for
-        #: host bytes dropped because the host wrote faster than the line carries them
-        self.dropped_rx = 0
+        #: host bytes discarded because their host left before the line carried them
+        self.discarded_rx = 0
 
     def target_cycle(self, now: float | None = None) -> int:
         now = self.clock() if now is None else now
         return int((now - self._origin) * CLOCK_HZ)
 
+    def time_of(self, cycle: int) -> float:
+        """The monotonic time at which the board reaches ``cycle``."""
+        return self._origin + cycle / CLOCK_HZ
+
+    def _host_cycle(self, now: float | None) -> int:
+        # Never earlier than the board's present, even if it has fallen behind the clock.
+        return max(self.board.now, self.target_cycle(now))
+
+    def rx_backlog(self, now: float | None = None) -> int:
+        """Host bytes written but not yet begun on the RX line at wall time ``now``."""
+        line = self.board.uartread
+        return max(0, -(-(line.line_free_at - self._host_cycle(now)) // line.cycles_per_byte))
+
+    def rx_room(self, now: float | None = None) -> int:
+        """How many more host bytes the line takes now (:data:`RX_BACKLOG_BYTES` less the
+        backlog): an endpoint reads no more than this, and stops reading at 0."""
+        return max(0, RX_BACKLOG_BYTES - self.rx_backlog(now))
+
+    def rx_resume_at(self) -> float:
+        """When the backlog will have drained to :data:`RX_RESUME_BYTES` (monotonic s)."""
+        line = self.board.uartread
+        return self.time_of(line.line_free_at - RX_RESUME_BYTES * line.cycles_per_byte + 1)
+
     def host_write(self, data: bytes, now: float | None = None) -> int:
         """Bytes the host wrote at wall time ``now`` enter the RX pin then (or as soon as
         the board has caught up to that moment — never earlier than its present), queued
-        behind what the line has not carried yet, up to :data:`HOST_FIFO_BYTES`; beyond it
-        they are dropped and counted in :attr:`dropped_rx`. Returns the bytes accepted."""
-        if not data:
-            return 0
-        cycle = max(self.board.now, self.target_cycle(now))
-        line = self.board.uartread
-        queued = max(0, -(-(line.line_free_at - cycle) // line.cycles_per_byte))
-        room = max(0, HOST_FIFO_BYTES - queued)
-        if len(data) > room:
-            self.dropped_rx += len(data) - room
-            data = data[:room]
+        behind what the line has not carried yet. All of them: the endpoints bound the
+        backlog by reading no more than :meth:`rx_room`. Returns ``len(data)``."""
         if data:
-            self.board.host_write(data, cycle)
+            self.board.host_write(data, self._host_cycle(now))
         return len(data)
 
     def host_gone(self, now: float | None = None) -> int:
         """The host went away: what it wrote that the line had not begun to carry is
         discarded, as it would be with the cable. Returns how many bytes."""
-        return self.board.host_unplugged(max(self.board.now, self.target_cycle(now)))
+        lost = self.board.host_unplugged(self._host_cycle(now))
+        self.discarded_rx += lost
+        return lost
 
     def advance(self, now: float | None = None) -> bytes:
         """Run the board up to ``now`` (in slices while catching up) and return the TX bytes
@@ -177,6 +213,9 @@ class PacedRobot:
         now = self.clock() if now is None else now
         return int((now - self._origin) * CLOCK_HZ)
 
+    def time_of(self, cycle: int) -> float:
+        return self._origin + cycle / CLOCK_HZ
+
     def side(self, name: str) -> RobotSide:
         if name not in self.robot.boards:
             raise ValueError(f"the robot has no board {name!r} (boards: "
@@ -219,10 +258,7 @@ class PacedRobot:
     def truth_record(self) -> dict[str, Any]:
         """The body's true state, and each board as the emulator sees it (for tests and
         tools that check what a host reports against what happened)."""
-        state = self.robot.truth()
-        return {"t": state.t, "x": state.pose.x, "y": state.pose.y,
-                "theta": state.pose.theta, "v": state.v, "omega": state.omega,
-                "distance": state.distance, "surface": state.surface,
+        return {**self.robot.truth().record(),
                 "boards": {name: _board_record(board)
                            for name, board in self.robot.boards.items()}}
 
@@ -262,6 +298,9 @@ class RobotSide(PacedBoard):
 
     def target_cycle(self, now: float | None = None) -> int:
         return self.robot.target_cycle(now)
+
+    def time_of(self, cycle: int) -> float:
+        return self.robot.time_of(cycle)
 
     def advance(self, now: float | None = None) -> bytes:
         self.robot.advance(now)
@@ -320,12 +359,305 @@ class _Pacer:
         self._loop = None
 
 
+# --- the event loop ---------------------------------------------------------------------------
+
+
+class PreciseEpollSelector(selectors.EpollSelector):
+    """epoll — any number of descriptors, at any number — with timers met to the
+    microsecond. ``epoll_wait`` takes whole milliseconds and rounds a wait up, which would put
+    every reply up to a millisecond late; so a wait with a timeout is spent in ``select()``
+    on the epoll descriptor itself (readable when any watched descriptor is ready, and
+    ``select``'s timeout is in microseconds), then epoll is asked, without waiting, which.
+    (When the epoll descriptor itself is above ``select``'s limit of 1024 the wait is
+    epoll's own, to the millisecond.)"""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self._precise = self.fileno() < FD_SETSIZE
+
+    def select(self, timeout: float | None = None
+               ) -> list[tuple[selectors.SelectorKey, int]]:
+        if self._precise and timeout is not None and timeout > 0:
+            with contextlib.suppress(InterruptedError):
+                select.select([self.fileno()], [], [], timeout)
+            timeout = 0
+        return super().select(timeout)
+
+
+#: ``select()``'s limit: descriptors at or above it cannot be watched with it.
+FD_SETSIZE = 1024
+
+
+def serve_loop() -> asyncio.AbstractEventLoop:
+    """The event loop ``fpgaemu serve`` runs on: the platform's default selector (epoll on
+    Linux, as :class:`PreciseEpollSelector`), so no number of connections is too many for
+    it."""
+    default: type[selectors.BaseSelector] = selectors.DefaultSelector
+    if default is selectors.EpollSelector:
+        return asyncio.SelectorEventLoop(PreciseEpollSelector())
+    return asyncio.SelectorEventLoop(default())
+
+
+def say(text: str, *, once: str | None = None) -> None:
+    """One line ``fpgaemu: TEXT`` on stderr; with ``once``, only the first time that key is
+    said in this process."""
+    if once is not None:
+        if once in _SAID:
+            return
+        _SAID.add(once)
+    print(f"fpgaemu: {text}", file=sys.stderr, flush=True)
+
+
+_SAID: set[str] = set()
+
+
+# --- backpressure on the host's bytes ---------------------------------------------------------
+
+
+class _RxFlow:
+    """Backpressure on what the host writes: an endpoint takes no more than the line has
+    room for (:meth:`PacedBoard.rx_room`), stops reading while more than
+    :data:`RX_RESUME_BYTES` wait (``pause``), and reads again once the backlog has drained
+    to that (``resume``, at the wake-up :meth:`next_wake` adds to the board's own) — so a
+    fast host is read about 3 KiB at a time, every 30 ms at 1 MBd, not a few bytes per
+    wake-up."""
+
+    def __init__(self, paced: PacedBoard, pause: Callable[[], None],
+                 resume: Callable[[], None]) -> None:
+        self.paced = paced
+        self._pause = pause
+        self._resume = resume
+        self.paused = False
+        self.pauses = 0  #: times the host was held back
+
+    def took(self) -> None:
+        """Host bytes went in: hold the host back while the line is behind."""
+        if not self.paused and self.paced.rx_backlog() > RX_RESUME_BYTES:
+            self.paused = True
+            self.pauses += 1
+            self._pause()
+
+    def check(self) -> None:
+        """At a wake-up: let the host write again once the backlog has drained."""
+        if self.paused and self.paced.rx_backlog() <= RX_RESUME_BYTES:
+            self.paused = False
+            self._resume()
+
+    def reset(self) -> None:
+        """The host went away: the next one starts unpaused."""
+        self.paused = False
+
+    def next_wake(self) -> float | None:
+        wake = self.paced.next_wake()
+        if self.paused:
+            resume = self.paced.rx_resume_at()
+            wake = resume if wake is None else min(wake, resume)
+        return wake
+
+
+# --- listening ---------------------------------------------------------------------------------
+
+#: errno values that say a connection could not be accepted for want of a descriptor (or
+#: the memory behind one).
+_NO_DESCRIPTOR = frozenset({errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM})
+#: Connections taken per wake-up of a listening socket, so one busy port does not hold up
+#: the boards.
+_ACCEPTS_PER_WAKE = 16
+
+
+class _Spare:
+    """One descriptor kept in reserve: a connection that arrives when the process has none
+    left is still accepted with it — told why, and closed at once — instead of waking the
+    loop again and again from the kernel's queue (the libev and nginx remedy)."""
+
+    fd: int | None = None
+
+    @classmethod
+    def keep(cls) -> None:
+        if cls.fd is None:
+            with contextlib.suppress(OSError):
+                cls.fd = os.open(os.devnull, os.O_RDONLY)
+
+    @classmethod
+    def refuse(cls, listening: socket.socket, message: bytes) -> bool:
+        """Accept one waiting connection with the spare descriptor, tell it ``message`` and
+        close it; ``False`` if there was no spare or nothing to accept."""
+        if cls.fd is None:
+            return False
+        os.close(cls.fd)
+        cls.fd = None
+        try:
+            connection, _ = listening.accept()
+        except OSError:
+            cls.keep()
+            return False
+        _turn_away(connection, message)  # closed: its descriptor is the spare again
+        cls.keep()
+        return True
+
+
+def _turn_away(connection: socket.socket, message: bytes) -> None:
+    """Tell a connection why it is not served (if its buffer takes it now) and close it."""
+    with connection:
+        connection.setblocking(False)
+        with contextlib.suppress(OSError):
+            connection.send(message)
+
+
+def _usable_url(address: str, port: int) -> str:
+    """``socket://…`` a client can connect to: a wildcard address becomes its family's
+    loopback."""
+    address = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(address, address)
+    host = f"[{address.split('%')[0]}]" if ":" in address else address
+    return f"socket://{host}:{port}"
+
+
+def _requested_url(host: str, port: int) -> str:
+    """The address asked for, for a message (``*`` for every interface)."""
+    shown = f"[{host}]" if ":" in host else host or "*"
+    return f"socket://{shown}:{port}"
+
+
+class _Listener:
+    """The listening sockets of one endpoint, one per address a client can reach it by: an
+    empty ``host`` (``--tcp :PORT``) listens on IPv4 and IPv6 (each on every interface,
+    the same port when it is free on both), a name on every address it resolves to.
+    Connections go to ``accept`` as non-blocking sockets; one that arrives when the process
+    has no descriptor left is turned away with ``starved`` and said once on stderr."""
+
+    def __init__(self, host: str, port: int, accept: Callable[[socket.socket], None],
+                 starved: bytes, *, rcvbuf: int | None = None, backlog: int = 16) -> None:
+        self.host = host
+        self.requested_port = port
+        self._accept = accept
+        self._starved_message = starved
+        self._rcvbuf = rcvbuf
+        self._backlog = backlog
+        self.sockets: list[socket.socket] = []
+        self.urls: list[str] = []
+        #: connections turned away for want of a descriptor
+        self.refused_no_descriptor = 0
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    def _addresses(self) -> list[tuple[int, str]]:
+        if not self.host:
+            wildcard: list[tuple[int, str]] = [(socket.AF_INET, "0.0.0.0")]
+            if socket.has_ipv6:
+                wildcard.append((socket.AF_INET6, "::"))
+            return wildcard
+        found: list[tuple[int, str]] = []
+        for family, _, _, _, address in socket.getaddrinfo(
+                self.host, self.requested_port, type=socket.SOCK_STREAM,
+                flags=socket.AI_PASSIVE):
+            entry: tuple[int, str] = (int(family), str(address[0]))
+            if entry not in found:
+                found.append(entry)
+        return found
+
+    def open(self) -> None:
+        """Bind and listen; ``OSError`` (nothing left open) if an address cannot be served."""
+        self._loop = asyncio.get_running_loop()
+        _Spare.keep()
+        addresses = self._addresses()
+        port = self.requested_port
+        try:
+            for family, address in addresses:
+                try:
+                    sock = self._bind(family, address, port)
+                except OSError as exc:
+                    if self.requested_port == 0 and port and exc.errno == errno.EADDRINUSE:
+                        sock = self._bind(family, address, 0)  # its own port, printed
+                    elif not self.host and family == socket.AF_INET6 and exc.errno in (
+                            errno.EAFNOSUPPORT, errno.EADDRNOTAVAIL) and self.sockets:
+                        continue  # no IPv6 here: IPv4 alone
+                    else:
+                        raise
+                bound = sock.getsockname()[1]
+                port = port or bound
+                self.sockets.append(sock)
+                self.urls.append(_usable_url(address, bound))
+        except BaseException:
+            self.close()
+            raise
+        for sock in self.sockets:
+            self._loop.add_reader(sock.fileno(), self._readable, sock)
+
+    def _bind(self, family: int, address: str, port: int) -> socket.socket:
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        try:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            if family == socket.AF_INET6:
+                sock.setsockopt(socket.IPPROTO_IPV6, socket.IPV6_V6ONLY, 1)
+            if self._rcvbuf is not None:  # inherited by every accepted connection
+                sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, self._rcvbuf)
+            sock.bind((address, port))
+            sock.listen(self._backlog)
+            sock.setblocking(False)
+        except BaseException:
+            sock.close()
+            raise
+        return sock
+
+    @property
+    def port(self) -> int:
+        return int(self.sockets[0].getsockname()[1]) if self.sockets else self.requested_port
+
+    def _readable(self, listening: socket.socket) -> None:
+        for _ in range(_ACCEPTS_PER_WAKE):
+            try:
+                connection, _ = listening.accept()
+            except (BlockingIOError, InterruptedError):
+                return
+            except OSError as exc:
+                if exc.errno in _NO_DESCRIPTOR:
+                    self._starved(listening, exc)
+                return  # a client that gave up first, or a passing error: next wake-up
+            connection.setblocking(False)
+            self._accept(connection)
+
+    def _starved(self, listening: socket.socket, exc: OSError) -> None:
+        say(f"out of file descriptors ({exc.strerror}): new connections are turned away "
+            "until some close; the boards are still served", once="no descriptor")
+        if _Spare.refuse(listening, self._starved_message):
+            self.refused_no_descriptor += 1
+            return
+        # Not even the spare: stop watching this socket a moment rather than spin on it.
+        loop = self._loop
+        assert loop is not None
+        loop.remove_reader(listening.fileno())
+        loop.call_later(0.1, self._watch_again, listening)
+
+    def _watch_again(self, listening: socket.socket) -> None:
+        if listening in self.sockets and self._loop is not None:
+            self._loop.add_reader(listening.fileno(), self._readable, listening)
+
+    def close(self) -> None:
+        for sock in self.sockets:
+            if self._loop is not None:
+                with contextlib.suppress(Exception):
+                    self._loop.remove_reader(sock.fileno())
+            sock.close()
+        self.sockets = []
+
+
 # --- pty --------------------------------------------------------------------------------------
 
 
 #: How long a connection that arrives while another host is served waits for that host to
-#: turn out to have left already, before it is turned away.
-BUSY_GRACE_S = 0.2
+#: turn out to have left already (its last bytes still crossing), before it is turned away.
+BUSY_GRACE_S = 0.5
+#: What a second host is told before its connection is closed.
+BUSY_MESSAGE = b"busy: another host is connected\n"
+#: What a host is told when serve has no descriptor left for it.
+NO_DESCRIPTOR_MESSAGE = b"busy: serve has no file descriptor left\n"
+#: A TCP host that has sent nothing at all this long after connecting is disconnected
+#: (``fpgaemu serve --idle-timeout``; 0 never): it holds the board from every other host.
+#: A host that has sent anything keeps the board until it leaves, as a serial port's owner
+#: does — a monitoring host sends nothing for long stretches while the board is disabled.
+IDLE_TIMEOUT_S = 30.0
+#: The kernel's receive buffer for a TCP host (doubled by Linux): what a departed host had
+#: in flight is at most this, about 0.3 s of line at 1 MBd.
+HOST_RCVBUF_BYTES = 16 * 1024
 
 #: TX bytes a pty keeps for a host that is not reading (a busy or starved process), in
 #: seconds of line time; beyond it the oldest are dropped and counted, as a USB-UART's
@@ -335,7 +667,9 @@ TX_BACKLOG_S = 1.0
 
 class PtyEndpoint:
     """One board behind a pseudo-terminal. We keep the slave side open ourselves, so a host
-    that closes and reopens the path finds the same board still running."""
+    that closes and reopens the path finds the same board still running. Host bytes are read
+    only as fast as the line carries them: while :data:`RX_BACKLOG_BYTES` wait, the pty is
+    not read and the host's ``write`` waits in the kernel's tty buffer."""
 
     def __init__(self, paced: PacedBoard) -> None:
         self.paced = paced
@@ -343,7 +677,8 @@ class PtyEndpoint:
         tty.setraw(self._slave)
         os.set_blocking(self._master, False)
         self.path = os.ttyname(self._slave)
-        self.pacer = _Pacer(self._tick, paced.next_wake)
+        self.flow = _RxFlow(paced, self._pause, self._resume)
+        self.pacer = _Pacer(self._tick, self.flow.next_wake)
         self._pending_out = bytearray()
         self._writing = False
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
@@ -354,18 +689,30 @@ class PtyEndpoint:
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         self.pacer.start()
 
+    def _pause(self) -> None:
+        asyncio.get_running_loop().remove_reader(self._master)
+
+    def _resume(self) -> None:
+        asyncio.get_running_loop().add_reader(self._master, self._readable)
+
     def _readable(self) -> None:
+        room = self.paced.rx_room()
+        if room <= 0:
+            self.flow.took()
+            return
         try:
-            data = os.read(self._master, 65536)
+            data = os.read(self._master, room)
         except BlockingIOError:
             return
         except OSError:
             return  # no reader on the slave side right now; the board keeps running
         self.paced.host_write(data)
+        self.flow.took()
         self.pacer.poke()
 
     def _tick(self) -> None:
         out = self.paced.advance()
+        self.flow.check()
         if out:
             self._pending_out += out
         self._flush()
@@ -407,176 +754,436 @@ class PtyEndpoint:
 # --- TCP --------------------------------------------------------------------------------------
 
 
-class TcpEndpoint:
-    """One board on a TCP port, one host at a time, as a serial port has one owner: while a
-    host is connected the port does not listen (a second host is refused: "connection
-    refused"), and it listens again when that host leaves. What a departed host wrote that
-    the line had not begun to carry is discarded. TX bytes a host does not read pile up to
-    the same backlog a pty keeps, then the oldest are dropped and counted."""
+class _HostConnection(asyncio.BufferedProtocol):
+    """A TCP host's connection: its bytes are received straight into a buffer no larger
+    than the room the line has, so serve never holds more of them than the backlog."""
 
-    def __init__(self, paced: PacedBoard, host: str, port: int) -> None:
+    def __init__(self, endpoint: TcpEndpoint) -> None:
+        self.endpoint = endpoint
+        self.transport: asyncio.Transport | None = None
+        self.sent_anything = False
+        self._buffer = bytearray(RX_BACKLOG_BYTES)
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        self.endpoint._connected(self)
+
+    def get_buffer(self, sizehint: int) -> memoryview:
+        # At least one byte: a read is only asked for while the line had room.
+        room = max(1, min(len(self._buffer), self.endpoint.paced.rx_room()))
+        return memoryview(self._buffer)[:room]
+
+    def buffer_updated(self, nbytes: int) -> None:
+        self.sent_anything = True
+        self.endpoint._host_bytes(bytes(self._buffer[:nbytes]))
+
+    def eof_received(self) -> bool:
+        return False  # the host is done: close
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.endpoint._disconnected(self)
+
+
+class TcpEndpoint:
+    """One board on a TCP port, one host at a time, as a serial port has one owner. A second
+    host is told ``busy: another host is connected`` and disconnected (after
+    :data:`BUSY_GRACE_S`, in case the first has just left). What a departed host wrote that
+    the line had not begun to carry is discarded. Host bytes are read only as fast as the
+    line carries them (the host's writes wait in its socket meanwhile); TX bytes a host does
+    not read pile up to the same backlog a pty keeps, then the newest are dropped and
+    counted. A host that sends nothing for ``idle_timeout`` seconds after connecting is
+    told so and disconnected."""
+
+    def __init__(self, paced: PacedBoard, host: str, port: int, *,
+                 idle_timeout: float = IDLE_TIMEOUT_S) -> None:
         self.paced = paced
         self.host = host
-        self.port = port
-        self._server: asyncio.Server | None = None
-        self._writer: asyncio.StreamWriter | None = None
-        self.pacer = _Pacer(self._tick, paced.next_wake)
+        self.idle_timeout = idle_timeout
+        self.listener = _Listener(host, port, self._accepted, NO_DESCRIPTOR_MESSAGE,
+                                  rcvbuf=HOST_RCVBUF_BYTES)
+        self.flow = _RxFlow(paced, self._pause, self._resume)
+        self.pacer = _Pacer(self._tick, self.flow.next_wake)
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
+        self._connection: _HostConnection | None = None
+        self._busy = False  #: a host is being connected or is connected
+        self._free: asyncio.Event | None = None
         self._closing = False
-        self._free = asyncio.Event()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._idle: asyncio.TimerHandle | None = None
         self.connections = 0
+        self.turned_away = 0  #: hosts told "busy"
+        self.idle_closed = 0  #: hosts disconnected for sending nothing
         #: TX bytes lost because the host did not read them for longer than the backlog holds
         self.dropped_tx = 0
 
     @property
+    def port(self) -> int:
+        return self.listener.port
+
+    @property
+    def urls(self) -> list[str]:
+        """A ``socket://`` URL per listening socket, each usable by a client."""
+        return self.listener.urls or [_requested_url(self.host, self.port)]
+
+    @property
     def url(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"socket://{host}:{self.port}"
+        return self.urls[0]
 
     async def start(self) -> None:
-        await self._listen()
+        self._free = asyncio.Event()
+        self._free.set()
+        self.listener.open()
         self.pacer.start()
 
-    async def _listen(self) -> None:
-        # A backlog of one: while a host is served the port stops listening, and the kernel
-        # should queue as few others as possible meanwhile (those it did are closed at once).
-        self._server = await asyncio.start_server(self._client, self.host, self.port,
-                                                  reuse_address=True, backlog=1)
-        self.port = self._server.sockets[0].getsockname()[1]
+    def _spawn(self, coro: Any) -> None:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
 
-    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        if self._writer is not None:
-            # Accepted by the kernel before the port stopped listening. Most often the host
-            # being served has just left and serve has not seen it yet: give that a moment,
-            # else this is a second host, and it is turned away.
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._free.wait(), BUSY_GRACE_S)
-            if self._writer is not None:
-                writer.close()
-                return
-        self._writer = writer
+    def _accepted(self, connection: socket.socket) -> None:
+        if self._closing:
+            connection.close()
+        elif not self._busy:
+            self._take(connection)
+        else:
+            self._spawn(self._when_free(connection))
+
+    async def _when_free(self, connection: socket.socket) -> None:
+        # Most often the host being served has just left and serve has not seen it yet.
+        assert self._free is not None
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._free.wait(), BUSY_GRACE_S)
+        if self._busy or self._closing:
+            self.turned_away += 1
+            _turn_away(connection, BUSY_MESSAGE)
+        else:
+            self._take(connection)
+
+    def _take(self, connection: socket.socket) -> None:
+        assert self._free is not None
+        self._busy = True
         self._free.clear()
-        self.connections += 1
-        if self._server is not None:
-            self._server.close()  # busy: refuse others until this host leaves
-            self._server = None
+        self._spawn(self._attach(connection))
+
+    async def _attach(self, connection: socket.socket) -> None:
         try:
-            while data := await reader.read(65536):
-                self.paced.host_write(data)
-                self.pacer.poke()
-        except (ConnectionError, OSError, asyncio.CancelledError):
-            pass
-        finally:
-            self.paced.host_gone()
-            self._writer = None
+            await asyncio.get_running_loop().connect_accepted_socket(
+                lambda: _HostConnection(self), connection)
+        except OSError:
+            connection.close()
+            self._release()
+
+    def _connected(self, connection: _HostConnection) -> None:
+        self._connection = connection
+        self.connections += 1
+        if self.idle_timeout > 0:
+            self._idle = asyncio.get_running_loop().call_later(self.idle_timeout,
+                                                               self._idle_out, connection)
+
+    def _idle_out(self, connection: _HostConnection) -> None:
+        self._idle = None
+        if connection is self._connection and not connection.sent_anything and \
+                connection.transport is not None:
+            self.idle_closed += 1
+            connection.transport.write(
+                f"idle: nothing received in {self.idle_timeout:g} s; closing\n".encode())
+            connection.transport.close()
+
+    def _host_bytes(self, data: bytes) -> None:
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        self.paced.host_write(data)
+        self.flow.took()
+        self.pacer.poke()
+
+    def _pause(self) -> None:
+        connection = self._connection
+        if connection is not None and connection.transport is not None:
+            connection.transport.pause_reading()
+
+    def _resume(self) -> None:
+        connection = self._connection
+        if connection is not None and connection.transport is not None and \
+                not connection.transport.is_closing():
+            connection.transport.resume_reading()
+
+    def _disconnected(self, connection: _HostConnection) -> None:
+        if connection is not self._connection:
+            return
+        self._connection = None
+        if self._idle is not None:
+            self._idle.cancel()
+            self._idle = None
+        self.paced.host_gone()
+        self.flow.reset()
+        self._release()
+
+    def _release(self) -> None:
+        self._busy = False
+        if self._free is not None:
             self._free.set()
-            writer.close()
-            if not self._closing:
-                with contextlib.suppress(OSError):
-                    await self._listen()
+
+    def unplug(self) -> None:
+        """The board's side of the cable comes out: the host's connection is closed."""
+        connection = self._connection
+        if connection is not None and connection.transport is not None:
+            connection.transport.close()
+
+    @property
+    def host_connected(self) -> bool:
+        return self._connection is not None
 
     def _tick(self) -> None:
         out = self.paced.advance()
-        writer = self._writer
-        if out and writer is not None and not writer.is_closing():
-            if writer.transport.get_write_buffer_size() + len(out) > self._backlog:
+        self.flow.check()
+        connection = self._connection
+        if out and connection is not None and connection.transport is not None and \
+                not connection.transport.is_closing():
+            transport = connection.transport
+            if transport.get_write_buffer_size() + len(out) > self._backlog:
                 self.dropped_tx += len(out)  # the host is not reading: like a wire, gone
                 return
-            writer.write(out)
+            transport.write(out)
 
     async def close(self) -> None:
         self._closing = True
         await self.pacer.stop()
-        if self._writer is not None:
-            self._writer.close()
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
+        self.listener.close()
+        if self._idle is not None:
+            self._idle.cancel()
+        self.unplug()
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
 
 
 # --- the robot's truth -------------------------------------------------------------------------
 
 #: How often the truth endpoint sends the body's state (50 Hz: a path plot's resolution).
 TRUTH_PERIOD_S = 0.02
+#: The most truth readers served at once; the next is sent one ``{"error": "busy: …"}`` line
+#: and disconnected.
+MAX_TRUTH_READERS = 32
+#: Truth a reader may leave unread in serve's buffer (about 3 s of lines) before it is let
+#: go: its connection is aborted, not drained, so nothing of it stays.
+TRUTH_BACKLOG_BYTES = 128 * 1024
+#: The kernel's send buffer for a truth reader (doubled by Linux), so a reader that stops
+#: reading is noticed in seconds, not minutes.
+TRUTH_SNDBUF_BYTES = 64 * 1024
+
+
+class _TruthReader(asyncio.Protocol):
+    """One reader of the truth stream. What it sends is not even read."""
+
+    def __init__(self, endpoint: TruthEndpoint, connection: socket.socket) -> None:
+        self.endpoint = endpoint
+        self.connection = connection  #: the accepted socket, while it is being attached
+        self.transport: asyncio.WriteTransport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        assert isinstance(transport, asyncio.Transport)
+        self.transport = transport
+        transport.pause_reading()
+        self.endpoint._joined(self)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self.endpoint._left(self)
 
 
 class TruthEndpoint:
-    """The emulated body's true state for any number of readers on a TCP port: one JSON
-    object per line every :data:`TRUTH_PERIOD_S` (``t x y theta v omega distance surface``;
-    metres, radians, seconds of emulated time; ``boards``: each board's state, see
-    :func:`_board_record`; ``host_time``: the host's epoch time the boards were advanced to,
-    so board time maps onto the host clock). Read-only; what a reader sends is ignored."""
+    """The emulated body's true state for up to :data:`MAX_TRUTH_READERS` readers on a TCP
+    port: one JSON object per line every :data:`TRUTH_PERIOD_S` (``t x y theta v omega
+    distance surface``; metres, radians, seconds of emulated time; ``boards``: each board's
+    state, see :func:`_board_record`; ``host_time``: the host's epoch time the boards were
+    advanced to, so board time maps onto the host clock). Read-only. Each line is built once
+    and the same bytes are written to every reader, so the boards' timing does not depend on
+    how many watch; a reader more than :data:`TRUTH_BACKLOG_BYTES` behind is aborted."""
 
     def __init__(self, robot: PacedRobot, host: str, port: int) -> None:
         self.robot = robot
         self.host = host
-        self.port = port
-        self._server: asyncio.Server | None = None
-        self._clients: set[asyncio.Task[None]] = set()
+        self.listener = _Listener(host, port, self._accepted, _error_line(
+            "busy: serve has no file descriptor left"), backlog=64)
+        self._readers: set[_TruthReader] = set()
+        self._attaching: set[socket.socket] = set()  #: accepted, not yet readers
+        self._timer: asyncio.Handle | None = None
+        self._tasks: set[asyncio.Task[None]] = set()
+        self.publications = 0  #: lines built (each sent to every reader)
+        self.turned_away = 0  #: readers refused over the cap
+        self.aborted = 0  #: readers let go for not reading
+
+    @property
+    def port(self) -> int:
+        return self.listener.port
+
+    @property
+    def urls(self) -> list[str]:
+        return self.listener.urls or [_requested_url(self.host, self.port)]
 
     @property
     def url(self) -> str:
-        host = f"[{self.host}]" if ":" in self.host else self.host
-        return f"socket://{host}:{self.port}"
+        return self.urls[0]
+
+    @property
+    def readers(self) -> int:
+        return len(self._readers)
 
     async def start(self) -> None:
-        self._server = await asyncio.start_server(self._client, self.host, self.port,
-                                                  reuse_address=True)
-        self.port = self._server.sockets[0].getsockname()[1]
+        self.listener.open()
 
-    async def _client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
-        task = asyncio.current_task()
-        assert task is not None
-        self._clients.add(task)
+    def _accepted(self, connection: socket.socket) -> None:
+        if len(self._readers) + len(self._attaching) >= MAX_TRUTH_READERS:
+            self.turned_away += 1
+            _turn_away(connection, _error_line(
+                f"busy: {MAX_TRUTH_READERS} truth readers are connected, the most serve "
+                "takes"))
+            return
+        with contextlib.suppress(OSError):
+            connection.setsockopt(socket.SOL_SOCKET, socket.SO_SNDBUF, TRUTH_SNDBUF_BYTES)
+        self._attaching.add(connection)
+        task = asyncio.ensure_future(self._attach(connection))
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+
+    async def _attach(self, connection: socket.socket) -> None:
         try:
-            while not writer.is_closing():
-                self.robot.advance()
-                record = self.robot.truth_record()
-                record["host_time"] = time.time()  # the boards caught up with this instant
-                line = json.dumps(record, separators=(",", ":"))
-                writer.write(line.encode() + b"\n")
-                if writer.transport.get_write_buffer_size() > 1 << 20:
-                    break  # a reader that does not read is let go
-                await asyncio.sleep(TRUTH_PERIOD_S)
-        except (ConnectionError, OSError, asyncio.CancelledError):
-            pass
+            await asyncio.get_running_loop().connect_accepted_socket(
+                lambda: _TruthReader(self, connection), connection)
+        except OSError:
+            connection.close()
         finally:
-            self._clients.discard(task)
-            writer.close()
+            self._attaching.discard(connection)
+
+    def _joined(self, reader: _TruthReader) -> None:
+        # A reader from now on, counted once: no longer among those being attached.
+        self._attaching.discard(reader.connection)
+        self._readers.add(reader)
+        if self._timer is None:  # the first reader: publish now, then every period
+            self._timer = asyncio.get_running_loop().call_soon(self._publish)
+
+    def _left(self, reader: _TruthReader) -> None:
+        self._readers.discard(reader)
+
+    def _publish(self) -> None:
+        self._timer = None
+        if not self._readers:
+            return  # nobody watching: nothing to build, nothing to wake for
+        self.robot.advance()
+        record = self.robot.truth_record()
+        record["host_time"] = time.time()  # the boards caught up with this instant
+        line = (json.dumps(record, separators=(",", ":")) + "\n").encode()
+        self.publications += 1
+        for reader in list(self._readers):
+            transport = reader.transport
+            if transport is None or transport.is_closing():
+                continue
+            if transport.get_write_buffer_size() > TRUTH_BACKLOG_BYTES:
+                self.aborted += 1  # not reading: let go now, its buffer with it
+                transport.abort()
+                continue
+            transport.write(line)
+        self._timer = asyncio.get_running_loop().call_later(TRUTH_PERIOD_S, self._publish)
 
     async def close(self) -> None:
-        if self._server is not None:
-            self._server.close()
-            await self._server.wait_closed()
-            self._server = None
-        for task in list(self._clients):
+        self.listener.close()
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        for reader in list(self._readers):
+            if reader.transport is not None:
+                reader.transport.abort()
+        for task in list(self._tasks):
             task.cancel()
-        await asyncio.gather(*self._clients, return_exceptions=True)
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+
+
+def _error_line(text: str) -> bytes:
+    """A JSON line a truth reader parses as an error rather than a pose."""
+    return (json.dumps({"error": text}) + "\n").encode()
 
 
 # --- emu:// in-process ------------------------------------------------------------------------
 
+#: asyncio's own defaults for a transport's write buffer: the protocol is asked to pause
+#: writing above the high mark and to resume at the low one.
+WRITE_BUFFER_HIGH = 64 * 1024
+
 
 class EmulatedTransport(asyncio.Transport):
-    """An asyncio transport whose far end is a board in this process."""
+    """An asyncio transport whose far end is a board in this process. What the host writes
+    is never dropped: it waits in the transport's buffer and goes onto the RX line as the
+    line makes room, as a serial transport's buffer drains into its port; the protocol's
+    ``pause_writing()``/``resume_writing()`` are called at the buffer's limits, as asyncio's
+    own transports do (:meth:`set_write_buffer_limits`, :meth:`get_write_buffer_size`)."""
 
     def __init__(self, paced: PacedBoard, protocol: asyncio.Protocol) -> None:
         super().__init__()
         self.paced = paced
         self._protocol = protocol
         self._closing = False
-        self.pacer = _Pacer(self._tick, paced.next_wake)
+        self._buffer = bytearray()  #: written by the host, not yet on the RX line
+        self._high = WRITE_BUFFER_HIGH
+        self._low = WRITE_BUFFER_HIGH // 4
+        self._protocol_paused = False
+        self.pacer = _Pacer(self._tick, self._next_wake)
         self.pacer.start()
+
+    def _next_wake(self) -> float | None:
+        wake = self.paced.next_wake()
+        if self._buffer:
+            feed = self.paced.rx_resume_at()
+            wake = feed if wake is None else min(wake, feed)
+        return wake
 
     def _tick(self) -> None:
         out = self.paced.advance()
+        self._feed()
         if out and not self._closing:
             self._protocol.data_received(out)
 
+    def _feed(self, everything: bool = False) -> None:
+        """Move buffered bytes onto the RX line as far as it has room (all of them when the
+        transport closes: they were written before it did)."""
+        if self._buffer:
+            room = len(self._buffer) if everything else self.paced.rx_room()
+            if room > 0:
+                self.paced.host_write(bytes(self._buffer[:room]))
+                del self._buffer[:room]
+        self._flow()
+
+    def _flow(self) -> None:
+        size = len(self._buffer)
+        if not self._protocol_paused and size > self._high:
+            self._protocol_paused = True
+            self._protocol.pause_writing()
+        elif self._protocol_paused and size <= self._low:
+            self._protocol_paused = False
+            self._protocol.resume_writing()
+
     def write(self, data: bytes | bytearray | memoryview) -> None:
-        if not self._closing:
-            self.paced.host_write(bytes(data))
+        if not self._closing and data:
+            self._buffer += data
+            self._feed()
             self.pacer.poke()
+
+    def get_write_buffer_size(self) -> int:
+        return len(self._buffer)
+
+    def get_write_buffer_limits(self) -> tuple[int, int]:
+        return self._low, self._high
+
+    def set_write_buffer_limits(self, high: int | None = None, low: int | None = None
+                                ) -> None:
+        if high is None:
+            high = WRITE_BUFFER_HIGH if low is None else 4 * low
+        if low is None:
+            low = high // 4
+        if not high >= low >= 0:
+            raise ValueError(f"high ({high!r}) must be >= low ({low!r}) must be >= 0")
+        self._high, self._low = high, low
+        self._flow()
 
     def is_closing(self) -> bool:
         return self._closing
@@ -584,12 +1191,17 @@ class EmulatedTransport(asyncio.Transport):
     def close(self) -> None:
         if self._closing:
             return
+        self._feed(everything=True)
         self._closing = True
         loop = asyncio.get_running_loop()
         self._stopping = loop.create_task(self.pacer.stop())
         loop.call_soon(self._protocol.connection_lost, None)
         if isinstance(self.paced, RobotSide):
             self.paced.release()
+
+    def abort(self) -> None:
+        self._buffer.clear()
+        self.close()
 
     def get_extra_info(self, name: str, default: Any = None) -> Any:
         if name == "board":

@@ -26,6 +26,12 @@ next burst arrives or, if none does, when its stop bit ends (the line was idle).
 Simplification: a break or cut acts only on bit slots sent during it (an idle line held low
 produces nothing here, where a real receiver would see one falling edge).
 
+Per board the receiver can instead be level-triggered (``rx_mode="level"``,
+:class:`LevelReceiver`): a 16550's, verilog-uart's and OpenTitan's way, a start on any low
+level with the start bit checked again at mid-bit (checked against OpenTitan's ``uart_rx``
+RTL). The two modes agree on clean traffic and data faults and part after low stop bits,
+breaks and lost start bits.
+
 Rate-based faults are decided per burst before any bit is laid out, so a burst nothing hits
 still takes the fast path: at a bit-error rate of 1e-4 about 95 % of 55-byte frames do. Each
 kind of random fault draws from its own generator (``Timeline.rng(line + "." + kind)``), so
@@ -49,7 +55,10 @@ __all__ = [
     "BIT_START",
     "BIT_STOP",
     "DEFAULT_BAUD",
+    "LEVEL_SYNC_CYCLES",
+    "UART_RX_MODES",
     "ByteRun",
+    "LevelReceiver",
     "LineFaults",
     "LineStats",
     "SlotReceiver",
@@ -65,6 +74,16 @@ BITS_PER_BYTE = 10
 #: Bit indexes within a byte's 10 slots, for :class:`LineFaults` (data bit k is slot k + 1).
 BIT_START = 0
 BIT_STOP = 9
+
+
+#: How a receiver finds a start bit: ``edge`` (LiteX's ``RS232PHYRX``: a falling edge,
+#: :class:`SlotReceiver`) or ``level`` (a 16550's, verilog-uart's, OpenTitan's ``uart_rx``:
+#: a low level, checked again at mid-bit, :class:`LevelReceiver`).
+UART_RX_MODES = ("edge", "level")
+#: The level receiver's input synchroniser (two flip-flops, as OpenTitan's ``uart_core``).
+LEVEL_SYNC_CYCLES = 2
+#: The level receiver's sampling clock: this many ticks per bit (a 16550's 16× clock).
+LEVEL_OVERSAMPLING = 16
 
 
 def cycles_per_bit(baud: int) -> int:
@@ -330,6 +349,94 @@ class SlotReceiver:
             self._bursts.pop()
 
 
+class LevelReceiver(SlotReceiver):
+    """A level-triggered 8N1 receiver, a function of the waveform alone like
+    :class:`SlotReceiver`: while idle it starts a byte on any cycle its synchronised input is
+    low (not only on a falling edge), checks the start bit again at mid-bit (a high start bit
+    was a glitch: back to idle), then samples each bit at its middle on a free-running 16×
+    clock and drops a byte whose stop bit reads low (a framing error). It hunts again from
+    the cycle after the stop sample, so a line still low there (a low stop bit, a break)
+    starts the next byte at once: a break gives a framing error every byte time.
+
+    This is OpenTitan's ``uart_rx`` (lowRISC, Apache-2.0; checked against that RTL in
+    ``tests/fpgaemu/test_uart_hdl.py``) behind a two-flip-flop synchroniser, with its 16×
+    tick from a free-running divider that spreads 16 ticks evenly over each ``cycles_per_bit``
+    cycles from power-up (tick in cycle c when ⌊16(c+1)/cpb⌋ > ⌊16c/cpb⌋); verilog-uart's
+    ``uart_rx`` and a 16550 behave the same way (start on a low level, mid-bit re-check),
+    with their own clocks. A byte is delivered at the end of its nominal stop bit (its start
+    plus ten bit times), as :class:`SlotReceiver` delivers."""
+
+    __slots__ = ()
+
+    def _tick_after(self, cycle: int, count: int) -> int:
+        """The cycle of the ``count``-th 16× tick after ``cycle``."""
+        bit, over = self.bit, LEVEL_OVERSAMPLING
+        ticks = (cycle + 1) * over // bit + count
+        return -(-ticks * bit // over) - 1
+
+    def _next_start(self) -> int | None:
+        """The first cycle at or after the hunting point at which the synchronised input is
+        low, in the held slots."""
+        bit = self.bit
+        first_level = self._hunt - LEVEL_SYNC_CYCLES
+        for start, slots in self._bursts:
+            end = start + len(slots) * bit
+            if end <= first_level:
+                continue
+            j = max(0, (first_level - start) // bit)
+            for k in range(j, len(slots)):
+                if not slots[k]:
+                    return max(first_level, start + k * bit) + LEVEL_SYNC_CYCLES
+        return None
+
+    def _sample_cycles(self, start: int) -> list[int]:
+        """The cycles at which the byte started at ``start`` reads its ten bits (each reads
+        the line :data:`LEVEL_SYNC_CYCLES` earlier): the cycle after every 16th tick, from
+        the 8th."""
+        return [self._tick_after(start, 8 + 16 * i) + 1 for i in range(BITS_PER_BYTE)]
+
+    def decide(self, known_until: int) -> list[tuple[int, int]]:
+        out: list[tuple[int, int]] = []
+        bit, sync = self.bit, LEVEL_SYNC_CYCLES
+        while self._bursts:
+            start = self._next_start()
+            if start is None:
+                self._drop_before(self._bursts[-1][0] + len(self._bursts[-1][1]) * bit)
+                break
+            samples = self._sample_cycles(start)
+            if samples[0] - sync >= known_until:
+                self._drop_before(start - sync)
+                break
+            if self._level(samples[0] - sync):  # a glitch: the start bit is gone at mid-bit
+                self._hunt = samples[0] + 1
+                self._drop_before(self._hunt - sync - 1)
+                continue
+            if samples[-1] - sync >= known_until:
+                self._drop_before(start - sync)
+                break
+            value = 0
+            for k in range(8):
+                if self._level(samples[k + 1] - sync):
+                    value |= 1 << k
+            done = start - sync + BITS_PER_BYTE * bit
+            if self._level(samples[9] - sync):
+                out.append((value, done))
+            else:
+                self.framing_errors += 1
+                if self.on_framing_error is not None:
+                    self.on_framing_error(done)
+            self._hunt = samples[9] + 1
+            self._drop_before(self._hunt - sync - 1)
+        return out
+
+    def next_decision(self) -> int | None:
+        start = self._next_start()
+        if start is None:
+            return None
+        return max(start - LEVEL_SYNC_CYCLES + BITS_PER_BYTE * self.bit,
+                   self._sample_cycles(start)[-1] - LEVEL_SYNC_CYCLES + 1)
+
+
 _NO_PLAN = _Plan(set(), set(), {})
 #: a line with no faults, for a clean burst that must go through the slots
 _CLEAN = LineFaults()
@@ -360,8 +467,11 @@ class _Line:
 
     def __init__(
         self, timeline: Timeline, name: str, baud: int, faults: LineFaults | None,
-        byte_gap: int = 0,
+        byte_gap: int = 0, rx_mode: str = "edge",
     ) -> None:
+        if rx_mode not in UART_RX_MODES:
+            raise ValueError(f"rx_mode must be one of {', '.join(UART_RX_MODES)}, got "
+                             f"{rx_mode!r}")
         if byte_gap < 0:
             raise ValueError(f"byte_gap must be ≥ 0 cycles, got {byte_gap}")
         self._timeline = timeline
@@ -379,7 +489,8 @@ class _Line:
         self.line_free_at = 0
         #: the line level at ``line_free_at`` (a burst can end low)
         self._last_level = 1
-        self.receiver = SlotReceiver(self.cycles_per_bit)
+        self.receiver = (LevelReceiver if rx_mode == "level" else SlotReceiver)(
+            self.cycles_per_bit)
         self._decision: Any = None
         rng: Any = timeline.rng if faults is not None else (lambda _name: None)
         self._rng = rng(name)
@@ -572,8 +683,9 @@ class UartRead(_Line):
         sink: Callable[[ByteRun], None],
         baud: int = DEFAULT_BAUD,
         faults: LineFaults | None = None,
+        rx_mode: str = "edge",
     ) -> None:
-        super().__init__(timeline, "uartread", baud, faults)
+        super().__init__(timeline, "uartread", baud, faults, rx_mode=rx_mode)
         self.sink = sink
 
     def transmit(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:

@@ -41,6 +41,7 @@ from fpgalink.errors import (
     ValueMismatch,
 )
 from fpgalink.events import (
+    BoardBack,
     BoardFound,
     BoardRestarted,
     BoardResynced,
@@ -128,9 +129,14 @@ _RECEIVE_SLICE = 1 << 16
 #: A TM frame's content bytes: runs of frames this size may be telemetry.
 _TM_SIZE = content_length(MessageId.TM)
 _KEEP_ON_OVERFLOW = (RequestDone, RequestFailed, BoardFound, BoardSilent, BoardRestarted,
-                     BoardResynced, WatchdogLapsed, TelemetryStale, TelemetryResumed)
+                     BoardResynced, BoardBack, WatchdogLapsed, TelemetryStale,
+                     TelemetryResumed)
 #: The board's watchdog (SPEC §6): enable falls this long after the last ``RE`` arrived.
 WATCHDOG_S = 0.3
+#: How far behind this host's time a board's clock may fall over a silence and still be the
+#: same run (a sample buffered before this host read it, the host's own timer lateness).
+_CLOCK_SLACK_S = 0.1
+_CLOCK_SLACK_SHARE = 0.1
 #: The two parameters that say whether, and how often, the board sends telemetry.
 _GET_DATA = lookup("GetDataPeriodical")
 _PERIOD = lookup("TsTimerPeriod")
@@ -373,8 +379,11 @@ class Connection:
         self._resync_request: int | None = None
         self._resync_applied = 0
         self._resync_failed: list[tuple[str, FpgalinkError]] = []
-        #: the board was out of reach: when heard again, it may have restarted
-        self._out_of_reach: tuple[RestartEvidence, float] | None = None
+        #: the board was out of reach since then (``where``: "" or on the reconnected
+        #: port): when heard again it may have restarted
+        self._out_of_reach: tuple[str, float] | None = None
+        #: heard again after it was out of reach: what the next counter will decide about
+        self._verify: str | None = None
         self._last_duplicate: int | None = None
         # --- wire CRC (issue 29): off until the board confirms WireCrc = 1 ----------------
         #: the optional wire CRC's state (:class:`~fpgalink.protocol.crc.HostWireCrc`)
@@ -449,6 +458,8 @@ class Connection:
         first = counters[0]
         if (counters == list(range(first, first + n))
                 and self.counter_tracker.observe_in_order(first, n)):
+            if self._verify is not None:
+                self._back()
             if self.enabled:
                 self._watch_enable(telemetry, now)
             self._events.extend(telemetry)
@@ -470,7 +481,8 @@ class Connection:
         tracker = self.counter_tracker
         last_t_us = self._last_t_us
         if tracker.observe_in_order(counter):
-            pass
+            if self._verify is not None:
+                self._back()
         elif (last_t_us is not None
                 and 0 < (last_t_us - msg.t_us) % _T_US_WRAP < _T_US_WRAP // 2):
             # Its clock went back and its counter broke the sequence with it: a restarted
@@ -479,12 +491,29 @@ class Connection:
                             f"t_us {msg.t_us} after {last_t_us}, counter {counter:05d} "
                             f"where {tracker.expected:05d} was expected", now)
             tracker.observe(counter)
+        elif (self._verify is not None and last_t_us is not None
+                and self._last_telemetry_at is not None
+                and self._clock_behind(msg.t_us, last_t_us, now - self._last_telemetry_at)):
+            board_s = (msg.t_us - last_t_us) % _T_US_WRAP / 1e6
+            self._restarted(RestartEvidence.CLOCK_BEHIND,
+                            f"{board_s:.3f} s of board time over "
+                            f"{now - self._last_telemetry_at:.3f} s of this host's, counter "
+                            f"{counter:05d} where {tracker.expected:05d} was expected", now)
+            tracker.observe(counter)
         else:
             self._count_out_of_order(counter, now)
         if self.enabled:
             self._watch_enable((msg,), now)
         self._events.append(msg)
         self._telemetry_arrived(msg, msg, now)
+
+    @staticmethod
+    def _clock_behind(t_us: int, last_t_us: int, host_s: float) -> bool:
+        """Over a silence a board that ran on counted about the host's time; one that
+        restarted meanwhile counted only from its power-up. The slack covers a sample that
+        waited in a buffer before this host read it."""
+        board_s = (t_us - last_t_us) % _T_US_WRAP / 1e6
+        return board_s < host_s - (_CLOCK_SLACK_S + _CLOCK_SLACK_SHARE * host_s)
 
     def _telemetry_arrived(self, first: Telemetry, last: Telemetry, now: float) -> None:
         """Samples ``first`` … ``last`` (in counter order) arrived at ``now``: the stream's
@@ -541,6 +570,8 @@ class Connection:
     def _count(self, counter: int, now: float) -> None:
         if not self.counter_tracker.observe_in_order(counter):
             self._count_out_of_order(counter, now)
+        elif self._verify is not None:
+            self._back()
 
     def _count_out_of_order(self, counter: int, now: float) -> None:
         """Anything but the expected counter, the wrap included, is the tracker's to judge;
@@ -562,6 +593,8 @@ class Connection:
                 return
         else:
             self._last_duplicate = None
+        if self._verify is not None:
+            self._back()
         self._counter_event(observation, counter)
 
     def _each(self, items: list[bytes | FramingError], now: float) -> None:
@@ -762,12 +795,33 @@ class Connection:
         self.liveness = Liveness.ALIVE
         self._events.append(BoardFound())
         if self._out_of_reach is not None:
-            evidence, since = self._out_of_reach
+            # It may have restarted while out of reach, or not: its next counter decides
+            # (back at 00000, or going on), and a question makes sure one comes.
+            where, since = self._out_of_reach
             self._out_of_reach = None
-            where = (", on the reconnected port"
-                     if evidence is RestartEvidence.PORT_RECONNECTED else "")
-            self._restarted(evidence, f"heard again after {now - since:.3f} s of silence"
-                            + where, now)
+            self._verify = f"heard again after {now - since:.3f} s of silence{where}"
+            if self._probe is None:
+                self._probe = self.get_param(_WIRE_CRC if self.wire_crc.on else _GET_DATA,
+                                             0, now)
+
+    def _back(self) -> None:
+        """The board heard again went on counting: it did not restart."""
+        detail, self._verify = self._verify, None
+        assert detail is not None
+        self._drop_probe()
+        self._events.append(BoardBack(detail))
+
+    def _drop_probe(self) -> None:
+        """The question the probe asked is answered otherwise: its request goes, unsaid."""
+        if self._probe is not None:
+            self._requests.pop(self._probe, None)
+            self._probe = None
+
+    @property
+    def verifying(self) -> bool:
+        """Heard again after a silence or on a reconnected port, and not yet known whether
+        the board restarted meanwhile."""
+        return self._verify is not None
 
     # --- the board's restarts ---------------------------------------------------------------
 
@@ -776,6 +830,9 @@ class Connection:
         telemetry off, parameters at their power-up values, counters from 0. Stop keeping
         it enabled, follow its new counter sequence, and set again what this side holds."""
         self.stats.restarts += 1
+        if self._verify is not None:
+            detail += f"; {self._verify}"
+            self._verify = None
         self._events.append(BoardRestarted(evidence, detail))
         self.counter_tracker.reset()
         self._last_duplicate = None
@@ -789,7 +846,7 @@ class Connection:
         self._telemetry_on = None
         self._period = self._seen_period = None
         self.telemetry_stale = False
-        self._probe = None
+        self._drop_probe()
         # The wire CRC first (every later message then carries it, as before), telemetry
         # last, so the stream comes back from a board configured as before.
         settings = sorted(self.held.values(),
@@ -902,7 +959,7 @@ class Connection:
             self.liveness = Liveness.LOST
             self.stats.heartbeat_misses += 1
             self._events.append(BoardSilent(now - origin))
-            self._out_of_reach = (RestartEvidence.HEARD_AFTER_SILENCE, origin)
+            self._out_of_reach = ("", origin)
             self._settle_all(BoardLost(f"board silent for {now - origin:.3f} s"))
         for request in list(self._requests.values()):
             if now >= request.deadline:
@@ -935,10 +992,8 @@ class Connection:
         :meth:`reconnected`."""
         self.stats.port_losses += 1
         self._port_up = False
-        if self.liveness is not Liveness.LOST:
-            self._out_of_reach = (RestartEvidence.PORT_RECONNECTED, now)
-        elif self._out_of_reach is not None:
-            self._out_of_reach = (RestartEvidence.PORT_RECONNECTED, self._out_of_reach[1])
+        since = now if self._out_of_reach is None else self._out_of_reach[1]
+        self._out_of_reach = (", on the reconnected port", since)
         self.liveness = Liveness.LOST
         # No heartbeat can reach the board: its watchdog lapses. Nothing enables it again
         # by itself when the port comes back; the caller decides.
@@ -950,14 +1005,13 @@ class Connection:
         self._settle_all(BoardLost(reason))
 
     def reconnected(self, now: float) -> None:
-        """A new transport to the board: the stream starts afresh (the board may have
-        restarted, so its counter need not continue ours) and liveness is judged anew from
-        ``now``. The link was disabled when the port went: when the board is heard again
-        it is taken as restarted (:class:`~fpgalink.events.BoardRestarted`), what this
-        side holds is set again, and the caller enables again when it is safe."""
+        """A new transport to the board: liveness is judged anew from ``now``. The link was
+        disabled when the port went; when the board is heard again its counter says whether
+        it restarted meanwhile (:class:`~fpgalink.events.BoardRestarted`: what this side
+        holds is set again) or went on (:class:`~fpgalink.events.BoardBack`: what it sent
+        meanwhile is counted lost). The caller enables again when it is safe."""
         self.stats.reconnects += 1
         self._port_up = True
-        self.counter_tracker.reset()
         self._decoder.reset()
         self.liveness = Liveness.UNKNOWN
         self._last_heard = None
@@ -1078,6 +1132,8 @@ class Connection:
                 self._restarted(RestartEvidence.CONFIG_LOST,
                                 f"{param.full_name(channel)} reads {value} on the board; "
                                 f"this host set {held[2]}", now)
+            elif self._verify is not None:
+                self._back()
         elif request.request_id == self._resync_request:
             self._resync_applied += 1
             self._resync_next(now)

@@ -12,8 +12,9 @@ revealed the board, so a consumer knows the board is there when it sees the mess
 
 The board's real life, each reported, never silent: :class:`BoardRestarted` (its counter
 back to ``00000``, its clock going backwards, a parameter the host set found at another
-value, or the board heard again after a silence or a reconnection) and then
-:class:`BoardResynced` once the configuration the host holds is applied again;
+value) and then :class:`BoardResynced` once the configuration the host holds is applied
+again; a board heard again after a silence or on a reconnected port is asked, and its
+answer's counter says whether it restarted or is :class:`BoardBack`;
 :class:`WatchdogLapsed` (the board's 300 ms watchdog disabled it while the host meant it
 enabled); :class:`TelemetryStale` and :class:`TelemetryResumed` (telemetry configured on
 and none arriving).
@@ -41,6 +42,7 @@ from fpgalink.protocol import (
 
 __all__ = [
     "Alive",
+    "BoardBack",
     "BoardFault",
     "BoardFound",
     "BoardRestarted",
@@ -141,27 +143,38 @@ class BoardFault(Event):
 
 
 class RestartEvidence(Enum):
-    """What showed that the board restarted (or may have: it was out of reach)."""
+    """What showed that the board restarted."""
 
     COUNTER_RESET = "its message counter went back"
     CLOCK_BACKWARDS = "its clock (t_us) went backwards"
+    #: heard again after a silence, its clock ran much less than this host's meanwhile
+    CLOCK_BEHIND = "its clock (t_us) ran behind this host's over a silence"
     CONFIG_LOST = "a parameter this host set reads back at another value"
-    HEARD_AFTER_SILENCE = "it was heard again after a silence"
-    PORT_RECONNECTED = "its port was reconnected"
 
 
 @dataclass(frozen=True, slots=True)
 class BoardRestarted(BoardFault):
     """The board restarted (power-up state: disabled, telemetry off, parameters at their
-    power-up values, counters from 0), or was out of reach long enough that it may have.
-    The connection has stopped its heartbeat (and sent ``RD``): enable again when ready.
-    It applies the configuration it holds again; :class:`BoardResynced` follows."""
+    power-up values, counters from 0). The connection has stopped its heartbeat (and sent
+    ``RD``): enable again when ready. It applies the configuration it holds again;
+    :class:`BoardResynced` follows."""
 
     evidence: RestartEvidence
     detail: str
 
     def describe(self) -> str:
         return f"restarted: {self.evidence.value} ({self.detail})"
+
+
+@dataclass(frozen=True, slots=True)
+class BoardBack(BoardFault):
+    """The board, heard again after a silence or on a reconnected port, did not restart:
+    its message counter went on from where it was (its configuration is as it was)."""
+
+    detail: str
+
+    def describe(self) -> str:
+        return f"back, not restarted: {self.detail}"
 
 
 @dataclass(frozen=True, slots=True)

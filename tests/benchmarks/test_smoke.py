@@ -96,20 +96,21 @@ def test_emulator_quick(tmp_path: Path) -> None:
     assert config["reps"] == 1 and config["emulated_s"] == 1.0
 
     assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "board.idle",
-                                    "robot"}
+                                    "robot", "robot.mujoco"}
     idle = report["cases"].pop("board.idle")
     (rep,) = idle["repetitions"]
     assert rep["periods"] == 10_000 and rep["tm_sent"] == 0 and rep["missed"] == 0
     for key, case in report["cases"].items():
         (rep,) = case["repetitions"]
-        boards = 2 if key == "robot" else 1
+        boards = 2 if key.startswith("robot") else 1
         assert rep["periods"] == 1000 and rep["missed"] == 0, key
         assert rep["tm_dropped"] == 0, key
         # Every period queued its TM; the last may still be on the wire when the run ends.
         assert rep["tm_sent"] == rep["periods"] * boards, key
         assert rep["tm_sent"] - boards <= rep["tm_finished"] <= rep["tm_sent"], key
         assert rep["rv_handled"] == rep["rv_sent"], key
-        expected_rv = {"board.tm_only": 0, "robot": 200}.get(key, 1000)  # robot: 2 × 100
+        # robot: 2 × 100
+        expected_rv = {"board.tm_only": 0, "robot": 200, "robot.mujoco": 200}.get(key, 1000)
         assert rep["rv_sent"] == expected_rv, key
         # A tick each (a TM nobody waits for has no event at its end), and an RV's STOP each.
         assert case["events"] >= boards * case["periods"] + rep["rv_sent"], key
@@ -121,7 +122,8 @@ def test_emulator_quick(tmp_path: Path) -> None:
         else:
             assert rep["tm_received"] is None, key
 
-    assert [t["case"] for t in report["targets"]] == ["board", "board.idle", "robot"]
+    assert [t["case"] for t in report["targets"]] == ["board", "board.idle", "robot",
+                                                      "robot.mujoco"]
     assert all(isinstance(t["pass"], bool) for t in report["targets"])
 
 
@@ -277,3 +279,37 @@ def test_crc_ber_quick(tmp_path: Path) -> None:
             assert fast["accepted_corrupt"] == 0 and fast["crc_failures"] > 0, key
         else:
             assert fast["accepted_corrupt"] > 0, key  # without it, some get through
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_flood_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("flood", tmp_path)
+    assert "every byte" in stdout
+    assert set(report["cases"]) == {"pty", "tcp"}
+    for where, case in report["cases"].items():
+        assert case["exit_code"] == 0, where
+        # Every byte of the flood reached the board, none discarded, and the request after
+        # it was answered no sooner than the line could carry them.
+        assert case["every_byte_delivered"], (where, case["board"])
+        assert case["board"]["discarded"] == 0 and case["board"]["held_back"] >= 1, where
+        assert case["answer_s"] >= case["line_s"], where
+        assert case["rss_peak_kb"] >= case["rss_before_kb"] > 0, where
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_seed_table_quick(tmp_path: Path) -> None:
+    pytest.importorskip("mujoco")
+    stdout, report = run_quick("seed_table", tmp_path)
+    assert "§3.6.7" in stdout and "odometry" in stdout
+    assert set(report["table"]) == {
+        "gravel-0/50-rate", "gravel-0/50-radius", "gravel-50/-50-rate", "gravel-15/50-rate",
+        "gravel-25/50-radius", "marble-70/-70-rate"}
+    for row in report["table"].values():
+        assert {"seed", "kinematic", "mujoco", "mujoco_fields"} <= set(row)
+        assert len(row["mujoco_fields"]) in (1, 3)
+    assert 0 <= report["step_halved"]["largest"] < 1
+    assert len(report["wander_60s"]) == 3
+    assert {"ratio", "front_load_n", "rear_load_n"} <= set(report["slope"])
+    assert {"ax_on_stair", "az_on_stair", "max_pitch_deg"} <= set(report["stairs"])
+    bodies = {o["body"] for o in report["odometry"].values()}
+    assert bodies == {"kinematic", "mujoco"}

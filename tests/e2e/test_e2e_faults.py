@@ -202,6 +202,9 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
             assert "reconnected port" in restart.detail
             await next_event(events, {LinkEventKind.BOARD_RESYNCED}, PATIENCE)
             assert not link.enabled
+            # The probe that asked the board heard again is answered before this read, so
+            # no answer takes a counter inside the stretch whose counters are checked.
+            assert await link.get_param("TsTimerPeriod") == 1
             # Telemetry flows again; enabled again by the caller, the new board runs.
             link.enable()
             result = await stream(link, 500)

@@ -23,7 +23,7 @@ def idle_then_drive(skip_quiet: bool) -> tuple[EmulatedRobot, dict[str, Any], in
     """2 s idle from power-up, then enable and references arrive (mid-millisecond) and the
     robot drives for 0.5 s; returns the robot, what each board sent, and how many times the
     body was moved."""
-    robot = EmulatedRobot()
+    robot = EmulatedRobot(body="kinematic")
     follows = 0
     body_follow = robot.body.follow
 
@@ -70,3 +70,34 @@ def test_an_idle_robot_crosses_its_quiet_stretches_in_one_step_with_the_same_out
             a, b = fast.boards[name].channels[code], full.boards[name].channels[code]
             assert a.encoder.position == b.encoder.position != 0
         assert _firmware(fast, name).timing.periods == _firmware(full, name).timing.periods
+
+
+def test_without_mujoco_the_default_body_is_kinematic_and_says_so_once(
+        monkeypatch: Any, caplog: Any) -> None:
+    from fpgaemu import physics
+    from fpgaemu import robot as robot_module
+
+    monkeypatch.setattr(physics, "why_unavailable", lambda: "MuJoCo is not installed")
+    monkeypatch.setattr(robot_module, "_said_fallback", False)
+    with caplog.at_level("WARNING", logger="fpgaemu"):
+        first = EmulatedRobot()
+        second = EmulatedRobot()
+    assert first.body_kind == second.body_kind == "kinematic"
+    said = [r.getMessage() for r in caplog.records if "kinematic" in r.getMessage()]
+    assert said == ["the emulated robot's body is the kinematic one: MuJoCo is not installed"]
+
+
+def test_the_serve_options_reach_every_board() -> None:
+    from fpgaemu.__main__ import _paced_boards
+    from fpgaemu.uart import LevelReceiver
+    from fpgalink.protocol.robot import seed_robot
+
+    paced = _paced_boards(["L", "R"], seed_robot(), 1_000_000, 0, "high", {},
+                          {"L": [], "R": []}, body="kinematic", uart_rx="level", tx_gap=2)
+    for side in paced.values():
+        assert isinstance(side.board.uartread.receiver, LevelReceiver)
+        assert side.board.uartwrite.byte_gap == 2
+    boards = _paced_boards(["B1"], None, 1_000_000, 0, "high", {}, {"B1": []},
+                           uart_rx="level", tx_gap=1)
+    assert isinstance(boards["B1"].board.uartread.receiver, LevelReceiver)
+    assert boards["B1"].board.uartwrite.byte_gap == 1

@@ -9,7 +9,7 @@ from typing import Any
 import pytest
 
 from fpgaemu.build import build_board
-from fpgaemu.serve import CATCH_UP_SLICE_S, HOST_FIFO_BYTES, PacedBoard
+from fpgaemu.serve import CATCH_UP_SLICE_S, RX_BACKLOG_BYTES, RX_RESUME_BYTES, PacedBoard
 from fpgalink import Connection, Telemetry
 from fpgalink.protocol import Enable, ParamSet
 from tests.support.wire import sent
@@ -51,17 +51,26 @@ def test_starved_board_catches_up_without_losing_bytes_and_reports_lag() -> None
     assert host.stats.lost == 0 and host.stats.decode_errors == 0
 
 
-def test_a_host_writing_faster_than_the_line_is_bounded_and_counted() -> None:
-    # 4.9 GB were once accepted from a TCP client in 30 s; the line carries 100 kB/s.
+def test_the_line_says_how_much_it_takes_and_never_drops_what_it_took() -> None:
+    # Backpressure, not loss: an endpoint reads no more than rx_room(); what it hands over
+    # all goes onto the line, and the room comes back as the line carries it.
     now = [10.0]
     paced = PacedBoard(build_board(), clock=lambda: now[0])
-    accepted = sum(paced.host_write(b"x" * 65536) for _ in range(100))
-    assert accepted == HOST_FIFO_BYTES
-    assert paced.dropped_rx == 100 * 65536 - HOST_FIFO_BYTES
-    # As the line drains, there is room again: 1 ms carries 100 bytes at 1 MBd.
-    now[0] += 0.001
+    assert paced.rx_room() == RX_BACKLOG_BYTES
+    assert paced.host_write(b"x" * RX_BACKLOG_BYTES) == RX_BACKLOG_BYTES
+    assert paced.rx_room() == 0 and paced.rx_backlog() == RX_BACKLOG_BYTES
+    # Handed more anyway, the board still takes every byte: nothing is ever dropped here.
+    assert paced.host_write(b"y" * 100) == 100
+    assert paced.board.uartread.stats.bytes_sent == RX_BACKLOG_BYTES + 100
+    # 1 ms carries 100 bytes at 1 MBd.
+    now[0] += 0.002
     paced.advance()
-    assert paced.host_write(b"y" * 1000) in (99, 100)  # give or take the byte on the wire
+    assert paced.rx_room() in (99, 100)
+    # The resume moment is when the backlog has drained to the low-water mark.
+    now[0] = paced.rx_resume_at()
+    assert paced.rx_backlog() == RX_RESUME_BYTES
+    now[0] -= 20e-6  # two bytes earlier it has not
+    assert paced.rx_backlog() > RX_RESUME_BYTES
 
 
 def test_a_departed_hosts_bytes_are_discarded() -> None:
@@ -114,3 +123,52 @@ def test_skipping_quiescent_ticks_changes_nothing() -> None:
     assert digest(trace(fast)) == digest(trace(full))
     fast_firmware: Any = fast.peripherals["firmware"]
     assert fast_firmware.timing.periods == firmware.timing.periods
+
+
+async def test_emu_transport_buffers_what_the_host_writes_and_pauses_the_protocol() -> None:
+    # emu:// dropped what the host wrote beyond the 4 KiB backlog; now it keeps it, feeds the
+    # line as it makes room, and tells the protocol to pause and resume as asyncio's
+    # transports do.
+    import asyncio
+
+    from fpgaemu.serve import open_emulated_transport
+    from fpgalink.protocol import ParamAck, ParamGet
+    from tests.support.flood import noise
+    from tests.support.wire import received
+
+    class Host(asyncio.Protocol):
+        def __init__(self) -> None:
+            self.calls: list[str] = []
+            self.wire = b""
+
+        def pause_writing(self) -> None:
+            self.calls.append("pause")
+
+        def resume_writing(self) -> None:
+            self.calls.append("resume")
+
+        def data_received(self, data: bytes) -> None:
+            self.wire += data
+
+    transport, protocol = await open_emulated_transport("emu://", 1_000_000, Host)
+    assert isinstance(protocol, Host) and isinstance(transport, asyncio.Transport)
+    transport.set_write_buffer_limits(high=8192)
+    assert transport.get_write_buffer_limits() == (2048, 8192)
+    payload = noise(20_000) + sent(ParamGet(1, 0))
+    for start in range(0, len(payload), 1000):
+        transport.write(payload[start:start + 1000])
+    assert protocol.calls == ["pause"]
+    # Held in the transport beyond what the line takes (a little more may have gone out
+    # while the writes were made: the line drains 100 bytes a millisecond).
+    assert 8192 < transport.get_write_buffer_size() <= len(payload) - RX_BACKLOG_BYTES
+    board: Any = transport.get_extra_info("board")
+    try:
+        async with asyncio.timeout(10):
+            while not any(isinstance(e, ParamAck) for e in received(protocol.wire)):
+                await asyncio.sleep(0.01)
+    finally:
+        transport.close()
+    assert protocol.calls == ["pause", "resume"]
+    assert transport.get_write_buffer_size() == 0
+    assert board.uartread.stats.bytes_sent == len(payload)  # every byte, none dropped
+    assert board.uartcommand.stats.noise_bytes == 20_000

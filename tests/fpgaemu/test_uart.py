@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import itertools
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -13,7 +14,9 @@ from fpgaemu.uart import (
     BIT_START,
     BIT_STOP,
     ByteRun,
+    LevelReceiver,
     LineFaults,
+    SlotReceiver,
     UartRead,
     UartWrite,
     cycles_per_bit,
@@ -103,6 +106,39 @@ def test_a_broken_stop_bit_hides_the_next_start_bit_as_in_litex() -> None:
     line.transmit(b"\x00AB", 0)
     line._timeline.run_until(10_000)
     assert timed(runs) == [(0xE8, 3_300)] and line.stats.framing_errors == 2
+
+
+def test_level_triggered_a_broken_stop_bit_costs_the_next_byte_not_the_rest() -> None:
+    # The same waveform with the level-triggered receiver (a 16550's, OpenTitan's): it hunts
+    # again right after the low stop sample, finds the line low and starts at once, mid-bit;
+    # that misframed byte fails too, and 0x42 arrives intact, in step. Outcomes from
+    # tests/fpgaemu/test_uart_hdl.py's OpenTitan reference.
+    runs: list[ByteRun] = []
+    line = UartRead(Timeline(0), runs.append, faults=LineFaults(break_stop={0}),
+                    rx_mode="level")
+    line.transmit(b"\x00AB", 0)
+    line._timeline.run_until(10_000)
+    assert timed(runs) == [(0x42, 3_000)] and line.stats.framing_errors == 2
+
+
+def test_level_triggered_a_break_is_a_framing_error_every_byte_time() -> None:
+    ok = [(ord("o"), 9_000), (ord("k"), 10_000)]
+    # Level-triggered, the byte begun in the break's last byte time reads the line's return
+    # to idle as data: a stray 0xFC (as OpenTitan's receiver makes of it).
+    for mode, errors, received in (("edge", 1, ok), ("level", 5, [(0xFC, 5_749), *ok])):
+        runs: list[ByteRun] = []
+        line = UartRead(Timeline(0), runs.append, faults=LineFaults(stuck=[(0, 5_000)]),
+                        rx_mode=mode)
+        line.transmit(b"\x55" * 5, 0)  # sent while the line is held low
+        line.transmit(b"ok", 8_000)
+        line._timeline.run_until(20_000)
+        assert line.stats.framing_errors == errors, mode
+        assert timed(runs) == received, mode
+
+
+def test_an_unknown_receiver_mode_is_refused() -> None:
+    with pytest.raises(ValueError, match="edge, level"):
+        UartRead(Timeline(0), lambda run: None, rx_mode="fast")
 
 
 def test_flip_stop_bit_by_index_is_a_framing_error() -> None:
@@ -206,13 +242,13 @@ def test_what_arrives_depends_on_the_waveform_not_on_how_it_was_written(
                                       break_stop=set(faults.break_stop)), cuts) == whole
 
 
+@pytest.mark.parametrize("receiver_type", [SlotReceiver, LevelReceiver])
 @given(st.lists(st.sampled_from([0, 1]), min_size=1, max_size=120),
        st.lists(st.integers(1, 119), max_size=8))
-def test_the_receiver_is_a_function_of_the_slots(slots: list[int], cuts: list[int]) -> None:
-    from fpgaemu.uart import SlotReceiver
-
+def test_the_receiver_is_a_function_of_the_slots(receiver_type: type[SlotReceiver],
+                                                 slots: list[int], cuts: list[int]) -> None:
     def receive(pieces: list[tuple[int, list[int]]]) -> tuple[list[tuple[int, int]], int]:
-        receiver = SlotReceiver(100)
+        receiver = receiver_type(100)
         out: list[tuple[int, int]] = []
         for start, piece in pieces:
             receiver.add(start, piece)

@@ -6,6 +6,11 @@ byte at the end of its stop bit, LiteX raises ``valid`` 46 cycles earlier (at 1 
 And the transmitter: with ``byte_gap=2`` the emulator's back-to-back bytes are spaced as
 LiteX's (1,002 cycles).
 
+The level-triggered receiver (``uart_rx=level``) against OpenTitan's ``uart_rx`` the same
+way: the same bytes and framing errors, and the cycle of each ``rx_valid`` is the one the
+emulator's receiver puts after its stop sample, exactly. The two modes agree on clean
+traffic and on data faults and part after low stop bits, breaks and lost start bits.
+
 CI runs a few hundred random waveforms; ``FPGALINK_LONG=1`` runs thousands. Without
 Icarus Verilog or litex the tests skip, unless ``FPGALINK_REQUIRE_HDL=1`` (set by
 ``make test``), where that is a failure."""
@@ -20,8 +25,15 @@ from pathlib import Path
 import pytest
 
 from fpgaemu.timeline import Timeline
-from fpgaemu.uart import BITS_PER_BYTE, SlotReceiver, UartWrite, litex_sample_points
-from tests.support.hdl_uart import Event, HdlUart, why_unavailable
+from fpgaemu.uart import (
+    BITS_PER_BYTE,
+    LEVEL_SYNC_CYCLES,
+    LevelReceiver,
+    SlotReceiver,
+    UartWrite,
+    litex_sample_points,
+)
+from tests.support.hdl_uart import PREROLL, Event, HdlUart, why_unavailable
 
 LONG = os.environ.get("FPGALINK_LONG") == "1"
 RANDOM_WAVEFORMS = 3000 if LONG else 300
@@ -36,6 +48,11 @@ pytestmark = [pytest.mark.skipif(_missing is not None, reason=_missing or ""),
 @pytest.fixture(scope="module")
 def hdl(tmp_path_factory: pytest.TempPathFactory) -> HdlUart:
     return HdlUart(tmp_path_factory.mktemp("hdl"))
+
+
+@pytest.fixture(scope="module")
+def hdl_level(tmp_path_factory: pytest.TempPathFactory) -> HdlUart:
+    return HdlUart(tmp_path_factory.mktemp("hdl_level"), level=True)
 
 
 def byte_slots(value: int) -> list[int]:
@@ -90,6 +107,30 @@ def emulated(slots: list[int], cycles_per_bit: int = 100) -> list[Event]:
     events += [("framing_error", -1, c - offset) for c in errors]
     # LiteX reports only what completes inside the simulated slots
     return sorted((e for e in events if e[2] < end), key=lambda e: e[2])
+
+
+#: The reference's 16× divider starts at reset, this many cycles before slot 0.
+LEVEL_ORIGIN = PREROLL - 1
+
+
+def emulated_level(slots: list[int], cycles_per_bit: int = 100) -> list[Event]:
+    """The emulator's level receiver on ``slots``, each byte placed at the cycle OpenTitan
+    raises ``rx_valid`` for it: the cycle after its stop sample."""
+    receiver = LevelReceiver(cycles_per_bit)
+    errors: list[int] = []
+    receiver.on_framing_error = errors.append
+    origin = LEVEL_ORIGIN
+    receiver.add(origin, slots)
+    end = len(slots) * cycles_per_bit
+    decided = [("byte", v, c) for v, c in receiver.decide(origin + end + 20 * cycles_per_bit)]
+    decided += [("framing_error", -1, c) for c in errors]
+    events: list[Event] = []
+    for kind, value, done in decided:
+        start = done - BITS_PER_BYTE * cycles_per_bit + LEVEL_SYNC_CYCLES
+        valid = receiver._sample_cycles(start)[-1] + 1 - origin
+        if valid < end:
+            events.append((kind, value, valid))
+    return sorted(events, key=lambda e: e[2])
 
 
 def comparable(events: list[Event]) -> list[Event]:
@@ -160,3 +201,69 @@ def test_back_to_back_transmit_spacing_with_litexs_gap(hdl: HdlUart) -> None:
     plain._timeline.run_until(20_000)
     ends = [cycle for _, cycle in plain.read_completed_timed()]
     assert [b - a for a, b in itertools.pairwise(ends)] == [1000] * (len(data) - 1)
+
+
+# --- the level-triggered receiver against OpenTitan's uart_rx -------------------------------
+
+
+@pytest.mark.parametrize("name", list(CHARACTERISATION))
+def test_characteristic_waveforms_match_opentitan(hdl_level: HdlUart, name: str) -> None:
+    slots = CHARACTERISATION[name]
+    (reference,) = hdl_level.receive([slots])
+    assert emulated_level(slots) == comparable(reference)
+
+
+def test_level_random_waveforms_match_opentitan(hdl_level: HdlUart) -> None:
+    rng = random.Random(20_261_124)
+    waveforms = [random_waveform(rng) for _ in range(RANDOM_WAVEFORMS)]
+    references = hdl_level.receive(waveforms)
+    mismatches = [(w, r) for w, r in zip(waveforms, references, strict=True)
+                  if emulated_level(w) != comparable(r)]
+    assert not mismatches, f"{len(mismatches)} of {len(waveforms)} differ, first: " \
+        f"{''.join(map(str, mismatches[0][0]))}"
+
+
+def test_level_other_rates_match_opentitan(tmp_path: Path) -> None:
+    rng = random.Random(11)
+    for cycles_per_bit in (16, 87, 868):
+        hdl = HdlUart(tmp_path, cycles_per_bit, level=True)
+        waveforms = [random_waveform(rng) for _ in range(30)]
+        for slots, reference in zip(waveforms, hdl.receive(waveforms), strict=True):
+            assert emulated_level(slots, cycles_per_bit) == comparable(reference), \
+                cycles_per_bit
+
+
+def decisions(receiver: SlotReceiver, slots: list[int]) -> list[tuple[str, int]]:
+    """What a receiver makes of ``slots``: bytes and framing errors, in order."""
+    errors: list[int] = []
+    receiver.on_framing_error = errors.append
+    receiver.add(0, slots)
+    events = [(c, "byte", v) for v, c in receiver.decide(len(slots) * 100 + 2000)]
+    events += [(c, "framing_error", -1) for c in errors]
+    return [(kind, value) for _, kind, value in sorted(events)]
+
+
+def test_the_modes_agree_on_clean_and_data_faults_and_part_after_stop_and_start_faults(
+) -> None:
+    rng = random.Random(3)
+    for _ in range(200):  # clean traffic and flipped data bits: the same bytes
+        data = bytes(rng.randrange(256) for _ in range(rng.randrange(1, 8)))
+        slots = [1] * 3 + frames(data) + [1] * 12
+        for index in range(len(data)):
+            if rng.random() < 0.3:
+                slots[3 + index * 10 + rng.randrange(1, 9)] ^= 1
+        assert decisions(SlotReceiver(100), slots) == decisions(LevelReceiver(100), slots)
+    parting = {
+        "low stop bit, next byte back to back": [1] * 3 + frames(b"\x00AB", stop_low={0}),
+        "a break": [1] * 3 + [0] * 40 + [1] * 12,
+        "a lost start bit mid burst": [1] * 3 + frames(b"ABCD", start_high={1}),
+    }
+    for name, waveform in parting.items():
+        slots = waveform + [1] * 12
+        edge = decisions(SlotReceiver(100), slots)
+        level = decisions(LevelReceiver(100), slots)
+        assert edge != level, name
+    # A break: one framing error edge-triggered, one every byte time level-triggered.
+    brk = [1] * 3 + [0] * 40 + [1] * 12
+    assert decisions(SlotReceiver(100), brk).count(("framing_error", -1)) == 1
+    assert decisions(LevelReceiver(100), brk).count(("framing_error", -1)) == 4

@@ -24,6 +24,7 @@ from fpgalink import (
 )
 from fpgalink.connection import REQUEST_TABLE, Answer, Liveness, Outcome
 from fpgalink.events import (
+    BoardBack,
     BoardFound,
     BoardRestarted,
     BoardResynced,
@@ -33,7 +34,6 @@ from fpgalink.events import (
     EventsDropped,
     RequestDone,
     RequestFailed,
-    RestartEvidence,
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
@@ -226,14 +226,14 @@ def test_liveness_lost_then_found() -> None:
     assert len(events) == 1 and isinstance(events[0], BoardSilent)
     assert events[0].silent_for == pytest.approx(0.7)
     assert host.stats.heartbeat_misses == 1
-    # Heard again after a silence: it may have restarted. Nothing was held, so the resync
-    # is done at once.
+    # Heard again after a silence: it may have restarted meanwhile. It is asked (a PG), and
+    # the counter of what it says next decides.
     host.receive_data(board_bytes(Alive()), now=1.0)
-    assert drain(host) == [
-        BoardFound(),
-        BoardRestarted(RestartEvidence.HEARD_AFTER_SILENCE,
-                       "heard again after 0.900 s of silence"),
-        BoardResynced(0), Alive()]
+    assert drain(host) == [BoardFound(), Alive()]
+    assert host.verifying and b"PG" in host.data_to_send()
+    host.receive_data(board_bytes(ParamAck(2, 0, 1, 0)), now=1.01)  # counter 00000: first
+    assert BoardBack("heard again after 0.900 s of silence") in drain(host)
+    assert not host.verifying
 
 
 # --- the request table ------------------------------------------------------------------------

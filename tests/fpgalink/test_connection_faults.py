@@ -8,11 +8,13 @@ import pytest
 
 from fpgalink import Connection
 from fpgalink.events import (
+    BoardBack,
     BoardRestarted,
     BoardResynced,
     CounterDuplicate,
     Event,
     RequestDone,
+    RequestFailed,
     RestartEvidence,
     TelemetryResumed,
     TelemetryStale,
@@ -337,7 +339,9 @@ def test_the_stale_limit_follows_the_period_and_is_set_by_the_caller() -> None:
         Connection(heartbeat_give_up=0.35)
 
 
-def test_port_lost_disables_and_the_board_heard_again_is_taken_as_restarted() -> None:
+def test_port_lost_disables_and_the_board_heard_again_tells_by_its_counter() -> None:
+    # Back on a reconnected port: a board that restarted meanwhile starts its counter
+    # again (a restart, and the held configuration is set again)...
     host, board, _ = configured()
     host.port_lost(0.05, "unplugged")
     assert not host.enabled
@@ -347,9 +351,54 @@ def test_port_lost_disables_and_the_board_heard_again_is_taken_as_restarted() ->
     host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.6)
     events = list(host.events())
     (restart,) = [e for e in events if isinstance(e, BoardRestarted)]
-    assert restart.evidence is RestartEvidence.PORT_RECONNECTED
-    assert "reconnected port" in restart.detail
+    assert restart.evidence is RestartEvidence.COUNTER_RESET
+    assert "heard again after 0.550 s of silence, on the reconnected port" in restart.detail
     assert any(isinstance(e, RequestDone) for e in exchange(host, board, 0.61))
+    # ...one that did not goes on counting: back, nothing set again, the gap counted lost.
+    host, board, _ = configured()
+    host.port_lost(0.05, "unplugged")
+    host.reconnected(0.5)
+    board.side.send(ParamAck(1, 0, 1, 1), 0.0)
+    board.side.data_to_send()  # sent while the port was gone
+    host.receive_data(board.tm(advance_us=580_000), 0.6)  # its clock ran on with the host's
+    events = list(host.events())
+    assert BoardBack("heard again after 0.550 s of silence, on the reconnected port") in events
+    assert not any(isinstance(e, BoardRestarted) for e in events)
+    assert host.stats.lost == 1 and not host.verifying
+    # The question it had asked went out; answered otherwise, it is not asked again.
+    assert b"PG" in host.data_to_send()
+    host.handle_timer(0.7)
+    assert b"PG" not in host.data_to_send()
+    assert not any(isinstance(e, RequestFailed) for e in host.events())
+
+
+def test_a_board_heard_again_whose_clock_ran_behind_the_hosts_restarted_meanwhile() -> None:
+    # A new board on the reconnected port (another serve, a re-flashed one) that streams
+    # from power-up: its counter is anywhere, its clock ahead of the old board's last
+    # sample, but it ran 1.2 s where this host waited 3 s: it is not the same run.
+    host, board, _ = configured()
+    host.port_lost(0.05, "unplugged")
+    host.reconnected(2.9)
+    for _ in range(37):
+        board.side.send(Telemetry(0, ENABLED, ENABLED), 0.0)
+    board.side.data_to_send()
+    host.receive_data(board.tm(advance_us=1_200_000), 3.02)
+    events = list(host.events())
+    (restart,) = [e for e in events if isinstance(e, BoardRestarted)]
+    assert restart.evidence is RestartEvidence.CLOCK_BEHIND
+    assert "1.200 s of board time over 3.000 s of this host's" in restart.detail
+    assert "on the reconnected port" in restart.detail
+    assert not any(isinstance(e, BoardBack) for e in events)
+    # Within the slack (a sample that waited in a buffer) it is the same board, back.
+    host, board, _ = configured()
+    host.port_lost(0.05, "unplugged")
+    host.reconnected(2.9)
+    board.side.send(Telemetry(0, ENABLED, ENABLED), 0.0)
+    board.side.data_to_send()
+    host.receive_data(board.tm(advance_us=2_750_000), 3.02)
+    events = list(host.events())
+    assert any(isinstance(e, BoardBack) for e in events)
+    assert not any(isinstance(e, BoardRestarted) for e in events)
 
 
 def test_a_host_that_was_not_running_gives_the_board_half_a_window_of_its_own_time() -> None:

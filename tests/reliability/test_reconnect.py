@@ -52,10 +52,9 @@ async def test_unplug_replug_cycles_leak_nothing() -> None:
 
     async def unplug_and_back() -> float:
         loop = asyncio.get_running_loop()
-        writer = endpoint._writer
-        assert writer is not None
+        assert endpoint.host_connected
         started = loop.time()
-        writer.close()  # the device side goes away, as a pulled cable does
+        endpoint.unplug()  # the device side goes away, as a pulled cable does
         await next_port_event(LinkEventKind.PORT_LOST)
         await next_port_event(LinkEventKind.PORT_RESTORED)
         while len(samples):  # samples from before the unplug
@@ -64,7 +63,7 @@ async def test_unplug_replug_cycles_leak_nothing() -> None:
         return loop.time() - started
 
     await unplug_and_back()  # warm-up: first reconnect allocates its caches
-    await until(lambda: endpoint._writer is not None)
+    await until(lambda: endpoint.host_connected)
     before = asyncio.all_tasks()
     tasks0, fds0 = len(before), open_fds()
     tracemalloc.start()

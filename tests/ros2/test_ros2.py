@@ -2,9 +2,10 @@
 plain rclpy), with ``fpgaemu serve`` boards over ptys. Every process that creates a DDS
 participant runs inside tests/ros2/netns.sh: a private network namespace with loopback only.
 
-Both scenarios start at once (each in its own namespace) and each test waits for its
-scenario's verdicts. Without the ``ros2`` extra, or where network namespaces cannot be made,
-the tests skip, unless ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
+The scenarios run each in its own namespace (``main``, ``kill`` and ``docs`` at once,
+``fault``, ``ddc`` and ``imu`` after them) and each test waits for its scenario's verdicts. Without
+the ``ros2`` extra, or where network namespaces cannot be made, the tests skip, unless
+``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
 
 from __future__ import annotations
 
@@ -22,6 +23,8 @@ from typing import Any
 
 import pytest
 
+from fpgalink.boardclock import MAX_SLEW
+
 ROOT = Path(__file__).resolve().parents[2]
 NETNS = ROOT / "tests" / "ros2" / "netns.sh"
 SCENARIO_TIMEOUT_S = 300
@@ -30,6 +33,8 @@ SCENARIO_TIMEOUT_S = 300
 def _why_unavailable() -> str | None:
     if importlib.util.find_spec("rclpy") is None:
         return "rclpy is not installed (pip install -e '.[ros2]' -c ros2-constraints.txt)"
+    if importlib.util.find_spec("tf2_msgs") is None:
+        return "tf2_msgs is not generated (make tf2-msgs)"
     probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
     if probe.returncode != 0:
         return f"no private network namespace here: {probe.stderr.strip()}"
@@ -68,15 +73,23 @@ class Scenario:
             [str(NETNS), *command], cwd=ROOT, env=env, start_new_session=True,
             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         self._checks: dict[str, dict[str, Any]] | None = None
+        self._ran_over = False
         self.output = ""
 
-    def checks(self) -> dict[str, dict[str, Any]]:
-        if self._checks is None:
+    def finish(self) -> bool:
+        """Wait for the peer to end (killed after the time limit); False if it ran over."""
+        if self.proc.returncode is None:
             try:
                 self.output, _ = self.proc.communicate(timeout=SCENARIO_TIMEOUT_S)
             except subprocess.TimeoutExpired:
                 self.kill()
                 self.output, _ = self.proc.communicate()
+                self._ran_over = True
+        return not self._ran_over
+
+    def checks(self) -> dict[str, dict[str, Any]]:
+        if self._checks is None:
+            if not self.finish():
                 pytest.fail(f"peer {self.name} ran over {SCENARIO_TIMEOUT_S} s:\n{self.output}")
             self._checks = {}
             if self.proc.returncode != 0:
@@ -97,10 +110,32 @@ class Scenario:
         return checks[name]
 
 
+#: Scenarios started together once the first three have ended.
+LATER = ("fault", "ddc", "imu")
+
+
+class Scenarios(dict[str, Scenario]):
+    """The scenarios by name: ``main``, ``kill`` and ``docs`` start at once, side by side;
+    ``fault``, ``ddc`` and ``imu`` when first asked for, after they have ended: the fault
+    timings are the node's and the emulator's own, but six ROS graphs starting at once on
+    two cores starve serve past the boards' request timeouts before anything is measured."""
+
+    def __init__(self, log_dir: Path) -> None:
+        super().__init__({name: Scenario(name, log_dir) for name in ("main", "kill", "docs")})
+        self.log_dir = log_dir
+
+    def __missing__(self, name: str) -> Scenario:
+        assert name in LATER, name
+        for scenario in list(self.values()):
+            scenario.finish()
+        for later in LATER:
+            self[later] = Scenario(later, self.log_dir)
+        return self[name]
+
+
 @pytest.fixture(scope="module")
 def scenarios(tmp_path_factory: pytest.TempPathFactory) -> Iterator[dict[str, Scenario]]:
-    log_dir = tmp_path_factory.mktemp("roslog")
-    running = {name: Scenario(name, log_dir) for name in ("main", "kill", "docs")}
+    running = Scenarios(tmp_path_factory.mktemp("roslog"))
     yield running
     for scenario in running.values():
         scenario.kill()  # whatever it started too, finished or not
@@ -112,17 +147,20 @@ def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
     facts = scenarios["main"].check("joint_states")
     assert facts["names"] == ["FL", "BL", "FR", "BR"]
     # Each truth line is a tick the boards sampled (50 a second while driving 2 s). With the
-    # one offset that maps board time onto ROS time, the message stamped at that tick holds
+    # offset that maps board time onto ROS time, the message stamped at that tick holds
     # that tick's speeds, float32 then rad/s, exactly.
     assert facts["moving_lines"] >= 20
-    assert facts["at_stamp"] >= 10, facts
+    # A loaded host's node publishes a fraction of the 1 kHz sets (a set is skipped, never
+    # delayed); of those at a truth line's tick, every one must hold that tick's speeds.
+    assert facts["at_stamp"] >= 5, facts
     assert facts["equal_left"] == facts["at_stamp"], facts
     # The right board's sample is its latest at publishing: at most a tick from the left's.
     assert facts["equal_right"] >= 1, facts
     # 1 kHz configured: never two messages for one sample, never faster than the ticks.
     assert facts["distinct_stamps"] == facts["messages"]
     assert facts["increasing"]
-    assert facts["min_gap_ms"] >= 1.0 - 1e-6
+    # A tick apart, less what the clock's estimate of the offset may slew (fpgalink.boardclock).
+    assert facts["min_gap_ms"] >= (1.0 - MAX_SLEW) - 1e-6
 
 
 def test_cmd_vel_moves_the_body_and_odom_follows_it(scenarios: dict[str, Scenario]) -> None:
@@ -212,3 +250,196 @@ def test_the_example_session_in_the_docs_runs_as_shown(scenarios: dict[str, Scen
     assert ("set L.Kp_Wheel_Pid.A = -1.0: successful=False board L: Kp_Wheel_Pid must be a "
             "float ≥ 0 (and fit a float32); got -1.0") in printed
     assert "node exit 0" in printed
+
+
+def test_a_board_restarting_mid_drive_stops_the_robot_and_is_reconfigured(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["fault"].check("restart")
+    assert not facts.get("too_slow"), facts
+    # A Kp set through ROS at run time, before the restart.
+    assert facts["kp_ok"] and facts["kp_ros_before"] == 400.0, facts
+    # The node's first ERROR for board L after the restart (published in the callback that
+    # noticed it, stamped on the node's clock) already shows the robot stopped: the stop
+    # came with the first sign, not later.
+    level, message = facts["first_error"]["supervision"]
+    assert level == 2 and message.startswith("disabled: stopped:"), facts["first_error"]
+    assert facts["restarted_message"].startswith("restarted: reconfiguring"), facts
+    assert facts["l_status_after"] == [0, "alive"]  # then OK
+    # On the emulator's clock: board R's enable fell after L's power-cycle, its PWM 0.
+    assert facts["r_disabled_after_ms"] is not None and facts["r_disabled_after_ms"] >= 0
+    assert facts["r_pwm_when_off"] == [0, 0]
+    # Every ROS parameter of L reads back equal from the board afterwards, Kp 400 too.
+    assert facts["differing"] == [], facts["differing"]
+    assert facts["ros_params"]["Kp_Wheel_PidA"] == facts["board_params"]["Kp_Wheel_PidA"] \
+        == 400.0
+    assert facts["board_params"]["GetDataPeriodical"] == 1
+    # Odometry continuous across the restart (the encoder's reset is not motion); odom and
+    # joint_states flowing again; the enable held all along drives again once L is ready.
+    assert facts["odom_worst_jump_m"] < 0.01, (facts["odom_worst_jump_m"], facts["odom_worst_jump"])
+    assert facts["odom_after_ok"] > 10 and facts["joints_after_ok"] > 10, facts
+    assert facts["x_driven_again"] > 0.1
+
+
+def test_one_boards_telemetry_stopping_is_an_error_within_100_ms(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["fault"].check("stale")
+    assert not facts.get("too_slow"), facts
+    level, message = facts["first_error"]["board R"]
+    assert level == 2 and message.startswith("telemetry stopped: none for"), message
+    # The silence the node judged, on its own running time (a stalled node does not count
+    # its own stall), before it said ERROR: within 100 ms.
+    assert facts["silent_ms"] <= 100.0, facts
+    # That ERROR already shows the robot stopped; board L got the stop (its enable fell
+    # after R's telemetry stopped, on the emulator's clock); and it drives again after.
+    level, message = facts["first_error"]["supervision"]
+    assert level == 2 and message.startswith("disabled: stopped:"), facts["first_error"]
+    assert facts["l_disabled_after_ms"] is not None and facts["l_disabled_after_ms"] >= 0
+    assert facts["x_driven_again"] > 0.1
+
+
+def test_the_fault_runs_end_cleanly(scenarios: dict[str, Scenario]) -> None:
+    for check in ("restart", "stale"):
+        facts = scenarios["fault"].check(check)
+        assert facts["node_exit"] == 0 and facts["serve_exit"] == 0, facts
+    assert "Traceback" not in scenarios["fault"].output
+
+
+# --- as diff_drive_controller's users expect (issue 28) -----------------------------------
+
+
+def test_the_first_cmd_vel_before_its_enable_is_held_and_sent(
+        scenarios: dict[str, Scenario]) -> None:
+    # One cmd_vel, taken by the node before any enable (it said it holds it), then only
+    # enable: the body moved on that one command, and came to rest by cmd_vel_timeout.
+    facts = scenarios["ddc"].check("first_cmd_vel")
+    assert facts["held"].startswith("command held: the robot is not enabled"), facts
+    assert facts["moving_v"] > 0.05
+    assert facts["supervision"] == [0, "enabled"]
+
+
+def test_a_flood_of_non_finite_cmd_vel_is_warned_about_not_logged_per_message(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("non_finite")
+    warnings = facts["warnings"]
+    # 3 s of them at up to 100 a second: one warning per 2 s, the next saying how many
+    # were not shown; the body never moved.
+    assert 1 <= len(warnings) <= 3, warnings
+    assert all(w.startswith("cmd_vel ignored: not finite (nan, 0.0)") for w in warnings)
+    assert len(warnings) == 1 or "more like it not shown" in warnings[1]
+    assert abs(facts["body_v"]) < 0.01
+
+
+def test_a_publisher_of_the_other_twist_type_is_named(scenarios: dict[str, Scenario]) -> None:
+    line = scenarios["ddc"].check("wrong_type")["line"]
+    assert "/stamped_teleop publishes geometry_msgs/msg/TwistStamped" in line
+    assert "use_stamped_vel:=true" in line
+    line = scenarios["ddc"].check("stamped")["line"]
+    assert "/peer publishes geometry_msgs/msg/Twist," in line
+    assert "use_stamped_vel:=false" in line
+
+
+def test_use_stamped_vel_drives_on_twist_stamped(scenarios: dict[str, Scenario]) -> None:
+    assert scenarios["ddc"].check("stamped")["driven_m"] > 0.1
+    assert scenarios["ddc"].check("stamped_node_exit")["code"] == 0
+
+
+def test_odom_to_base_link_on_tf_is_the_odometry_at_its_stamp(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("tf")
+    # One transform per odom message, odom → base_link, the same pose at the same stamp.
+    assert facts["frames"] == [["odom", "base_link"]]
+    assert facts["tf_messages"] >= 50 and facts["pairs"] >= 50, facts
+    assert facts["equal"] == facts["pairs"], facts
+
+
+def test_without_tf2_msgs_the_node_says_so_once_and_runs(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("stamped")  # that node could not import tf2_msgs
+    assert len(facts["no_tf_lines"]) == 1, facts
+    assert "make tf2-msgs" in facts["no_tf_lines"][0]
+    assert facts["tf_messages"] == 0 and facts["driven_m"] > 0.1
+
+
+def test_without_require_enable_cmd_vel_alone_drives_and_no_deadman_lapses(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("no_enable")
+    assert facts["ok"] and facts["reason"] == "", facts
+    # Driven on cmd_vel alone (the test waited for it), at rest after it stopped, and a
+    # second later (twice the deadman time, nothing on enable) not stopped by the deadman
+    # (WARN "the enable was not renewed"): still enabled, unless a loaded machine's own
+    # fault (its watchdog, late telemetry: ERROR) stopped it meanwhile.
+    level, message = facts["supervision"]
+    assert "not renewed" not in message and facts["deadman_lines"] == [], facts
+    if level == 0:
+        assert message == "enabled" and facts["enabled"] == {"L": True, "R": True}, facts
+    else:
+        assert level == 2 and message.startswith("disabled: stopped:"), facts
+    assert scenarios["ddc"].check("node_exit")["code"] == 0
+    assert scenarios["ddc"].check("serve_exit")["code"] == 0
+
+
+def test_a_bad_ros_args_value_at_start_exits_2_with_one_line(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("bad_values")
+    expected = {"cmd_vel_timeout:=-1.0": ("cmd_vel_timeout", "Min: 0.05, Max: 10.0"),
+                "joint_state_rate:=fast": ("joint_state_rate", "expecting type 'DOUBLE'"),
+                "L.Kp_Wheel_Pid.A:=-5.0": ("L.Kp_Wheel_Pid.A", "must be a float ≥ 0")}
+    for value, (name, range_text) in expected.items():
+        result = facts[value]
+        assert result["code"] == 2, (value, result)
+        assert len(result["stderr"]) == 1, (value, result)
+        line = result["stderr"][0]
+        assert line.startswith("fpgalink-ros2: error: --ros-args -p: ") and name in line \
+            and range_text in line, line
+
+
+def test_joint_states_are_reliable_by_default_and_best_effort_on_request(
+        scenarios: dict[str, Scenario]) -> None:
+    # A reliable subscriber (robot_state_publisher's) matches only a reliable publisher.
+    facts = scenarios["ddc"].check("joint_states_qos")
+    assert facts["reliable"] > 20 and facts["best_effort"] > 20, facts
+    facts = scenarios["ddc"].check("stamped")  # that node: joint_states_best_effort:=true
+    assert facts["reliable_joints"] == 0 and facts["best_effort_joints"] > 20, facts
+
+
+def test_another_node_of_the_same_name_is_warned_about(scenarios: dict[str, Scenario]) -> None:
+    lines = scenarios["ddc"].check("name_clash")["lines"]
+    assert len(lines) == 1 and lines[0].startswith("another node is named /fpgalink"), lines
+
+
+def test_a_p_value_for_no_parameter_of_the_node_is_said(scenarios: dict[str, Scenario]) -> None:
+    lines = scenarios["ddc"].check("unknown_parameter")["lines"]
+    assert len(lines) == 1 and lines[0].startswith(
+        "-p cmd_vel_timout: this node has no such parameter: ignored (did you mean "
+        "cmd_vel_timeout"), lines
+
+
+def test_kinematics_are_ros_parameters_set_at_start_and_at_run_time(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["ddc"].check("kinematics")
+    # The robot file's by default (the seed's 0.66 m track, 0.2 m wheels, χ 1.65 on gravel).
+    assert (facts["separation"], facts["radius"]) == (0.66, 0.2)
+    assert facts["chi"] > 1.0
+    assert facts["chi_ok"] and facts["chi_reason"] == "", facts
+    # χ doubled: the same turn asks twice the wheel speed difference (measured speeds, so
+    # within what the wheels' PI loops let through).
+    assert facts["before"] > 0.1
+    assert facts["after"] / facts["before"] == pytest.approx(2.0, rel=0.15), facts
+    # -p wheel_separation:=0.7 at start: taken, not ignored.
+    assert scenarios["ddc"].check("stamped")["separation"] == 0.7
+
+
+def test_the_emulated_bodys_imu_is_published_on_imu_data(
+        scenarios: dict[str, Scenario]) -> None:
+    rest = scenarios["imu"].check("imu_rest")
+    assert rest["frame_id"] == "ImuALink"
+    assert rest["rate_hz"] > 25  # 50 Hz nominal, on a loaded machine fewer
+    assert rest["orientation_covariance"] == -1.0  # a 6-axis IMU gives no orientation
+    assert rest["gyro_variance"] > 0 and rest["accel_variance"] > 0
+    assert math.isclose(rest["az"], 9.81, abs_tol=0.3) and abs(rest["ax"]) < 0.3
+    assert abs(rest["gz"]) < math.radians(2)
+    turning = scenarios["imu"].check("imu_turning")
+    assert turning["samples"] > 20
+    assert turning["truth_omega"] > 0.1
+    assert math.isclose(turning["gz"], turning["truth_omega"], rel_tol=0.2, abs_tol=0.03)
+    assert scenarios["imu"].check("imu_node_exit")["code"] == 0

@@ -1,6 +1,13 @@
-"""A UART nobody here wrote, as the reference for the emulator's line model: LiteX's
+"""UARTs nobody here wrote, as the references for the emulator's line model: LiteX's
 ``RS232PHYRX`` / ``RS232PHYTX`` (PyPI ``litex``, written in ``migen``), converted to Verilog
-by migen and simulated cycle by cycle with Icarus Verilog (Debian ``iverilog``).
+by migen, for the edge-triggered receiver; OpenTitan's ``uart_rx`` (lowRISC, Apache-2.0,
+shipped on PyPI as ``pythondata-misc-opentitan``: read from the installed package, never
+copied here), for the level-triggered one. Both simulated cycle by cycle with Icarus
+Verilog (Debian ``iverilog``).
+
+OpenTitan's receiver runs behind a two-flip-flop synchroniser (as its ``uart_core`` puts
+it) on a 16× tick from a free-running divider started at reset (16 ticks spread evenly over
+each ``cycles_per_bit`` cycles): :class:`fpgaemu.uart.LevelReceiver`'s clock.
 
 The receiver is fed a line waveform given as one level per bit slot (1 = idle/high), one
 level per clock for ``cycles_per_bit`` clocks; it reports every byte (``source.valid``) and
@@ -113,9 +120,44 @@ def why_unavailable() -> str | None:
     try:
         import litex.soc.cores.uart  # noqa: F401
         import migen  # noqa: F401
+        import pythondata_misc_opentitan  # noqa: F401
     except ImportError as exc:
-        return f"litex/migen are not installed ({exc}); pip install -e '.[dev]'"
+        return (f"litex/migen/pythondata-misc-opentitan are not installed ({exc}); "
+                "pip install -e '.[dev]'")
     return None
+
+
+def opentitan_uart_rx() -> Path:
+    """OpenTitan's ``uart_rx.sv`` in the installed ``pythondata-misc-opentitan``."""
+    import pythondata_misc_opentitan
+
+    return Path(pythondata_misc_opentitan.data_location) / "hw/ip/uart/rtl/uart_rx.sv"
+
+
+#: OpenTitan's receiver as ``ref_rx``: a two-flip-flop synchroniser on ``rx`` and the 16×
+#: tick from a divider that adds 16 per cycle and ticks on passing ``CPB``.
+_LEVEL_SHIM = r"""
+module ref_rx(input clk, input rst, input rx, output ev_byte, output ev_ferr,
+              output [7:0] ev_data);
+  reg s1, s2, tick;
+  reg [15:0] acc;
+  wire valid, idle, ferr, perr, baud;
+  always @(posedge clk) begin
+    if (rst) begin s1 <= 1; s2 <= 1; acc <= 0; tick <= 0; end
+    else begin
+      s1 <= rx; s2 <= s1;
+      if (acc + 16 >= `CPB) begin acc <= acc + 16 - `CPB; tick <= 1; end
+      else begin acc <= acc + 16; tick <= 0; end
+    end
+  end
+  uart_rx core(.clk_i(clk), .rst_ni(~rst), .rx_enable(1'b1), .tick_baud_x16(tick),
+               .parity_enable(1'b0), .parity_odd(1'b0), .tick_baud(baud),
+               .rx_valid(valid), .rx_data(ev_data), .idle(idle), .frame_err(ferr),
+               .rx_parity_err(perr), .rx(s2));
+  assign ev_byte = valid & ~ferr;
+  assign ev_ferr = valid & ferr;
+endmodule
+"""
 
 
 def available() -> bool:
@@ -169,12 +211,26 @@ def _design(kind: str, cycles_per_bit: int) -> str:
 
 @dataclass
 class HdlUart:
-    """LiteX's UART PHY at ``cycles_per_bit``, built into ``workdir`` on first use."""
+    """LiteX's UART PHY at ``cycles_per_bit`` (``level``: OpenTitan's receiver instead),
+    built into ``workdir`` on first use."""
 
     workdir: Path
     cycles_per_bit: int = 100
+    level: bool = False
 
     def _build(self, kind: str) -> Path:
+        if self.level:
+            out = self.workdir / f"opentitan_{kind}_{self.cycles_per_bit}"
+            vvp = out / "sim.vvp"
+            if not vvp.exists():
+                out.mkdir(parents=True, exist_ok=True)
+                (out / "shim.v").write_text(_LEVEL_SHIM)
+                (out / "tb.v").write_text(_TB_RX)
+                subprocess.run(["iverilog", "-g2012", f"-DPREROLL={PREROLL}",
+                                f"-DCPB={self.cycles_per_bit}", "-s", "tb", "-o", str(vvp),
+                                str(out / "tb.v"), str(out / "shim.v"),
+                                str(opentitan_uart_rx())], check=True, capture_output=True)
+            return vvp
         out = self.workdir / f"litex_{kind}_{self.cycles_per_bit}"
         vvp = out / "sim.vvp"
         if not vvp.exists():

@@ -44,11 +44,17 @@ class RobotSim:
     @classmethod
     def make(cls, surface: str = "ideal", description: RobotDescription | None = None,
              odometry_surface: str | None = None, faults: dict[str, list[str]] | None = None,
-             pose: Pose | None = None, arrival_jitter_seed: int | None = None) -> RobotSim:
-        description = (description or seed_robot()).on_surface(surface)
-        robot = EmulatedRobot(description, faults=faults)
+             pose: Pose | None = None, body: str = "kinematic", seed: int = 0,
+             arrival_jitter_seed: int | None = None) -> RobotSim:
+        description = description or seed_robot()
+        if surface in description.surfaces:
+            description = description.on_surface(surface)
+        robot = EmulatedRobot(description, surface, faults=faults, body=body, seed=seed)
         if pose is not None:
-            robot.body.pose = pose
+            if robot.physics is not None:
+                robot.physics.place(pose)
+            else:
+                robot.body.pose = pose
         odometry = Odometry(description, description.kinematics(odometry_surface), pose)
         sim = cls(robot, description, odometry)
         if arrival_jitter_seed is not None:

@@ -91,13 +91,15 @@ class ServeExited(AssertionError):
     """``fpgaemu serve`` exited before it printed ``ready`` for every board; says why."""
 
 
-async def start_serve(*args: str, boards: int = 1) -> Serve:
-    """Start ``fpgaemu serve ARGS`` and return once it printed ``ready`` for every board."""
+async def start_serve(*args: str, boards: int = 1, **popen: Any) -> Serve:
+    """Start ``fpgaemu serve ARGS`` and return once it printed ``ready`` for every board.
+    ``popen``: more options for the subprocess (``preexec_fn`` to lower a limit, say)."""
     proc = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "fpgaemu", "serve", *args, "--boards", str(boards),
         stdin=asyncio.subprocess.DEVNULL,
         stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE,
+        **popen,
     )
     server = Serve(proc, args)
     assert proc.stdout is not None
@@ -110,7 +112,7 @@ async def start_serve(*args: str, boards: int = 1) -> Serve:
                                   f"{(await server.stderr_text()).strip()}")
             word, name, where, *pointed = line.split()  # "ready L LINK -> /dev/pts/N"
             assert word == "ready", line
-            server.ready[name] = where
+            server.ready.setdefault(name, where)  # the first of a board's addresses
             if pointed:
                 server.links[name] = pointed[-1]
     except BaseException:
@@ -120,9 +122,9 @@ async def start_serve(*args: str, boards: int = 1) -> Serve:
 
 
 @contextlib.asynccontextmanager
-async def serve(*args: str, boards: int = 1) -> AsyncIterator[Serve]:
+async def serve(*args: str, boards: int = 1, **popen: Any) -> AsyncIterator[Serve]:
     """``async with serve("--pty") as srv:`` — always stopped (and reaped) afterwards."""
-    server = await start_serve(*args, boards=boards)
+    server = await start_serve(*args, boards=boards, **popen)
     try:
         yield server
     finally:

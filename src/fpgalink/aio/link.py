@@ -24,6 +24,7 @@ from fpgalink.aio.transport import READ_CHUNK, ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
 from fpgalink.events import (
+    BoardBack,
     BoardFault,
     BoardFound,
     BoardRestarted,
@@ -89,6 +90,8 @@ class LinkEventKind(Enum):
     BOARD_RESTARTED = "board_restarted"
     #: after a restart, what the link holds is set again (detail: what failed, if anything)
     BOARD_RESYNCED = "board_resynced"
+    #: heard again after a silence (or on a reconnected port), it did not restart
+    BOARD_BACK = "board_back"
     #: the board's watchdog disabled it; the link stopped enabling it
     WATCHDOG_LAPSED = "watchdog_lapsed"
     TELEMETRY_STALE = "telemetry_stale"  #: configured on, and not arriving
@@ -722,6 +725,7 @@ class Link:
 _REPORTED: dict[type[Event], LinkEventKind] = {
     BoardRestarted: LinkEventKind.BOARD_RESTARTED,
     BoardResynced: LinkEventKind.BOARD_RESYNCED,
+    BoardBack: LinkEventKind.BOARD_BACK,
     WatchdogLapsed: LinkEventKind.WATCHDOG_LAPSED,
     TelemetryStale: LinkEventKind.TELEMETRY_STALE,
     TelemetryResumed: LinkEventKind.TELEMETRY_RESUMED,

@@ -30,6 +30,7 @@ from fpgalink.errors import ParameterError
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
 from fpgalink.protocol.paramfile import Setting, parse_parameter_file, render_parameter_file
 from fpgalink.protocol.params import BOARD
+from fpgalink.protocol.tomlfile import TomlFileError, read_bounded
 
 if TYPE_CHECKING:
     from click.shell_completion import CompletionItem
@@ -215,17 +216,19 @@ def shipped_sets() -> list[str]:
 
 def _read_settings(file: str) -> tuple[str, str]:
     """The text of FILE: '-' is stdin, a name without a path is a shipped set."""
-    if file == "-":
-        return sys.stdin.read(), "stdin"
-    if not Path(file).exists() and os.sep not in file and file in shipped_sets():
-        resource = resources.files(SHIPPED_SETS) / f"{file}.toml"
-        return resource.read_text(encoding="utf-8"), f"{file} (shipped)"
     try:
-        return Path(file).read_text(encoding="utf-8"), file
-    except (OSError, UnicodeDecodeError) as exc:
+        if file == "-":
+            return read_bounded(sys.stdin.buffer, "stdin"), "stdin"
+        if not Path(file).exists() and os.sep not in file and file in shipped_sets():
+            resource = resources.files(SHIPPED_SETS) / f"{file}.toml"
+            return resource.read_text(encoding="utf-8"), f"{file} (shipped)"
+        with open(file, "rb") as stream:
+            return read_bounded(stream, file), file
+    except TomlFileError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+    except OSError as exc:
         known = ", ".join(shipped_sets())
-        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
-        raise CliError(f"{file}: cannot read: {reason} (shipped sets: {known})",
+        raise CliError(f"{file}: cannot read: {exc.strerror or exc} (shipped sets: {known})",
                        ExitCode.BAD_INPUT) from None
 
 

@@ -26,7 +26,7 @@ import click
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
 
-__all__ = ["Series", "field_value", "flatten", "plot", "read_series", "unit_of"]
+__all__ = ["Reading", "Series", "field_value", "flatten", "plot", "read_series", "unit_of"]
 
 DEFAULT_FIELDS = "a.speed+a.ref,b.speed+b.ref"
 TELEMETRY_SUFFIX = "/telemetry"
@@ -192,8 +192,11 @@ def _read_mcap(path: Path, topics: list[str] | None, state: dict[str, Any]
         for _schema, channel, message in messages:
             try:
                 record = json.loads(message.data)
-            except (ValueError, UnicodeDecodeError):
-                continue  # not JSON: nothing to plot in it
+            except (ValueError, UnicodeDecodeError, RecursionError):
+                # Not JSON, or nested too deeply: one bad message is counted and said, the
+                # rest still plotted.
+                state["skipped"] += 1
+                continue
             yield Message(channel.topic, message.publish_time / 1e9, message.log_time / 1e9,
                           record)
 
@@ -238,25 +241,29 @@ def _read_bag(path: Path, topics: list[str] | None, state: dict[str, Any]
             yield Message(connection.topic, publish, log, message)
 
 
+@dataclass
+class Reading:
+    """What :func:`read_series` found: the series, whether the file was complete, how many
+    messages of the chosen topics were skipped because they could not be read as a record
+    (not JSON, nested too deeply, a number beyond any float …), and every topic with the
+    fields its first message has (to say what there is when something asked for is not)."""
+
+    series: list[Series]
+    complete: bool
+    skipped: int = 0
+    available: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+
+
 def read_series(path: Path, topics: list[str] | None, fields: list[str],
-                clock: str = "publish") -> tuple[list[Series], bool]:
-    """Each (topic, field) pair as a time series, and whether the file was complete.
+                clock: str = "publish") -> Reading:
+    """Each (topic, field) pair as a time series, and what else was found (:class:`Reading`).
     ``topics=None``: every ``/board/NAME/telemetry`` topic (in a bag: ``/joint_states`` and
-    ``/odom``). See :func:`read_recording` for the fields each topic has."""
-    series, complete, _ = read_recording(path, topics, fields, clock)
-    return series, complete
-
-
-def read_recording(path: Path, topics: list[str] | None, fields: list[str],
-                   clock: str = "publish"
-                   ) -> tuple[list[Series], bool, dict[str, list[str]]]:
-    """The series, whether the file was complete, and every topic with the fields its
-    first message has (to say what there is when something asked for is not)."""
+    ``/odom``)."""
     bag = is_bag(path)
     series: dict[tuple[str, str], Series] = {}
     available: dict[str, list[str]] = {}
     origin: float | None = None
-    state: dict[str, Any] = {"complete": False}
+    state: dict[str, Any] = {"complete": False, "skipped": 0}
     default_topics = topics is None
     wanted = list(BAG_TOPICS) if bag and default_topics else topics
     try:
@@ -266,7 +273,11 @@ def read_recording(path: Path, topics: list[str] | None, fields: list[str],
             if default_topics and not bag and not topic.endswith(TELEMETRY_SUFFIX):
                 available.setdefault(topic, [])
                 continue
-            flat = flatten(message.record)
+            try:
+                flat = flatten(message.record)
+            except (RecursionError, OverflowError):
+                state["skipped"] += 1
+                continue
             if topic not in available or not available[topic]:
                 available[topic] = list(flat)
             stamp = message.publish if clock == "publish" else message.log
@@ -302,7 +313,7 @@ def read_recording(path: Path, topics: list[str] | None, fields: list[str],
         line.t = [line.t[i] - (origin or 0.0) for i in order]
         line.values = [line.values[i] for i in order]
     ranked = sorted(series.values(), key=lambda s: (s.topic, fields.index(s.asked), s.field))
-    return ranked, bool(state["complete"]), available
+    return Reading(ranked, bool(state["complete"]), int(state["skipped"]), available)
 
 
 def _collapse(keys: list[str]) -> list[str]:
@@ -372,10 +383,13 @@ def plot(recording: Path, topics: tuple[str, ...], fields: str | None, clock: st
     output = output or (recording.parent / f"{recording.name}.png" if bag
                         else recording.with_suffix(".png"))
     check_plot_path(output, "--output")
-    series, complete, available = read_recording(recording, list(topics) or None, names,
-                                                 clock)
-    if not complete:
+    reading = read_series(recording, list(topics) or None, names, clock)
+    series, available = reading.series, reading.available
+    if not reading.complete:
         note(f"{recording} was not closed (no summary): plotting the complete chunks it holds")
+    if reading.skipped:
+        note(f"skipped {reading.skipped} message(s) that are not JSON records with plottable "
+             "numbers (not JSON, nested too deeply, or a number beyond a float's range)")
     missing_topics = [t for t in topics if t not in available]
     if missing_topics:
         every = sorted(available) if bag else _mcap_topics(recording)

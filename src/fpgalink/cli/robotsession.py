@@ -90,7 +90,7 @@ def description_options(func: Callable[..., T]) -> Callable[..., T]:
                           "seed's robot)."),
         click.option("--surface", metavar="NAME",
                      help="The surface it drives on, for the skid-steer χ (the seed's robot: "
-                          "ideal, gravel, marble)  [default: the description's]"),
+                          "ideal, gravel, marble, grass)  [default: the description's]"),
         click.option("--truth", "truth_url", metavar="URL",
                      help="An emulated robot's truth endpoint (socket://HOST:PORT, printed by "
                           "fpgaemu serve --robot); built in for the in-process robot."),
@@ -171,32 +171,95 @@ class PathLog:
         save_figure(figure, path)
 
 
+#: The fields a truth line must hold as finite numbers to be used (the path, the live
+#: view and the summary read them).
+TRUTH_FIELDS = ("x", "y", "theta", "v", "omega")
+#: The longest truth line read (a served robot's is about 1.5 KiB); a longer one is skipped.
+TRUTH_LINE_LIMIT = 1 << 16
+
+
+def truth_pose(record: object) -> dict[str, Any] | None:
+    """``record`` if it is a truth line this command can use — a JSON object whose
+    :data:`TRUTH_FIELDS` are finite numbers — else ``None``."""
+    if not isinstance(record, dict):
+        return None
+    pose: dict[str, float] = {}
+    for key in TRUTH_FIELDS:
+        value = record.get(key)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            return None
+        try:
+            pose[key] = float(value)
+        except OverflowError:  # an integer beyond any float
+            return None
+        if not math.isfinite(pose[key]):
+            return None
+    return {**record, **pose}
+
+
 class _TruthReader:
-    """The latest line of a served robot's truth endpoint (JSON lines over TCP)."""
+    """The latest line of a served robot's truth endpoint (JSON lines over TCP). A line
+    that is not a pose (not JSON, nesting too deep, a field missing or not a finite number,
+    too long) is skipped and counted; an ``{"error": …}`` line (serve turning a reader
+    away) is kept to be said."""
 
     def __init__(self, url: str) -> None:
         self.url = url
         self.latest: dict[str, Any] | None = None
+        self.skipped = 0  #: lines that were not a usable pose
+        self.refusal: str | None = None  #: what the endpoint said when it turned us away
         self._task: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
         host, _, port = self.url.removeprefix("socket://").rpartition(":")
         host = host.strip("[]")
         try:
-            reader, writer = await asyncio.wait_for(asyncio.open_connection(host, int(port)), 5)
+            reader, writer = await asyncio.wait_for(asyncio.open_connection(
+                host, int(port), limit=TRUTH_LINE_LIMIT), 5)
         except (OSError, ValueError, TimeoutError) as exc:
             raise CliError(f"--truth {self.url}: cannot connect: {exc}", ExitCode.PORT) from None
         self._task = asyncio.ensure_future(self._read(reader, writer))
 
     async def _read(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        skipping = False  # inside a line too long to be a pose: dropped up to its end
         try:
-            while line := await reader.readline():
-                with contextlib.suppress(ValueError):
-                    record = json.loads(line)
-                    if isinstance(record, dict):
-                        self.latest = record
+            while True:
+                try:
+                    line = await reader.readuntil(b"\n")
+                except asyncio.IncompleteReadError as exc:
+                    if exc.partial and not skipping:
+                        self._take(exc.partial)
+                    return
+                except asyncio.LimitOverrunError as exc:
+                    if not skipping:
+                        self.skipped += 1
+                        skipping = True
+                    await reader.readexactly(exc.consumed)
+                    continue
+                if skipping:
+                    skipping = False
+                    continue
+                self._take(line)
+        except (OSError, asyncio.IncompleteReadError):
+            return  # the endpoint went away: the run goes on without truth
         finally:
             writer.close()
+
+    def _take(self, line: bytes) -> None:
+        try:
+            record = json.loads(line)
+        except (ValueError, RecursionError):
+            self.skipped += 1
+            return
+        if isinstance(record, dict) and isinstance(record.get("error"), str) and \
+                len(record) == 1:
+            self.refusal = record["error"][:200]
+            return
+        pose = truth_pose(record)
+        if pose is None:
+            self.skipped += 1
+        else:
+            self.latest = pose
 
     async def close(self) -> None:
         if self._task is not None:
@@ -275,6 +338,7 @@ class RobotRun:
             await robot.close()
             if self._truth_reader is not None:
                 await self._truth_reader.close()
+                self._report_truth(self._truth_reader)
             if self._sink is not None:
                 self._sink.close()
             if self.bag is not None:
@@ -285,6 +349,16 @@ class RobotRun:
             raise CliError(f"--rosbag2 {self.rosbag_path}: {self.failure_reason}; recording "
                            f"stopped with {self.bag.messages} messages in the bag, "
                            f"{complete}", ExitCode.FAILURE)
+
+    @staticmethod
+    def _report_truth(reader: _TruthReader) -> None:
+        if reader.refusal is not None:
+            note(f"--truth {reader.url}: the endpoint said: {reader.refusal}")
+        if reader.skipped:
+            note(f"--truth {reader.url}: skipped {reader.skipped} line(s) that were not a "
+                 f"pose (JSON objects with finite numbers {', '.join(TRUTH_FIELDS)})")
+        if reader.latest is None:
+            note(f"--truth {reader.url}: no pose received; the path has no truth")
 
     def truth(self) -> dict[str, Any] | None:
         if self._truth_reader is not None:

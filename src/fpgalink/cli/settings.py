@@ -22,13 +22,14 @@ from __future__ import annotations
 import math
 import os
 import re
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from fpgalink.cli.output import CliError, ExitCode
+from fpgalink.protocol.robot import BOARD_NAME
+from fpgalink.protocol.tomlfile import TomlFileError, load_toml
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = [
@@ -46,7 +47,9 @@ DEFAULT = "default"
 EMULATOR_URL = "emu://"
 CONFIG_NAME = "fpgalink.toml"
 CONFIG_KEYS = frozenset({"port", "ports", "baud", "timeout", "retries", "board", "robot"})
-_NAMED = re.compile(r"^([A-Za-z][A-Za-z0-9_-]*)=(.+)$")
+#: ``NAME=URL``: a board name (:data:`~fpgalink.protocol.robot.BOARD_NAME`) before the first
+#: ``=``; a URL's own ``=`` comes after ``://`` or ``?``, which no name holds.
+_NAMED = re.compile(rf"^({BOARD_NAME.pattern})=(.*)$", re.DOTALL)
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,12 +62,19 @@ def parse_ports(values: tuple[str, ...] | list[str], where: str = "--port"
                 ) -> tuple[Endpoint, ...]:
     """``URL`` or ``NAME=URL`` items. A name is letters, digits, ``_`` and ``-`` before the
     first ``=`` — so ``emu://?seed=3`` is a URL, not a name."""
-    endpoints: list[Endpoint] = []
+    named: list[tuple[str, str]] = []
     for index, value in enumerate(values):
         match = _NAMED.match(value)
-        name, url = (match.group(1), match.group(2)) if match else (str(index), value)
+        named.append((match.group(1), match.group(2)) if match else (str(index), value))
+    return _endpoints(named, where)
+
+
+def _endpoints(named: list[tuple[str, str]], where: str) -> tuple[Endpoint, ...]:
+    """(name, URL) pairs as endpoints: every URL non-blank, every name given once."""
+    endpoints: list[Endpoint] = []
+    for name, url in named:
         if not url.strip():
-            raise CliError(f"{where} {value!r}: empty port", ExitCode.BAD_INPUT)
+            raise CliError(f"{where} {name}: empty port", ExitCode.BAD_INPUT)
         endpoints.append(Endpoint(name, url.strip()))
     names = [e.name for e in endpoints]
     duplicates = sorted({n for n in names if names.count(n) > 1})
@@ -99,21 +109,30 @@ def config_paths(cwd: Path | None = None) -> list[Path]:
     return [(cwd or Path.cwd()) / CONFIG_NAME, base / "fpgalink" / CONFIG_NAME]
 
 
+def _blank(value: str | None) -> bool:
+    """Given, but nothing in it but spaces (``--config ""``, ``FPGALINK_PORT="  "``)."""
+    return value is not None and not value.strip()
+
+
 def _load_config(explicit: str | None) -> tuple[dict[str, Any], Path | None]:
+    env = os.environ.get("FPGALINK_CONFIG")
+    if _blank(explicit):
+        raise CliError("--config: empty file name (leave the option out to search for "
+                       "fpgalink.toml)", ExitCode.BAD_INPUT)
     if explicit:
         paths = [Path(explicit)]
-    elif os.environ.get("FPGALINK_CONFIG"):
-        paths = [Path(os.environ["FPGALINK_CONFIG"])]
+    elif env and _blank(env):
+        raise CliError("environment FPGALINK_CONFIG is blank: name a file or unset it",
+                       ExitCode.BAD_INPUT)
+    elif env:
+        paths = [Path(env)]
     else:
         paths = [p for p in config_paths() if p.is_file()][:1]
     for path in paths:
         try:
-            return tomllib.loads(path.read_text(encoding="utf-8")), path
-        except OSError as exc:
-            raise CliError(f"config {path}: cannot read: {exc.strerror}",
-                           ExitCode.BAD_INPUT) from None
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise CliError(f"config {path}: not valid TOML: {exc}", ExitCode.BAD_INPUT) from None
+            return load_toml(str(path), f"config {path}"), path
+        except TomlFileError as exc:
+            raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     return {}, None
 
 
@@ -124,11 +143,22 @@ def _config_ports(config: Mapping[str, Any], path: Path) -> tuple[Endpoint, ...]
     if isinstance(single, str):
         return parse_ports([single], f"config {path}: port")
     if isinstance(table, dict) and all(isinstance(v, str) for v in table.values()):
-        return parse_ports([f"{k}={v}" for k, v in table.items()], f"config {path}: [ports]")
+        # The keys are the names: taken as they are, never parsed again as NAME=URL.
+        for key in table:
+            _check_name(key, f"config {path}: [ports] key")
+        return _endpoints(list(table.items()), f"config {path}: [ports]")
     if single is not None or table is not None:
         raise CliError(f"config {path}: port must be a URL, [ports] a table of NAME = URL",
                        ExitCode.BAD_INPUT)
     return ()
+
+
+def _check_name(name: object, where: str) -> str:
+    if not isinstance(name, str) or not BOARD_NAME.fullmatch(name):
+        shown = repr(name) if len(repr(name)) <= 40 else repr(name)[:37] + "..."
+        raise CliError(f"{where} {shown}: a board name is letters, digits, _ and - "
+                       "(such as L)", ExitCode.BAD_INPUT)
+    return name
 
 
 def _whole(value: object, name: str, where: str, low: int, high: int) -> int:
@@ -174,7 +204,9 @@ def _board_for_ports(board: str | None, ports: tuple[Endpoint, ...],
 def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Settings:
     """Settings from the options given after the command (``given``), before it
     (``before``), the environment, the config file and the defaults."""
-    config, path = _load_config(given.get("config") or before.get("config"))
+    explicit = next((v for v in (given.get("config"), before.get("config")) if v is not None),
+                    None)
+    config, path = _load_config(explicit)
     file_source = f"config file {path}" if path else ""
     unknown = sorted(set(config) - CONFIG_KEYS)
     if unknown:
@@ -208,6 +240,10 @@ def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Set
             ports, sources["port"] = parse_ports(values["ports"]), COMMAND_LINE
             break
     else:
+        if _blank(os.environ.get("FPGALINK_PORT") or None):
+            raise CliError("environment FPGALINK_PORT is blank: give a port (a device path, "
+                           "socket://HOST:PORT, emu://, or NAME=URL words) or unset it",
+                           ExitCode.BAD_INPUT)
         if os.environ.get("FPGALINK_PORT"):
             ports = parse_ports(os.environ["FPGALINK_PORT"].split(), "FPGALINK_PORT")
             sources["port"] = "environment FPGALINK_PORT"
@@ -226,6 +262,8 @@ def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Set
         if value is not None and not (isinstance(value, str) and value.strip()):
             raise CliError(f"{sources[name]}: {name} must be a non-empty string, got {value!r}",
                            ExitCode.BAD_INPUT)
+    if board is not None:
+        _check_name(board, f"{sources['board']}: board")
     board = _board_for_ports(board, ports, sources)
     if robot is not None:
         robot_path = Path(str(robot))

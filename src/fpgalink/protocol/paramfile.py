@@ -9,7 +9,6 @@ so a file is all good or refused as a whole, with a one-line error naming the fi
 
 from __future__ import annotations
 
-import tomllib
 from collections.abc import Mapping
 
 from fpgalink.protocol.errors import ParameterError
@@ -25,6 +24,7 @@ from fpgalink.protocol.params import (
     float32,
     resolve,
 )
+from fpgalink.protocol.tomlfile import TomlFileError, parse_toml
 
 __all__ = [
     "Setting",
@@ -39,11 +39,12 @@ Setting = tuple[Param, int, int | float]
 
 
 def parse_parameter_file(text: str, source: str) -> list[Setting]:
-    """TOML text → validated settings, in file order; :class:`ParameterError` otherwise."""
+    """TOML text → validated settings, in file order; :class:`ParameterError` otherwise
+    (text over :data:`~fpgalink.protocol.tomlfile.MAX_TOML_BYTES` included)."""
     try:
-        document = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ParameterError(f"{source}: not valid TOML: {exc}") from None
+        document = parse_toml(text, source)
+    except TomlFileError as exc:
+        raise ParameterError(str(exc)) from None
     return parse_parameter_table(document, source)
 
 

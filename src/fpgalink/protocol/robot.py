@@ -22,13 +22,14 @@ wheels slip sideways and the body turns slower than the speed difference says::
     R = √(ICR_x² + ICR_y²)              (2.23)
 
 χ depends on the surface; the seed's measurements (§3.6) give about 1.65 on gravel and
-1.85 on marble (docs/robot.md has the calibration).
+1.85 on marble (docs/robot.md has the calibration); grass, which the seed drove on without
+a figure, takes the 1.63 the emulator's physics body shows there.
 """
 
 from __future__ import annotations
 
 import math
-import tomllib
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -36,18 +37,22 @@ from typing import Any
 from fpgalink.protocol.errors import FpgalinkError, ParameterError
 from fpgalink.protocol.paramfile import Setting, parse_parameter_table
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
+from fpgalink.protocol.tomlfile import TomlFileError, load_toml, parse_toml
 
 __all__ = [
+    "BOARD_NAME",
     "LEFT_WHEELS",
     "RIGHT_WHEELS",
     "SEED_ROBOT_TOML",
     "WHEEL_NAMES",
+    "BodyShape",
     "DescriptionError",
     "OdometryNoise",
     "Pose",
     "RobotDescription",
     "SkidSteer",
     "WheelMount",
+    "check_board_name",
     "integrate_arc",
     "load_robot",
     "parse_robot",
@@ -75,6 +80,7 @@ surface = "gravel"         # the chi odometry and driving use
 ideal = 1.0
 gravel = 1.65
 marble = 1.85
+grass = 1.63               # no seed figure: what the emulator's physics body shows on grass
 
 # Wheel positions from the seed's URDF, in REP-103 (x forward, y left). forward: the sign
 # of the board's speed that drives the robot forward.
@@ -106,6 +112,19 @@ x = -0.29
 y = -0.33
 forward = 1
 
+# The chassis, for a physics body and the URDF (docs/robot.md: what the seed gives and what
+# is assumed). Positions in m from base_link, which the seed's URDF puts at the centre of
+# the wheel axles; REP-103 axes.
+[body]
+mass = 60.0                # kg, the whole robot on the seed's scales (§2.5.3)
+centre_of_mass = [-0.048, -0.012, -0.10]  # x, y from the scales (§2.5.3); z calibrated
+wheel_mass = 2.5           # kg each, assumed (a 0.40 m wheel with its hub)
+wheel_width = 0.10         # m, assumed
+chassis = [0.80, 0.50, 0.30]   # m, length, width, height of the chassis box (§3.1: 80 cm long)
+chassis_z = 0.05           # m, the box's centre above base_link (0.10 m ground clearance)
+imu = [0.125, -0.03, 0.11]     # the seed's ImuALink (§3.3.4), y flipped to REP-103
+lidar = [0.39, 0.02, 0.23]     # the seed's laser (§3.3.4), facing backwards (yaw 180°)
+
 [odometry]                 # how fast the pose covariance grows
 distance_noise = 1e-4      # m² of position variance per m travelled
 turn_noise = 1.6e-3        # rad² of heading variance per rad turned
@@ -132,11 +151,33 @@ Ti_Wheel_Pid = 0.24
 Td_Wheel_Pid = 0.0
 """
 
+#: A board's name: what the robot file's ``board``, ``[ports]`` keys, ``--port NAME=URL``
+#: and ``fpgaemu serve`` use; it appears in ready lines, topics and messages, so it is one
+#: word of letters, digits, ``_`` and ``-``.
+BOARD_NAME = re.compile(r"[A-Za-z0-9_-]+")
+
+# Geometry and limits below these make no robot: a wheel of zero radius, wheels of one side
+# on the centre line, a top speed nobody could drive at. The bounds are far below any real
+# robot (the seed's: radius 0.20 m, track 0.66 m, wheel base 0.58 m) and far above the
+# values (1e-300, 5e-324) whose divisions overflow the odometry.
+#: m: a 1 cm wheel (a micro-robot's) is the smallest
+MIN_WHEEL_RADIUS = 0.01
+#: m from the centre line to a wheel (the track is at least twice that)
+MIN_WHEEL_OFFSET = 0.01
+#: the smallest gear ratio (an overdrive of 100:1)
+MIN_GEAR_RATIO = 0.01
+#: deg/s at the wheel, m/s, deg/s of the body: the lowest top speeds accepted
+MIN_WHEEL_SPEED = 0.1
+MIN_LINEAR_SPEED = 0.001
+MIN_ANGULAR_SPEED = 0.1
+
 _TOP_KEYS = frozenset({"name", "wheel_radius", "gear_ratio", "max_wheel_speed",
                        "max_linear_speed", "max_angular_speed", "surface", "surfaces",
-                       "wheels", "odometry", "parameters", "board_parameters"})
+                       "wheels", "odometry", "parameters", "board_parameters", "body"})
 _WHEEL_KEYS = frozenset({"board", "channel", "x", "y", "forward"})
 _ODOMETRY_KEYS = frozenset({"distance_noise", "turn_noise", "drift_noise"})
+_BODY_KEYS = frozenset({"mass", "centre_of_mass", "wheel_mass", "wheel_width", "chassis",
+                        "chassis_z", "imu", "lidar"})
 
 
 class DescriptionError(FpgalinkError, ValueError):
@@ -240,6 +281,41 @@ class OdometryNoise:
 
 
 @dataclass(frozen=True, slots=True)
+class BodyShape:
+    """The chassis as a rigid body (for a physics body and the URDF): m, kg, REP-103, from
+    base_link (the centre of the wheel axles, as the seed's URDF has it)."""
+
+    mass: float = 60.0  #: the whole robot, wheels included
+    centre_of_mass: tuple[float, float, float] = (-0.048, -0.012, -0.10)  #: whole robot
+    wheel_mass: float = 2.5  #: each
+    wheel_width: float = 0.10
+    chassis: tuple[float, float, float] = (0.80, 0.50, 0.30)  #: box: length, width, height
+    chassis_z: float = 0.05  #: the box's centre above base_link
+    imu: tuple[float, float, float] = (0.125, -0.03, 0.11)
+    lidar: tuple[float, float, float] = (0.39, 0.02, 0.23)
+
+    @property
+    def chassis_mass(self) -> float:
+        return self.mass - 4 * self.wheel_mass
+
+    def chassis_com(self, wheels: tuple[WheelMount, ...]) -> tuple[float, float, float]:
+        """The chassis's own centre of mass: the whole robot's, less its wheels'."""
+        cx, cy, cz = self.centre_of_mass
+        wx = sum(w.x for w in wheels) * self.wheel_mass
+        wy = sum(w.y for w in wheels) * self.wheel_mass
+        m = self.chassis_mass
+        return ((cx * self.mass - wx) / m, (cy * self.mass - wy) / m, cz * self.mass / m)
+
+    @property
+    def chassis_inertia(self) -> tuple[float, float, float]:
+        """Principal moments about the chassis's centre of mass: a uniform box."""
+        length, width, height = self.chassis
+        m = self.chassis_mass / 12.0
+        return (m * (width**2 + height**2), m * (length**2 + height**2),
+                m * (length**2 + width**2))
+
+
+@dataclass(frozen=True, slots=True)
 class RobotDescription:
     """A robot: its wheels and boards, geometry, limits, surfaces and start-up parameters."""
 
@@ -256,6 +332,7 @@ class RobotDescription:
     #: settings loaded into every board at start, then each board's own
     parameters: tuple[Setting, ...] = ()
     board_parameters: Mapping[str, tuple[Setting, ...]] = field(default_factory=dict)
+    body: BodyShape = field(default_factory=BodyShape)
 
     @property
     def boards(self) -> tuple[str, ...]:
@@ -302,6 +379,21 @@ class RobotDescription:
         return list(chosen.values())
 
 
+def check_board_name(name: object, where: str) -> str:
+    """``name`` if it is a board name (:data:`BOARD_NAME`), else :class:`DescriptionError`
+    naming ``where``."""
+    if not isinstance(name, str) or not BOARD_NAME.fullmatch(name):
+        raise DescriptionError(f"{where}: a board name is letters, digits, _ and - (such as "
+                               f"\"L\"), got {_shown(name)}")
+    return name
+
+
+def _shown(value: object) -> str:
+    """``repr(value)`` cut to a line's worth: a hostile value is not echoed whole."""
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
 def _number(table: Mapping[str, Any], key: str, where: str, *, low: float = 0.0,
             low_open: bool = True, high: float = math.inf) -> float:
     if key not in table:
@@ -312,7 +404,8 @@ def _number(table: Mapping[str, Any], key: str, where: str, *, low: float = 0.0,
         bound = f"> {low:g}" if low_open else f"≥ {low:g}"
         if high != math.inf:
             bound += f" and ≤ {high:g}"
-        raise DescriptionError(f"{where}{key}: must be a finite number {bound}, got {value!r}")
+        raise DescriptionError(f"{where}{key}: must be a finite number {bound}, got "
+                               f"{_shown(value)}")
     return float(value)
 
 
@@ -328,19 +421,37 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     :class:`DescriptionError` naming ``source`` and the key otherwise."""
     if isinstance(document, str):
         try:
-            document = tomllib.loads(document)
-        except tomllib.TOMLDecodeError as exc:
-            raise DescriptionError(f"{source}: not valid TOML: {exc}") from None
-    where = f"{source}: "
+            document = parse_toml(document, source)
+        except TomlFileError as exc:
+            raise DescriptionError(str(exc)) from None
+    if not isinstance(document, Mapping):
+        raise DescriptionError(f"{source}: not a robot description (a TOML table)")
+    try:
+        return _parse_robot(document, f"{source}: ")
+    except (TypeError, ValueError, AttributeError, KeyError, OverflowError,
+            RecursionError) as exc:
+        if isinstance(exc, DescriptionError):
+            raise
+        # A value of a type no check above foresaw: still one line naming the file.
+        raise DescriptionError(f"{source}: a value of the wrong type "
+                               f"({type(exc).__name__}: {exc})") from None
+
+
+def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
     _unknown(document, _TOP_KEYS, where)
     name = document.get("name", "robot")
     if not isinstance(name, str):
-        raise DescriptionError(f"{where}name: must be a string, got {name!r}")
-    radius = _number(document, "wheel_radius", where, high=10.0)
-    gear = _number(document, "gear_ratio", where)
-    max_wheel = _number(document, "max_wheel_speed", where, high=1e5)
-    max_v = _number(document, "max_linear_speed", where, high=100.0)
-    max_w = _number(document, "max_angular_speed", where, high=1e4)
+        raise DescriptionError(f"{where}name: must be a string, got {_shown(name)}")
+    radius = _number(document, "wheel_radius", where, low=MIN_WHEEL_RADIUS, low_open=False,
+                     high=10.0)
+    gear = _number(document, "gear_ratio", where, low=MIN_GEAR_RATIO, low_open=False,
+                   high=1e4)
+    max_wheel = _number(document, "max_wheel_speed", where, low=MIN_WHEEL_SPEED,
+                        low_open=False, high=1e5)
+    max_v = _number(document, "max_linear_speed", where, low=MIN_LINEAR_SPEED,
+                    low_open=False, high=100.0)
+    max_w = _number(document, "max_angular_speed", where, low=MIN_ANGULAR_SPEED,
+                    low_open=False, high=1e4)
 
     surfaces_table = document.get("surfaces", {"ideal": 1.0})
     if not isinstance(surfaces_table, dict) or not surfaces_table:
@@ -348,8 +459,8 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     surfaces = {str(k): _number(surfaces_table, k, f"{where}surfaces.", low=1.0,
                                 low_open=False, high=10.0) for k in surfaces_table}
     surface = document.get("surface", next(iter(surfaces)))
-    if surface not in surfaces:
-        raise DescriptionError(f"{where}surface: {surface!r} is not in [surfaces] "
+    if not isinstance(surface, str) or surface not in surfaces:
+        raise DescriptionError(f"{where}surface: {_shown(surface)} is not in [surfaces] "
                                f"({', '.join(sorted(surfaces))})")
 
     wheels_table = document.get("wheels")
@@ -364,24 +475,25 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
         if not isinstance(entry, dict):
             raise DescriptionError(f"{where}wheels.{wheel_name}: missing")
         _unknown(entry, _WHEEL_KEYS, at)
-        board = entry.get("board")
-        if not isinstance(board, str) or not board.strip():
-            raise DescriptionError(f"{at}board: must be a board name such as \"L\", "
-                                   f"got {board!r}")
+        board = check_board_name(entry.get("board"), f"{at}board")
         channel = entry.get("channel")
-        if channel not in _CHANNELS:
-            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got {channel!r}")
+        if not isinstance(channel, str) or channel not in _CHANNELS:
+            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got "
+                                   f"{_shown(channel)}")
         forward = entry.get("forward", 1)
-        if forward not in (1, -1) or isinstance(forward, bool):
-            raise DescriptionError(f"{at}forward: must be 1 or -1, got {forward!r}")
+        if isinstance(forward, bool) or not isinstance(forward, int) or forward not in (1, -1):
+            raise DescriptionError(f"{at}forward: must be 1 or -1, got {_shown(forward)}")
         x = _number(entry, "x", at, low=-100.0, low_open=False, high=100.0)
         y = _number(entry, "y", at, low=-100.0, low_open=False, high=100.0)
         if (y > 0) != (wheel_name in LEFT_WHEELS) or y == 0:
             side = "left (y > 0)" if wheel_name in LEFT_WHEELS else "right (y < 0)"
             raise DescriptionError(f"{at}y: {wheel_name} is a {side} wheel in REP-103 "
                                    f"(x forward, y left), got {y!r}")
-        wheels.append(WheelMount(wheel_name, board.strip(), _CHANNELS[channel], x, y,
-                                 int(forward)))
+        if abs(y) < MIN_WHEEL_OFFSET:
+            raise DescriptionError(f"{at}y: a wheel at least {MIN_WHEEL_OFFSET:g} m from the "
+                                   f"centre line (the track is at least "
+                                   f"{2 * MIN_WHEEL_OFFSET:g} m), got {y!r}")
+        wheels.append(WheelMount(wheel_name, board, _CHANNELS[channel], x, y, int(forward)))
     used: dict[tuple[str, int], str] = {}
     for wheel in wheels:
         other = used.setdefault((wheel.board, wheel.channel), wheel.name)
@@ -398,6 +510,8 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
                      high=1.0)
         for key in _ODOMETRY_KEYS if key in odometry_table})
 
+    body = _body(document.get("body", {}), f"{where}body.")
+
     boards = tuple(dict.fromkeys(w.board for w in wheels))
     common = _settings(document.get("parameters", {}), f"{where}parameters")
     per_board: dict[str, tuple[Setting, ...]] = {}
@@ -405,7 +519,7 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
     if not isinstance(board_table, dict):
         raise DescriptionError(f"{where}board_parameters: must be tables [board_parameters.NAME]")
     for board_name, table in board_table.items():
-        if board_name not in boards:
+        if not isinstance(board_name, str) or board_name not in boards:
             raise DescriptionError(f"{where}board_parameters.{board_name}: no such board "
                                    f"(the wheels name {', '.join(boards)})")
         per_board[board_name] = _settings(table, f"{where}board_parameters.{board_name}")
@@ -414,11 +528,57 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
         name=name, wheel_radius=radius, gear_ratio=gear, max_wheel_speed=max_wheel,
         max_linear_speed=max_v, max_angular_speed=max_w, wheels=tuple(wheels),
         surfaces=surfaces, surface=str(surface), odometry=noise, parameters=common,
-        board_parameters=per_board)
+        board_parameters=per_board, body=body)
     if description.track <= 0 or description.wheelbase < 0:
         raise DescriptionError(f"{where}wheels: the left wheels must be left of the right "
                                "ones and the front wheels ahead of the rear ones")
+    for front, rear in (("FL", "BL"), ("FR", "BR")):
+        base = description.wheel(front).x - description.wheel(rear).x
+        if base < 2 * radius:
+            raise DescriptionError(
+                f"{where}wheels.{front}.x: the front and rear wheels of a side overlap: "
+                f"their centres are {base:g} m apart, less than a wheel's diameter "
+                f"({2 * radius:g} m)")
     return description
+
+
+def _vector(table: Mapping[str, Any], key: str, where: str, limit: float) -> tuple[
+        float, float, float]:
+    value = table[key]
+    if not isinstance(value, list) or len(value) != 3:
+        raise DescriptionError(f"{where}{key}: must be [x, y, z], got {value!r}")
+    return (_number({"x": value[0]}, "x", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit),
+            _number({"y": value[1]}, "y", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit),
+            _number({"z": value[2]}, "z", f"{where}{key}.", low=-limit, low_open=False,
+                    high=limit))
+
+
+def _body(table: object, where: str) -> BodyShape:
+    if not isinstance(table, dict):
+        raise DescriptionError(f"{where[:-1]}: must be a table")
+    _unknown(table, _BODY_KEYS, where)
+    values: dict[str, Any] = {}
+    for key in ("mass", "wheel_mass", "wheel_width"):
+        if key in table:
+            values[key] = _number(table, key, where, high=1e5)
+    if "chassis_z" in table:
+        values["chassis_z"] = _number(table, "chassis_z", where, low=-10.0, low_open=False,
+                                      high=10.0)
+    for key in ("centre_of_mass", "imu", "lidar"):
+        if key in table:
+            values[key] = _vector(table, key, where, 100.0)
+    if "chassis" in table:
+        size = _vector(table, "chassis", where, 100.0)
+        if min(size) <= 0:
+            raise DescriptionError(f"{where}chassis: sizes must be > 0, got {list(size)}")
+        values["chassis"] = size
+    body = BodyShape(**values)
+    if body.chassis_mass <= 0:
+        raise DescriptionError(f"{where}mass: the four wheels ({4 * body.wheel_mass:g} kg) "
+                               f"weigh more than the robot ({body.mass:g} kg)")
+    return body
 
 
 def _settings(table: object, where: str) -> tuple[Setting, ...]:
@@ -434,12 +594,10 @@ def load_robot(path: str, text: str | None = None) -> RobotDescription:
     """The robot file at ``path`` (``text`` when the caller already read it)."""
     if text is None:
         try:
-            with open(path, encoding="utf-8") as stream:
-                text = stream.read()
-        except OSError as exc:
-            raise DescriptionError(f"{path}: cannot read: {exc.strerror or exc}") from None
-        except UnicodeDecodeError:
-            raise DescriptionError(f"{path}: not UTF-8 text") from None
+            document = load_toml(path)
+        except TomlFileError as exc:
+            raise DescriptionError(str(exc)) from None
+        return parse_robot(document, path)
     return parse_robot(text, path)
 
 

@@ -158,6 +158,11 @@ class Odometry:
         self._play_path.band = side
         self._play_heading.band = 2 * side / self.kinematics.effective_track
 
+    def set_kinematics(self, description: RobotDescription, kinematics: SkidSteer) -> None:
+        """Another wheel radius, track or χ from now on (the pose so far stays)."""
+        self.description, self.kinematics = description, kinematics
+        self._set_bands()
+
     @property
     def ready(self) -> bool:
         return len(self._counts_per_turn) == len(self._wheels)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import functools
 import math
 from collections.abc import AsyncIterator, Callable, Mapping
@@ -27,7 +28,7 @@ from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import BoardResynced, Event, RequestDone, WatchdogLapsed
 from fpgalink.protocol import Telemetry
-from fpgalink.protocol.robot import Pose, RobotDescription
+from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot.drive import WheelCommand, wheel_command
 from fpgalink.robot.goto import GoTo, GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, WireUse, board_status, supervision_status
@@ -114,6 +115,8 @@ class Robot:
         #: boards restarted and not yet reconfigured, and boards whose telemetry stopped
         self._reconfiguring: set[str] = set()
         self._stale: dict[str, str] = {}
+        #: boards heard again after a silence, not yet known whether they restarted
+        self._checking: set[str] = set()
         #: encoder counts each wheel had before its board's restarts (joint angles go on)
         self._count_offset: dict[tuple[str, int], int] = {}
         #: the exception that stopped the robot for good, if one did
@@ -367,12 +370,21 @@ class Robot:
         elif kind is LinkEventKind.TELEMETRY_RESUMED:
             if self._stale.pop(name, None) is not None:
                 self._board_recovered(name, "telemetry flowing again", now)
+        elif kind is LinkEventKind.BOARD_BACK:
+            self._checking.discard(name)
+            self._board_recovered(name, event.detail, now)
         elif link.board_alive:
             self.supervisor.board_alive(name, True, now)
+            if link.connection.verifying:
+                # Heard again after a silence: whether it restarted meanwhile is being
+                # asked; not ready until the answer comes.
+                self._checking.add(name)
+                self.supervisor.blocked[name] = "heard again: checking whether it restarted"
 
     def _restarted(self, name: str, detail: str, now: float) -> None:
         """The board restarted: stop, forget its counts (a reset is not motion), and wait
         for its link to set again what it holds."""
+        self._checking.discard(name)
         self._reconfiguring.add(name)
         self._stale.pop(name, None)
         latest = self.latest.pop(name, None)
@@ -414,6 +426,8 @@ class Robot:
         """One of the board's faults cleared: ready again once none is left."""
         if name in self._reconfiguring:
             self.supervisor.blocked[name] = "restarted: reconfiguring"
+        elif name in self._checking:
+            self.supervisor.blocked[name] = "heard again: checking whether it restarted"
         elif name in self._stale:
             self.supervisor.blocked[name] = self._stale[name]
         else:
@@ -446,6 +460,26 @@ class Robot:
                 self._set_resolution(board, event.channel, int(event.value))
         elif event.param.name == "TorqueCoef":
             self.torque_coef[(board, event.channel)] = float(event.value)
+
+    def set_kinematics(self, *, wheel_radius: float | None = None, track: float | None = None,
+                       chi: float | None = None) -> SkidSteer:
+        """Drive and compute odometry with another wheel radius (m), track (m, between the
+        left and right wheels' centres) or skid-steer factor χ (≥ 1; it differs per
+        surface) from now on; the others kept. The pose so far stays. ``ValueError`` for a
+        value that is not finite and positive (χ: ≥ 1), and nothing changes."""
+        model = self.kinematics
+        radius = model.wheel_radius if wheel_radius is None else wheel_radius
+        new_track = model.track if track is None else track
+        new_chi = model.chi if chi is None else chi
+        for name, value, low in (("wheel_radius", radius, 0.0), ("track", new_track, 0.0),
+                                 ("chi", new_chi, 1.0)):
+            if not (math.isfinite(value) and (value > low if low == 0.0 else value >= low)):
+                raise ValueError(f"{name} must be a finite number "
+                                 f"{'> 0' if low == 0.0 else '≥ 1'}, got {value!r}")
+        self.kinematics = SkidSteer(radius, new_track, new_chi)
+        self.description = dataclasses.replace(self.description, wheel_radius=radius)
+        self.odometry.set_kinematics(self.description, self.kinematics)
+        return self.kinematics
 
     # --- driving --------------------------------------------------------------------------
 

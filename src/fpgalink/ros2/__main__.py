@@ -58,6 +58,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 #: Exit codes: 0 stopped by a signal, 2 usage, 3 ROS 2 not installed, 4 boards not reached.
+EXIT_USAGE = 2
 EXIT_NO_ROS2 = 3
 EXIT_BOARDS = 4
 
@@ -113,12 +114,13 @@ def main(argv: list[str] | None = None) -> None:
 
 
 async def _run(description: object, ports: dict[str, str], baud: int) -> int:
+    from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
     from fpgalink.errors import FpgalinkError
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot import Robot, RobotError
-    from fpgalink.ros2.node import NODE_NAME, RosBridge, spin_in_thread
+    from fpgalink.ros2.node import NODE_NAME, BadOverride, RosBridge, spin_in_thread
 
     assert isinstance(description, RobotDescription)
     loop = asyncio.get_running_loop()
@@ -133,8 +135,13 @@ async def _run(description: object, ports: dict[str, str], baud: int) -> int:
         return EXIT_BOARDS
     node = Node(NODE_NAME, start_parameter_services=False)
     try:
-        bridge = RosBridge(robot, node, loop)
-        await bridge.declare_board_parameters()
+        try:
+            bridge = RosBridge(robot, node, loop)
+            await bridge.declare_board_parameters()
+        except (ParameterException, BadOverride) as exc:  # a -p value out of range, …
+            print(f"{PROG}: error: --ros-args -p: {_parameter_error(exc)}", file=sys.stderr,
+                  flush=True)
+            return EXIT_USAGE
         bridge.serve_parameters()
         executor, thread = spin_in_thread(node)
         bridge.executor = executor
@@ -157,6 +164,15 @@ async def _run(description: object, ports: dict[str, str], baud: int) -> int:
         with contextlib.suppress(Exception):
             node.destroy_node()
     return 0
+
+
+def _parameter_error(exc: Exception) -> str:
+    """rclpy's "Invalid parameter value (V) for parameter. Reason: R: NAME" as
+    "NAME: R" (the reason names the range), on one line."""
+    text = " ".join(str(exc).split())
+    head, _, name = text.rpartition(": ")
+    reason = head.split("Reason: ", 1)[-1]
+    return f"{name}: {reason}" if name and "Reason: " in head else text
 
 
 if __name__ == "__main__":

@@ -8,7 +8,9 @@ the board, so a set reports success only after the board's echo matched.
 
 Topics (relative names, so ``--ros-args -r __ns:=/robot`` and remaps work): see
 docs/ros2.md. ROS parameters: the node's own (``joint_state_rate``, ``cmd_vel_timeout``,
-``goal_tolerance``, ``odom_frame``, ``base_frame``) and every board parameter as
+``goal_tolerance``, ``odom_frame``, ``base_frame``, ``telemetry_timeout_periods``,
+``require_enable``, ``enable_timeout``, ``use_stamped_vel``, ``publish_odom_tf``,
+``joint_states_best_effort``) and every board parameter as
 ``BOARD.NAME`` or ``BOARD.NAME.CHANNEL`` (``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``).
 """
 
@@ -18,6 +20,7 @@ import asyncio
 import concurrent.futures
 import contextlib
 import dataclasses
+import difflib
 import functools
 import math
 import threading
@@ -30,7 +33,7 @@ import rclpy
 import rclpy.task
 from builtin_interfaces.msg import Time as TimeMsg
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
-from geometry_msgs.msg import PoseStamped, Twist
+from geometry_msgs.msg import PoseStamped, TransformStamped, Twist, TwistStamped
 from nav_msgs.msg import Odometry
 from rcl_interfaces.msg import (
     FloatingPointRange,
@@ -44,13 +47,18 @@ from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_service import ParameterService
-from rclpy.qos import QoSProfile, qos_profile_parameters, qos_profile_sensor_data
-from sensor_msgs.msg import JointState
+from rclpy.qos import (
+    QoSProfile,
+    ReliabilityPolicy,
+    qos_profile_parameters,
+    qos_profile_sensor_data,
+)
+from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool
 
 from fpgalink.aio.link import LinkEvent, LinkEventKind
-from fpgalink.boardclock import BoardClock
-from fpgalink.errors import FpgalinkError
+from fpgalink.boardclock import BOARD_CLOCK_WRAP_US, BoardClock
+from fpgalink.errors import FpgalinkError, ParameterError, ParameterRefused, ValueMismatch
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, channel_name
 from fpgalink.protocol.robot import WHEEL_NAMES
@@ -59,12 +67,23 @@ from fpgalink.robot.health import Status
 from fpgalink.robot.joints import SampleSets
 from fpgalink.robot.supervision import State, StopReason
 
-__all__ = ["NODE_NAME", "RosBridge", "board_parameter_name", "spin_in_thread"]
+__all__ = ["NODE_NAME", "BadOverride", "RosBridge", "board_parameter_name", "spin_in_thread"]
 
 NODE_NAME = "fpgalink"
 DIAGNOSTICS_PERIOD_S = 1.0
 #: Twist/JointState references older than this bring the wheels to rest (a parameter).
 DEFAULT_CMD_TIMEOUT_S = 0.5
+#: ``imu/data`` from an emulated body's IMU: its rate, and its frame (the seed's URDF link).
+IMU_RATE_HZ = 50.0
+IMU_FRAME = "ImuALink"
+#: A warning repeated within this is counted, not printed (a flood of bad cmd_vel).
+WARNING_PERIOD_S = 2.0
+CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/TwistStamped"}
+
+
+class BadOverride(Exception):
+    """A board parameter's ``--ros-args -p`` value that the board (or the host's check of
+    its range) does not take: a usage error."""
 
 
 def board_parameter_name(board: str, param: Param, channel: int) -> str:
@@ -189,22 +208,50 @@ class RosBridge:
         self.log = node.get_logger()
         self._board_params: dict[str, tuple[str, Param, int]] = {}
         self._clocks = {board: BoardClock() for board in robot.description.boards}
+        self._last_odom_ns = 0
+        self._set_stamps: dict[str, int] = {}  #: each board's stamp of the last set
         self._last_command_at: float | None = None
         self._command_is_zero = True
+        #: a command that came while the robot was not enabled (the enable on its own
+        #: topic may come after it): sent when the robot is enabled, if still fresh
+        self._pending: tuple[Callable[[], object], bool, float] | None = None
+        #: warnings by kind: when one was last printed, and how many since were not
+        self._warned: dict[str, tuple[float, int]] = {}
+        self._wrong_cmd_vel_types: set[str] = set()
+        self._unnamed_checks: dict[str, int] = {}
+        self._name_clash_said = False
         self._goal: asyncio.Task[None] | None = None
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
-        self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0}
+        self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
         self._declare_node_parameters()
         self._read_node_parameters()
         self._sets = SampleSets(robot.description.boards, self._publish_period)
-        sensor: QoSProfile = qos_profile_sensor_data
-        self.joint_pub = node.create_publisher(JointState, "joint_states", sensor)
+        # Reliable as joint_state_broadcaster's (robot_state_publisher and most consumers
+        # subscribe reliable, which never matches a best-effort publisher); sensor-data QoS
+        # on request.
+        joint_qos: QoSProfile = (qos_profile_sensor_data if self._value("joint_states_best_effort")
+                                 else QoSProfile(depth=10,
+                                                 reliability=ReliabilityPolicy.RELIABLE))
+        self.joint_pub = node.create_publisher(JointState, "joint_states", joint_qos)
         self.odom_pub = node.create_publisher(Odometry, "odom", 10)
-        self.diag_pub = node.create_publisher(DiagnosticArray, "diagnostics", 10)
+        # Absolute, as diagnostic_updater publishes it (one /diagnostics for the whole
+        # graph, the statuses named after the node).
+        self.diag_pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
-        node.create_subscription(Twist, "cmd_vel", self._threadsafe(self._on_cmd_vel), 10)
+        self.tf_type = _tf_message_type()
+        # /tf as tf2_ros's broadcaster publishes it (absolute, reliable, depth 100).
+        self.tf_pub = None if self.tf_type is None else node.create_publisher(
+            self.tf_type, "/tf", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
+        if self.tf_type is None and self._value("publish_odom_tf"):
+            self.log.warning("publish_odom_tf: tf2_msgs is not installed (Jazzy has no wheel "
+                             "of it; `make tf2-msgs` generates it): running without /tf")
+        stamped = bool(self._value("use_stamped_vel"))
+        self.cmd_vel_sub = node.create_subscription(
+            TwistStamped if stamped else Twist, "cmd_vel",
+            self._threadsafe(self._on_cmd_vel), 10)
+        self.imu_pub = self._imu_publisher()
         node.create_subscription(JointState, "wheel_refs",
                                  self._threadsafe(self._on_wheel_refs), 10)
         node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
@@ -236,6 +283,32 @@ class RosBridge:
             description="a board's telemetry missing for this many timer periods is a fault: "
                         "the robot stops until it comes again (50: 50 ms at 1 kHz)",
             integer_range=[IntegerRange(from_value=2, to_value=100_000, step=1)]))
+        model = self.robot.kinematics
+        double("wheel_radius", model.wheel_radius, 0.005, 5.0,
+               "wheel radius, m (default: the robot file's)")
+        double("wheel_separation", model.track, 0.05, 20.0,
+               "between the left and right wheels' centres, m (default: the robot file's)")
+        double("wheel_separation_multiplier", model.chi, 1.0, 20.0,
+               "the skid-steer factor χ: the effective track is χ × wheel_separation; it "
+               "differs per surface (default: the robot file's for its surface)")
+        double("enable_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
+               "with require_enable: true on enable at least this often keeps the robot "
+               "enabled (the seed's /globalEnable deadman), s")
+        node.declare_parameter("require_enable", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL,
+            description="true: the robot drives only while true arrives on enable (the "
+                        "deadman); false: cmd_vel enables it, cmd_vel_timeout brings the "
+                        "wheels to rest (as diff_drive_controller)"))
+        node.declare_parameter("joint_states_best_effort", False, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="joint_states with sensor-data QoS (best effort) instead of reliable"))
+        node.declare_parameter("publish_odom_tf", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL,
+            description="publish odom_frame -> base_frame on /tf with each odom"))
+        node.declare_parameter("use_stamped_vel", False, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="cmd_vel is geometry_msgs/TwistStamped (true, diff_drive_controller's "
+                        "Jazzy default) or Twist (false, Nav2's and teleop's default)"))
         for name, default in (("odom_frame", "odom"), ("base_frame", "base_link")):
             node.declare_parameter(name, default, ParameterDescriptor(
                 type=ParameterType.PARAMETER_STRING, description=f"frame id: {name}"))
@@ -247,7 +320,17 @@ class RosBridge:
         """Cache the node's own parameters (read per message at up to 1 kHz)."""
         self._node_values = {name: self.node.get_parameter(name).value for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
-            "base_frame", "telemetry_timeout_periods")}
+            "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
+            "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort", "wheel_radius",
+            "wheel_separation", "wheel_separation_multiplier")}
+        values = self._node_values
+        model = self.robot.kinematics
+        wanted = (float(values["wheel_radius"]), float(values["wheel_separation"]),
+                  float(values["wheel_separation_multiplier"]))
+        if wanted != (model.wheel_radius, model.track, model.chi):
+            # Drive and odometry with them from now on (ranges checked by the descriptors).
+            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2])
+        self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
             link.connection.stale_periods = int(self._node_values["telemetry_timeout_periods"])
@@ -270,8 +353,23 @@ class RosBridge:
                     declared = self.node.declare_parameter(
                         name, on_board, _descriptor(param, board)).value
                     if declared != on_board:  # an override from the command line
-                        confirmed = await link.set_param(param.id, declared, channel or None)
+                        try:
+                            confirmed = await link.set_param(param.id, declared,
+                                                             channel or None)
+                        except (ParameterError, ParameterRefused, ValueMismatch) as exc:
+                            # The value given is wrong (a board not answering is not).
+                            raise BadOverride(f"{name}: {exc}") from None
                         self.node.set_parameters([Parameter(name, value=confirmed)])
+        self._warn_unknown_overrides()
+
+    def _warn_unknown_overrides(self) -> None:
+        """A ``-p NAME:=VALUE`` for a parameter this node does not have is not silently
+        ignored: one warning per name, with the nearest names it has."""
+        overrides = getattr(self.node, "_parameter_overrides", {})  # rclpy keeps them here
+        for name in sorted(set(overrides) - {p for p in self.node._parameters}):
+            near = difflib.get_close_matches(name, list(self.node._parameters), n=3)
+            self.log.warning(f"-p {name}: this node has no such parameter: ignored"
+                             + (f" (did you mean {', '.join(near)}?)" if near else ""))
 
     async def set_parameter(self, parameter: Parameter) -> SetParametersResult:
         """One parameter from a ``set_parameters`` call (on the executor's thread)."""
@@ -318,10 +416,11 @@ class RosBridge:
             self.loop.call_soon_threadsafe(handler, message)
         return forward
 
-    def _on_cmd_vel(self, message: Twist) -> None:
-        v, omega = float(message.linear.x), float(message.angular.z)
+    def _on_cmd_vel(self, message: Twist | TwistStamped) -> None:
+        twist = message.twist if isinstance(message, TwistStamped) else message
+        v, omega = float(twist.linear.x), float(twist.angular.z)
         if not (math.isfinite(v) and math.isfinite(omega)):
-            self.log.warning(f"cmd_vel ignored: not finite ({v}, {omega})")
+            self._throttled_warning("non-finite", f"cmd_vel ignored: not finite ({v}, {omega})")
             return
         self._cancel_goal()
         self._command(lambda: self.robot.drive(v, omega), v == 0.0 and omega == 0.0)
@@ -357,32 +456,54 @@ class RosBridge:
         self._command(send, all(v == 0.0 for v in values))
 
     def _command(self, send: Callable[[], object], zero: bool) -> None:
+        if not self._value("require_enable") and self.robot.state is not State.ENABLED:
+            # Without the deadman a command is the request to drive.
+            try:
+                self.robot.enable()
+            except RobotStopped as exc:
+                self._throttled_warning("refused", f"command ignored: {exc}")
+                return
         try:
             send()
         except RobotStopped as exc:
-            self._throttled_warning(f"command ignored: {exc} (publish true on enable)")
+            # The enable, on its own topic, may come just after the command it goes with:
+            # held, and sent if the robot is enabled within cmd_vel_timeout.
+            self._pending = (send, zero, self.loop.time())
+            self._throttled_warning("not enabled", f"command held: {exc} (publish true on "
+                                    f"enable within cmd_vel_timeout to send it)")
             return
         except FpgalinkError as exc:
             self.log.warning(f"command ignored: {exc}")
             return
+        self._pending = None
         self._last_command_at = self.loop.time()
         self._command_is_zero = zero
 
-    _last_warning = 0.0
-
-    def _throttled_warning(self, text: str) -> None:
+    def _throttled_warning(self, kind: str, text: str) -> None:
+        """At most one warning of a kind per :data:`WARNING_PERIOD_S`, saying how many of
+        that kind were not printed since the last."""
         now = time.monotonic()
-        if now - self._last_warning > 2.0:
-            self._last_warning = now
-            self.log.warning(text)
+        last, quiet = self._warned.get(kind, (-math.inf, 0))
+        if now - last < WARNING_PERIOD_S:
+            self._warned[kind] = (last, quiet + 1)
+            return
+        self._warned[kind] = (now, 0)
+        self.log.warning(text + (f" ({quiet} more like it not shown)" if quiet else ""))
 
     def _on_enable(self, message: Bool) -> None:
         if message.data:
+            was = self.robot.state
             try:
                 self.robot.enable()
             except RobotStopped as exc:
-                self._throttled_warning(f"enable refused: {exc}")
+                self._throttled_warning("refused", f"enable refused: {exc}")
+                return
+            pending, self._pending = self._pending, None
+            if (was is not State.ENABLED and pending is not None
+                    and self.loop.time() - pending[2] <= float(self._value("cmd_vel_timeout"))):
+                self._command(pending[0], pending[1])
         elif self.robot.state is State.ENABLED:
+            self._pending = None
             self.robot.disable()
 
     def _on_goal(self, message: PoseStamped) -> None:
@@ -422,7 +543,10 @@ class RosBridge:
             self._tasks.append(asyncio.ensure_future(self._follow(board, link)))
         self._tasks += [asyncio.ensure_future(self._diagnostics_loop()),
                         asyncio.ensure_future(self._command_watchdog()),
+                        asyncio.ensure_future(self._enable_keeper()),
                         asyncio.ensure_future(self._supervision_log())]
+        if self.imu_pub is not None:
+            self._tasks.append(asyncio.ensure_future(self._imu_loop()))
         try:
             await asyncio.gather(*self._tasks)
         finally:
@@ -437,8 +561,9 @@ class RosBridge:
         text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
             f" ({event.detail})" if event.detail else "")
         if event.kind is LinkEventKind.BOARD_RESTARTED:
-            # Its clock starts again: stamps anchor afresh (not a wrap, not a jump back).
-            self._clocks[board] = BoardClock()
+            # Its clock starts again: the mapping starts afresh (not a wrap, not a jump
+            # back), the drift estimate kept.
+            self._clocks[board].restart()
         if event.kind in _FAULT_KINDS or (event.kind is LinkEventKind.BOARD_RESYNCED
                                           and "failed" in event.detail):
             self.log.error(text)
@@ -454,7 +579,7 @@ class RosBridge:
             if complete is not None:
                 stamp_ns = self._publish_joints(complete)
                 if stamp_ns is not None:
-                    self._publish_odometry(stamp_ns)
+                    self._publish_odometry(self._odometry_stamp(complete, stamp_ns))
 
     async def _supervision_log(self) -> None:
         async for event in self.robot.events():
@@ -475,10 +600,9 @@ class RosBridge:
         if states is None:
             return None
         now_ns = self.node.get_clock().now().nanoseconds
-        boards = self.robot.description.boards
-        stamp_ns = self._clocks[boards[0]].ns(samples[boards[0]].t_us, now_ns)
-        for board in boards[1:]:
-            self._clocks[board].ns(samples[board].t_us, now_ns)
+        self._set_stamps = {board: self._clocks[board].ns(samples[board].t_us, now_ns)
+                            for board in self.robot.description.boards}
+        stamp_ns = self._set_stamps[self.robot.description.boards[0]]
         message = JointState()
         message.header.stamp = _time_msg(stamp_ns)
         message.name = list(states.names)
@@ -489,8 +613,30 @@ class RosBridge:
         self.published["joint_states"] += 1
         return stamp_ns
 
+    def _odometry_stamp(self, samples: dict[str, Telemetry], stamp_ns: int) -> int:
+        """The stamp of the robot's odometry now: the robot follows the telemetry in its
+        own tasks, which on a loaded host run ahead of this node's sets by tens of ms, and a
+        pose stamped with the set's time ran ahead of its stamp (2 cm at 0.2 m/s measured,
+        a jump to any consumer that interpolates). The odometry steps once every board has
+        reported: its time is the earliest of the boards' latest samples, each mapped as
+        its sample in ``samples`` was. Never earlier than the odom before it."""
+        times = []
+        for board, set_ns in self._set_stamps.items():
+            latest = self.robot.latest.get(board)
+            if latest is None:
+                continue
+            ahead_us = (latest.t_us - samples[board].t_us + BOARD_CLOCK_WRAP_US // 2) \
+                % BOARD_CLOCK_WRAP_US - BOARD_CLOCK_WRAP_US // 2
+            if abs(ahead_us) < 1_000_000:  # else a restart between them: not comparable
+                times.append(set_ns + ahead_us * 1000)
+        if times:
+            stamp_ns = min(times)
+        stamp_ns = max(stamp_ns, self._last_odom_ns + 1000)
+        self._last_odom_ns = stamp_ns
+        return stamp_ns
+
     def _publish_odometry(self, stamp_ns: int) -> None:
-        """odom at the same stamp (the robot's odometry has integrated those samples)."""
+        """odom stamped at the robot's odometry's latest sample (:meth:`_odometry_stamp`)."""
         state = self.robot.odometry_state
         message = Odometry()
         message.header.stamp = _time_msg(stamp_ns)
@@ -502,6 +648,16 @@ class RosBridge:
         message.pose.covariance = state.covariance_6x6()
         self.odom_pub.publish(message)
         self.published["odom"] += 1
+        if self.tf_pub is not None and self.tf_type is not None \
+                and self._value("publish_odom_tf"):
+            transform = TransformStamped()
+            transform.header = message.header
+            transform.child_frame_id = message.child_frame_id
+            transform.transform.translation.x = message.pose.pose.position.x
+            transform.transform.translation.y = message.pose.pose.position.y
+            transform.transform.rotation = message.pose.pose.orientation
+            self.tf_pub.publish(self.tf_type(transforms=[transform]))
+            self.published["tf"] += 1
         truth = self.robot.truth()
         if truth is not None and self.truth_pub is not None:
             true = Odometry()
@@ -511,6 +667,46 @@ class RosBridge:
             true.twist.twist.linear.x = float(truth["v"])
             true.twist.twist.angular.z = float(truth["omega"])
             self.truth_pub.publish(true)
+
+    # --- the emulated body's IMU ---------------------------------------------------------
+
+    def _imu_publisher(self) -> Any:
+        """``imu/data`` when the robot's body is emulated in this process with an IMU (the
+        physics body's truth carries one); ``None`` otherwise."""
+        truth = self.robot.truth()
+        if truth is None or truth.get("imu") is None:
+            return None
+        self.published["imu"] = 0
+        return self.node.create_publisher(Imu, "imu/data", qos_profile_sensor_data)
+
+    async def _imu_loop(self) -> None:
+        """sensor_msgs/Imu at :data:`IMU_RATE_HZ`: angular velocity and linear acceleration
+        (each the mean since the previous reading, with the emulated IMU's noise and bias,
+        their variances on the diagonals); no orientation (covariance[0] = −1), as a
+        6-axis IMU gives none."""
+        while True:
+            await asyncio.sleep(1.0 / IMU_RATE_HZ)
+            truth = self.robot.truth()
+            reading = truth.get("imu") if truth is not None else None
+            if reading is None or self.imu_pub is None:
+                continue
+            message = Imu()
+            message.header.stamp = self.node.get_clock().now().to_msg()
+            message.header.frame_id = IMU_FRAME
+            gyro, accel = reading["angular_velocity"], reading["linear_acceleration"]
+            (message.angular_velocity.x, message.angular_velocity.y,
+             message.angular_velocity.z) = (float(v) for v in gyro)
+            (message.linear_acceleration.x, message.linear_acceleration.y,
+             message.linear_acceleration.z) = (float(v) for v in accel)
+            gyro_var = float(reading.get("angular_velocity_variance", 0.0))
+            accel_var = float(reading.get("linear_acceleration_variance", 0.0))
+            message.angular_velocity_covariance = [gyro_var, 0.0, 0.0, 0.0, gyro_var, 0.0,
+                                                   0.0, 0.0, gyro_var]
+            message.linear_acceleration_covariance = [accel_var, 0.0, 0.0, 0.0, accel_var,
+                                                      0.0, 0.0, 0.0, accel_var]
+            message.orientation_covariance = [-1.0] + [0.0] * 8
+            self.imu_pub.publish(message)
+            self.published["imu"] += 1
 
     async def _command_watchdog(self) -> None:
         while True:
@@ -529,6 +725,51 @@ class RosBridge:
         while True:
             await asyncio.sleep(DIAGNOSTICS_PERIOD_S)
             self._publish_diagnostics()
+            self._check_cmd_vel_publishers()
+            self._check_name_clash()
+
+    async def _enable_keeper(self) -> None:
+        """Without ``require_enable`` this node renews the enable itself while the robot is
+        enabled (a fault still stops it; the next command asks again)."""
+        while True:
+            await asyncio.sleep(float(self._value("enable_timeout")) / 4)
+            if not self._value("require_enable") and self.robot.state is State.ENABLED:
+                with contextlib.suppress(RobotStopped):
+                    self.robot.enable()
+
+    def _check_name_clash(self) -> None:
+        """Another node of this name in this namespace: its parameters, services and
+        diagnostics would be mistaken for this one's. Said once."""
+        if self._name_clash_said:
+            return
+        me = (self.node.get_name(), self.node.get_namespace())
+        if self.node.get_node_names_and_namespaces().count(me) > 1:
+            self._name_clash_said = True
+            self.log.warning(f"another node is named {me[1].rstrip('/')}/{me[0]}: its "
+                             "parameters, services and diagnostics will be mistaken for this "
+                             "one's (rename one: -r __node:=NAME)")
+
+    def _check_cmd_vel_publishers(self) -> None:
+        """A publisher of the other Twist type on cmd_vel never matches this subscription:
+        its commands would vanish without a word. Said once per type."""
+        ours = CMD_VEL_TYPES[bool(self._value("use_stamped_vel"))]
+        topic = self.cmd_vel_sub.topic_name
+        for info in self.node.get_publishers_info_by_topic(topic):
+            kind = info.topic_type
+            if kind == ours or kind in self._wrong_cmd_vel_types:
+                continue
+            unknown = info.node_name.startswith("_NODE_NAME_UNKNOWN")
+            if unknown and self._unnamed_checks.get(kind, 0) < 3:
+                # Discovery gives the endpoint before its node's name: a moment more.
+                self._unnamed_checks[kind] = self._unnamed_checks.get(kind, 0) + 1
+                continue
+            who = ("a publisher (no ROS node name)" if unknown
+                   else f"{info.node_namespace.rstrip('/')}/{info.node_name}")
+            self._wrong_cmd_vel_types.add(kind)
+            self.log.error(
+                f"{topic}: {who} publishes {kind}, this node takes {ours}: those commands "
+                f"do not arrive (set "
+                f"use_stamped_vel:={'false' if ours.endswith('Stamped') else 'true'})")
 
     def _publish_diagnostics(self) -> None:
         self.diag_pub.publish(self.diagnostics(self.loop.time()))
@@ -537,7 +778,8 @@ class RosBridge:
     def diagnostics(self, now: float) -> DiagnosticArray:
         array = DiagnosticArray()
         array.header.stamp = self.node.get_clock().now().to_msg()
-        array.status = [diagnostic_status(status) for status in self.robot.health(now)]
+        array.status = [diagnostic_status(status, self.node.get_name())
+                        for status in self.robot.health(now)]
         return array
 
 
@@ -547,8 +789,18 @@ _FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
                           LinkEventKind.TELEMETRY_STALE})
 
 
-def diagnostic_status(status: Status) -> DiagnosticStatus:
-    return DiagnosticStatus(level=bytes([status.level]), name=f"{NODE_NAME}: {status.name}",
+def _tf_message_type() -> Any:
+    """tf2_msgs/msg/TFMessage, or ``None`` where tf2_msgs is not installed (ROS 2 Jazzy has
+    no PyPI wheel of it: ``make tf2-msgs`` generates it from the rosidl wheels)."""
+    try:
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        return None
+    return TFMessage
+
+
+def diagnostic_status(status: Status, node_name: str = NODE_NAME) -> DiagnosticStatus:
+    return DiagnosticStatus(level=bytes([status.level]), name=f"{node_name}: {status.name}",
                             message=status.message, hardware_id=status.hardware_id,
                             values=[KeyValue(key=k, value=v) for k, v in status.values])
 

@@ -238,3 +238,205 @@ def test_record_csv_on_a_full_disk_ends_at_a_complete_row(tmp_path: Path) -> Non
     assert all(len(line.split(",")) == width for line in lines)
     assert len(lines) - 1 == said > 1000
 
+
+
+# --- round 2 (issue 24): robot files, TOML everywhere, foreign endpoints, recordings --------
+
+#: 20,000 nested arrays in 40 KB: tomllib recursed until the interpreter's stack ran out.
+DEEP_TOML = "x = " + "[" * 20_000 + "]" * 20_000 + "\n"
+
+
+def _robot(tmp_path: Path, replace: str, by: str, name: str = "robot.toml") -> Path:
+    from fpgalink.protocol.robot import SEED_ROBOT_TOML
+
+    assert replace in SEED_ROBOT_TOML, replace
+    path = tmp_path / name
+    path.write_text(SEED_ROBOT_TOML.replace(replace, by), encoding="utf-8")
+    return path
+
+
+#: (what the file says instead of the seed's, what the one line names)
+BAD_ROBOTS = [
+    pytest.param('surface = "gravel"', 'surface = ["gravel"]', "surface", id="surface-list"),
+    pytest.param('surface = "gravel"', "surface = {a = 1}", "surface", id="surface-table"),
+    pytest.param('channel = "A"', 'channel = ["A"]', "channel", id="channel-list"),
+    pytest.param('channel = "A"', "channel = {x = 1}", "channel", id="channel-table"),
+    pytest.param('board = "L"', 'board = "L=x y"', "board name", id="board-name"),
+    pytest.param("y = 0.33", "y = 5e-324", "wheels.FL.y", id="wheel-on-centre-line"),
+    pytest.param("y = 0.33", "y = 1e-300", "wheels.FL.y", id="wheel-at-1e-300"),
+    pytest.param("wheel_radius = 0.20", "wheel_radius = 1e-300", "wheel_radius",
+                 id="tiny-wheel"),
+    pytest.param("max_linear_speed = 0.25", "max_linear_speed = 1e-300", "max_linear_speed",
+                 id="tiny-speed-limit"),
+    pytest.param("x = -0.29\ny = 0.33", "x = 0.28\ny = 0.33", "overlap", id="wheels-overlap"),
+]
+
+
+@pytest.mark.parametrize(("replace", "by", "needle"), BAD_ROBOTS)
+def test_a_bad_robot_file_is_one_line_exit_2_for_the_cli(
+        tmp_path: Path, replace: str, by: str, needle: str) -> None:
+    # Unhashable values gave a TypeError traceback; a degenerate track a robot that drove on
+    # with its odometry task dead.
+    robot = _robot(tmp_path, replace, by)
+    done = run_cli("drive", "--for", "0.1", "--robot", str(robot))
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, str(robot), needle)
+
+
+def _bad_inputs(tmp_path: Path) -> dict[str, Path]:
+    deep = tmp_path / "deep.toml"
+    deep.write_text(DEEP_TOML, encoding="ascii")
+    return {"deep": deep, "zero": Path("/dev/zero")}
+
+
+@pytest.mark.parametrize("kind", ["deep", "zero"])
+@pytest.mark.parametrize("how", ["robot", "config", "config-robot", "param-load",
+                                 "param-load-stdin"])
+def test_every_toml_the_cli_reads_is_bounded_and_one_line(
+        tmp_path: Path, kind: str, how: str) -> None:
+    # A deep file: RecursionError traceback. /dev/zero: read until memory ran out.
+    bad = _bad_inputs(tmp_path)[kind]
+    if how == "param-load-stdin" and kind == "zero":
+        done = run_cli("param", "load", "-", "--port", "emu://", input="\0" * (2 << 20))
+        needle = "stdin"
+    elif how == "param-load-stdin":
+        done = run_cli("param", "load", "-", "--port", "emu://", input=DEEP_TOML)
+        needle = "stdin"
+    else:
+        if how == "config-robot":
+            config = tmp_path / "fpgalink.toml"
+            config.write_text(f'robot = "{bad}"\n', encoding="utf-8")
+            args = ["--config", str(config), "drive", "--for", "0.1"]
+        else:
+            args = {"robot": ["drive", "--for", "0.1", "--robot", str(bad)],
+                    "config": ["--config", str(bad), "config"],
+                    "param-load": ["param", "load", str(bad), "--port", "emu://"]}[how]
+        done = run_cli(*args)
+        needle = str(bad)
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, needle,
+                          "nested too deeply" if kind == "deep" else "larger than 1 MiB")
+
+
+@pytest.mark.parametrize(("config", "env", "needle"), [
+    ('[ports]\n"R=x" = "emu://"\n', {}, "[ports] key 'R=x'"),
+    ('[ports]\nL = "emu://"\nR = "  "\n', {}, "empty port"),
+    ('board = "L x"\n', {}, "board 'L x'"),
+    ("", {"FPGALINK_PORT": "   "}, "FPGALINK_PORT is blank"),
+    ("", {"FPGALINK_CONFIG": "  "}, "FPGALINK_CONFIG is blank"),
+])
+def test_config_names_and_blanks_are_refused(tmp_path: Path, config: str,
+                                             env: dict[str, str], needle: str) -> None:
+    # A [ports] key was parsed again as NAME=URL ("R=x" became board R at "x=emu://"); a
+    # blank FPGALINK_PORT gave "0 are configured (, from …)".
+    path = tmp_path / "fpgalink.toml"
+    path.write_text(config, encoding="utf-8")
+    done = run_cli("config", cwd=tmp_path, env=cli_env(**env))
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, needle)
+
+
+def test_an_empty_config_name_is_an_error_not_no_config(tmp_path: Path) -> None:
+    (tmp_path / "fpgalink.toml").write_text('port = "emu://?seed=3"\n', encoding="utf-8")
+    for args in (["--config", "", "config"], ["config", "--config", ""]):
+        done = run_cli(*args, cwd=tmp_path)
+        assert done.returncode == 2, done.stderr
+        assert_one_line_error(done.stderr, "--config", "empty file name")
+
+
+# --- a truth endpoint that is not one -----------------------------------------------------------
+
+GOOD_POSE = b'{"t": 0.5, "x": 0.25, "y": -0.5, "theta": 0.1, "v": 0.0, "omega": 0.0}\n'
+#: What a foreign endpoint might send instead of a pose, each one line.
+NOT_POSES = [
+    b'{"a": 1}\n',
+    b'{"x": "1", "y": 0, "theta": 0, "v": 0, "omega": 0}\n',
+    b'{"x": null, "y": 0, "theta": 0, "v": 0, "omega": 0}\n',
+    b'{"x": true, "y": 0, "theta": 0, "v": 0, "omega": 0}\n',
+    b'{"x": 1' + b"0" * 400 + b', "y": 0, "theta": 0, "v": 0, "omega": 0}\n',
+    b"[1, 2, 3]\n",
+    b"[" * 100_000 + b"]" * 100_000 + b"\n",
+    b"not json at all\n",
+    b'{"x": ' + b"1" * 200_000 + b"}\n",
+]
+
+
+class FakeTruth:
+    """A TCP endpoint in a thread that sends ``lines`` then, if ``then_good``, a good pose
+    every 20 ms until the reader goes."""
+
+    def __init__(self, lines: list[bytes], then_good: bool) -> None:
+        import socket
+
+        self.lines, self.then_good = lines, then_good
+        self.server = socket.create_server(("127.0.0.1", 0))
+        self.url = f"socket://127.0.0.1:{self.server.getsockname()[1]}"
+        self.thread = threading.Thread(target=self._serve, daemon=True)
+        self.thread.start()
+
+    def _serve(self) -> None:
+        import time
+
+        connection, _ = self.server.accept()
+        with connection:
+            try:
+                for line in self.lines:
+                    connection.sendall(line)
+                while self.then_good:
+                    connection.sendall(GOOD_POSE)
+                    time.sleep(0.02)
+            except OSError:
+                return
+
+    def close(self) -> None:
+        self.server.close()
+
+
+@pytest.mark.parametrize("then_good", [True, False], ids=["then-poses", "never-a-pose"])
+def test_a_truth_endpoint_sending_what_is_not_a_pose_is_skipped_and_counted(
+        then_good: bool) -> None:
+    # JSON without numeric x/y/theta: KeyError/TypeError traceback, exit 1.
+    truth = FakeTruth(NOT_POSES, then_good)
+    try:
+        done = run_cli("drive", "--for", "0.6", "--truth", truth.url)
+    finally:
+        truth.close()
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+    assert f"skipped {len(NOT_POSES)} line(s) that were not a pose" in done.stderr
+    if then_good:
+        assert "truth:    x 0.250 m, y -0.500 m" in done.stdout
+    else:
+        assert "no pose received" in done.stderr and "truth:" not in done.stdout
+
+
+# --- a recording with a bad message -------------------------------------------------------------
+
+
+def test_plot_skips_and_counts_a_bad_message_and_plots_the_rest(tmp_path: Path) -> None:
+    # One message with a 401-digit integer (or nested too deeply) ended the reading there:
+    # "was not closed (no summary)", 50 of 199 points plotted, exit 0.
+    from mcap.writer import Writer
+
+    path = tmp_path / "run.mcap"
+    with path.open("wb") as stream:
+        writer = Writer(stream)
+        writer.start()
+        schema = writer.register_schema("t", "jsonschema", b"{}")
+        channel = writer.register_channel("/board/L/telemetry", "json", schema)
+        for i in range(199):
+            if i == 50:
+                data = b'{"a_speed": 1' + b"0" * 400 + b"}"
+            elif i == 120:
+                data = b'{"a_speed": ' + b"[" * 50_000 + b"]" * 50_000 + b"}"
+            else:
+                data = json.dumps({"a_speed": float(i)}).encode()
+            writer.add_message(channel, log_time=i * 1_000_000, data=data,
+                               publish_time=i * 1_000_000)
+        writer.finish()  # type: ignore[no-untyped-call]
+    out = tmp_path / "run.png"
+    done = run_cli("plot", str(path), "--fields", "a.speed", "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    assert "was not closed" not in done.stderr
+    assert "skipped 2 message(s)" in done.stderr
+    assert "plotted 197 points" in done.stderr

@@ -41,9 +41,9 @@ def test_plot_writes_a_png_of_the_default_fields(recording: Path, tmp_path: Path
 
 
 def test_series_are_in_time_order_from_zero(recording: Path) -> None:
-    series, complete = read_series(recording, None, ["a.speed", "t_us"])
-    assert complete
-    (speed, t_us) = series
+    reading = read_series(recording, None, ["a.speed", "t_us"])
+    assert reading.complete and reading.skipped == 0
+    (speed, t_us) = reading.series
     assert speed.topic == "/board/0/telemetry" and len(speed.t) > 100
     assert speed.t[0] == 0.0 and speed.t == sorted(speed.t)
     # Board time advances as the axis does (publish_time is the board's clock).

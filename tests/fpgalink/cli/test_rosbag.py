@@ -7,6 +7,7 @@ Reading needs the ros2 extra (rclpy): without it these tests skip, unless
 
 from __future__ import annotations
 
+import collections
 import importlib.util
 import itertools
 import math
@@ -20,6 +21,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
+from fpgalink.boardclock import MAX_SLEW
 from tests.fpgalink.cli.test_errors import assert_one_line_error
 from tests.support.cli import (
     CAN_MOUNT,
@@ -66,8 +68,10 @@ def stamp_ns(message: Any) -> int:
 @pytest.fixture(scope="module")
 def driven(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     bag = tmp_path_factory.mktemp("bags") / "drive"
-    done = run_driving("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--rosbag2",
-                   str(bag), timeout=60)
+    # On the ideal surface the emulated robot's body is the kinematic one, which odometry
+    # describes exactly: the checks below compare odom with the truth to the centimetre.
+    done = run_driving("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--surface",
+                       "ideal", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     return bag, done.stdout + done.stderr
 
@@ -94,8 +98,19 @@ def test_joint_states_are_every_set_of_samples_on_the_boards_clock(
     assert all(list(m.name) == ["FL", "BL", "FR", "BR"] for m in joints)
     stamps = [stamp_ns(m) for m in joints]
     gaps = [b - a for a, b in itertools.pairwise(stamps)]
-    # Board time: every gap is a whole number of the boards' 1 ms ticks, never 0.
-    assert all(g > 0 and g % 1_000_000 == 0 for g in gaps), sorted(set(gaps))[:5]
+    # Board time: every gap is a whole number k of the boards' 1 ms ticks, never 0, less
+    # what the clock's offset slews down by (at most 5 % of it: a first sample's delay, or
+    # the in-process emulator's catch-up burst at start, worked off) and plus what a drift
+    # correction adds (microseconds).
+    def whole_ticks(gap: int) -> bool:
+        k = max(1, math.ceil((gap - 50_000) / 1_000_000))
+        return (1 - MAX_SLEW) * k * 1_000_000 - 1 <= gap
+
+    assert all(g > 0 and whole_ticks(g) for g in gaps), [
+        (i, g) for i, g in enumerate(gaps) if not (g > 0 and whole_ticks(g))][:5]
+    # Most of them exactly so: the offset moves only while a smaller delay is found.
+    exact = sum(g % 1_000_000 == 0 for g in gaps)
+    assert exact > len(gaps) // 2, collections.Counter(gaps).most_common(5)
     # Driving forward and turning left: the right wheels faster, all forward.
     steady = joints[len(joints) // 2:]
     assert all(min(m.velocity) > 0 for m in steady)

@@ -32,8 +32,13 @@ def test_the_seed_robot_is_the_thesis_robot() -> None:
     fl, br = robot.wheel("FL"), robot.wheel("BR")
     assert (fl.board, fl.channel, fl.x, fl.y) == ("L", CHANNEL_A, 0.29, 0.33)  # REP-103
     assert (br.board, br.channel, br.x, br.y) == ("R", CHANNEL_B, -0.29, -0.33)
-    assert robot.surfaces == {"ideal": 1.0, "gravel": 1.65, "marble": 1.85}
+    assert robot.surfaces == {"ideal": 1.0, "gravel": 1.65, "marble": 1.85, "grass": 1.63}
     assert robot.chi == 1.65
+    # The body (§2.5.3: 60 kg on the scales, front 25 kg, right 31.1 kg).
+    assert robot.body.mass == 60.0
+    cx, cy, _ = robot.body.centre_of_mass
+    assert cx == pytest.approx(-0.29 + 0.58 * 25.0 / 60.0, abs=0.001)
+    assert cy == pytest.approx(0.33 - 0.66 * (13.2 + 17.9) / 60.0, abs=0.001)
     names = {p.full_name(c) for p, c, _ in robot.settings_for("L")}
     assert {"TsTimerPeriod", "IncSenzResA", "Kp_Wheel_PidB"} <= names
 
@@ -115,3 +120,15 @@ def test_angles_wrap_to_the_shortest_turn() -> None:
     assert wrap_angle(3 * math.pi / 2) == pytest.approx(-math.pi / 2)
     assert wrap_angle(-math.pi) == math.pi
     assert wrap_angle(7 * math.tau + 0.25) == pytest.approx(0.25)
+
+
+def test_the_body_table_is_validated() -> None:
+    base = SEED_ROBOT_TOML.replace("mass = 60.0 ", "mass = 8.0 ")
+    with pytest.raises(DescriptionError, match=r"body\.mass: the four wheels"):
+        parse_robot(base, "r.toml")
+    bad = SEED_ROBOT_TOML.replace("imu = [0.125, -0.03, 0.11]", "imu = [0.1, 0.2]")
+    with pytest.raises(DescriptionError, match=r"r.toml: body.imu: must be \[x, y, z\]"):
+        parse_robot(bad, "r.toml")
+    extra = SEED_ROBOT_TOML.replace("[body]\n", "[body]\ncolour = 1\n")
+    with pytest.raises(DescriptionError, match=r"body\.colour: unknown key"):
+        parse_robot(extra, "r.toml")

@@ -223,3 +223,24 @@ async def test_go_to_ends_with_the_supervision_event_that_stopped_it() -> None:
             await robot.go_to(5.0, 0.0, timeout=PATIENCE * 3)
         assert caught.value.event is not None
         assert caught.value.event.reason is StopReason.DEADMAN
+
+
+async def test_kinematics_set_at_run_time_drive_and_count_with_the_new_values() -> None:
+    async with emulated() as robot:
+        before = robot.kinematics
+        async with robot.enabled():
+            turn = robot.drive(0.0, 0.1).references
+            model = robot.set_kinematics(chi=before.chi * 2, track=0.5, wheel_radius=0.1)
+            assert (model.chi, model.track, model.wheel_radius) == (before.chi * 2, 0.5, 0.1)
+            again = robot.drive(0.0, 0.1).references
+        # A turn in place: wheel speed ∝ χ·B / r, so 2 × (0.5 / B) × (r / 0.1) of before.
+        ratio = 2 * 0.5 / before.track * before.wheel_radius / 0.1
+        assert again["L"][0] == pytest.approx(turn["L"][0] * ratio, rel=1e-9)
+        assert abs(again["L"][0]) < robot.description.max_wheel_speed  # not limited
+        # Odometry counts with them (its radius turns counts into metres, its χ·B turns).
+        assert robot.odometry.kinematics is model
+        assert robot.odometry.description.wheel_radius == 0.1
+        for bad in ({"chi": 0.5}, {"track": 0.0}, {"wheel_radius": math.nan}):
+            with pytest.raises(ValueError):
+                robot.set_kinematics(**bad)
+        assert robot.kinematics is model  # nothing changed
