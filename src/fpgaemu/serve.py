@@ -44,6 +44,7 @@ from fpgalink.protocol import PARAMETERS
 PARAMETERS_BY_ID = {p.id: p for p in PARAMETERS}
 
 __all__ = [
+    "FAR_END_LAG_EXTRA",
     "MAX_TRUTH_READERS",
     "RX_BACKLOG_BYTES",
     "TRUTH_EXTRA",
@@ -180,12 +181,38 @@ class PacedBoard:
         on its TX pin; ``None`` when nothing is scheduled at all."""
         return self._wake_at(self.board.next_deadline(), self.board.uartwrite.next_completion)
 
+    def pending_cycle(self) -> int | None:
+        """The earliest cycle at which the board has work to do that the host could see
+        (its next deadline, the end of the frame on its TX pin)."""
+        return _earliest(self.board.next_deadline(), self.board.uartwrite.next_completion)
+
+    def behind(self) -> float:
+        """How far this board's emulated time trails the clock it follows, in seconds: 0
+        while it keeps up (a board with nothing due is never behind), else the time since
+        its earliest work still undone came due — a process starved as a whole, the board
+        with it. An in-process host keeps its own time by this
+        (:data:`FAR_END_LAG_EXTRA`): what the board has not yet had the time to do is not
+        what it failed to do."""
+        pending = self.pending_cycle()
+        return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
+
     def _wake_at(self, *cycles: int | None) -> float | None:
         due = min((c for c in cycles if c is not None), default=None)
         self._due = due
         # One cycle past the deadline: a float round trip must not land a cycle short.
         return None if due is None else self._origin + (due + 1) / CLOCK_HZ
 
+
+def _earliest(*cycles: int | None) -> int | None:
+    return min((c for c in cycles if c is not None), default=None)
+
+
+#: ``transport.get_extra_info(FAR_END_LAG_EXTRA)`` on an in-process emulated board: a
+#: function giving how far, in seconds, the board's time trails the host's clock
+#: (:meth:`PacedBoard.behind`). fpgalink's link keeps its time that much behind, so a host
+#: process starved together with its board does not take the board's unmade samples for a
+#: board that stopped (the name is fpgalink's, which never imports the emulator).
+FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
 
 #: ``transport.get_extra_info(TRUTH_EXTRA)`` on an emulated robot's board: a function that
 #: returns the body's true state as a JSON-ready dict (fpgalink reads it without importing
@@ -205,6 +232,7 @@ class PacedRobot:
         self.lag = LagReport()
         self._origin = clock() - robot.now / CLOCK_HZ
         self._due: int | None = None
+        self._catching_up = False  #: the last advance stopped short of the clock
         self._sides: dict[str, RobotSide] = {}
         self._open: set[str] = set()
         self.on_release: Callable[[], None] | None = None
@@ -243,6 +271,7 @@ class PacedRobot:
         step_to = min(target, self.robot.now + int(CATCH_UP_SLICE_S * CLOCK_HZ))
         if step_to > self.robot.now:
             self.robot.run_until(step_to)
+        self._catching_up = self.robot.now < target
 
     def next_wake(self) -> float | None:
         """:meth:`PacedBoard.next_wake` over every board of the robot (the body moves
@@ -254,6 +283,20 @@ class PacedRobot:
                   if c is not None]
         self._due = min(cycles, default=None)
         return None if self._due is None else self._origin + (self._due + 1) / CLOCK_HZ
+
+    def pending_cycle(self) -> int | None:
+        """:meth:`PacedBoard.pending_cycle` over every board of the robot."""
+        return _earliest(*(c for board in self.robot.boards.values()
+                           for c in (board.next_deadline(), board.uartwrite.next_completion)))
+
+    def behind(self) -> float:
+        """:meth:`PacedBoard.behind` for the robot: while it catches up in slices its body
+        has work at every step (a physics body's is not free), so it trails by all the time
+        since its present; otherwise by how late its boards' earliest work is."""
+        if self._catching_up:
+            return max(0.0, self.clock() - self.time_of(self.robot.now))
+        pending = self.pending_cycle()
+        return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
 
     def truth_record(self) -> dict[str, Any]:
         """The body's true state, and each board as the emulator sees it (for tests and
@@ -295,6 +338,7 @@ class RobotSide(PacedBoard):
         super().__init__(robot.robot.boards[name], robot.clock, robot.lag)
         self.robot = robot
         self.name = name
+        self._handed_out_to = robot.robot.now  #: the robot's cycle when this side last read
 
     def target_cycle(self, now: float | None = None) -> int:
         return self.robot.target_cycle(now)
@@ -304,10 +348,22 @@ class RobotSide(PacedBoard):
 
     def advance(self, now: float | None = None) -> bytes:
         self.robot.advance(now)
+        self._handed_out_to = self.robot.robot.now
         return self.board.read_host_bytes()
 
     def next_wake(self) -> float | None:
         return self.robot.next_wake()
+
+    def pending_cycle(self) -> int | None:
+        return self.robot.pending_cycle()
+
+    def behind(self) -> float:
+        lag = self.robot.behind()
+        if self.robot.robot.now > self._handed_out_to:
+            # The robot ran on for the other board: what this board sent meanwhile waits for
+            # this side's turn, so its host's time stays where this side last handed out.
+            lag = max(lag, self.clock() - self.time_of(self._handed_out_to))
+        return lag
 
     def release(self) -> None:
         self.robot.release(self.name)
@@ -1147,9 +1203,13 @@ class EmulatedTransport(asyncio.Transport):
         """Move buffered bytes onto the RX line as far as it has room (all of them when the
         transport closes: they were written before it did)."""
         if self._buffer:
-            room = len(self._buffer) if everything else self.paced.rx_room()
+            # The host in this process lives on the board's time (FAR_END_LAG_EXTRA): what
+            # it writes enters the line at the board's present, even when the board trails
+            # the wall clock, so heartbeats reach the board as far apart as they were sent.
+            now = self.paced.clock() - self.paced.behind()
+            room = len(self._buffer) if everything else self.paced.rx_room(now)
             if room > 0:
-                self.paced.host_write(bytes(self._buffer[:room]))
+                self.paced.host_write(bytes(self._buffer[:room]), now)
                 del self._buffer[:room]
         self._flow()
 
@@ -1206,6 +1266,8 @@ class EmulatedTransport(asyncio.Transport):
     def get_extra_info(self, name: str, default: Any = None) -> Any:
         if name == "board":
             return self.paced.board
+        if name == FAR_END_LAG_EXTRA:
+            return self.paced.behind
         if name == TRUTH_EXTRA and isinstance(self.paced, RobotSide):
             return self.paced.robot.truth_record
         return default

@@ -343,6 +343,10 @@ class Connection:
         self.liveness = Liveness.UNKNOWN
         self.enabled = False  #: we send ``RE`` every heartbeat interval
         self.baud = baud  #: the line's bit rate (None: not known, no pacing)
+        #: ``now`` is the board's own time (an emulated board in the caller's process, whose
+        #: time trails the wall clock when the process is starved): a timer handled late on
+        #: it is not a caller that missed the board's samples, so nothing is put off for it.
+        self.boards_time = False
         self._byte_time = byte_time_s(baud) if baud is not None else 0.0
         self._decoder = FrameDecoder(framing)
         self._send_counter = SendCounter()
@@ -967,7 +971,7 @@ class Connection:
         window = self._stale_window()
         if window is not None and now >= window[0] + window[1]:
             since, limit = window
-            if now - (since + limit) > limit / 2:
+            if not self.boards_time and now - (since + limit) > limit / 2:
                 # This host's own timer came late: it was not running when the samples
                 # were due, and cannot tell a board that stopped from samples it had no
                 # chance to read (or, from an emulator starved with it, no chance to be

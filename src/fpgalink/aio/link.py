@@ -20,7 +20,12 @@ from enum import Enum
 from types import TracebackType
 from typing import Any, Generic, NamedTuple, TypeVar
 
-from fpgalink.aio.transport import READ_CHUNK, ProtocolFactory, open_transport
+from fpgalink.aio.transport import (
+    FAR_END_LAG_EXTRA,
+    READ_CHUNK,
+    ProtocolFactory,
+    open_transport,
+)
 from fpgalink.connection import Connection, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
 from fpgalink.events import (
@@ -63,6 +68,10 @@ __all__ = [
 ]
 
 T = TypeVar("T")
+
+#: A timer armed against a far end that has fallen behind comes no sooner than this: the far
+#: end runs on this loop and needs the turn to catch up.
+_MIN_REARM_S = 0.0005
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
@@ -220,7 +229,9 @@ class Link:
         self._protocol: _PortProtocol | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
-        self._timer_at: float | None = None
+        self._timer_at: float | None = None  #: on the link's time (:meth:`_now`)
+        self._far_end_lag: Callable[[], float] | None = None
+        self._last_now = -math.inf
         self._futures: dict[int, asyncio.Future[int | float]] = {}
         self._telemetry_subs: set[Subscription[Telemetry]] = set()
         self._stamped_subs: set[Subscription[Stamped]] = set()
@@ -243,13 +254,19 @@ class Link:
 
     def _attach(self, transport: asyncio.BaseTransport) -> None:
         transport.set_protocol(self._protocol_factory())
-        self._transport = transport
+        self._set_transport(transport)
 
     async def _connect(self) -> None:
         if self._reopen is None:
             raise PortError(f"{self.name}: no transport and nothing to open one with")
         transport, _ = await self._reopen(self._protocol_factory)
+        self._set_transport(transport)
+
+    def _set_transport(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
+        lag = transport.get_extra_info(FAR_END_LAG_EXTRA)
+        self._far_end_lag = lag if callable(lag) else None
+        self.connection.boards_time = self._far_end_lag is not None
 
     async def open(self) -> Link:
         """Connect (unless a transport was given) and start expecting the board."""
@@ -524,8 +541,17 @@ class Link:
     # --- plumbing -------------------------------------------------------------------------
 
     def _now(self) -> float:
+        """The link's time: the loop's clock, less how far an in-process far end trails it
+        (:data:`~fpgalink.aio.transport.FAR_END_LAG_EXTRA`); never going back."""
         assert self._loop is not None
-        return self._loop.time()
+        now = self._loop.time()
+        lag = self._far_end_lag
+        if lag is not None:
+            now -= lag()
+        if now < self._last_now:
+            return self._last_now
+        self._last_now = now
+        return now
 
     def _ensure_open(self) -> None:
         if self.state is LinkState.CLOSED:
@@ -632,7 +658,14 @@ class Link:
         if self._timer is not None:
             self._timer.cancel()
         self._timer_at = deadline
-        self._timer = self._loop.call_at(deadline, self._on_timer)
+        # The deadline is on the link's time; the loop's clock is ahead of it by the far
+        # end's lag. When the lag grows meanwhile the timer comes early, finds nothing due
+        # and is armed again.
+        at = deadline
+        if self._far_end_lag is not None:
+            now = self._loop.time()
+            at = max(deadline + now - self._now(), now + _MIN_REARM_S)
+        self._timer = self._loop.call_at(at, self._on_timer)
 
     def _on_timer(self) -> None:
         self._timer = None

@@ -29,6 +29,7 @@ from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = [
     "ENTRY_POINT_GROUP",
+    "FAR_END_LAG_EXTRA",
     "Opener",
     "ProtocolFactory",
     "describe_url",
@@ -38,6 +39,13 @@ __all__ = [
 ]
 
 ENTRY_POINT_GROUP = "fpgalink.transports"
+
+#: An opener whose far end runs in this process (an emulated board) offers, under this
+#: ``get_extra_info`` name, a function giving how many seconds that far end's time trails
+#: the loop's clock. The link keeps its time that much behind: a process starved as a whole
+#: starves its board too, and the samples the board had no time to make are not a board
+#: that stopped, nor is a heartbeat the board had no time to miss a lapse.
+FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
 
 ProtocolFactory = Callable[[], asyncio.Protocol]
 #: ``await opener(url, baud, protocol_factory)`` → the transport and its protocol.

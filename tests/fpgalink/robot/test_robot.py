@@ -7,6 +7,7 @@ cycle-exact, so the checks hold however slow the machine is."""
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 from typing import Any
@@ -15,6 +16,8 @@ import pytest
 
 from fpgaemu.board import Board
 from fpgaemu.firmware import Firmware
+from fpgaemu.robot import EmulatedRobot
+from fpgaemu.serve import FAR_END_LAG_EXTRA
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
 from fpgalink.aio.link import LinkEvent, LinkEventKind
@@ -244,3 +247,45 @@ async def test_kinematics_set_at_run_time_drive_and_count_with_the_new_values() 
             with pytest.raises(ValueError):
                 robot.set_kinematics(**bad)
         assert robot.kinematics is model  # nothing changed
+
+
+async def test_an_emulator_slower_than_real_time_is_not_taken_for_a_failing_board(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # A loaded machine: once started, the in-process robot runs at 2/3 of real time, each
+    # 50 ms slice of it taking 75 ms, its telemetry arriving in bursts 75 ms apart. The host
+    # lives on the boards' time (FAR_END_LAG_EXTRA): no telemetry "stopped", no watchdog
+    # lapse, no stop — while L's cable, cut at 2.5 s of its time, is still noticed as its
+    # telemetry stopping.
+    original = EmulatedRobot.run_until
+    slowed = [False]
+
+    def slow(self: EmulatedRobot, cycle: int) -> None:
+        start = self.now
+        original(self, cycle)
+        if slowed[0]:
+            time.sleep(1.5 * (self.now - start) / CLOCK_HZ)
+
+    monkeypatch.setattr(EmulatedRobot, "run_until", slow)
+    cut = int(2.5 * CLOCK_HZ)
+    async with emulated("surface=ideal&fault=L:disconnect=2.5:5") as robot:
+        assert board(robot, "L").now < cut - CLOCK_HZ  # started well before the cut
+        lagging = robot.links["L"].get_extra_info(FAR_END_LAG_EXTRA)
+        assert callable(lagging)
+        logs = {n: enable_log(robot, n) for n in ("L", "R")}
+        events = robot.events()
+        worst_lag = 0.0
+        slowed[0] = True
+        async with robot.enabled():
+            robot.drive(0.05, 0.0)
+            async for event in events:
+                worst_lag = max(worst_lag, lagging())
+                if event.state is not State.ENABLED:
+                    break
+        # The first stop is the cut, seen as L's telemetry stopping, after the cut.
+        assert event.reason is StopReason.TELEMETRY_STALE and event.board == "L", event
+        assert board(robot, "L").now >= cut
+        # Before it both boards were enabled all along: no lapse of either watchdog.
+        for name in ("L", "R"):
+            assert [c.cause for c in logs[name] if not c.enabled
+                    and c.cycle < cut] == [], logs[name]
+        assert worst_lag > 0.1  # it did fall behind the wall clock
