@@ -62,8 +62,11 @@ __all__ = [
     "serve_loop",
 ]
 
-#: Longest slice of emulated time run in one go while catching up, so I/O stays served.
-CATCH_UP_SLICE_S = 0.05
+#: Longest slice of emulated time run in one go while catching up, so I/O stays served and
+#: what the board sent in it reaches the host no later than a real board's would by this much:
+#: well under the 50 periods of 1 ms after which a host takes telemetry for stopped (at 50 ms
+#: a serve that fell behind handed its telemetry out in bursts a stale limit apart).
+CATCH_UP_SLICE_S = 0.01
 #: A deadline met later than this counts as lag.
 LAG_THRESHOLD_S = 0.005
 #: The longest the serving loop sleeps without a deadline (a safety net, not a tick).
@@ -308,9 +311,10 @@ class PacedRobot:
 
 def _board_record(board: Board) -> dict[str, Any]:
     """A board's state for the truth stream: the last tick (as its TM stamps it), the
-    speeds and encoder counts the firmware sampled then (what that TM carries), the
-    PWM applied now (global_enable gates it in logic: 0 from the cycle enable fell), the
-    enable, when the last RE arrived and when and why enable last fell, the parameters."""
+    speeds and encoder counts the firmware sampled then (what that TM carries), the wheels'
+    references now, the PWM applied now (global_enable gates it in logic: 0 from the cycle
+    enable fell), the enable, when the last RE arrived and when and why enable last fell,
+    the parameters."""
     firmware: Any = board.peripherals["firmware"]
     enable_cycle = board.uartcommand.last_enable_cycle
     disable = board.uartcommand.last_disable
@@ -319,6 +323,9 @@ def _board_record(board: Board) -> dict[str, Any]:
         "speed_a": firmware.channels[1].speed, "speed_b": firmware.channels[2].speed,
         "position_a": firmware.channels[1].position,
         "position_b": firmware.channels[2].position,
+        # deg/s (N·m under current control): what the firmware's loops are asked now
+        "reference_a": firmware.channels[1].reference,
+        "reference_b": firmware.channels[2].reference,
         "pwm_a": board.channels[1].pwm.applied_duty,
         "pwm_b": board.channels[2].pwm.applied_duty,
         "enabled": board.global_enable,

@@ -679,13 +679,18 @@ WITHOUT_TF2_MSGS = ("import runpy, sys; sys.modules['tf2_msgs'] = None; "
                     "runpy.run_module('fpgalink.ros2', run_name='__main__')")
 
 
-def _turn_difference(peer: Peer) -> float:
+def _turn_difference(peer: Peer, truth: Truth) -> float:
     """Turning in place at 0.1 rad/s on cmd_vel for 1.5 s: the median over its last 0.5 s
-    of the right side's measured wheel speed minus the left's, rad/s."""
-    start = time.monotonic()
+    of the right side's wheel reference minus the left's as the boards hold them (deg/s, on
+    the emulator's truth: what the node asked, whatever the wheels made of it)."""
+    start = len(truth.lines)
     peer.spin_for(1.5, lambda: peer.cmd.publish(_twist(0.0, 0.1)))
-    settled = [v for _, v, arrived in peer.joints if arrived > start + 1.0]
-    differences = sorted((v[2] + v[3] - v[0] - v[1]) / 2 for v in settled)
+    lines = truth.lines[start:]
+    settled = [line["boards"] for line in lines[len(lines) * 2 // 3:]
+               if all(b["enabled"] for b in line["boards"].values())]
+    differences = sorted((b["R"]["reference_a"] + b["R"]["reference_b"]
+                          - b["L"]["reference_a"] - b["L"]["reference_b"]) / 2
+                         for b in settled)
     return differences[len(differences) // 2] if differences else math.nan
 
 
@@ -800,11 +805,11 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
                deadman_lines=peer.logged("deadman"))
 
         # Kinematics as parameters: χ doubled at run time doubles the sides' wheel speed
-        # difference for the same turn (joint_states: the boards' measured speeds).
+        # difference asked for the same turn (the boards' references, on the truth).
         chi = peer.get_double("wheel_separation_multiplier")
-        turn_before = _turn_difference(peer)
+        turn_before = _turn_difference(peer, truth)
         chi_ok, chi_reason = peer.set_double("wheel_separation_multiplier", 2 * chi)
-        turn_after = _turn_difference(peer)
+        turn_after = _turn_difference(peer, truth)
         peer.spin_until(lambda: abs(truth.latest["omega"]) < 1e-3, "at rest after turning")
         report("kinematics", chi=chi, separation=peer.get_double("wheel_separation"),
                radius=peer.get_double("wheel_radius"), chi_ok=chi_ok, chi_reason=chi_reason,

@@ -421,10 +421,10 @@ def test_kinematics_are_ros_parameters_set_at_start_and_at_run_time(
     assert (facts["separation"], facts["radius"]) == (0.66, 0.2)
     assert facts["chi"] > 1.0
     assert facts["chi_ok"] and facts["chi_reason"] == "", facts
-    # χ doubled: the same turn asks twice the wheel speed difference (measured speeds, so
-    # within what the wheels' PI loops let through).
-    assert facts["before"] > 0.1
-    assert facts["after"] / facts["before"] == pytest.approx(2.0, rel=0.15), facts
+    # χ doubled: the same turn asks twice the wheel speed difference (the references the
+    # boards hold, deg/s: 0.1 rad/s · χ·B/2 / r ≈ 15.6 deg/s before).
+    assert facts["before"] > 5.0
+    assert facts["after"] / facts["before"] == pytest.approx(2.0, rel=0.01), facts
     # -p wheel_separation:=0.7 at start: taken, not ignored.
     assert scenarios["ddc"].check("stamped")["separation"] == 0.7
 
@@ -433,7 +433,7 @@ def test_the_emulated_bodys_imu_is_published_on_imu_data(
         scenarios: dict[str, Scenario]) -> None:
     rest = scenarios["imu"].check("imu_rest")
     assert rest["frame_id"] == "ImuALink"
-    assert rest["rate_hz"] > 25  # 50 Hz nominal, on a loaded machine fewer
+    assert rest["rate_hz"] > 10  # 50 Hz nominal, on a loaded machine fewer
     assert rest["orientation_covariance"] == -1.0  # a 6-axis IMU gives no orientation
     assert rest["gyro_variance"] > 0 and rest["accel_variance"] > 0
     assert math.isclose(rest["az"], 9.81, abs_tol=0.3) and abs(rest["ax"]) < 0.3

@@ -684,8 +684,15 @@ class RosBridge:
         (each the mean since the previous reading, with the emulated IMU's noise and bias,
         their variances on the diagonals); no orientation (covariance[0] = −1), as a
         6-axis IMU gives none."""
+        period = 1.0 / IMU_RATE_HZ
+        due = self.loop.time()
         while True:
-            await asyncio.sleep(1.0 / IMU_RATE_HZ)
+            # On a schedule, not a sleep after each message (which drifts by the time each
+            # takes); a schedule missed by a whole period is taken up from now, not in a burst.
+            due += period
+            if due < self.loop.time() - period:
+                due = self.loop.time()
+            await asyncio.sleep(max(0.0, due - self.loop.time()))
             truth = self.robot.truth()
             reading = truth.get("imu") if truth is not None else None
             if reading is None or self.imu_pub is None:
