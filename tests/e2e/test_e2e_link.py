@@ -78,7 +78,9 @@ async def test_every_parameter_then_1khz_telemetry(board_url: str) -> None:
         assert link.connection.wire_crc.on
         await stream_at_1ms_and_check(link, lossless=not board_url.startswith("/dev/"))
         assert link.stats.crc_failures == 0
-        assert link.stats.retries == 0
+        # A clean line loses nothing: a request resent (a loaded machine's serve answering
+        # later than the request timeout) found its answer, nothing malformed on the way.
+        assert link.stats.malformed_by_reason == {}
         assert link.stats.reconnects == 0 and link.stats.port_losses == 0
 
 

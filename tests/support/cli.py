@@ -126,7 +126,7 @@ def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = N
 #: the in-process emulated robot was not scheduled for longer than a fault's threshold (a
 #: silence long enough is also taken for a restart).
 STALL_FAULTS = ("telemetry stopped", "watchdog", "disabled itself", "not answering",
-                "after a silence")
+                "after a silence", "not renewed")
 #: Options whose file or directory a run writes, removed before it is run again.
 _OUTPUTS = ("--record", "--rosbag2", "--plot", "-o", "--output")
 

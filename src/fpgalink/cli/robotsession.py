@@ -296,6 +296,7 @@ class RobotRun:
         self._sink: Any = None
         self._started = 0.0
         self._bag_truth_at = -math.inf  #: host time /truth was last written to the bag
+        self._bag_log_ns = 0  #: the latest log time written to the bag
         self.robot: Robot | None = None
         self.last_truth: dict[str, Any] | None = None
 
@@ -444,7 +445,12 @@ class RobotRun:
             complete = sets.add(name, sample, received)
             if complete is None:
                 continue
-            now_ns = round(received * 1e9) + to_epoch_ns  # when the host received it
+            # When the host received it, never before what the bag already holds: each
+            # board's link keeps its own time (an in-process emulated board's trails the
+            # wall clock by its own lag), and a bag read in log-time order must give the
+            # messages in the order they were written.
+            now_ns = max(round(received * 1e9) + to_epoch_ns, self._bag_log_ns)
+            self._bag_log_ns = now_ns
             stamp_ns = clocks[boards[0]].ns(complete[boards[0]].t_us, now_ns)
             for board in boards[1:]:
                 clocks[board].ns(complete[board].t_us, now_ns)

