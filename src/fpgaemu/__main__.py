@@ -398,6 +398,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 if name in links:
                     _make_link(links[name], pty.path)
                     made.append(links[name])
+                    pty.link = links[name]
                     where = f"{links[name]} -> {pty.path}"
                 ready.append(f"ready {name} {where}")
             else:
@@ -473,6 +474,10 @@ def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
     if paced.lag.lag_events:
         notes.append(f"fell behind real time {paced.lag.lag_events} times, worst "
                      f"{paced.lag.worst_lag_s * 1000:.1f} ms (caught up, no bytes lost)")
+    if endpoint.unplugs:
+        lost = (f": {endpoint.unplugged_tx:,} TX bytes sent while unplugged, gone"
+                if isinstance(endpoint, PtyEndpoint) and endpoint.unplugged_tx else "")
+        notes.append(f"unplugged {endpoint.unplugs} time(s) (--fault unplug){lost}")
     if isinstance(endpoint, TcpEndpoint):
         if endpoint.turned_away:
             notes.append(f"{endpoint.turned_away} host(s) told busy")

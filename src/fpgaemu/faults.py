@@ -43,11 +43,13 @@ START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
   restart=T_S (or restart@T_S)     the board power-cycles at T_S: registers, RAM, counter,
                                    clock and parameters back to power-up; the wheels go on
   tm-loss=START_S:DURATION_S       the board's TM frames are lost on the way to the host
-                                   (E, PA, PN pass): a telemetry-only loss"""
+                                   (E, PA, PN pass): a telemetry-only loss
+  unplug=START_S:DURATION_S        fpgaemu serve: the board's pty or TCP connection goes
+                                   away (the host's port is lost) and comes back"""
 
 FAULT_KEYS = ("rx-ber", "tx-ber", "rx-drop", "tx-drop", "rx-dup", "tx-dup", "rx-noise",
               "tx-noise", "rx-stuck", "tx-stuck", "stuck", "rx-cut", "tx-cut", "disconnect",
-              "stall", "babble", "drop-frames", "wheel-stuck", "restart", "tm-loss")
+              "stall", "babble", "drop-frames", "wheel-stuck", "restart", "tm-loss", "unplug")
 
 #: The babbler refills the line this often; short enough that the line never goes idle
 #: between refills for longer than a few bytes, long enough to cost one call per refill.
@@ -71,6 +73,8 @@ class FaultSet:
     restarts: list[int] = field(default_factory=list)
     #: ``(start, end)`` cycle windows in which the board's TM frames are lost
     tm_loss: list[tuple[int, int]] = field(default_factory=list)
+    #: ``(start, end)`` cycle windows in which serve's connection to the host is gone
+    unplugs: list[tuple[int, int]] = field(default_factory=list)
 
     def line(self, which: str) -> LineFaults | None:
         """The line faults for ``"rx"`` or ``"tx"``, or ``None`` when that line is clean
@@ -82,7 +86,8 @@ class FaultSet:
         """The faults that attach to a board rather than to one line."""
         return BoardFaults(drop_frames=dict(self.drop_frames), babble=list(self.babble),
                            stuck_wheels=list(self.stuck_wheels),
-                           restarts=sorted(self.restarts), tm_loss=list(self.tm_loss))
+                           restarts=sorted(self.restarts), tm_loss=list(self.tm_loss),
+                           unplugs=sorted(self.unplugs))
 
 
 def parse_faults(specs: list[str]) -> FaultSet:
@@ -109,6 +114,9 @@ class BoardFaults:
     restarts: list[int] = field(default_factory=list)
     tm_loss: list[tuple[int, int]] = field(default_factory=list)
     tm_lost: int = 0  #: TM frames the tm-loss windows lost
+    #: ``(start, end)`` cycles: serve's endpoint drops the host's connection (a USB-UART
+    #: pulled out, a TCP link gone) and offers it again; the board itself runs on
+    unplugs: list[tuple[int, int]] = field(default_factory=list)
     _attached: bool = False
 
     def attach(self, board: Board) -> None:
@@ -209,6 +217,8 @@ def parse_fault_spec(spec: str, into: FaultSet) -> None:
             into.restarts.append(seconds_to_cycles(restart_s))
         elif key == "tm-loss":
             into.tm_loss.append(_window(value))
+        elif key == "unplug":
+            into.unplugs.append(_window(value))
         elif key == "wheel-stuck":
             channel, _, when = value.partition(":")
             if channel not in ("A", "B"):

@@ -33,6 +33,7 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from fpgaemu.board import Board
@@ -204,6 +205,18 @@ class PacedBoard:
         self._due = due
         # One cycle past the deadline: a float round trip must not land a cycle short.
         return None if due is None else self._origin + (due + 1) / CLOCK_HZ
+
+
+def _schedule_unplugs(paced: PacedBoard, unplug: Callable[[], None],
+                      replug: Callable[[], None]) -> None:
+    """Call ``unplug`` and ``replug`` at the board's ``unplug=`` fault windows (emulated
+    time from when it started, on the clock it is paced to)."""
+    faults = paced.board.peripherals.get("faults")
+    loop = asyncio.get_running_loop()
+    offset = loop.time() - paced.clock()  # the pacing clock onto the loop's
+    for start, end in getattr(faults, "unplugs", ()):
+        loop.call_at(paced.time_of(start) + offset, unplug)
+        loop.call_at(paced.time_of(end) + offset, replug)
 
 
 def _earliest(*cycles: int | None) -> int | None:
@@ -736,10 +749,7 @@ class PtyEndpoint:
 
     def __init__(self, paced: PacedBoard) -> None:
         self.paced = paced
-        self._master, self._slave = os.openpty()
-        tty.setraw(self._slave)
-        os.set_blocking(self._master, False)
-        self.path = os.ttyname(self._slave)
+        self._open_pty()
         self.flow = _RxFlow(paced, self._pause, self._resume)
         self.pacer = _Pacer(self._tick, self.flow.next_wake)
         self._pending_out = bytearray()
@@ -747,16 +757,72 @@ class PtyEndpoint:
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         #: TX bytes lost because nobody read the pty for longer than the backlog holds
         self.dropped_tx = 0
+        #: a stable symlink to the pty (``--link``), pointed at the new pty on a replug
+        self.link: Path | None = None
+        self.unplugged = False
+        self.unplugs = 0
+        #: TX bytes the board sent while unplugged (gone, as on a pulled cable)
+        self.unplugged_tx = 0
+
+    def _open_pty(self) -> None:
+        self._master, self._slave = os.openpty()
+        tty.setraw(self._slave)
+        os.set_blocking(self._master, False)
+        self.path = os.ttyname(self._slave)
 
     def start(self) -> None:
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         self.pacer.start()
+        _schedule_unplugs(self.paced, self._unplug, self._replug)
+
+    def _unplug(self) -> None:
+        """The USB-UART is pulled out: the pty goes (the host's next read fails), what the
+        host wrote that the line had not begun is gone, and the board runs on unheard."""
+        if self.unplugged:
+            return
+        self.unplugged = True
+        self.unplugs += 1
+        loop = asyncio.get_running_loop()
+        with contextlib.suppress(Exception):
+            loop.remove_reader(self._master)
+        if self._writing:
+            with contextlib.suppress(Exception):
+                loop.remove_writer(self._master)
+            self._writing = False
+        self.unplugged_tx += len(self._pending_out)
+        self._pending_out.clear()
+        for fd in (self._master, self._slave):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+        self.paced.host_gone()
+        self.flow.reset()
+        say(f"unplugged {self.path}")
+
+    def _replug(self) -> None:
+        """Plugged in again: a new pty (a new name, as a USB-UART may come back as another
+        ttyUSB), the ``--link`` symlink pointed at it."""
+        if not self.unplugged:
+            return
+        self._open_pty()
+        self.unplugged = False
+        if self.link is not None:
+            with contextlib.suppress(OSError):
+                temporary = self.link.with_name(self.link.name + ".new")
+                with contextlib.suppress(FileNotFoundError):
+                    temporary.unlink()
+                temporary.symlink_to(self.path)
+                temporary.replace(self.link)  # atomic: the link never goes missing
+        asyncio.get_running_loop().add_reader(self._master, self._readable)
+        shown = self.path if self.link is None else f"{self.link} -> {self.path}"
+        say(f"plugged in again: {shown}")
 
     def _pause(self) -> None:
-        asyncio.get_running_loop().remove_reader(self._master)
+        if not self.unplugged:
+            asyncio.get_running_loop().remove_reader(self._master)
 
     def _resume(self) -> None:
-        asyncio.get_running_loop().add_reader(self._master, self._readable)
+        if not self.unplugged:
+            asyncio.get_running_loop().add_reader(self._master, self._readable)
 
     def _readable(self) -> None:
         room = self.paced.rx_room()
@@ -776,11 +842,16 @@ class PtyEndpoint:
     def _tick(self) -> None:
         out = self.paced.advance()
         self.flow.check()
+        if self.unplugged:
+            self.unplugged_tx += len(out)
+            return
         if out:
             self._pending_out += out
         self._flush()
 
     def _flush(self) -> None:
+        if self.unplugged:
+            return
         if self._pending_out:
             try:
                 written = os.write(self._master, self._pending_out)
@@ -804,6 +875,8 @@ class PtyEndpoint:
 
     async def close(self) -> None:
         await self.pacer.stop()
+        if self.unplugged:
+            return
         if self._writing:
             with contextlib.suppress(Exception):
                 asyncio.get_running_loop().remove_writer(self._master)
@@ -874,6 +947,9 @@ class TcpEndpoint:
         self._closing = False
         self._tasks: set[asyncio.Task[None]] = set()
         self._idle: asyncio.TimerHandle | None = None
+        self.unplugged = False
+        self.unplugs = 0
+        self._port_when_unplugged = port
         self.connections = 0
         self.turned_away = 0  #: hosts told "busy"
         self.idle_closed = 0  #: hosts disconnected for sending nothing
@@ -898,6 +974,36 @@ class TcpEndpoint:
         self._free.set()
         self.listener.open()
         self.pacer.start()
+        _schedule_unplugs(self.paced, self._unplug, self._replug)
+
+    def _unplug(self) -> None:
+        """The link goes: the host's connection is closed and the port stops listening, so
+        a host trying to reconnect is refused, as opening a pulled-out device fails, until
+        it comes back on the same port."""
+        if not self.unplugged:
+            self.unplugged = True
+            self.unplugs += 1
+            self._port_when_unplugged = self.listener.port
+            self.listener.close()
+            self.unplug()
+            say(f"unplugged {self.url}")
+
+    def _replug(self) -> None:
+        if not self.unplugged:
+            return
+        urls = self.listener.urls
+        self.listener.requested_port = self._port_when_unplugged
+        self.listener.urls = []
+        try:
+            self.listener.open()
+        except OSError as exc:
+            say(f"cannot listen on {urls[0] if urls else self.host} again: "
+                f"{exc.strerror or exc}; the board stays unplugged")
+            return
+        finally:
+            self.listener.urls = urls
+        self.unplugged = False
+        say(f"plugged in again: {self.url}")
 
     def _spawn(self, coro: Any) -> None:
         task = asyncio.ensure_future(coro)
@@ -905,7 +1011,7 @@ class TcpEndpoint:
         task.add_done_callback(self._tasks.discard)
 
     def _accepted(self, connection: socket.socket) -> None:
-        if self._closing:
+        if self._closing or self.unplugged:
             connection.close()
         elif not self._busy:
             self._take(connection)
@@ -1287,6 +1393,9 @@ async def open_emulated_transport(
     point: a board built from the URL's options, paced to the wall clock in this process.
     ``emu://robot/L`` and ``emu://robot/R`` (same options) are the two boards of one
     emulated robot. ``ValueError`` for an option the emulator does not understand."""
+    if "unplug=" in url:
+        raise ValueError("unplug= is a fault of fpgaemu serve's pty or TCP link: a board in "
+                         "this process has no port to pull out")
     robot = robot_from_url(url)
     if robot is not None:
         key, side_name, options = robot

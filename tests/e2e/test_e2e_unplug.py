@@ -1,0 +1,71 @@
+"""``fpgaemu serve --fault unplug=START_S:DURATION_S``: the board's pty or TCP link goes away
+mid-stream, as a USB-UART pulled out does, and comes back (the pty as a new one behind the
+``--link`` symlink). The library's link sees its port lost, reconnects by itself, and judges
+the board by what it sends: it ran on meanwhile, so it is back, not restarted; telemetry
+flows again and nothing the board sent before is counted twice. What the board sent while
+unplugged is gone and counted lost."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from fpgaemu.faults import parse_faults
+from fpgaemu.timeline import CLOCK_HZ
+from fpgalink import PortError
+from fpgalink.aio import LinkEventKind, open_link
+from tests.support.served import PATIENCE, next_event, serve
+
+pytestmark = pytest.mark.timeout(90)
+
+
+@pytest.mark.parametrize("kind", ["tcp", "pty"])
+async def test_an_unplugged_link_is_lost_found_again_and_the_board_is_back(
+        kind: str, tmp_path: Path) -> None:
+    link_path = tmp_path / "fpga0"
+    where = ["--tcp", "127.0.0.1:0"] if kind == "tcp" else ["--pty", "--link", str(link_path)]
+    # Unplugged from 1.5 s to 2.0 s of the board's time: well after the host is streaming.
+    async with serve(*where, "--fault", "unplug=1.5:0.5") as server:
+        url = server.url if kind == "tcp" else str(link_path)
+        async with open_link(url, reconnect_backoff=(0.01, 0.05)) as link:
+            events = link.watch()
+            samples = link.telemetry(maxsize=8192)
+            assert await link.set_param("TsTimerPeriod", 1) == 1
+            assert await link.set_param("GetDataPeriodical", 1) == 1
+            await next_event(events, {LinkEventKind.PORT_LOST}, 3 * PATIENCE)
+            lost_at = link.stats.lost
+            await next_event(events, {LinkEventKind.PORT_RESTORED}, 3 * PATIENCE)
+            # Heard again: the counter went on from where it was, so the board is back
+            # (its configuration as it was), not restarted.
+            back = await next_event(events, {LinkEventKind.BOARD_BACK,
+                                             LinkEventKind.BOARD_RESTARTED}, 3 * PATIENCE)
+            assert back.kind is LinkEventKind.BOARD_BACK, back
+            # Telemetry flows again on the new connection, with what was sent while
+            # unplugged counted lost, never delivered twice.
+            before = samples.dropped
+            while len(samples):
+                await samples.__anext__()
+            fresh = [await samples.__anext__() for _ in range(50)]
+            counters = [s.counter for s in fresh]
+            assert len(set(counters)) == len(counters)
+            assert link.stats.lost > lost_at  # the unplugged half second, counted
+            assert samples.dropped == before
+            assert link.stats.port_losses == 1 and link.stats.reconnects == 1
+        await server.stop()
+        report = await server.stderr_text()
+    assert "unplugged 1 time(s) (--fault unplug)" in report, report
+    if kind == "pty":
+        assert "plugged in again: " + str(link_path) in report, report
+
+
+def test_unplug_parses_as_a_window_and_is_refused_for_a_board_in_this_process() -> None:
+    assert parse_faults(["unplug=1.5:0.5"]).unplugs == [(int(1.5 * CLOCK_HZ), 2 * CLOCK_HZ)]
+    with pytest.raises(ValueError, match="bad fault spec"):
+        parse_faults(["unplug=1.5"])
+
+
+async def test_an_in_process_board_has_no_port_to_pull_out() -> None:
+    with pytest.raises(PortError, match="no port to pull out"):
+        async with open_link("emu://?fault=unplug=1:1"):
+            pass
