@@ -134,6 +134,7 @@ async def _frozen_host(freeze_s: float) -> dict[str, float]:
     """``fpgalink-cli drive`` against a served robot, frozen with SIGSTOP for ``freeze_s``."""
     server = await asyncio.create_subprocess_exec(
         sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty", "--boards", "2",
+        "--body", "kinematic", "--surface", "ideal",
         stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
     assert server.stdout is not None
@@ -150,7 +151,14 @@ async def _frozen_host(freeze_s: float) -> dict[str, float]:
             "drive", "--v", "0.1", "--for", "60", env=env, stdin=asyncio.subprocess.DEVNULL,
             stdout=asyncio.subprocess.DEVNULL, stderr=asyncio.subprocess.PIPE)
         latest: dict[str, Any] = {}
+        give_up = time.monotonic() + PATIENCE_S
         while not latest or latest["v"] < 0.05:
+            if time.monotonic() > give_up or cli.returncode is not None:
+                if cli.returncode is None:
+                    cli.kill()
+                _, err = await cli.communicate()
+                raise RuntimeError(f"the CLI did not drive within {PATIENCE_S:g} s: "
+                                   f"{err.decode(errors='replace').strip()}")
             latest = json.loads(await asyncio.wait_for(reader.readline(), PATIENCE_S))
         cli.send_signal(signal.SIGSTOP)
         frozen_at = latest["t"]

@@ -72,6 +72,8 @@ T = TypeVar("T")
 #: A timer armed against a far end that has fallen behind comes no sooner than this: the far
 #: end runs on this loop and needs the turn to catch up.
 _MIN_REARM_S = 0.0005
+#: While the far end trails, a timer is looked at again within this, its lag measured anew.
+_LAGGING_RECHECK_S = 0.002
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
@@ -664,7 +666,12 @@ class Link:
         at = deadline
         if self._far_end_lag is not None:
             now = self._loop.time()
-            at = max(deadline + now - self._now(), now + _MIN_REARM_S)
+            lag = now - self._now()
+            at = max(deadline + lag, now + _MIN_REARM_S)
+            if lag > _MIN_REARM_S:
+                # The lag shrinks as the far end catches up (the deadline then comes sooner
+                # on the loop's clock than it looked): look again soon rather than late.
+                at = min(at, now + _LAGGING_RECHECK_S)
         self._timer = self._loop.call_at(at, self._on_timer)
 
     def _on_timer(self) -> None:

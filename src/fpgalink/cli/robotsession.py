@@ -302,6 +302,12 @@ class RobotRun:
 
     @contextlib.asynccontextmanager
     async def opened(self) -> AsyncIterator[Robot]:
+        # The live view's modules, imported before any board is enabled: imported in the
+        # middle of a run they stalled this host for about 0.3 s (rich's console), and the
+        # boards' watchdog saw a host silent 297 ms at drive's start.
+        import rich.console
+        import rich.live  # noqa: F401
+
         from fpgalink.cli.session import install_stop_signals
         from fpgalink.robot.robot import Robot, RobotError
 
