@@ -98,6 +98,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.ros2
 	$(PY) -m benchmarks.crc_ber
 	$(PY) -m benchmarks.flood --mb 5
+	$(PY) -m benchmarks.faults
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

@@ -313,3 +313,20 @@ def test_seed_table_quick(tmp_path: Path) -> None:
     assert {"ax_on_stair", "az_on_stair", "max_pitch_deg"} <= set(report["stairs"])
     bodies = {o["body"] for o in report["odometry"].values()}
     assert bodies == {"kinematic", "mujoco"}
+
+
+@pytest.mark.timeout(TIMEOUT_S + 60)
+def test_faults_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("faults", tmp_path)
+    assert "host frozen 0.4 s" in stdout
+    assert set(report["cases"]) == {"restart", "telemetry loss", "board silent",
+                                    "host frozen"}
+    for name in ("restart", "telemetry loss", "board silent"):
+        (run,) = report["cases"][name]["repetitions"]
+        # Cycle-exact on the boards: the robot stopped after the fault, and the other
+        # board's enable fell after it too (the robot's RD), whatever the machine's load.
+        assert run["stopped_ms"] > 0 and run["other_board_disabled_ms"] > 0, (name, run)
+    (frozen,) = report["cases"]["host frozen"]["repetitions"]
+    # The boards' own watchdog, 300 ms after the last RE on their clock; the CLI said why.
+    assert frozen["watchdog_after_last_re_ms"] == pytest.approx(300.0, abs=0.01)
+    assert frozen["exit_code"] == 7 and frozen["said_why"] == 1.0
