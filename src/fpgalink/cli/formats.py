@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from fpgalink.cli.output import CliError, ExitCode
+from fpgalink.cli.output import CliError, ExitCode, write_out
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -58,20 +58,6 @@ def format_option(func: Callable[..., T]) -> Callable[..., T]:
         "--format", "fmt", type=click.Choice(FORMATS), default="table", show_default=True,
         help="table for people; json (one document, numbers as numbers, units in the keys) "
              "or csv (a header, then one line per row) for scripts.")(func)
-
-
-def write_out(text: str) -> None:
-    """``text`` on stdout, flushed; a write error (a full disk behind a redirect) is one
-    line and exit 1. A reader that went away (``| head``) is not an error: BrokenPipeError
-    goes up to the entry point, which ends quietly."""
-    try:
-        sys.stdout.write(text)
-        sys.stdout.flush()
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
-                       ) from None
 
 
 def json_value(value: Any) -> Any:

@@ -35,6 +35,7 @@ __all__ = [
     "number",
     "quiet_stdout",
     "table_console",
+    "write_out",
 ]
 
 
@@ -215,18 +216,23 @@ def describe(message: Parsed) -> str:
     return " ".join([head, *shown])
 
 
-def echo_out(text: str = "") -> None:
-    """A line on stdout, flushed (pipes see it at once). A write error (a full disk behind
-    a redirect) is one line and exit 1; a reader that went away (``| head``) goes up as
-    BrokenPipeError, which the entry point ends quietly."""
+def write_out(text: str) -> None:
+    """``text`` on stdout, flushed (pipes see it at once). A write error (a full disk
+    behind a redirect) is one line and exit 1; a reader that went away (``| head``) goes up
+    as BrokenPipeError, which the entry point ends quietly."""
     try:
-        sys.stdout.write(text + "\n")
+        sys.stdout.write(text)
         sys.stdout.flush()
     except BrokenPipeError:
         raise
     except OSError as exc:
         raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
                        ) from None
+
+
+def echo_out(text: str = "") -> None:
+    """A line on stdout (:func:`write_out`)."""
+    write_out(text + "\n")
 
 
 def quiet_stdout() -> None:
