@@ -24,7 +24,7 @@ $(DEMO_STAMP): pyproject.toml
 # co-simulation, the benchmarks' peers and the developer tools; setuptools back (cffi
 # builds through it).
 $(STAMP): $(DEMO_STAMP) ros2-constraints.txt
-	$(PY) -m pip install --quiet -e '.[dev,ros2,physics,cosim,bench,plot]' setuptools -c ros2-constraints.txt
+	$(PY) -m pip install --quiet -e '.[dev,ros2,physics,cosim,bench,plot,campaign]' setuptools -c ros2-constraints.txt
 	touch $(STAMP)
 
 # Icarus Verilog simulates the reference UART the emulator's is checked against

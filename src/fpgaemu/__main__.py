@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import ipaddress
 import math
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -488,6 +489,18 @@ def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
                          "away for want of a file descriptor")
     for note in notes:
         print(f"{name}: {note}", file=sys.stderr, flush=True)
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True,
+                               "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def campaign(args: tuple[str, ...]) -> None:
+    """Run a campaign of scenarios on emulated robots: the same command as `fpgalink-cli
+    campaign SPEC.toml` (its --help says more), which it runs."""
+    # A campaign drives each emulated robot through the library's robot (supervision,
+    # odometry, go-to), which the emulator never imports: it hands over to the library's
+    # command, as a program, not by import.
+    os.execv(sys.executable, [sys.executable, "-m", "fpgalink", "campaign", *args])
 
 
 def main(argv: list[str] | None = None) -> NoReturn:
