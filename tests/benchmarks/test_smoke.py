@@ -330,3 +330,13 @@ def test_faults_quick(tmp_path: Path) -> None:
     # The boards' own watchdog, 300 ms after the last RE on their clock; the CLI said why.
     assert frozen["watchdog_after_last_re_ms"] == pytest.approx(300.0, abs=0.01)
     assert frozen["exit_code"] == 7 and frozen["said_why"] == 1.0
+
+
+@pytest.mark.timeout(TIMEOUT_S + 60)
+def test_campaign_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("campaign", tmp_path)
+    assert "per-scenario overhead" in stdout
+    # Wall times depend on the machine; that every way gave the same table does not.
+    for label, way in report["ways"].items():
+        assert way["same"] is True and way["failed"] == 0, label
+    assert report["overhead_s_per_scenario"] > 0

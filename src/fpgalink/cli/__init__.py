@@ -48,13 +48,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                "Share each board among several local clients: one controller, observers "
                "read-only."),
     "campaign": ("fpgalink.cli.campaign", "campaign",
-                 "Run the scenarios of SPEC.toml on emulated robots, as fast as they go, and "
-                 "print one row of figures per scenario."),
+                 "Run the scenarios of SPEC.toml on emulated robots and print their figures."),
     "tune": ("fpgalink.cli.campaign", "tune",
-             "Step every wheel with each combination of gains on CHANNEL of every board and "
-             "pick the one that settles soonest (then least overshoot); the seed's §3.4 "
-             "pidtune gains, converted to this board's units, run beside them as the "
-             "reference row."),
+             "Pick the wheel PID gains that settle a step soonest, from a grid."),
     "codegen": ("fpgalink.cli.codegen", "codegen",
                 "Generate the board's protocol code (C: header, codec, self-test, Makefile) "
                 "into OUTDIR."),

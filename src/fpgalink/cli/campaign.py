@@ -158,9 +158,11 @@ def _cell(value: Any) -> str:
 @format_option
 def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | None,
              fmt: str) -> None:
-    """Run the scenarios of SPEC.toml on emulated robots, as fast as they go, and print one
-    row of figures per scenario. The same campaign gives the same figures wherever it runs
-    (emulated time, seeded)."""
+    """Run the scenarios of SPEC.toml on emulated robots and print their figures.
+
+    Each scenario runs on a fresh in-process emulated robot, as fast as it goes (emulated
+    time), one row of figures per scenario; the same campaign gives the same figures
+    wherever it runs (docs/campaigns.md)."""
     jobs, dask = _jobs_and_dask(jobs, dask)
     try:
         spec = load_campaign(spec_file)
@@ -225,9 +227,11 @@ def _score(row: dict[str, Any]) -> tuple[float, float, float]:
 def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, target: float,
          seconds: float, jobs: int | None, dask: str | None, plot: Path | None,
          fmt: str) -> None:
-    """Step every wheel with each combination of gains on CHANNEL of every board and pick
-    the one that settles soonest (then least overshoot); the seed's §3.4 pidtune gains,
-    converted to this board's units, run beside them as the reference row."""
+    """Pick the wheel PID gains that settle a step soonest, from a grid.
+
+    Every wheel steps with each combination of gains set on CHANNEL of every board; the
+    best settles soonest (then overshoots least). The seed's §3.4 pidtune gains, converted
+    to this board's units, run beside them as the reference row."""
     jobs, dask = _jobs_and_dask(jobs, dask)
     channel = channel.upper()
     grid = _grid(grid_entries)
