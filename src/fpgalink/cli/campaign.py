@@ -116,19 +116,25 @@ def _emit(fmt: str, table: list[dict[str, Any]], title: str) -> None:
     if fmt != "table":
         emit_rows(fmt, [Column(n, n) for n in columns(table)], table)
         return
-    # For people: one table per scenario of the file (its grid points as rows), with the
-    # columns that scenario has; what tells rows apart first, how it ran last.
-    for name in dict.fromkeys(row["scenario"] for row in table):
-        group = [row for row in table if row["scenario"] == name]
+    # For people: one table per kind of row (scenarios with the same figures share one),
+    # what tells rows apart first, how it ran last.
+    kinds: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+    for row in table:
+        kinds.setdefault(tuple(k for k, v in row.items() if "." in k and v is not None),
+                         []).append(row)
+    for group in kinds.values():
         # A setting every row of the group shares goes into the title, not a column.
         shared = {n: group[0].get(n) for n in columns(group) if n not in _NOT_SETTINGS
                   and "." not in n and len({str(row.get(n)) for row in group}) == 1}
-        names = [n for n in columns(group) if n not in ("scenario", "worker", *shared) and (
+        names = [n for n in columns(group) if n not in ("worker", *shared) and (
             n in ("index", "status") or any(row.get(n) not in (None, "") for row in group))]
+        if len({row["scenario"] for row in group}) == 1:
+            shared = {"scenario": group[0]["scenario"], **shared}
+            names.remove("scenario")
         cols = [Column(n, n, render=_cell, drop=0 if n in ("index", "status") else 1 + i)
                 for i, n in enumerate(names)]
         said = ", ".join(f"{k} {_cell(v)}" for k, v in shared.items() if v not in (None, ""))
-        emit_rows(fmt, cols, group, title=f"{title}: {name}" + (f" ({said})" if said else ""))
+        emit_rows(fmt, cols, group, title=title + (f" ({said})" if said else ""))
 
 
 #: Columns that are not a scenario's settings: its identity, how it ran, its totals.
