@@ -182,6 +182,19 @@ class _Run:
         if rest > 1e-9:
             await asyncio.sleep(rest)
 
+    def _hold_references(self, refs: dict[str, list[float]]) -> None:
+        """Each board's two wheel references (deg/s, board sign), now and renewed with the
+        enable (an enable after a stop starts from zero references)."""
+        robot = self.robot
+
+        def command() -> None:
+            if robot.state is State.ENABLED:
+                for board, (ref_a, ref_b) in refs.items():
+                    robot.links[board].set_references(ref_a, ref_b)
+
+        self.command = command
+        command()
+
     # --- actions ------------------------------------------------------------------------
 
     async def wheels(self, action: Action) -> None:
@@ -191,13 +204,7 @@ class _Run:
             side = action.left if wheel.left else action.right
             refs[wheel.board][wheel.channel - 1] = side * wheel.forward
 
-        def command() -> None:
-            if robot.state is State.ENABLED:
-                for board, (ref_a, ref_b) in refs.items():
-                    robot.links[board].set_references(ref_a, ref_b)
-
-        self.command = command
-        command()
+        self._hold_references(refs)
         await self._hold(action.settle)
         track = _Track(self._truth())
         await self._hold(action.seconds, track.add)
@@ -287,13 +294,7 @@ class _Run:
         for wheel in robot.description.wheels:
             refs[wheel.board][wheel.channel - 1] = action.to * wheel.forward
 
-        def command() -> None:
-            if robot.state is State.ENABLED:
-                for board, (ref_a, ref_b) in refs.items():
-                    robot.links[board].set_references(ref_a, ref_b)
-
-        self.command = command
-        command()
+        self._hold_references(refs)
         await self._hold(action.seconds)
         for sub in subs.values():
             sub.close()
