@@ -100,6 +100,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.flood --mb 5
 	$(PY) -m benchmarks.faults
 	$(PY) -m benchmarks.campaign
+	$(PY) -m benchmarks.ceiling
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

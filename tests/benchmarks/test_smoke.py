@@ -340,3 +340,11 @@ def test_campaign_quick(tmp_path: Path) -> None:
     for label, way in report["ways"].items():
         assert way["same"] is True and way["failed"] == 0, label
     assert report["overhead_s_per_scenario"] > 0
+
+
+@pytest.mark.timeout(TIMEOUT_S + 60)
+def test_ceiling_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("ceiling", tmp_path)
+    assert "flat loop" in stdout
+    assert set(report["cases"]) == {"arithmetic", "+ TM", "+ RV", "board"}
+    assert all(case["us_per_ms"] > 0 for case in report["cases"].values())
