@@ -89,7 +89,8 @@ def main(argv: list[str] | None = None) -> int:
     overhead = overhead_wall / tiny
     payload = {
         **report_header(NAME, ["dask", "distributed"]),
-        "config": {"scenarios": count, "emulated_s_each": seconds, "reps": reps,
+        "config": {"quick": args.quick, "scenarios": count, "emulated_s_each": seconds,
+                   "reps": reps,
                    "jobs": jobs},
         "ways": {label: {k: v for k, v in row.items()} for label, row in rows.items()},
         "overhead_s_per_scenario": overhead,
