@@ -154,7 +154,8 @@ def main(argv: list[str] | None = None) -> int:
                      "us_per_ms": medians[label] / ms * 1e6,
                      "x_real_time": seconds / medians[label]} for label in walls_of}
     over = medians["board"] / medians["+ RV"]
-    payload = {**report_header(NAME, []), "config": {"quick": args.quick, "emulated_s": seconds, "reps": reps},
+    payload = {**report_header(NAME, []),
+               "config": {"quick": args.quick, "emulated_s": seconds, "reps": reps},
                "cases": cases, "board_over_ceiling": over}
     path = write_results(NAME, payload, args.output)
     print(f"the per-millisecond ceiling: {seconds:g} s emulated, median of {reps}")
