@@ -24,8 +24,8 @@ from __future__ import annotations
 
 import itertools
 import math
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -136,8 +136,6 @@ class Campaign:
     name: str
     scenarios: tuple[Scenario, ...]
     source: str = "campaign"
-    write_mcap: bool = False
-    extra: Mapping[str, Any] = field(default_factory=dict)
 
 
 def load_campaign(path: str | Path) -> Campaign:
@@ -155,15 +153,12 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
     where = source
     _only(document, {"campaign", "grid", "scenario"}, where)
     head = _table(document.get("campaign", {}), f"{where}: [campaign]")
-    _only(head, {"name", "body", "surface", "seed", "robot", "mcap", "params", "faults"},
+    _only(head, {"name", "body", "surface", "seed", "robot", "params", "faults"},
           f"{where}: [campaign]")
     defaults = _common(head, f"{where}: [campaign]", base, {
         "body": "kinematic", "surface": "gravel", "seed": 0, "robot": None,
         "params": (), "faults": ()})
     name = _text(head.get("name", Path(source).stem), f"{where}: [campaign] name")
-    mcap = head.get("mcap", False)
-    if not isinstance(mcap, bool):
-        raise CampaignError(f"{where}: [campaign] mcap must be true or false")
     grid = _grid(_table(document.get("grid", {}), f"{where}: [grid]"), f"{where}: [grid]")
     raw = document.get("scenario")
     if not isinstance(raw, list) or not raw:
@@ -205,12 +200,7 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
                 surface=chosen["surface"], seed=chosen["seed"], description=description,
                 robot_file=chosen["robot"], params=tuple(params), faults=chosen["faults"],
                 script=script, grid=shown))
-    return Campaign(name, tuple(scenarios), source, mcap)
-
-
-def with_index(scenarios: Iterable[Scenario]) -> tuple[Scenario, ...]:
-    """The scenarios numbered 0… in order (after a filter or a join)."""
-    return tuple(replace(s, index=i) for i, s in enumerate(scenarios))
+    return Campaign(name, tuple(scenarios), source)
 
 
 # --- pieces ------------------------------------------------------------------------------
