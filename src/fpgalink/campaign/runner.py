@@ -14,6 +14,8 @@ import concurrent.futures
 import importlib
 import multiprocessing
 import os
+import signal
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from typing import Any
 
@@ -60,14 +62,50 @@ def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
     yield from _on_processes(scenarios, min(jobs, len(scenarios)))
 
 
+def _worker_started() -> None:
+    # Ctrl-C reaches the whole process group: the parent stops the campaign and ends its
+    # workers; a worker that died of it on its own would print a traceback and look like a
+    # scenario that killed it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
+    return concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context,
+                                                  initializer=_worker_started)
+
+
+def _submit_all(pool: concurrent.futures.ProcessPoolExecutor, scenarios: Sequence[Scenario]
+                ) -> dict[concurrent.futures.Future[Result], Scenario]:
+    """Submit every scenario; the workers start here, with SIGINT ignored from their first
+    instruction (an ignored signal stays ignored across exec, and Python then installs no
+    KeyboardInterrupt handler), so a Ctrl-C during their start-up does not reach them."""
+    hold = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if hold else None
+    try:
+        return {pool.submit(run_scenario, s): s for s in scenarios}
+    finally:
+        if hold:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """End the workers now, running scenarios and all (Python 3.14 has
+    ``kill_workers()``; before it, the pool's own process table)."""
+    processes = getattr(pool, "_processes", None) or {}
+    for process in list(processes.values()):
+        process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
 def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
     # spawn, not fork: a fresh interpreter per worker on every platform, and no copy of an
     # event loop, threads or open files from the parent.
     context = multiprocessing.get_context("spawn")
     waiting = list(scenarios)
     while waiting:
-        with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context) as pool:
-            futures = {pool.submit(run_scenario, s): s for s in waiting}
+        pool = _pool(jobs, context)
+        try:
+            futures = _submit_all(pool, waiting)
             broken = False
             for future in concurrent.futures.as_completed(futures):
                 scenario = futures[future]
@@ -78,23 +116,32 @@ def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
                     continue
                 waiting.remove(scenario)
                 yield result
+            pool.shutdown()
             if broken:
                 # One scenario killed its worker (and the pool with it): which one is not
                 # known, so each unfinished one is tried once more, alone.
                 for scenario in list(waiting):
                     yield _alone(scenario, context)
                     waiting.remove(scenario)
+        except BaseException:  # interrupted, or the consumer stopped: no worker left behind
+            _stop(pool)
+            raise
 
 
 def _alone(scenario: Scenario, context: Any) -> Result:
-    with concurrent.futures.ProcessPoolExecutor(1, mp_context=context) as pool:
-        try:
-            result: Result = pool.submit(run_scenario, scenario).result()
-            return result
-        except concurrent.futures.process.BrokenProcessPool:
-            return Result(scenario.index, scenario.name, "failed", {},
-                          "its worker process died (killed, or out of memory)",
-                          grid=scenario.grid)
+    pool = _pool(1, context)
+    try:
+        (future,) = _submit_all(pool, [scenario])
+        result: Result = future.result()
+        pool.shutdown()
+        return result
+    except concurrent.futures.process.BrokenProcessPool:
+        return Result(scenario.index, scenario.name, "failed", {},
+                      "its worker process died (killed, or out of memory)",
+                      grid=scenario.grid)
+    except BaseException:
+        _stop(pool)
+        raise
 
 
 def _on_dask(scenarios: Sequence[Scenario], address: str, jobs: int | None

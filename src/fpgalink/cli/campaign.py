@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -61,10 +62,24 @@ def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> lis
                 failed += 1
                 note(f"scenario {result.index} ({result.name}) failed: {result.error}")
 
+        previous = signal.signal(signal.SIGTERM, _terminated)
         try:
             return run_campaign(spec, jobs=jobs, dask=dask, on_result=done)
         except CampaignError as exc:
             raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+        except _Terminated:
+            note("terminated: the campaign and its workers were stopped")
+            sys.exit(128 + signal.SIGTERM)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(Exception):
+    """SIGTERM, raised where the campaign waits, so its workers are ended with it."""
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise _Terminated
 
 
 def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign) -> None:

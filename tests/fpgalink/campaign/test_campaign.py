@@ -312,3 +312,64 @@ def test_tune_refuses_a_bad_grid() -> None:
         done = run_cli("tune", "-c", "A", "-g", grid)
         assert done.returncode == 2, (grid, done.stderr)
         assert "--grid" in done.stderr and "Traceback" not in done.stderr
+
+
+def _children(pid: int) -> set[int]:
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        try:
+            found |= {int(p) for p in (task / "children").read_text().split()}
+        except OSError:  # the thread ended meanwhile
+            pass
+    return found
+
+
+def _is_worker(pid: int) -> bool:
+    try:
+        return b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize(("signal_name", "group", "code", "says"), [
+    ("SIGINT", True, 130, "interrupted"),  # Ctrl-C: the whole process group
+    ("SIGTERM", False, 143, "terminated"),
+])
+def test_a_campaign_stopped_by_a_signal_ends_its_workers(
+        tmp_path: Path, signal_name: str, group: bool, code: int, says: str) -> None:
+    import os
+    import signal
+    import time
+
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nseed = [0, 1, 2, 3]\n'
+                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
+                    encoding="utf-8")
+    from tests.support.cli import CLI
+
+    proc = subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", "2"], cwd=ROOT,
+                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        # Wait for both workers to be there (what the signal must not leave behind).
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            workers = {p for p in _children(proc.pid) if _is_worker(p)}
+            time.sleep(0.05)
+        assert len(workers) == 2
+        sig = getattr(signal, signal_name)
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == code, err
+    assert says in err and "Traceback" not in err
+    deadline = time.monotonic() + 10
+    while any(_is_worker(p) for p in workers):
+        assert time.monotonic() < deadline, "a worker outlived the campaign"
+        time.sleep(0.05)
