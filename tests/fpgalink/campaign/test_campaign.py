@@ -8,6 +8,7 @@ Every figure is read on emulated time, so these assertions hold on a machine und
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import subprocess
 import sys
@@ -317,10 +318,8 @@ def test_tune_refuses_a_bad_grid() -> None:
 def _children(pid: int) -> set[int]:
     found: set[int] = set()
     for task in Path(f"/proc/{pid}/task").iterdir():
-        try:
+        with contextlib.suppress(OSError):  # the thread ended meanwhile
             found |= {int(p) for p in (task / "children").read_text().split()}
-        except OSError:  # the thread ended meanwhile
-            pass
     return found
 
 
