@@ -2,14 +2,16 @@
 ``fpgaemu serve`` and ``fpgalink-ros2`` as processes, talks to the node over ROS, reads what
 really happened from the emulator's truth endpoint, and prints one JSON line per check.
 
-    python -m tests.ros2.peer main|kill|fault|ddc|imu   (in tests/ros2/netns.sh: loopback only)
+    python -m tests.ros2.peer main|kill|fault|ddc|imu|describe   (in tests/ros2/netns.sh)
 
 ``main``: joint_states against the boards' telemetry, cmd_vel against the body, goal_pose,
 the enable deadman, SetParameters. ``kill``: one board's serving process killed.
 ``fault``: a board restarting mid-drive, then one board's telemetry stopping. ``ddc``:
 what a diff_drive_controller user relies on (issue 28). ``imu``: the node on the emulated
 robot in its own process (MuJoCo body): ``imu/data`` at rest and turning, against the
-node's ``truth``.
+node's ``truth``. ``describe``: in namespace ``/bot``, the emulated robot in the node's
+process: robot_description and /tf_static against the URDF, frame prefixes, wheel names,
+covariances, limits and cmd_vel_out, /clock and use_sim_time.
 Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the test to assert).
 """
 
@@ -28,6 +30,7 @@ import subprocess
 import sys
 import threading
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Iterator
 from typing import Any
 
@@ -46,8 +49,9 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 
 PATIENCE = 30.0
@@ -898,14 +902,126 @@ def imu_scenario(peer: Peer) -> None:
         report("imu_node_exit", code=node.stop(signal.SIGINT))
 
 
+#: The describe scenario's node: kinematic emulated boards in its own process.
+KINEMATIC = {b: f"emu://robot/{b}?surface=ideal&body=kinematic" for b in ("L", "R")}
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+TWIST_COVARIANCE = [0.01, 0.02, 1e6, 1e6, 1e6, 0.03]
+
+
+def _urdf_joints(urdf: str) -> tuple[list[str], list[dict[str, Any]]]:
+    """The URDF's moving joints' names, and its fixed joints (parent, child, xyz, rpy)."""
+    moving, fixed = [], []
+    for joint in ET.fromstring(urdf).iter("joint"):
+        if joint.get("type") != "fixed":
+            moving.append(str(joint.get("name")))
+            continue
+        origin = joint.find("origin")
+        parent, child = joint.find("parent"), joint.find("child")
+        assert origin is not None and parent is not None and child is not None
+        fixed.append({"parent": parent.get("link"), "child": child.get("link"),
+                      "xyz": [float(v) for v in str(origin.get("xyz")).split()],
+                      "rpy": [float(v) for v in str(origin.get("rpy")).split()]})
+    return moving, fixed
+
+
+def _transform(t: Any) -> dict[str, Any]:
+    r = t.transform.rotation
+    yaw = math.atan2(2 * (r.w * r.z + r.x * r.y), 1 - 2 * (r.y * r.y + r.z * r.z))
+    return {"parent": t.header.frame_id, "child": t.child_frame_id,
+            "xyz": [t.transform.translation.x, t.transform.translation.y,
+                    t.transform.translation.z],
+            "yaw": yaw, "roll_pitch_free": abs(r.x) < 1e-9 and abs(r.y) < 1e-9}
+
+
+def describe_scenario(peer: Peer) -> None:
+    """What robot_state_publisher, RViz and a diff_drive_controller configuration expect of
+    the node (issue 28), in namespace /bot with the emulated robot in its process."""
+    cmd_vel_out: list[TwistStamped] = []
+    clock: list[tuple[int, float]] = []  # /clock ns, arrival (monotonic)
+    peer.create_subscription(TwistStamped, "cmd_vel_out", cmd_vel_out.append, 100)
+
+    def on_clock(message: Clock) -> None:
+        clock.append((message.clock.sec * 1_000_000_000 + message.clock.nanosec,
+                      time.monotonic()))
+
+    peer.create_subscription(Clock, "/clock", on_clock, 100)
+    node = start_node(KINEMATIC, "-r", "__ns:=/bot",
+                      "-p", "left_wheel_names:=[left_front,left_back]",
+                      "-p", "right_wheel_names:=[right_front,right_back]",
+                      "-p", "publish_limited_velocity:=true",
+                      "-p", "linear.x.max_velocity:=0.1",
+                      "-p", f"twist_covariance_diagonal:={TWIST_COVARIANCE}",
+                      "-p", "require_enable:=false", "-p", "use_sim_time:=true",
+                      "-p", "telemetry_timeout_periods:=1000")
+    try:
+        peer.spin_until(lambda: len(peer.joints) > 20 and len(peer.odom) > 20, "the node up")
+        # Subscribers that come after the node published: latched, as robot_state_publisher's.
+        description: list[str] = []
+        static: list[TFMessage] = []
+
+        def on_description(message: String) -> None:
+            description.append(message.data)
+
+        peer.create_subscription(String, "robot_description", on_description, LATCHED)
+        peer.create_subscription(TFMessage, "/tf_static", static.append, LATCHED)
+        peer.spin_until(lambda: description and static, "robot_description and /tf_static")
+        request = GetParameters.Request()
+        request.names = ["robot_description", "left_wheel_names", "right_wheel_names"]
+        values = peer.call(peer.get_client, request).values
+        moving, fixed = _urdf_joints(description[0])
+        odom = peer.odom[-1]
+        report("describe", topic_equals_parameter=description[0] == values[0].string_value,
+               urdf_moving_joints=moving, urdf_fixed=fixed, joint_names=peer.joint_names,
+               wheel_names=[list(values[1].string_array_value),
+                            list(values[2].string_array_value)],
+               static=[_transform(t) for m in static for t in m.transforms],
+               odom_frames=[odom.header.frame_id, odom.child_frame_id],
+               twist_covariance=[odom.twist.covariance[i * 7] for i in range(6)],
+               pose_covariance_x=odom.pose.covariance[0])
+
+        # use_sim_time: this node's stamps on the emulator's /clock, not the host's clock.
+        peer.spin_until(lambda: len(clock) > 20, "/clock")
+        last_clock = clock[-1][0]
+        stamp = peer.joints[-1][0]
+        report("clock", clocks=len(clock),
+               increasing=all(b[0] >= a[0] for a, b in itertools.pairwise(clock)),
+               last_clock_s=last_clock / 1e9, joint_stamp_s=stamp / 1e9,
+               wall_s=time.time())
+
+        # Limits: 0.3 m/s asked, 0.1 m/s the node's limit: cmd_vel_out says what was
+        # driven, and the body goes no faster.
+        peer.spin_until(lambda: len(cmd_vel_out) > 10 and peer.odom[-1].twist.twist.linear.x
+                        > 0.05, "driving limited", lambda: peer.cmd.publish(_twist(0.3, 0.0)))
+        peer.spin_for(1.0, lambda: peer.cmd.publish(_twist(0.3, 0.0)))
+        out = cmd_vel_out[-1]
+        fastest = max(m.twist.twist.linear.x for m in peer.odom[-50:])
+        too_fast_ok, too_fast_reason = peer.set_double("angular.z.max_velocity", 10.0)
+        report("limits", out_v=out.twist.linear.x, out_frame=out.header.frame_id,
+               fastest_odom_v=fastest, too_fast_ok=too_fast_ok,
+               too_fast_reason=too_fast_reason)
+        peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
+    finally:
+        report("describe_node_exit", code=node.stop(signal.SIGINT))
+    facts = {}
+    for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
+        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
+                               *(f"--port={b}={url}" for b, url in KINEMATIC.items()),
+                               "--ros-args", "-p", value],
+                              capture_output=True, text=True, timeout=PATIENCE, check=False)
+        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
+    report("describe_bad_values", **facts)
+
+
 def main() -> None:
     scenario = sys.argv[1]
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
-    peer = Peer(namespace="/bot" if scenario == "kill" else "")
+    peer = Peer(namespace="/bot" if scenario in ("kill", "describe") else "")
     try:
         {"main": main_scenario, "kill": kill_scenario, "fault": fault_scenario,
-         "ddc": ddc_scenario, "imu": imu_scenario}[scenario](peer)
+         "ddc": ddc_scenario, "imu": imu_scenario,
+         "describe": describe_scenario}[scenario](peer)
     finally:
         peer.destroy_node()
         rclpy.shutdown()

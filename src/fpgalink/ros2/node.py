@@ -789,6 +789,10 @@ class RosBridge:
         if states is None:
             return None
         now_ns = self.node.get_clock().now().nanoseconds
+        if now_ns == 0:
+            # use_sim_time before the first /clock: no time yet (ROS's convention), and
+            # a board clock mapped onto it would start its estimate from nothing.
+            return None
         self._set_stamps = {board: self._clocks[board].ns(samples[board].t_us, now_ns)
                             for board in self.robot.description.boards}
         stamp_ns = self._set_stamps[self.robot.description.boards[0]]
