@@ -28,10 +28,12 @@ import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -237,9 +239,9 @@ class Peer(Node):
         return out
 
 
-def start_node(ports: dict[str, str], *ros_args: str) -> Process:
+def start_node(ports: dict[str, str], *ros_args: str, own: tuple[str, ...] = ()) -> Process:
     node = Process(sys.executable, "-m", "fpgalink.ros2",
-                   *(f"--port={name}={url}" for name, url in ports.items()),
+                   *(f"--port={name}={url}" for name, url in ports.items()), *own,
                    "--ros-args", *ros_args)
     return node
 
@@ -934,6 +936,40 @@ def _transform(t: Any) -> dict[str, Any]:
             "yaw": yaw, "roll_pitch_free": abs(r.x) < 1e-9 and abs(r.y) < 1e-9}
 
 
+def _read_bag(path: Path, peer: Peer) -> dict[str, Any]:
+    """The node's --bag read back with rosbags, each message deserialised by rclpy's own
+    deserialiser into the type the bag names: topics and counts, the cmd_vel values as
+    received, and whether every joint_states stamp this peer received is in it."""
+    import importlib
+
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+
+    def get_message(msgtype: str) -> Any:
+        package, _, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{package}.msg"), name)
+
+    counts: dict[str, int] = {}
+    types: dict[str, str] = {}
+    cmd_vel: set[float] = set()
+    joint_stamps: set[int] = set()
+    with Reader(path) as reader:
+        for connection, _, data in reader.messages():
+            message = deserialize_message(data, get_message(connection.msgtype))
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+            types[connection.topic] = connection.msgtype
+            if connection.topic == "/bot/cmd_vel":
+                cmd_vel.add(message.linear.x)
+            elif connection.topic == "/bot/joint_states":
+                joint_stamps.add(_stamp_ns(message.header))
+    received = {stamp for stamp, _, _ in peer.joints}
+    metadata = (path / "metadata.yaml").read_text(encoding="utf-8")
+    return {"mcap": "storage_identifier: mcap" in metadata, "counts": counts, "types": types,
+            "cmd_vel_values": sorted(cmd_vel),
+            "peer_joint_states": len(received),
+            "peer_joint_states_in_bag": len(received & joint_stamps)}
+
+
 def describe_scenario(peer: Peer) -> None:
     """What robot_state_publisher, RViz and a diff_drive_controller configuration expect of
     the node (issue 28), in namespace /bot with the emulated robot in its process."""
@@ -946,6 +982,7 @@ def describe_scenario(peer: Peer) -> None:
                       time.monotonic()))
 
     peer.create_subscription(Clock, "/clock", on_clock, 100)
+    bag = Path(tempfile.mkdtemp(prefix="fpgalink-describe-")) / "bag"
     node = start_node(KINEMATIC, "-r", "__ns:=/bot",
                       "-p", "left_wheel_names:=[left_front,left_back]",
                       "-p", "right_wheel_names:=[right_front,right_back]",
@@ -953,7 +990,14 @@ def describe_scenario(peer: Peer) -> None:
                       "-p", "linear.x.max_velocity:=0.1",
                       "-p", f"twist_covariance_diagonal:={TWIST_COVARIANCE}",
                       "-p", "require_enable:=false", "-p", "use_sim_time:=true",
-                      "-p", "telemetry_timeout_periods:=1000")
+                      "-p", "telemetry_timeout_periods:=1000", own=(f"--bag={bag}",))
+    sent_cmd_vel = 0
+
+    def drive_fast() -> None:
+        nonlocal sent_cmd_vel
+        peer.cmd.publish(_twist(0.3, 0.0))
+        sent_cmd_vel += 1
+
     try:
         peer.spin_until(lambda: len(peer.joints) > 20 and len(peer.odom) > 20, "the node up")
         # Subscribers that come after the node published: latched, as robot_state_publisher's.
@@ -992,8 +1036,8 @@ def describe_scenario(peer: Peer) -> None:
         # Limits: 0.3 m/s asked, 0.1 m/s the node's limit: cmd_vel_out says what was
         # driven, and the body goes no faster.
         peer.spin_until(lambda: len(cmd_vel_out) > 10 and peer.odom[-1].twist.twist.linear.x
-                        > 0.05, "driving limited", lambda: peer.cmd.publish(_twist(0.3, 0.0)))
-        peer.spin_for(1.0, lambda: peer.cmd.publish(_twist(0.3, 0.0)))
+                        > 0.05, "driving limited", drive_fast)
+        peer.spin_for(1.0, drive_fast)
         out = cmd_vel_out[-1]
         fastest = max(m.twist.twist.linear.x for m in peer.odom[-50:])
         too_fast_ok, too_fast_reason = peer.set_double("angular.z.max_velocity", 10.0)
@@ -1003,6 +1047,7 @@ def describe_scenario(peer: Peer) -> None:
         peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))
+    report("bag", sent_cmd_vel=sent_cmd_vel, **_read_bag(bag, peer))
     facts = {}
     for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
         done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",

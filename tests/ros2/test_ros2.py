@@ -514,3 +514,26 @@ def test_the_emulated_robot_publishes_clock_and_use_sim_time_stamps_on_it(
     assert 0 < facts["last_clock_s"] < 3600
     assert abs(facts["joint_stamp_s"] - facts["last_clock_s"]) < 1.0, facts
     assert scenarios["describe"].check("describe_node_exit")["code"] == 0
+
+
+def test_bag_records_the_nodes_inputs_as_received_and_its_outputs_as_published(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("bag")
+    assert facts["mcap"], facts
+    # Read back with rosbags, each message deserialised by rclpy into the type the bag names.
+    types = facts["types"]
+    assert types["/bot/cmd_vel"] == "geometry_msgs/msg/Twist"
+    assert types["/bot/joint_states"] == "sensor_msgs/msg/JointState"
+    assert types["/tf"] == types["/tf_static"] == "tf2_msgs/msg/TFMessage"
+    assert types["/bot/cmd_vel_out"] == "geometry_msgs/msg/TwistStamped"
+    assert types["/diagnostics"] == "diagnostic_msgs/msg/DiagnosticArray"
+    counts = facts["counts"]
+    assert counts["/bot/robot_description"] == counts["/tf_static"] == 1
+    # The inputs as they came: the peer's 0.3 m/s (beyond the limit) and its stops.
+    assert facts["cmd_vel_values"] == [0.0, 0.3]
+    assert counts["/bot/cmd_vel"] > 10 and counts["/bot/cmd_vel_out"] > 10
+    # The outputs as published: every joint_states the peer received is in the bag, and
+    # one /tf per odom.
+    assert facts["peer_joint_states"] > 20
+    assert facts["peer_joint_states_in_bag"] == facts["peer_joint_states"]
+    assert counts["/tf"] == counts["/bot/odom"] >= counts["/bot/joint_states"] - 1

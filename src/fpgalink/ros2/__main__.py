@@ -22,6 +22,7 @@ import signal
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 from fpgalink.ros2 import ROS2_INSTALL_HINT, available
@@ -63,6 +64,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--baud", type=int, default=None,
                         help="the boards' line rate (default: FPGALINK_BAUD, the config "
                         "file's baud, else 1000000)")
+    parser.add_argument("--bag", metavar="DIR", type=Path,
+                        help="record the node's inputs and outputs into a new rosbag2 DIR "
+                        "(MCAP, CDR; with the rosbags library)")
     parser.add_argument("--config", metavar="FILE", help="the config file (default: "
                         "FPGALINK_CONFIG, else ./fpgalink.toml, else "
                         "~/.config/fpgalink/fpgalink.toml)")
@@ -188,16 +192,31 @@ def main(argv: list[str] | None = None) -> None:
         _fail(f"the robot's boards are {', '.join(description.boards)}; give a port for "
               f"each, --port NAME=URL or [ports] NAME = URL (got "
               f"{', '.join(sorted(ports))} from {startup.sources['port']})")
+    bag = None
+    if options.bag is not None:
+        from fpgalink.ros2.bag import BagError, NodeBag
+
+        try:
+            bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
+                                        "robot": description.name})
+        except BagError as exc:
+            _fail(str(exc))
     rclpy.init(args=argv)
     try:
-        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"]))
+        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
+                                bag))
     finally:
+        if bag is not None:
+            bag.close()
+            print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
+                  flush=True)
         with contextlib.suppress(Exception):
             rclpy.shutdown()
     sys.exit(code)
 
 
-async def _run(description: object, ports: dict[str, str], baud: int, source: str) -> int:
+async def _run(description: object, ports: dict[str, str], baud: int, source: str,
+               bag: Any = None) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -220,7 +239,7 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     node = Node(NODE_NAME, start_parameter_services=False)
     try:
         try:
-            bridge = RosBridge(robot, node, loop)
+            bridge = RosBridge(robot, node, loop, bag=bag)
             await bridge.declare_board_parameters()
         except (ParameterException, BadOverride) as exc:  # a -p value out of range, …
             print(f"{PROG}: error: --ros-args -p: {_parameter_error(exc)}", file=sys.stderr,

@@ -69,6 +69,7 @@ from fpgalink.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.health import Status
 from fpgalink.robot.joints import SampleSets
 from fpgalink.robot.supervision import State, StopReason
+from fpgalink.ros2.bag import NodeBag
 
 __all__ = ["NODE_NAME", "BadOverride", "RosBridge", "board_parameter_name", "spin_in_thread"]
 
@@ -208,8 +209,9 @@ class RosBridge:
     then ``await bridge.run()`` until cancelled."""
 
     def __init__(self, robot: Robot, node: Node, loop: asyncio.AbstractEventLoop,
-                 executor: Any = None) -> None:
+                 executor: Any = None, bag: NodeBag | None = None) -> None:
         self.robot = robot
+        self.bag = bag
         self.node = node
         self.loop = loop
         self.executor = executor
@@ -246,40 +248,41 @@ class RosBridge:
         joint_qos: QoSProfile = (qos_profile_sensor_data if self._value("joint_states_best_effort")
                                  else QoSProfile(depth=10,
                                                  reliability=ReliabilityPolicy.RELIABLE))
-        self.joint_pub = node.create_publisher(JointState, "joint_states", joint_qos)
-        self.odom_pub = node.create_publisher(Odometry, "odom", 10)
+        self.joint_pub = self._publisher(JointState, "joint_states", joint_qos)
+        self.odom_pub = self._publisher(Odometry, "odom", 10)
         # Absolute, as diagnostic_updater publishes it (one /diagnostics for the whole
         # graph, the statuses named after the node).
-        self.diag_pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
+        self.diag_pub = self._publisher(DiagnosticArray, "/diagnostics", 10)
+        self.truth_pub = (self._publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
         self.tf_type = _tf_message_type()
         # /tf as tf2_ros's broadcaster publishes it (absolute, reliable, depth 100).
-        self.tf_pub = None if self.tf_type is None else node.create_publisher(
+        self.tf_pub = None if self.tf_type is None else self._publisher(
             self.tf_type, "/tf", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         if self.tf_type is None and self._value("publish_odom_tf"):
             self.log.warning("publish_odom_tf: tf2_msgs is not installed (Jazzy has no wheel "
                              "of it; `make tf2-msgs` generates it): running without /tf "
                              "and /tf_static")
-        self.description_pub = node.create_publisher(String, "robot_description", LATCHED)
+        self.description_pub = self._publisher(String, "robot_description", LATCHED)
         self.description_pub.publish(String(data=self.urdf))
         self.tf_static_pub = None
         if self.tf_type is not None and node.get_parameter("publish_static_tf").value:
-            self.tf_static_pub = node.create_publisher(self.tf_type, "/tf_static", LATCHED)
+            self.tf_static_pub = self._publisher(self.tf_type, "/tf_static", LATCHED)
             self.tf_static_pub.publish(self._static_transforms())
         self.clock_pub = self._clock_publisher()
         self.cmd_vel_out_pub = (
-            node.create_publisher(TwistStamped, "cmd_vel_out", 10)
+            self._publisher(TwistStamped, "cmd_vel_out", 10)
             if node.get_parameter("publish_limited_velocity").value else None)
         stamped = bool(self._value("use_stamped_vel"))
         self.cmd_vel_sub = node.create_subscription(
             TwistStamped if stamped else Twist, "cmd_vel",
-            self._threadsafe(self._on_cmd_vel), 10)
+            self._threadsafe(self._on_cmd_vel, "cmd_vel"), 10)
         self.imu_pub = self._imu_publisher()
         node.create_subscription(JointState, "wheel_refs",
-                                 self._threadsafe(self._on_wheel_refs), 10)
-        node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
-        node.create_subscription(Bool, "enable", self._threadsafe(self._on_enable), 10)
+                                 self._threadsafe(self._on_wheel_refs, "wheel_refs"), 10)
+        node.create_subscription(PoseStamped, "goal_pose",
+                                 self._threadsafe(self._on_goal, "goal_pose"), 10)
+        node.create_subscription(Bool, "enable", self._threadsafe(self._on_enable, "enable"), 10)
 
     # --- parameters -----------------------------------------------------------------------
 
@@ -581,10 +584,31 @@ class RosBridge:
 
     # --- subscriptions (messages arrive on the executor's thread) ------------------------
 
-    def _threadsafe(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
-        def forward(message: Any) -> None:
-            self.loop.call_soon_threadsafe(handler, message)
-        return forward
+    def _threadsafe(self, handler: Callable[[Any], None], topic: str) -> Callable[[Any], None]:
+        if self.bag is None:
+            def forward(message: Any) -> None:
+                self.loop.call_soon_threadsafe(handler, message)
+            return forward
+        resolved = self.node.resolve_topic_name(topic)
+
+        def record_and_handle(message: Any) -> None:
+            self._record(resolved, message)  # as received, whatever the node makes of it
+            handler(message)
+
+        def forward_recorded(message: Any) -> None:
+            self.loop.call_soon_threadsafe(record_and_handle, message)
+        return forward_recorded
+
+    def _publisher(self, kind: Any, topic: str, qos: Any) -> Any:
+        publisher = self.node.create_publisher(kind, topic, qos)
+        return publisher if self.bag is None else _RecordedPublisher(publisher, self._record)
+
+    def _record(self, topic: str, message: Any) -> None:
+        if self.bag is None:
+            return
+        stopped = self.bag.write(topic, message, self.node.get_clock().now().nanoseconds)
+        if stopped is not None:
+            self.log.error(stopped)
 
     def _on_cmd_vel(self, message: Twist | TwistStamped) -> None:
         twist = message.twist if isinstance(message, TwistStamped) else message
@@ -873,7 +897,7 @@ class RosBridge:
         if truth is None or truth.get("imu") is None:
             return None
         self.published["imu"] = 0
-        return self.node.create_publisher(Imu, "imu/data", qos_profile_sensor_data)
+        return self._publisher(Imu, "imu/data", qos_profile_sensor_data)
 
     async def _imu_loop(self) -> None:
         """sensor_msgs/Imu at :data:`IMU_RATE_HZ`: angular velocity and linear acceleration
@@ -984,6 +1008,21 @@ class RosBridge:
         array.status = [diagnostic_status(status, self.node.get_name())
                         for status in self.robot.health(now)]
         return array
+
+
+class _RecordedPublisher:
+    """A publisher whose messages also go into the bag (``--bag``)."""
+
+    def __init__(self, publisher: Any, record: Callable[[str, Any], None]) -> None:
+        self._publisher = publisher
+        self._record = record
+
+    def publish(self, message: Any) -> None:
+        self._publisher.publish(message)
+        self._record(self._publisher.topic_name, message)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._publisher, name)
 
 
 #: Link events that are faults: logged as errors, and diagnostics published at once.
