@@ -536,7 +536,15 @@ def _disturbed(lines: list[dict[str, Any]], at: float) -> bool:
     starving the emulator's or the node's process) had stopped it, and nothing can be
     measured of this one."""
     before = [line for line in lines if line["t"] < at]
-    return not before or not all(board["enabled"] for board in before[-1]["boards"].values())
+    if not before or not all(board["enabled"] for board in before[-1]["boards"].values()):
+        return True
+    # Truth lines are 20 ms apart: an enable that fell after the last line before the fault
+    # but before the fault itself shows only in the next line's disabled_s (one run saw R
+    # disabled 14 ms before L's power cycle).
+    after = next((line for line in lines if line["t"] >= at), None)
+    return after is not None and any(
+        board["disabled_s"] is not None and before[-1]["t"] <= board["disabled_s"] < at
+        for board in after["boards"].values())
 
 
 def _first_error(peer: Peer, board: str, since_ns: int, text: str = ""
