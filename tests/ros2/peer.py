@@ -1049,9 +1049,13 @@ def describe_scenario(peer: Peer) -> None:
         out = cmd_vel_out[-1]
         fastest = max(m.twist.twist.linear.x for m in peer.odom[-50:])
         too_fast_ok, too_fast_reason = peer.set_double("angular.z.max_velocity", 10.0)
+        multiplier_ok, _ = peer.set_double("left_wheel_radius_multiplier", 1.05)
+        zero_ok, zero_reason = peer.set_double("right_wheel_radius_multiplier", 0.0)
         report("limits", out_v=out.twist.linear.x, out_frame=out.header.frame_id,
                fastest_odom_v=fastest, too_fast_ok=too_fast_ok,
-               too_fast_reason=too_fast_reason)
+               too_fast_reason=too_fast_reason, multiplier_ok=multiplier_ok,
+               multiplier=peer.get_double("left_wheel_radius_multiplier"),
+               zero_ok=zero_ok, zero_reason=zero_reason)
         peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))

@@ -504,6 +504,10 @@ def test_velocity_limits_are_parameters_and_cmd_vel_out_says_what_was_driven(
     # Never above the robot file's limit.
     assert facts["too_fast_ok"] is False and "angular.z.max_velocity" in \
         facts["too_fast_reason"], facts
+    # The sides' radius multipliers, at run time, within their range.
+    assert facts["multiplier_ok"] and facts["multiplier"] == 1.05, facts
+    assert facts["zero_ok"] is False and "right_wheel_radius_multiplier" in \
+        facts["zero_reason"], facts
 
 
 def test_the_emulated_robot_publishes_clock_and_use_sim_time_stamps_on_it(

@@ -318,6 +318,10 @@ class RosBridge:
         double("wheel_separation_multiplier", model.chi, 1.0, 20.0,
                "the skid-steer factor χ: the effective track is χ × wheel_separation; it "
                "differs per surface (default: the robot file's for its surface)")
+        for side in ("left", "right"):
+            double(f"{side}_wheel_radius_multiplier", 1.0, 0.5, 2.0,
+                   f"the {side} wheels' rolling radius over wheel_radius (worn or "
+                   "differently inflated wheels): drive and odometry use it")
         double("enable_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
                "with require_enable: true on enable at least this often keeps the robot "
                "enabled (the seed's /globalEnable deadman), s")
@@ -488,7 +492,8 @@ class RosBridge:
             "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
             "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort", "wheel_radius",
             "wheel_separation", "wheel_separation_multiplier", "pose_covariance_diagonal",
-            "twist_covariance_diagonal", "linear.x.max_velocity", "angular.z.max_velocity")}
+            "twist_covariance_diagonal", "linear.x.max_velocity", "angular.z.max_velocity",
+            "left_wheel_radius_multiplier", "right_wheel_radius_multiplier")}
         values = self._node_values
         limits = (float(values["linear.x.max_velocity"]),
                   math.degrees(float(values["angular.z.max_velocity"])))
@@ -499,10 +504,15 @@ class RosBridge:
                 description, max_linear_speed=limits[0], max_angular_speed=limits[1])
         model = self.robot.kinematics
         wanted = (float(values["wheel_radius"]), float(values["wheel_separation"]),
-                  float(values["wheel_separation_multiplier"]))
-        if wanted != (model.wheel_radius, model.track, model.chi):
+                  float(values["wheel_separation_multiplier"]),
+                  float(values["left_wheel_radius_multiplier"]),
+                  float(values["right_wheel_radius_multiplier"]))
+        if wanted != (model.wheel_radius, model.track, model.chi, model.left_radius_multiplier,
+                      model.right_radius_multiplier):
             # Drive and odometry with them from now on (ranges checked by the descriptors).
-            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2])
+            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2],
+                                      left_radius_multiplier=wanted[3],
+                                      right_radius_multiplier=wanted[4])
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
