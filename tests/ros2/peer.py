@@ -978,6 +978,64 @@ def _read_bag(path: Path, peer: Peer) -> dict[str, Any]:
             "peer_joint_states_in_bag": len(received & joint_stamps)}
 
 
+def _lifecycle(peer: Peer) -> None:
+    """``--lifecycle``: nothing published until activated, commands then, nothing after
+    deactivate, the boards disabled; shutdown ends the process."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    change = peer.create_client(ChangeState, f"{NODE}/change_state")
+    get = peer.create_client(GetState, f"{NODE}/get_state")
+
+    def state() -> str:
+        return str(peer.call(get, GetState.Request()).current_state.label)
+
+    def transition(label: str) -> bool:
+        return bool(peer.call(change, ChangeState.Request(
+            transition=Transition(label=label))).success)
+
+    peer.joints.clear()
+    peer.odom.clear()
+    # The node before may still have messages queued in this peer: counted by their stamps.
+    started_ns = time.time_ns()
+    node = start_node(KINEMATIC, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
+                      own=("--lifecycle",))
+    facts: dict[str, Any] = {}
+    try:
+        facts["unconfigured"] = state()
+        facts["configure"] = transition("configure")
+        facts["configured"] = state()
+        listing = ListParameters.Request()
+        listing.prefixes = ["L"]
+        facts["board_parameters"] = len(peer.call(peer.list_client, listing).result.names)
+        facts["joints_before_activate"] = sum(1 for stamp, _, _ in peer.joints
+                                              if stamp > started_ns)
+        facts["cleanup"] = transition("cleanup")
+        facts["activate"] = transition("activate")
+        facts["active"] = state()
+        peer.spin_until(lambda: peer.odom and _stamp_ns(peer.odom[-1].header) > started_ns
+                        and peer.odom[-1].twist.twist.linear.x > 0.05,
+                        "driving once active", lambda: peer.drive(0.1, 0.0))
+        facts["driven_v"] = peer.odom[-1].twist.twist.linear.x
+        facts["deactivate"] = transition("deactivate")
+        deactivated_ns = time.time_ns()
+        peer.spin_until(lambda: peer.logged("deactivated: boards disabled"), "deactivated said",
+                        lambda: peer.drive(0.1, 0.0))
+        count = len(peer.joints)
+        peer.spin_for(1.0, lambda: peer.drive(0.1, 0.0))  # commands while inactive: ignored
+        facts["joints_after_deactivate"] = len(peer.joints) - count
+        facts["stamps_after_deactivate"] = sum(1 for stamp, _, _ in peer.joints
+                                               if stamp > deactivated_ns)
+        facts["inactive"] = state()
+        facts["shutdown"] = transition("shutdown")
+    finally:
+        try:
+            facts["exit"] = node.proc.wait(PATIENCE)
+        except subprocess.TimeoutExpired:
+            facts["exit"] = node.stop(signal.SIGKILL)
+        report("lifecycle", **facts)
+
+
 def describe_scenario(peer: Peer) -> None:
     """What robot_state_publisher, RViz and a diff_drive_controller configuration expect of
     the node (issue 28), in namespace /bot with the emulated robot in its process."""
@@ -1060,6 +1118,7 @@ def describe_scenario(peer: Peer) -> None:
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))
     report("bag", sent_cmd_vel=sent_cmd_vel, **_read_bag(bag, peer))
+    _lifecycle(peer)
     facts = {}
     for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
         done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",

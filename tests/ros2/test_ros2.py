@@ -541,3 +541,21 @@ def test_bag_records_the_nodes_inputs_as_received_and_its_outputs_as_published(
     assert facts["peer_joint_states"] > 20
     assert facts["peer_joint_states_in_bag"] == facts["peer_joint_states"]
     assert counts["/tf"] == counts["/bot/odom"] >= counts["/bot/joint_states"] - 1
+
+
+def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("lifecycle")
+    assert facts["unconfigured"] == "unconfigured"
+    # configure opens the boards and declares their parameters, publishing nothing yet.
+    assert facts["configure"] and facts["configured"] == "inactive", facts
+    assert facts["board_parameters"] >= 19, facts
+    assert facts["joints_before_activate"] == 0, facts
+    assert facts["cleanup"] is False  # refused, said in the log; still inactive
+    # activate: joint_states, odom, and cmd_vel drives.
+    assert facts["activate"] and facts["active"] == "active", facts
+    assert facts["driven_v"] > 0.05
+    # deactivate: nothing published after it, commands ignored, the boards disabled.
+    assert facts["deactivate"] and facts["inactive"] == "inactive", facts
+    assert facts["joints_after_deactivate"] == 0 and facts["stamps_after_deactivate"] == 0
+    # shutdown ends the process cleanly.
+    assert facts["shutdown"] and facts["exit"] == 0, facts

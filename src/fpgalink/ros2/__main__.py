@@ -67,6 +67,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--bag", metavar="DIR", type=Path,
                         help="record the node's inputs and outputs into a new rosbag2 DIR "
                         "(MCAP, CDR; with the rosbags library)")
+    parser.add_argument("--lifecycle", action="store_true",
+                        help="a managed (lifecycle) node: configure opens the boards, "
+                        "activate publishes and takes commands, deactivate disables the boards")
     parser.add_argument("--config", metavar="FILE", help="the config file (default: "
                         "FPGALINK_CONFIG, else ./fpgalink.toml, else "
                         "~/.config/fpgalink/fpgalink.toml)")
@@ -204,7 +207,7 @@ def main(argv: list[str] | None = None) -> None:
     rclpy.init(args=argv)
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag))
+                                bag, options.lifecycle))
     finally:
         if bag is not None:
             bag.close()
@@ -216,7 +219,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
-               bag: Any = None) -> int:
+               bag: Any = None, lifecycle: bool = False) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -230,6 +233,10 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    if lifecycle:
+        from fpgalink.ros2.managed import run_managed
+
+        return await run_managed(description, ports, baud, bag, stop)
     robot = Robot.open(description, ports, baud=baud)
     try:
         await robot.start()

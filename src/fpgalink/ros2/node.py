@@ -209,9 +209,12 @@ class RosBridge:
     then ``await bridge.run()`` until cancelled."""
 
     def __init__(self, robot: Robot, node: Node, loop: asyncio.AbstractEventLoop,
-                 executor: Any = None, bag: NodeBag | None = None) -> None:
+                 executor: Any = None, bag: NodeBag | None = None,
+                 managed: bool = False) -> None:
         self.robot = robot
         self.bag = bag
+        #: a managed node (``--lifecycle``) publishes and takes commands only while active
+        self.active = not managed
         self.node = node
         self.loop = loop
         self.executor = executor
@@ -264,11 +267,11 @@ class RosBridge:
                              "of it; `make tf2-msgs` generates it): running without /tf "
                              "and /tf_static")
         self.description_pub = self._publisher(String, "robot_description", LATCHED)
-        self.description_pub.publish(String(data=self.urdf))
         self.tf_static_pub = None
         if self.tf_type is not None and node.get_parameter("publish_static_tf").value:
             self.tf_static_pub = self._publisher(self.tf_type, "/tf_static", LATCHED)
-            self.tf_static_pub.publish(self._static_transforms())
+        if not managed:
+            self.publish_latched()
         self.clock_pub = self._clock_publisher()
         self.cmd_vel_out_pub = (
             self._publisher(TwistStamped, "cmd_vel_out", 10)
@@ -444,6 +447,12 @@ class RosBridge:
             raise BadOverride(f"robot_description: {exc}") from None
         return given
 
+    def publish_latched(self) -> None:
+        """robot_description and /tf_static, once (a managed node's when it is activated)."""
+        self.description_pub.publish(String(data=self.urdf))
+        if self.tf_static_pub is not None:
+            self.tf_static_pub.publish(self._static_transforms())
+
     def _clock_publisher(self) -> Any:
         """``/clock`` from the emulated robot's own time (``publish_clock``, only where the
         robot is emulated in this process: a real robot has no time but the host's)."""
@@ -595,19 +604,18 @@ class RosBridge:
     # --- subscriptions (messages arrive on the executor's thread) ------------------------
 
     def _threadsafe(self, handler: Callable[[Any], None], topic: str) -> Callable[[Any], None]:
-        if self.bag is None:
-            def forward(message: Any) -> None:
-                self.loop.call_soon_threadsafe(handler, message)
-            return forward
         resolved = self.node.resolve_topic_name(topic)
 
         def record_and_handle(message: Any) -> None:
-            self._record(resolved, message)  # as received, whatever the node makes of it
+            if not self.active:  # a managed node, not activated: no commands
+                return
+            if self.bag is not None:
+                self._record(resolved, message)  # as received, whatever the node makes of it
             handler(message)
 
-        def forward_recorded(message: Any) -> None:
+        def forward(message: Any) -> None:
             self.loop.call_soon_threadsafe(record_and_handle, message)
-        return forward_recorded
+        return forward
 
     def _publisher(self, kind: Any, topic: str, qos: Any) -> Any:
         publisher = self.node.create_publisher(kind, topic, qos)
