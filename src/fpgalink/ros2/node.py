@@ -10,7 +10,9 @@ Topics (relative names, so ``--ros-args -r __ns:=/robot`` and remaps work): see
 docs/ros2.md. ROS parameters: the node's own (``joint_state_rate``, ``cmd_vel_timeout``,
 ``goal_tolerance``, ``odom_frame``, ``base_frame``, ``telemetry_timeout_periods``,
 ``require_enable``, ``enable_timeout``, ``use_stamped_vel``, ``publish_odom_tf``,
-``joint_states_best_effort``) and every board parameter as
+``joint_states_best_effort``, the kinematics and limits under diff_drive_controller's
+names, ``robot_description``, ``publish_static_tf``, ``publish_clock``, …: the table in
+docs/ros2.md) and every board parameter as
 ``BOARD.NAME`` or ``BOARD.NAME.CHANNEL`` (``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``).
 """
 
