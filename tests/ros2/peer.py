@@ -23,6 +23,7 @@ import itertools
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import struct
@@ -1117,7 +1118,10 @@ def describe_scenario(peer: Peer) -> None:
         peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))
-    report("bag", sent_cmd_vel=sent_cmd_vel, **_read_bag(bag, peer))
+    try:
+        report("bag", sent_cmd_vel=sent_cmd_vel, **_read_bag(bag, peer))
+    finally:
+        shutil.rmtree(bag.parent, ignore_errors=True)
     _lifecycle(peer)
     facts = {}
     for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
