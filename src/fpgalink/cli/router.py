@@ -71,6 +71,7 @@ class ClientStats:
     bytes_to_client: int = 0
     dropped_frames: int = 0  #: the board's frames not delivered: its buffer was full
     frames_to_board: int = 0  #: its frames passed to the board (as the controller)
+    to_board_by_id: Counter[str] = field(default_factory=Counter)
     refused_frames: int = 0  #: its frames not passed on (an observer's writes)
     refused_by_id: Counter[str] = field(default_factory=Counter)
     #: its frames as the controller while the board's port was gone: not sent, nowhere to
@@ -325,6 +326,9 @@ class BoardRoute:
     #: as a framing error: the line was cut, not garbled)
     frames_cut: int = 0
     lost_since: float | None = None  #: monotonic time the port went away, while it is away
+    #: -v: each enable and disable a client passes to the board is said, as it happens
+    #: (who enabled the motor, and whether it disabled it before it left)
+    verbose: int = 0
     server: asyncio.Server | None = None
 
     # --- the board ----------------------------------------------------------------------
@@ -410,10 +414,14 @@ class BoardRoute:
         if client is self.controller:
             if self.to_board(encode_frame(content, self.framing)):
                 stats.frames_to_board += 1
+                message_id = _message_id(content)
+                stats.to_board_by_id[message_id] += 1
+                if self.verbose and message_id in ("RE", "RD"):
+                    note(f"board {self.name}: client #{stats.client} sent {message_id}")
             else:
                 stats.unsent_frames += 1
             return
-        message_id = content[:2].decode("ascii", "replace")
+        message_id = _message_id(content)
         if stats.refused_frames == 0:
             note(f"board {self.name}: client #{stats.client} is an observer: its {message_id} "
                  f"was refused (client #{self.controller.stats.client} controls the board); "
@@ -438,12 +446,20 @@ class BoardRoute:
              f"{stats.frames_to_board} to the board, {stats.refused_frames} refused")
 
 
+def _message_id(content: bytes) -> str:
+    """The frame's message ID as it is counted: the first two bytes (``E``, a heartbeat, is
+    one letter and its counter)."""
+    return content[:1].decode("ascii", "replace") if content[:1] == b"E" else \
+        content[:2].decode("ascii", "replace")
+
+
 def _rows(routes: list[BoardRoute]) -> list[dict[str, Any]]:
     rows = []
     for route in routes:
         for stats in route.history:
             row = dataclasses.asdict(stats)
             row["refused_by_id"] = dict(stats.refused_by_id)
+            row["to_board_by_id"] = dict(stats.to_board_by_id)
             rows.append({"board": route.name, **row})
     return rows
 
@@ -491,11 +507,12 @@ def router(first_port: int, ptys: int, links: tuple[str, ...], reconnect: bool,
     to any command or to open_link. Every client receives every frame its board sends.
     The first client to send is the controller; frames from the others are refused and
     counted (run watchers with --passive). When the controller leaves, the board gets
-    RD. A board's port that goes away is reopened until it is back. Ctrl-C or SIGTERM
-    stops the router and prints each client's counts (frames delivered, dropped for a
-    full buffer, passed, refused).
+    RD. A board's port that goes away is reopened until it is back. -v says each RE and
+    RD a client passes. Ctrl-C or SIGTERM stops the router and prints each client's counts
+    (frames delivered, dropped for a full buffer, passed, refused).
     """
-    routes = [BoardRoute(e.name, e.url, client_buffer) for e in conn.endpoints]
+    routes = [BoardRoute(e.name, e.url, client_buffer, verbose=conn.verbose)
+              for e in conn.endpoints]
     slots = parse_links(links, [r.name for r in routes])
     code = run(_route(conn, routes, first_port, ptys, slots, reconnect),
                ", ".join(r.url for r in routes))

@@ -373,3 +373,49 @@ def test_bad_links_are_one_line_exit_2(links: list[str], needle: str, tmp_path: 
     assert done.returncode == 2, done.stderr
     assert_one_line_error(done.stderr, needle)
     assert (tmp_path / "file").read_text() == "mine\n"
+
+
+def _enabled_or_gone(router: Router, command: subprocess.Popen[str], client: str) -> bool:
+    return command.poll() is not None or router.stderr().count(f"{client} RE") == 2
+
+
+@pytest.mark.parametrize("command", [["drive", "--v", "0.05", "--for", "120"],
+                                     ["goto", "5", "0", "--time-limit", "120"]])
+def test_sigterm_stops_a_robot_command_that_disables_both_boards_first(
+        tmp_path: Path, command: list[str]) -> None:
+    """SIGTERM as Ctrl-C (issue 26): the router, between the command and the boards, says
+    what the command itself sends each board (-v) — its own RD before it left, not the one
+    the router sends for a controller that goes."""
+    query = "surface=ideal"
+    router = Router(tmp_path, "-v", "--port", f"L=emu://robot/L?{query}",
+                    "--port", f"R=emu://robot/R?{query}")
+    try:
+        for attempt in range(1, 4):  # a loaded machine's own stall (exit 7): again
+            driving = subprocess.Popen([*SCRIPT, *command, *router.ports()],
+                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                       text=True, cwd=ROOT, env=cli_env())
+            client = f"client #{attempt} sent"
+            try:
+                wait_until_sync(functools.partial(_enabled_or_gone, router, driving, client),
+                                60, "both boards enabled")
+                driving.send_signal(signal.SIGTERM)
+                out, err = driving.communicate(timeout=30)
+            finally:
+                if driving.poll() is None:
+                    driving.kill()
+            if not stalled(subprocess.CompletedProcess(command, driving.returncode, out, err)):
+                break
+        assert driving.returncode == 143, err
+        assert "Traceback" not in err
+        # Its RD came from it, before it left.
+        said = router.stderr()
+        for board in ("L", "R"):
+            disabled = said.index(f"board {board}: {client} RD")
+            assert disabled < said.index(f"board {board}: client #{attempt} (controller) left")
+        summary = router.stop()
+    finally:
+        router.kill()
+    for board in ("L", "R"):
+        (stats,) = [c for c in summary["clients"]
+                    if c["board"] == board and c["client"] == attempt]
+        assert stats["to_board_by_id"]["RD"] >= 1, stats
