@@ -75,11 +75,18 @@ def test_param_list_json_csv_and_table(fake_board: Callable[..., BoardThread]) -
     assert isinstance(rows, list) and len(rows) >= 10
     period = next(r for r in rows if r["name"] == "TsTimerPeriod")
     assert period["board"] == 4 and period["A"] is None and isinstance(period["id"], int)
+    # The range as numbers too, not only "1..1000" (an unbounded side null).
+    assert (period["min"], period["max"], period["min_exclusive"]) == (1, 1000, False)
+    ti = next(r for r in rows if r["name"] == "Ti_Wheel_Pid")
+    assert (ti["min"], ti["max"], ti["min_exclusive"]) == (0, None, True)
+    direction = next(r for r in rows if r["name"] == "IncSenzCountDirection")
+    assert direction["allowed"] == [-1, 1] and period["allowed"] is None
     numbers_only(rows)
     done = cli("param", "list", "--format", "csv", "--port", fake.url)
     assert done.returncode == 0, done.stderr
     table = list(csv.DictReader(io.StringIO(done.stdout)))
     assert len(table) == len(rows) and {r["name"] for r in table} == {r["name"] for r in rows}
+    assert next(r for r in table if r["name"] == "IncSenzCountDirection")["allowed"] == "-1 1"
 
 
 def test_param_get_and_set_json(fake_board: Callable[..., BoardThread]) -> None:
