@@ -277,17 +277,35 @@ def _said(router: Router, what: str) -> bool:
     return what in router.stderr()
 
 
-def test_a_board_unplugged_and_back_is_reopened_with_its_clients_kept(tmp_path: Path) -> None:
+def _serve_tcp(*options: str) -> tuple[subprocess.Popen[str], str]:
+    """``fpgaemu serve --tcp 127.0.0.1:0 OPTIONS`` and its URL, once ready."""
+    proc = subprocess.Popen([sys.executable, "-m", "fpgaemu", "serve", "--tcp", "127.0.0.1:0",
+                             *options], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True, cwd=ROOT)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # the ready line, or "" if it could not serve
+    assert line.startswith("ready "), line
+    return proc, line.split()[2]
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+def test_a_board_unplugged_and_back_is_reopened_with_its_clients_kept(
+        tmp_path: Path, kind: str) -> None:
     """``fpgaemu serve --fault unplug``: the board's pty goes and comes back behind its
-    symlink. The router reopens it; its clients (a controller on the router's own --link
-    pty, an observer over TCP) stay connected, see the silence, and get every frame again
-    after it, the observer every TM the controller got."""
+    symlink, or its TCP port stops listening and listens again. The router reopens it; its
+    clients (a controller on the router's own --link pty, an observer over TCP) stay
+    connected, see the silence, and get every frame again after it, the observer every TM
+    the controller got."""
     board_link, client_link = tmp_path / "fpga0", tmp_path / "router0"
     # Unplugged 6 s into the board's life, for 1 s: after the router has opened it.
-    serve, _ = serve_pty("--link", str(board_link), "--fault", "unplug=6:1")
+    if kind == "pty":
+        serve, _ = serve_pty("--link", str(board_link), "--fault", "unplug=6:1")
+        board = str(board_link)
+    else:
+        serve, board = _serve_tcp("--fault", "unplug=6:1")
     router = None
     try:
-        router = Router(tmp_path, "--link", str(client_link), "--port", str(board_link))
+        router = Router(tmp_path, "--link", str(client_link), "--port", board)
         assert router.proc.stdout is not None
         ready = router.proc.stdout.readline().split()
         assert ready[:4] == ["ready", "0", str(client_link), "->"], ready
