@@ -404,3 +404,13 @@ def test_monitor_on_an_80_column_terminal_tells_the_boards_ports_apart(tmp_path:
         board = cells[1] or board
         ports[board] = ports.get(board, "") + cells[2]
     assert ports == {name: str(path) for name, path in links.items()}, last
+
+
+@pytest.mark.parametrize("args", [["record", "-"], ["record", "-", "--csv"]])
+def test_record_to_dash_says_it_writes_a_file(args: list[str], tmp_path: Path) -> None:
+    """Issue 26's rough edges: ``record -`` made a file named "-" where ``param dump -``
+    means stdout; now one line pointing at monitor's streams, and no file."""
+    done = cli(*args, "--duration", "0.2", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, "not stdout", "monitor --format csv|jsonl")
+    assert not (tmp_path / "-").exists()
