@@ -24,7 +24,7 @@ $(DEMO_STAMP): pyproject.toml
 # co-simulation, the benchmarks' peers and the developer tools; setuptools back (cffi
 # builds through it).
 $(STAMP): $(DEMO_STAMP) ros2-constraints.txt
-	$(PY) -m pip install --quiet -e '.[dev,ros2,physics,cosim,bench,plot]' setuptools -c ros2-constraints.txt
+	$(PY) -m pip install --quiet -e '.[dev,ros2,physics,cosim,bench,plot,campaign]' setuptools -c ros2-constraints.txt
 	touch $(STAMP)
 
 # Icarus Verilog simulates the reference UART the emulator's is checked against
@@ -100,6 +100,8 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.flood --mb 5
 	$(PY) -m benchmarks.faults
 	$(PY) -m benchmarks.router
+	$(PY) -m benchmarks.campaign
+	$(PY) -m benchmarks.ceiling
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

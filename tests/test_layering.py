@@ -85,6 +85,22 @@ def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path)
         assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
 
 
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.campaign"))
+def test_campaigns_stand_on_the_robot_and_below(where: str, path: Path) -> None:
+    # Beside the CLI and the node: the CLI's campaign and tune commands stand on it.
+    above = {n for n in first_party(imports_of(path))
+             if within(n, "fpgalink.cli", "fpgalink.ros2")}
+    assert not above, f"{where} imports {sorted(above)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.config"))
+def test_the_config_file_reader_stands_on_the_protocol_alone(where: str, path: Path) -> None:
+    # The CLI and the ROS 2 node both read fpgalink.toml through it; the node may not
+    # import the CLI.
+    assert not {n for n in first_party(imports_of(path))
+                if not within(n, "fpgalink.protocol")}, where
+
+
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.cli"))
 def test_the_cli_never_imports_the_ros2_node(where: str, path: Path) -> None:
     # Both stand on the robot; a recording in rosbag2 form uses rosbags, not the node.

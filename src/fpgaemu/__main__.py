@@ -12,6 +12,7 @@ import asyncio
 import contextlib
 import ipaddress
 import math
+import os
 import signal
 import sys
 from collections.abc import Callable
@@ -518,10 +519,20 @@ def _stdout_failed(exc: OSError) -> StdoutError:
 def _quiet_stdout() -> None:
     """What is still buffered for a stdout that failed goes to /dev/null, so the
     interpreter's last flush prints no traceback."""
-    import os
-
     devnull = os.open(os.devnull, os.O_WRONLY)
     os.dup2(devnull, sys.stdout.fileno())
+
+
+@cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True,
+                               "help_option_names": []})
+@click.argument("args", nargs=-1, type=click.UNPROCESSED)
+def campaign(args: tuple[str, ...]) -> None:
+    """Run a campaign of scenarios on emulated robots: the same command as `fpgalink-cli
+    campaign SPEC.toml` (its --help says more), which it runs."""
+    # A campaign drives each emulated robot through the library's robot (supervision,
+    # odometry, go-to), which the emulator never imports: it hands over to the library's
+    # command, as a program, not by import.
+    os.execv(sys.executable, [sys.executable, "-m", "fpgalink", "campaign", *args])
 
 
 def main(argv: list[str] | None = None) -> NoReturn:

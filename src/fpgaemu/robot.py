@@ -34,7 +34,10 @@ __all__ = ["BODIES", "ROBOT_OPTIONS", "EmulatedRobot", "check_body", "default_bo
 
 #: The query options of an ``emu://robot/NAME`` URL: ``fault=L:SPEC`` names the board a
 #: fault applies to, ``robot`` a robot file (default: the seed's robot), ``body`` the body.
-ROBOT_OPTIONS = ("seed", "gear", "fault", "surface", "robot", "body", "uart_rx", "tx_gap")
+#: ``run`` names one in-process robot among others with the same options (a campaign runs
+#: several in one process); the emulator itself does not read it.
+ROBOT_OPTIONS = ("seed", "gear", "fault", "surface", "robot", "body", "uart_rx", "tx_gap",
+                 "run")
 #: The bodies an emulated robot can have.
 BODIES = ("mujoco", "kinematic")
 

@@ -1401,7 +1401,7 @@ async def open_emulated_transport(
         key, side_name, options = robot
         paced: PacedBoard = _shared_robot(key, options, baud).side(side_name)
     else:
-        paced = PacedBoard(board_from_url(url, baud))
+        paced = PacedBoard(board_from_url(url, baud), clock=asyncio.get_running_loop().time)
     protocol = protocol_factory()
     transport = EmulatedTransport(paced, protocol)
     protocol.connection_made(transport)
@@ -1416,7 +1416,10 @@ _ROBOTS: dict[tuple[str, int], PacedRobot] = {}
 def _shared_robot(key: str, options: dict[str, list[str]], baud: int) -> PacedRobot:
     paced = _ROBOTS.get((key, baud))
     if paced is None:
-        paced = _ROBOTS[(key, baud)] = PacedRobot(robot_from_options(options, baud))
+        # Paced by the loop's own clock: the wall clock on asyncio's loops, emulated time on
+        # a campaign's (fpgalink.aio.virtual_time_loop), where the board runs as fast as it goes.
+        paced = _ROBOTS[(key, baud)] = PacedRobot(robot_from_options(options, baud),
+                                                  asyncio.get_running_loop().time)
 
         def forget() -> None:
             _ROBOTS.pop((key, baud), None)

@@ -347,3 +347,21 @@ def test_router_quick(tmp_path: Path) -> None:
         # router drops only for a client that leaves its buffer full, which these read).
         assert row["router_dropped_frames"] == 0 and set(row["observers_missing_tm"]) <= {0}
         assert row["router_cpu_percent"] > 0
+
+
+@pytest.mark.timeout(TIMEOUT_S + 60)
+def test_campaign_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("campaign", tmp_path)
+    assert "per-scenario overhead" in stdout
+    # Wall times depend on the machine; that every way gave the same table does not.
+    for label, way in report["ways"].items():
+        assert way["same"] is True and way["failed"] == 0, label
+    assert report["overhead_s_per_scenario"] > 0
+
+
+@pytest.mark.timeout(TIMEOUT_S + 60)
+def test_ceiling_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("ceiling", tmp_path)
+    assert "flat loop" in stdout
+    assert set(report["cases"]) == {"arithmetic", "+ TM", "+ RV", "board"}
+    assert all(case["us_per_ms"] > 0 for case in report["cases"].values())

@@ -2,14 +2,16 @@
 ``fpgaemu serve`` and ``fpgalink-ros2`` as processes, talks to the node over ROS, reads what
 really happened from the emulator's truth endpoint, and prints one JSON line per check.
 
-    python -m tests.ros2.peer main|kill|fault|ddc|imu   (in tests/ros2/netns.sh: loopback only)
+    python -m tests.ros2.peer main|kill|fault|ddc|imu|describe   (in tests/ros2/netns.sh)
 
 ``main``: joint_states against the boards' telemetry, cmd_vel against the body, goal_pose,
 the enable deadman, SetParameters. ``kill``: one board's serving process killed.
 ``fault``: a board restarting mid-drive, then one board's telemetry stopping. ``ddc``:
 what a diff_drive_controller user relies on (issue 28). ``imu``: the node on the emulated
 robot in its own process (MuJoCo body): ``imu/data`` at rest and turning, against the
-node's ``truth``.
+node's ``truth``. ``describe``: in namespace ``/bot``, the emulated robot in the node's
+process: robot_description and /tf_static against the URDF, frame prefixes, wheel names,
+covariances, limits and cmd_vel_out, /clock and use_sim_time.
 Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the test to assert).
 """
 
@@ -21,14 +23,18 @@ import itertools
 import json
 import math
 import os
+import shutil
 import signal
 import socket
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
+import xml.etree.ElementTree as ET
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import rclpy
@@ -46,8 +52,9 @@ from rclpy.qos import (
     ReliabilityPolicy,
     qos_profile_sensor_data,
 )
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 
 PATIENCE = 30.0
@@ -233,9 +240,9 @@ class Peer(Node):
         return out
 
 
-def start_node(ports: dict[str, str], *ros_args: str) -> Process:
+def start_node(ports: dict[str, str], *ros_args: str, own: tuple[str, ...] = ()) -> Process:
     node = Process(sys.executable, "-m", "fpgalink.ros2",
-                   *(f"--port={name}={url}" for name, url in ports.items()),
+                   *(f"--port={name}={url}" for name, url in ports.items()), *own,
                    "--ros-args", *ros_args)
     return node
 
@@ -530,7 +537,15 @@ def _disturbed(lines: list[dict[str, Any]], at: float) -> bool:
     starving the emulator's or the node's process) had stopped it, and nothing can be
     measured of this one."""
     before = [line for line in lines if line["t"] < at]
-    return not before or not all(board["enabled"] for board in before[-1]["boards"].values())
+    if not before or not all(board["enabled"] for board in before[-1]["boards"].values()):
+        return True
+    # Truth lines are 20 ms apart: an enable that fell after the last line before the fault
+    # but before the fault itself shows only in the next line's disabled_s (one run saw R
+    # disabled 14 ms before L's power cycle).
+    after = next((line for line in lines if line["t"] >= at), None)
+    return after is not None and any(
+        board["disabled_s"] is not None and before[-1]["t"] <= board["disabled_s"] < at
+        for board in after["boards"].values())
 
 
 def _first_error(peer: Peer, board: str, since_ns: int, text: str = ""
@@ -898,14 +913,235 @@ def imu_scenario(peer: Peer) -> None:
         report("imu_node_exit", code=node.stop(signal.SIGINT))
 
 
+#: The describe scenario's node: kinematic emulated boards in its own process.
+KINEMATIC = {b: f"emu://robot/{b}?surface=ideal&body=kinematic" for b in ("L", "R")}
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+TWIST_COVARIANCE = [0.01, 0.02, 1e6, 1e6, 1e6, 0.03]
+
+
+def _urdf_joints(urdf: str) -> tuple[list[str], list[dict[str, Any]]]:
+    """The URDF's moving joints' names, and its fixed joints (parent, child, xyz, rpy)."""
+    moving, fixed = [], []
+    for joint in ET.fromstring(urdf).iter("joint"):
+        if joint.get("type") != "fixed":
+            moving.append(str(joint.get("name")))
+            continue
+        origin = joint.find("origin")
+        parent, child = joint.find("parent"), joint.find("child")
+        assert origin is not None and parent is not None and child is not None
+        fixed.append({"parent": parent.get("link"), "child": child.get("link"),
+                      "xyz": [float(v) for v in str(origin.get("xyz")).split()],
+                      "rpy": [float(v) for v in str(origin.get("rpy")).split()]})
+    return moving, fixed
+
+
+def _transform(t: Any) -> dict[str, Any]:
+    r = t.transform.rotation
+    yaw = math.atan2(2 * (r.w * r.z + r.x * r.y), 1 - 2 * (r.y * r.y + r.z * r.z))
+    return {"parent": t.header.frame_id, "child": t.child_frame_id,
+            "xyz": [t.transform.translation.x, t.transform.translation.y,
+                    t.transform.translation.z],
+            "yaw": yaw, "roll_pitch_free": abs(r.x) < 1e-9 and abs(r.y) < 1e-9}
+
+
+def _read_bag(path: Path, peer: Peer) -> dict[str, Any]:
+    """The node's --bag read back with rosbags, each message deserialised by rclpy's own
+    deserialiser into the type the bag names: topics and counts, the cmd_vel values as
+    received, and whether every joint_states stamp this peer received is in it."""
+    import importlib
+
+    from rclpy.serialization import deserialize_message
+    from rosbags.rosbag2 import Reader
+
+    def get_message(msgtype: str) -> Any:
+        package, _, name = msgtype.split("/")
+        return getattr(importlib.import_module(f"{package}.msg"), name)
+
+    counts: dict[str, int] = {}
+    types: dict[str, str] = {}
+    cmd_vel: set[float] = set()
+    joint_stamps: set[int] = set()
+    with Reader(path) as reader:
+        for connection, _, data in reader.messages():
+            message = deserialize_message(data, get_message(connection.msgtype))
+            counts[connection.topic] = counts.get(connection.topic, 0) + 1
+            types[connection.topic] = connection.msgtype
+            if connection.topic == "/bot/cmd_vel":
+                cmd_vel.add(message.linear.x)
+            elif connection.topic == "/bot/joint_states":
+                joint_stamps.add(_stamp_ns(message.header))
+    received = {stamp for stamp, _, _ in peer.joints}
+    metadata = (path / "metadata.yaml").read_text(encoding="utf-8")
+    return {"mcap": "storage_identifier: mcap" in metadata, "counts": counts, "types": types,
+            "cmd_vel_values": sorted(cmd_vel),
+            "peer_joint_states": len(received),
+            "peer_joint_states_in_bag": len(received & joint_stamps)}
+
+
+def _lifecycle(peer: Peer) -> None:
+    """``--lifecycle``: nothing published until activated, commands then, nothing after
+    deactivate, the boards disabled; shutdown ends the process."""
+    from lifecycle_msgs.msg import Transition
+    from lifecycle_msgs.srv import ChangeState, GetState
+
+    change = peer.create_client(ChangeState, f"{NODE}/change_state")
+    get = peer.create_client(GetState, f"{NODE}/get_state")
+
+    def state() -> str:
+        return str(peer.call(get, GetState.Request()).current_state.label)
+
+    def transition(label: str) -> bool:
+        return bool(peer.call(change, ChangeState.Request(
+            transition=Transition(label=label))).success)
+
+    peer.joints.clear()
+    peer.odom.clear()
+    # The node before may still have messages queued in this peer: counted by their stamps.
+    started_ns = time.time_ns()
+    node = start_node(KINEMATIC, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
+                      own=("--lifecycle",))
+    facts: dict[str, Any] = {}
+    try:
+        facts["unconfigured"] = state()
+        facts["configure"] = transition("configure")
+        facts["configured"] = state()
+        listing = ListParameters.Request()
+        listing.prefixes = ["L"]
+        facts["board_parameters"] = len(peer.call(peer.list_client, listing).result.names)
+        facts["joints_before_activate"] = sum(1 for stamp, _, _ in peer.joints
+                                              if stamp > started_ns)
+        facts["cleanup"] = transition("cleanup")
+        facts["activate"] = transition("activate")
+        facts["active"] = state()
+        peer.spin_until(lambda: peer.odom and _stamp_ns(peer.odom[-1].header) > started_ns
+                        and peer.odom[-1].twist.twist.linear.x > 0.05,
+                        "driving once active", lambda: peer.drive(0.1, 0.0))
+        facts["driven_v"] = peer.odom[-1].twist.twist.linear.x
+        facts["deactivate"] = transition("deactivate")
+        deactivated_ns = time.time_ns()
+        peer.spin_until(lambda: peer.logged("deactivated: boards disabled"), "deactivated said",
+                        lambda: peer.drive(0.1, 0.0))
+        count = len(peer.joints)
+        peer.spin_for(1.0, lambda: peer.drive(0.1, 0.0))  # commands while inactive: ignored
+        facts["joints_after_deactivate"] = len(peer.joints) - count
+        facts["stamps_after_deactivate"] = sum(1 for stamp, _, _ in peer.joints
+                                               if stamp > deactivated_ns)
+        facts["inactive"] = state()
+        facts["shutdown"] = transition("shutdown")
+    finally:
+        try:
+            facts["exit"] = node.proc.wait(PATIENCE)
+        except subprocess.TimeoutExpired:
+            facts["exit"] = node.stop(signal.SIGKILL)
+        report("lifecycle", **facts)
+
+
+def describe_scenario(peer: Peer) -> None:
+    """What robot_state_publisher, RViz and a diff_drive_controller configuration expect of
+    the node (issue 28), in namespace /bot with the emulated robot in its process."""
+    cmd_vel_out: list[TwistStamped] = []
+    clock: list[tuple[int, float]] = []  # /clock ns, arrival (monotonic)
+    peer.create_subscription(TwistStamped, "cmd_vel_out", cmd_vel_out.append, 100)
+
+    def on_clock(message: Clock) -> None:
+        clock.append((message.clock.sec * 1_000_000_000 + message.clock.nanosec,
+                      time.monotonic()))
+
+    peer.create_subscription(Clock, "/clock", on_clock, 100)
+    bag = Path(tempfile.mkdtemp(prefix="fpgalink-describe-")) / "bag"
+    node = start_node(KINEMATIC, "-r", "__ns:=/bot",
+                      "-p", "left_wheel_names:=[left_front,left_back]",
+                      "-p", "right_wheel_names:=[right_front,right_back]",
+                      "-p", "publish_limited_velocity:=true",
+                      "-p", "linear.x.max_velocity:=0.1",
+                      "-p", f"twist_covariance_diagonal:={TWIST_COVARIANCE}",
+                      "-p", "require_enable:=false", "-p", "use_sim_time:=true",
+                      "-p", "telemetry_timeout_periods:=1000", own=(f"--bag={bag}",))
+    sent_cmd_vel = 0
+
+    def drive_fast() -> None:
+        nonlocal sent_cmd_vel
+        peer.cmd.publish(_twist(0.3, 0.0))
+        sent_cmd_vel += 1
+
+    try:
+        peer.spin_until(lambda: len(peer.joints) > 20 and len(peer.odom) > 20, "the node up")
+        # Subscribers that come after the node published: latched, as robot_state_publisher's.
+        description: list[str] = []
+        static: list[TFMessage] = []
+
+        def on_description(message: String) -> None:
+            description.append(message.data)
+
+        peer.create_subscription(String, "robot_description", on_description, LATCHED)
+        peer.create_subscription(TFMessage, "/tf_static", static.append, LATCHED)
+        peer.spin_until(lambda: description and static, "robot_description and /tf_static")
+        request = GetParameters.Request()
+        request.names = ["robot_description", "left_wheel_names", "right_wheel_names"]
+        values = peer.call(peer.get_client, request).values
+        moving, fixed = _urdf_joints(description[0])
+        odom = peer.odom[-1]
+        report("describe", topic_equals_parameter=description[0] == values[0].string_value,
+               urdf_moving_joints=moving, urdf_fixed=fixed, joint_names=peer.joint_names,
+               wheel_names=[list(values[1].string_array_value),
+                            list(values[2].string_array_value)],
+               static=[_transform(t) for m in static for t in m.transforms],
+               odom_frames=[odom.header.frame_id, odom.child_frame_id],
+               twist_covariance=[odom.twist.covariance[i * 7] for i in range(6)],
+               pose_covariance_x=odom.pose.covariance[0])
+
+        # use_sim_time: this node's stamps on the emulator's /clock, not the host's clock.
+        peer.spin_until(lambda: len(clock) > 20, "/clock")
+        last_clock = clock[-1][0]
+        stamp = peer.joints[-1][0]
+        report("clock", clocks=len(clock),
+               increasing=all(b[0] >= a[0] for a, b in itertools.pairwise(clock)),
+               last_clock_s=last_clock / 1e9, joint_stamp_s=stamp / 1e9,
+               wall_s=time.time())
+
+        # Limits: 0.3 m/s asked, 0.1 m/s the node's limit: cmd_vel_out says what was
+        # driven, and the body goes no faster.
+        peer.spin_until(lambda: len(cmd_vel_out) > 10 and peer.odom[-1].twist.twist.linear.x
+                        > 0.05, "driving limited", drive_fast)
+        peer.spin_for(1.0, drive_fast)
+        out = cmd_vel_out[-1]
+        fastest = max(m.twist.twist.linear.x for m in peer.odom[-50:])
+        too_fast_ok, too_fast_reason = peer.set_double("angular.z.max_velocity", 10.0)
+        multiplier_ok, _ = peer.set_double("left_wheel_radius_multiplier", 1.05)
+        zero_ok, zero_reason = peer.set_double("right_wheel_radius_multiplier", 0.0)
+        report("limits", out_v=out.twist.linear.x, out_frame=out.header.frame_id,
+               fastest_odom_v=fastest, too_fast_ok=too_fast_ok,
+               too_fast_reason=too_fast_reason, multiplier_ok=multiplier_ok,
+               multiplier=peer.get_double("left_wheel_radius_multiplier"),
+               zero_ok=zero_ok, zero_reason=zero_reason)
+        peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
+    finally:
+        report("describe_node_exit", code=node.stop(signal.SIGINT))
+    try:
+        report("bag", sent_cmd_vel=sent_cmd_vel, **_read_bag(bag, peer))
+    finally:
+        shutil.rmtree(bag.parent, ignore_errors=True)
+    _lifecycle(peer)
+    facts = {}
+    for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
+        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
+                               *(f"--port={b}={url}" for b, url in KINEMATIC.items()),
+                               "--ros-args", "-p", value],
+                              capture_output=True, text=True, timeout=PATIENCE, check=False)
+        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
+    report("describe_bad_values", **facts)
+
+
 def main() -> None:
     scenario = sys.argv[1]
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
-    peer = Peer(namespace="/bot" if scenario == "kill" else "")
+    peer = Peer(namespace="/bot" if scenario in ("kill", "describe") else "")
     try:
         {"main": main_scenario, "kill": kill_scenario, "fault": fault_scenario,
-         "ddc": ddc_scenario, "imu": imu_scenario}[scenario](peer)
+         "ddc": ddc_scenario, "imu": imu_scenario,
+         "describe": describe_scenario}[scenario](peer)
     finally:
         peer.destroy_node()
         rclpy.shutdown()

@@ -3,9 +3,9 @@ plain rclpy), with ``fpgaemu serve`` boards over ptys. Every process that create
 participant runs inside tests/ros2/netns.sh: a private network namespace with loopback only.
 
 The scenarios run each in its own namespace (``main``, ``kill`` and ``docs`` at once,
-``fault``, ``ddc`` and ``imu`` after them) and each test waits for its scenario's verdicts. Without
-the ``ros2`` extra, or where network namespaces cannot be made, the tests skip, unless
-``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
+``fault``, ``ddc`` and ``imu`` after them, ``describe`` last) and each test waits for its
+scenario's verdicts. Without the ``ros2`` extra, or where network namespaces cannot be made,
+the tests skip, unless ``FPGALINK_REQUIRE_ROS2=1`` (set by ``make test``): a failure then."""
 
 from __future__ import annotations
 
@@ -58,7 +58,9 @@ def docs_example() -> str:
 class Scenario:
     def __init__(self, name: str, log_dir: Path) -> None:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
-                   ROS_LOG_DIR=str(log_dir), PYTHONPATH=str(ROOT),
+                   ROS_LOG_DIR=str(log_dir),
+                   # This checkout's code, whichever fpgalink the interpreter has installed.
+                   PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
                    PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
         self.name = name
         command = [sys.executable, "-m", "tests.ros2.peer", name]
@@ -110,25 +112,27 @@ class Scenario:
         return checks[name]
 
 
-#: Scenarios started together once the first three have ended.
-LATER = ("fault", "ddc", "imu")
+#: Scenarios started together, a wave once the one before has ended.
+WAVES = (("main", "kill", "docs"), ("fault", "ddc", "imu"), ("describe",))
 
 
 class Scenarios(dict[str, Scenario]):
-    """The scenarios by name: ``main``, ``kill`` and ``docs`` start at once, side by side;
-    ``fault``, ``ddc`` and ``imu`` when first asked for, after they have ended: the fault
-    timings are the node's and the emulator's own, but six ROS graphs starting at once on
-    two cores starve serve past the boards' request timeouts before anything is measured."""
+    """The scenarios by name: the first wave (:data:`WAVES`) starts at once, side by side;
+    a later wave when one of its scenarios is first asked for, after every scenario started
+    before it has ended: the fault timings are the node's and the emulator's own, but six
+    ROS graphs starting at once on two cores starve serve past the boards' request timeouts
+    before anything is measured (and a fourth graph beside the first three left the main
+    scenario's node 0.17 m of odometry behind its body)."""
 
     def __init__(self, log_dir: Path) -> None:
-        super().__init__({name: Scenario(name, log_dir) for name in ("main", "kill", "docs")})
+        super().__init__({name: Scenario(name, log_dir) for name in WAVES[0]})
         self.log_dir = log_dir
 
     def __missing__(self, name: str) -> Scenario:
-        assert name in LATER, name
+        wave = next(w for w in WAVES if name in w)
         for scenario in list(self.values()):
             scenario.finish()
-        for later in LATER:
+        for later in wave:
             self[later] = Scenario(later, self.log_dir)
         return self[name]
 
@@ -443,3 +447,115 @@ def test_the_emulated_bodys_imu_is_published_on_imu_data(
     assert turning["truth_omega"] > 0.1
     assert math.isclose(turning["gz"], turning["truth_omega"], rel_tol=0.2, abs_tol=0.03)
     assert scenarios["imu"].check("imu_node_exit")["code"] == 0
+
+
+# --- as robot_state_publisher, RViz and a diff_drive_controller configuration expect ------
+
+
+def test_robot_description_is_the_urdf_latched_with_the_joint_states_names(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("describe")
+    # A subscriber that came after the node got it (transient local), equal to the
+    # parameter; its wheels' joints are named as joint_states names them, here renamed
+    # with left_wheel_names/right_wheel_names.
+    assert facts["topic_equals_parameter"], facts
+    renamed = ["left_front", "left_back", "right_front", "right_back"]
+    assert facts["joint_names"] == renamed
+    assert sorted(facts["urdf_moving_joints"]) == sorted(renamed)
+    assert facts["wheel_names"] == [renamed[:2], renamed[2:]]
+
+
+def test_tf_static_carries_the_urdfs_fixed_joints_with_the_namespace_prefix(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("describe")
+    fixed = facts["urdf_fixed"]
+    assert {j["child"] for j in fixed} == {"ImuALink", "laser"}
+    static = {t["child"]: t for t in facts["static"]}
+    assert set(static) == {f"bot/{j['child']}" for j in fixed}
+    for joint in fixed:
+        transform = static[f"bot/{joint['child']}"]
+        assert transform["parent"] == f"bot/{joint['parent']}"
+        assert transform["xyz"] == pytest.approx(joint["xyz"], abs=1e-9)
+        assert transform["roll_pitch_free"]
+        assert transform["yaw"] == pytest.approx(joint["rpy"][2], abs=1e-9)
+    # In namespace /bot, as diff_drive_controller's tf_frame_prefix_enable does.
+    assert facts["odom_frames"] == ["bot/odom", "bot/base_link"]
+
+
+def test_twist_covariance_diagonal_is_a_parameter(scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("describe")
+    assert facts["twist_covariance"] == [0.01, 0.02, 1e6, 1e6, 1e6, 0.03]
+    bad = scenarios["describe"].check("describe_bad_values")
+    for value, name in (("pose_covariance_diagonal:=[1.0,2.0]", "pose_covariance_diagonal"),
+                        ("left_wheel_names:=[only_one]", "left_wheel_names")):
+        assert bad[value]["code"] == 2, bad[value]
+        assert len(bad[value]["stderr"]) == 1, bad[value]
+        assert bad[value]["stderr"][0].startswith(
+            f"fpgalink-ros2: error: --ros-args -p: {name}: "), bad[value]
+
+
+def test_velocity_limits_are_parameters_and_cmd_vel_out_says_what_was_driven(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("limits")
+    # 0.3 m/s asked with linear.x.max_velocity 0.1: driven at 0.1, and said so.
+    assert facts["out_v"] == pytest.approx(0.1, abs=1e-9)
+    assert facts["out_frame"] == "bot/base_link"
+    assert 0.05 < facts["fastest_odom_v"] <= 0.1 + 0.005, facts
+    # Never above the robot file's limit.
+    assert facts["too_fast_ok"] is False and "angular.z.max_velocity" in \
+        facts["too_fast_reason"], facts
+    # The sides' radius multipliers, at run time, within their range.
+    assert facts["multiplier_ok"] and facts["multiplier"] == 1.05, facts
+    assert facts["zero_ok"] is False and "right_wheel_radius_multiplier" in \
+        facts["zero_reason"], facts
+
+
+def test_the_emulated_robot_publishes_clock_and_use_sim_time_stamps_on_it(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("clock")
+    assert facts["clocks"] > 20 and facts["increasing"]
+    # The emulator's time since it started, not the host's (seconds since 1970).
+    assert 0 < facts["last_clock_s"] < 3600
+    assert abs(facts["joint_stamp_s"] - facts["last_clock_s"]) < 1.0, facts
+    assert scenarios["describe"].check("describe_node_exit")["code"] == 0
+
+
+def test_bag_records_the_nodes_inputs_as_received_and_its_outputs_as_published(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("bag")
+    assert facts["mcap"], facts
+    # Read back with rosbags, each message deserialised by rclpy into the type the bag names.
+    types = facts["types"]
+    assert types["/bot/cmd_vel"] == "geometry_msgs/msg/Twist"
+    assert types["/bot/joint_states"] == "sensor_msgs/msg/JointState"
+    assert types["/tf"] == types["/tf_static"] == "tf2_msgs/msg/TFMessage"
+    assert types["/bot/cmd_vel_out"] == "geometry_msgs/msg/TwistStamped"
+    assert types["/diagnostics"] == "diagnostic_msgs/msg/DiagnosticArray"
+    counts = facts["counts"]
+    assert counts["/bot/robot_description"] == counts["/tf_static"] == 1
+    # The inputs as they came: the peer's 0.3 m/s (beyond the limit) and its stops.
+    assert facts["cmd_vel_values"] == [0.0, 0.3]
+    assert counts["/bot/cmd_vel"] > 10 and counts["/bot/cmd_vel_out"] > 10
+    # The outputs as published: every joint_states the peer received is in the bag, and
+    # one /tf per odom.
+    assert facts["peer_joint_states"] > 20
+    assert facts["peer_joint_states_in_bag"] == facts["peer_joint_states"]
+    assert counts["/tf"] == counts["/bot/odom"] >= counts["/bot/joint_states"] - 1
+
+
+def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["describe"].check("lifecycle")
+    assert facts["unconfigured"] == "unconfigured"
+    # configure opens the boards and declares their parameters, publishing nothing yet.
+    assert facts["configure"] and facts["configured"] == "inactive", facts
+    assert facts["board_parameters"] >= 19, facts
+    assert facts["joints_before_activate"] == 0, facts
+    assert facts["cleanup"] is False  # refused, said in the log; still inactive
+    # activate: joint_states, odom, and cmd_vel drives.
+    assert facts["activate"] and facts["active"] == "active", facts
+    assert facts["driven_v"] > 0.05
+    # deactivate: nothing published after it, commands ignored, the boards disabled.
+    assert facts["deactivate"] and facts["inactive"] == "inactive", facts
+    assert facts["joints_after_deactivate"] == 0 and facts["stamps_after_deactivate"] == 0
+    # shutdown ends the process cleanly.
+    assert facts["shutdown"] and facts["exit"] == 0, facts

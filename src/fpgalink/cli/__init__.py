@@ -47,6 +47,10 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "router": ("fpgalink.cli.router", "router",
                "Share each board among several local clients: one controller, observers "
                "read-only."),
+    "campaign": ("fpgalink.cli.campaign", "campaign",
+                 "Run the scenarios of SPEC.toml on emulated robots and print their figures."),
+    "tune": ("fpgalink.cli.campaign", "tune",
+             "Pick the wheel PID gains that settle a step soonest, from a grid."),
     "codegen": ("fpgalink.cli.codegen", "codegen",
                 "Generate the board's protocol code (C: header, codec, self-test, Makefile) "
                 "into OUTDIR."),

@@ -19,17 +19,27 @@ FILE`` or ``FPGALINK_CONFIG`` names one explicitly. Its keys::
 
 from __future__ import annotations
 
-import math
+import contextlib
 import os
-import re
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fpgalink import config as _config
 from fpgalink.cli.output import CliError, ExitCode
-from fpgalink.protocol.robot import BOARD_NAME
-from fpgalink.protocol.tomlfile import TomlFileError, load_toml
+from fpgalink.config import (
+    CONFIG_KEYS,
+    ConfigError,
+    Endpoint,
+    config_paths,
+)
+from fpgalink.config import blank as _blank
+from fpgalink.config import check_name as _check_name
+from fpgalink.config import config_ports as _config_ports
+from fpgalink.config import load_config as _load_config
+from fpgalink.config import seconds as _seconds
+from fpgalink.config import whole as _whole
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = [
@@ -45,42 +55,22 @@ __all__ = [
 COMMAND_LINE = "command line"
 DEFAULT = "default"
 EMULATOR_URL = "emu://"
-CONFIG_NAME = "fpgalink.toml"
-CONFIG_KEYS = frozenset({"port", "ports", "baud", "timeout", "retries", "board", "robot"})
-#: ``NAME=URL``: a board name (:data:`~fpgalink.protocol.robot.BOARD_NAME`) before the first
-#: ``=``; a URL's own ``=`` comes after ``://`` or ``?``, which no name holds.
-_NAMED = re.compile(rf"^({BOARD_NAME.pattern})=(.*)$", re.DOTALL)
 
 
-@dataclass(frozen=True, slots=True)
-class Endpoint:
-    name: str  #: ``L``/``R`` when named (``--port L=URL``, a ``[ports]`` table); else 0, 1…
-    url: str
+@contextlib.contextmanager
+def _as_cli_error() -> Iterator[None]:
+    """The config module's errors as the CLI's bad-input errors (exit 2), same text."""
+    try:
+        yield
+    except ConfigError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
 
 
 def parse_ports(values: tuple[str, ...] | list[str], where: str = "--port"
                 ) -> tuple[Endpoint, ...]:
-    """``URL`` or ``NAME=URL`` items. A name is letters, digits, ``_`` and ``-`` before the
-    first ``=`` — so ``emu://?seed=3`` is a URL, not a name."""
-    named: list[tuple[str, str]] = []
-    for index, value in enumerate(values):
-        match = _NAMED.match(value)
-        named.append((match.group(1), match.group(2)) if match else (str(index), value))
-    return _endpoints(named, where)
-
-
-def _endpoints(named: list[tuple[str, str]], where: str) -> tuple[Endpoint, ...]:
-    """(name, URL) pairs as endpoints: every URL non-blank, every name given once."""
-    endpoints: list[Endpoint] = []
-    for name, url in named:
-        if not url.strip():
-            raise CliError(f"{where} {name}: empty port", ExitCode.BAD_INPUT)
-        endpoints.append(Endpoint(name, url.strip()))
-    names = [e.name for e in endpoints]
-    duplicates = sorted({n for n in names if names.count(n) > 1})
-    if duplicates:
-        raise CliError(f"{where}: board name {duplicates[0]!r} given twice", ExitCode.BAD_INPUT)
-    return tuple(endpoints)
+    """``URL`` or ``NAME=URL`` items (:func:`fpgalink.config.parse_ports`)."""
+    with _as_cli_error():
+        return _config.parse_ports(values, where)
 
 
 @dataclass
@@ -101,79 +91,6 @@ class Settings:
     def emulated(self) -> bool:
         """No port anywhere: commands run against the built-in emulator."""
         return self.sources.get("port") == DEFAULT
-
-
-def config_paths(cwd: Path | None = None) -> list[Path]:
-    """Where a config file is looked for, first found wins."""
-    base = Path(os.environ.get("XDG_CONFIG_HOME") or Path.home() / ".config")
-    return [(cwd or Path.cwd()) / CONFIG_NAME, base / "fpgalink" / CONFIG_NAME]
-
-
-def _blank(value: str | None) -> bool:
-    """Given, but nothing in it but spaces (``--config ""``, ``FPGALINK_PORT="  "``)."""
-    return value is not None and not value.strip()
-
-
-def _load_config(explicit: str | None) -> tuple[dict[str, Any], Path | None]:
-    env = os.environ.get("FPGALINK_CONFIG")
-    if _blank(explicit):
-        raise CliError("--config: empty file name (leave the option out to search for "
-                       "fpgalink.toml)", ExitCode.BAD_INPUT)
-    if explicit:
-        paths = [Path(explicit)]
-    elif env and _blank(env):
-        raise CliError("environment FPGALINK_CONFIG is blank: name a file or unset it",
-                       ExitCode.BAD_INPUT)
-    elif env:
-        paths = [Path(env)]
-    else:
-        paths = [p for p in config_paths() if p.is_file()][:1]
-    for path in paths:
-        try:
-            return load_toml(str(path), f"config {path}"), path
-        except TomlFileError as exc:
-            raise CliError(str(exc), ExitCode.BAD_INPUT) from None
-    return {}, None
-
-
-def _config_ports(config: Mapping[str, Any], path: Path) -> tuple[Endpoint, ...]:
-    single, table = config.get("port"), config.get("ports")
-    if single is not None and table is not None:
-        raise CliError(f"config {path}: give port or [ports], not both", ExitCode.BAD_INPUT)
-    if isinstance(single, str):
-        return parse_ports([single], f"config {path}: port")
-    if isinstance(table, dict) and all(isinstance(v, str) for v in table.values()):
-        # The keys are the names: taken as they are, never parsed again as NAME=URL.
-        for key in table:
-            _check_name(key, f"config {path}: [ports] key")
-        return _endpoints(list(table.items()), f"config {path}: [ports]")
-    if single is not None or table is not None:
-        raise CliError(f"config {path}: port must be a URL, [ports] a table of NAME = URL",
-                       ExitCode.BAD_INPUT)
-    return ()
-
-
-def _check_name(name: object, where: str) -> str:
-    if not isinstance(name, str) or not BOARD_NAME.fullmatch(name):
-        shown = repr(name) if len(repr(name)) <= 40 else repr(name)[:37] + "..."
-        raise CliError(f"{where} {shown}: a board name is letters, digits, _ and - "
-                       "(such as L)", ExitCode.BAD_INPUT)
-    return name
-
-
-def _whole(value: object, name: str, where: str, low: int, high: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
-        raise CliError(f"{where}: {name} must be a whole number from {low:,} to {high:,}, "
-                       f"got {value!r}", ExitCode.BAD_INPUT)
-    return value
-
-
-def _seconds(value: object, name: str, where: str, low: float, high: float) -> float:
-    if isinstance(value, bool) or not isinstance(value, int | float) or \
-            not (math.isfinite(value) and low <= value <= high):
-        raise CliError(f"{where}: {name} must be a number of seconds from {low:g} to {high:g}, "
-                       f"got {value!r}", ExitCode.BAD_INPUT)
-    return float(value)
 
 
 #: How strongly each kind of source holds: a board chosen in a weaker place than the ports
@@ -204,6 +121,11 @@ def _board_for_ports(board: str | None, ports: tuple[Endpoint, ...],
 def resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Settings:
     """Settings from the options given after the command (``given``), before it
     (``before``), the environment, the config file and the defaults."""
+    with _as_cli_error():
+        return _resolve_settings(given, before)
+
+
+def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Settings:
     explicit = next((v for v in (given.get("config"), before.get("config")) if v is not None),
                     None)
     config, path = _load_config(explicit)

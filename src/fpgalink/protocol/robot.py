@@ -221,25 +221,34 @@ class SkidSteer:
     wheel_radius: float  #: m
     track: float  #: m, geometric (between left and right wheel centres)
     chi: float = 1.0  #: ≥ 1, per surface
+    #: each side's rolling radius over ``wheel_radius`` (worn or differently inflated
+    #: wheels; diff_drive_controller's ``left/right_wheel_radius_multiplier``)
+    left_radius_multiplier: float = 1.0
+    right_radius_multiplier: float = 1.0
 
     @property
     def effective_track(self) -> float:
         return self.chi * self.track
 
-    def side_speed(self, wheel_dps: float) -> float:
+    def side_radius(self, left: bool) -> float:
+        """The rolling radius of the left (or right) side's wheels, m."""
+        return self.wheel_radius * (self.left_radius_multiplier if left
+                                    else self.right_radius_multiplier)
+
+    def side_speed(self, wheel_dps: float, left: bool = True) -> float:
         """A side's ground speed, m/s, for its wheels turning at ``wheel_dps``."""
-        return math.radians(wheel_dps) * self.wheel_radius
+        return math.radians(wheel_dps) * self.side_radius(left)
 
     def wheel_speeds(self, v: float, omega: float) -> tuple[float, float]:
         """(left, right) wheel speeds, deg/s, for body speed ``v`` (m/s) and yaw rate
         ``omega`` (rad/s): the inverse of eqs. 2.19–2.20."""
         half = omega * self.effective_track / 2.0
-        return (math.degrees((v - half) / self.wheel_radius),
-                math.degrees((v + half) / self.wheel_radius))
+        return (math.degrees((v - half) / self.side_radius(True)),
+                math.degrees((v + half) / self.side_radius(False)))
 
     def body_twist(self, left_dps: float, right_dps: float) -> tuple[float, float]:
         """(v m/s, Ω rad/s) from the sides' wheel speeds (eqs. 2.19–2.20)."""
-        v_left, v_right = self.side_speed(left_dps), self.side_speed(right_dps)
+        v_left, v_right = self.side_speed(left_dps, True), self.side_speed(right_dps, False)
         return (v_left + v_right) / 2.0, (v_right - v_left) / self.effective_track
 
     def icr(self, left_dps: float, right_dps: float) -> tuple[float, float, float]:

@@ -13,11 +13,14 @@ The seed's robot ships generated (:func:`seed_urdf`, ``data/sap_roover.urdf``).
 from __future__ import annotations
 
 import math
+import xml.etree.ElementTree as ET
+from collections.abc import Mapping
+from dataclasses import dataclass
 from importlib import resources
 
 from fpgalink.protocol.robot import RobotDescription
 
-__all__ = ["SEED_URDF", "robot_urdf", "seed_urdf"]
+__all__ = ["SEED_URDF", "FixedJoint", "fixed_joints", "robot_urdf", "seed_urdf"]
 
 #: The shipped URDF of the seed's robot, in this package's ``data`` folder.
 SEED_URDF = "sap_roover.urdf"
@@ -32,8 +35,11 @@ def _xyz(x: float, y: float, z: float) -> str:
     return f"{_n(x)} {_n(y)} {_n(z)}"
 
 
-def robot_urdf(description: RobotDescription) -> str:
-    """The URDF of ``description`` (see the module docstring)."""
+def robot_urdf(description: RobotDescription, names: Mapping[str, str] | None = None) -> str:
+    """The URDF of ``description`` (see the module docstring); ``names`` renames wheels'
+    joints and links (``{"FL": "front_left"}``), so that they match joint states published
+    under those names."""
+    rename = dict(names or {})
     body = description.body
     radius = description.wheel_radius
     cx, cy, cz = body.chassis_com(description.wheels)
@@ -64,8 +70,9 @@ def robot_urdf(description: RobotDescription) -> str:
     cylinder = f'<cylinder radius="{_n(radius)}" length="{_n(body.wheel_width)}"/>'
     turn = f"{_n(math.pi / 2)} 0 0"  # a cylinder's axis is z: turned onto y
     for wheel in description.wheels:
+        name = rename.get(wheel.name, wheel.name)
         lines += [
-            f'  <link name="{wheel.name}_link">',
+            f'  <link name="{name}_link">',
             "    <inertial>",
             '      <origin xyz="0 0 0" rpy="0 0 0"/>',
             f'      <mass value="{_n(m)}"/>',
@@ -76,9 +83,9 @@ def robot_urdf(description: RobotDescription) -> str:
             f'    <collision><origin rpy="{turn}"/><geometry>{cylinder}</geometry>'
             "</collision>",
             "  </link>",
-            f'  <joint name="{wheel.name}" type="continuous">',
+            f'  <joint name="{name}" type="continuous">',
             '    <parent link="base_link"/>',
-            f'    <child link="{wheel.name}_link"/>',
+            f'    <child link="{name}_link"/>',
             f'    <origin xyz="{_xyz(wheel.x, wheel.y, 0.0)}" rpy="0 0 0"/>',
             '    <axis xyz="0 1 0"/>',
             "  </joint>",
@@ -106,3 +113,50 @@ def seed_urdf() -> str:
     so a ROS launch file can point at it)."""
     return (resources.files("fpgalink.protocol") / "data" / SEED_URDF).read_text(
         encoding="utf-8")
+
+
+@dataclass(frozen=True, slots=True)
+class FixedJoint:
+    """A ``fixed`` joint of a URDF: what robot_state_publisher puts on ``/tf_static``."""
+
+    name: str
+    parent: str
+    child: str
+    xyz: tuple[float, float, float]
+    rpy: tuple[float, float, float]
+
+
+def _triple(text: str | None) -> tuple[float, float, float]:
+    values = [float(v) for v in (text or "0 0 0").split()]
+    if len(values) != 3 or not all(math.isfinite(v) for v in values):
+        raise ValueError(f"expected three finite numbers, got {text!r}")
+    return values[0], values[1], values[2]
+
+
+def fixed_joints(urdf: str) -> list[FixedJoint]:
+    """The fixed joints of ``urdf`` (any URDF, not only a generated one), in file order.
+    ``ValueError`` for text that is not a URDF or a fixed joint without its links."""
+    try:
+        root = ET.fromstring(urdf)
+    except ET.ParseError as exc:
+        raise ValueError(f"not XML: {exc}") from None
+    if root.tag != "robot":
+        raise ValueError(f"not a URDF: the root element is <{root.tag}>, not <robot>")
+    joints = []
+    for joint in root.iter("joint"):
+        if joint.get("type") != "fixed":
+            continue
+        name = joint.get("name", "")
+        parent, child = joint.find("parent"), joint.find("child")
+        if parent is None or child is None or not parent.get("link") \
+                or not child.get("link"):
+            raise ValueError(f"fixed joint {name!r} without its parent and child links")
+        origin = joint.find("origin")
+        try:
+            xyz = _triple(None if origin is None else origin.get("xyz"))
+            rpy = _triple(None if origin is None else origin.get("rpy"))
+        except ValueError as exc:
+            raise ValueError(f"fixed joint {name!r}: origin: {exc}") from None
+        joints.append(FixedJoint(name, str(parent.get("link")), str(child.get("link")),
+                                 xyz, rpy))
+    return joints

@@ -223,7 +223,7 @@ class Odometry:
                 continue  # the first sample only sets the reference
             turns = count_delta(data.position, last) / per_turn
             self._unintegrated[wheel.name] += (
-                turns * math.tau * self.description.wheel_radius * wheel.forward)
+                turns * math.tau * self.kinematics.side_radius(wheel.left) * wheel.forward)
         # Integrate once every board has reported since the last step: a step then moves
         # both sides together (one board at a time would zig-zag the heading, and a turn in
         # place would add path length).

@@ -480,21 +480,28 @@ class Robot:
             self.torque_coef[(board, event.channel)] = float(event.value)
 
     def set_kinematics(self, *, wheel_radius: float | None = None, track: float | None = None,
-                       chi: float | None = None) -> SkidSteer:
+                       chi: float | None = None, left_radius_multiplier: float | None = None,
+                       right_radius_multiplier: float | None = None) -> SkidSteer:
         """Drive and compute odometry with another wheel radius (m), track (m, between the
-        left and right wheels' centres) or skid-steer factor χ (≥ 1; it differs per
-        surface) from now on; the others kept. The pose so far stays. ``ValueError`` for a
-        value that is not finite and positive (χ: ≥ 1), and nothing changes."""
+        left and right wheels' centres), skid-steer factor χ (≥ 1; it differs per
+        surface) or a side's radius multiplier from now on; the others kept. The pose so
+        far stays. ``ValueError`` for a value that is not finite and positive (χ: ≥ 1),
+        and nothing changes."""
         model = self.kinematics
         radius = model.wheel_radius if wheel_radius is None else wheel_radius
         new_track = model.track if track is None else track
         new_chi = model.chi if chi is None else chi
+        left = model.left_radius_multiplier if left_radius_multiplier is None \
+            else left_radius_multiplier
+        right = model.right_radius_multiplier if right_radius_multiplier is None \
+            else right_radius_multiplier
         for name, value, low in (("wheel_radius", radius, 0.0), ("track", new_track, 0.0),
-                                 ("chi", new_chi, 1.0)):
+                                 ("chi", new_chi, 1.0), ("left_radius_multiplier", left, 0.0),
+                                 ("right_radius_multiplier", right, 0.0)):
             if not (math.isfinite(value) and (value > low if low == 0.0 else value >= low)):
                 raise ValueError(f"{name} must be a finite number "
                                  f"{'> 0' if low == 0.0 else '≥ 1'}, got {value!r}")
-        self.kinematics = SkidSteer(radius, new_track, new_chi)
+        self.kinematics = SkidSteer(radius, new_track, new_chi, left, right)
         self.description = dataclasses.replace(self.description, wheel_radius=radius)
         self.odometry.set_kinematics(self.description, self.kinematics)
         return self.kinematics

@@ -3,9 +3,13 @@
     fpgalink-ros2 [--robot robot.toml] [--surface gravel] [--port L=URL --port R=URL]
                   [--baud 1000000] [--ros-args -r __ns:=/robot -p joint_state_rate:=200]
 
-With no port it runs against the emulated robot in this process (``emu://robot/L``, ``R``),
-as the CLI does. Standard ROS arguments go after ``--ros-args``; this command's own options
-go before it (or after a ``--`` that ends the ROS arguments).
+The boards' ports, line rate and robot description come from the command line, else the
+environment (``FPGALINK_PORT``, ``FPGALINK_BAUD``), else the config file ``fpgalink.toml``
+(``[ports]``, ``port``, ``baud``, ``robot``; :mod:`fpgalink.config`), as the CLI reads them.
+With no port anywhere it runs against the emulated robot in this process
+(``emu://robot/L``, ``R``), as the CLI does. Standard ROS arguments go after
+``--ros-args``; this command's own options go before it (or after a ``--`` that ends the
+ROS arguments).
 """
 
 from __future__ import annotations
@@ -13,8 +17,12 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
 import signal
 import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
 from urllib.parse import quote
 
 from fpgalink.ros2 import ROS2_INSTALL_HINT, available
@@ -48,19 +56,105 @@ def _parser() -> argparse.ArgumentParser:
         "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.\n\n" + EXIT_CODES_TABLE)
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     parser.add_argument("--robot", metavar="FILE", help="robot description (TOML); default: "
-                        "the seed's robot")
+                        "the config file's robot, else the seed's robot")
     parser.add_argument("--surface", metavar="NAME", help="the surface the robot is on "
                         "(its skid-steer chi)")
     parser.add_argument("--port", action="append", default=[], metavar="NAME=URL",
-                        help="a board's port, once per board (default: the emulated robot)")
-    parser.add_argument("--baud", type=int, default=1_000_000,
-                        help="the boards' line rate (default 1000000)")
+                        help="a board's port, once per board (default: FPGALINK_PORT, the "
+                        "config file's [ports], else the emulated robot)")
+    parser.add_argument("--baud", type=int, default=None,
+                        help="the boards' line rate (default: FPGALINK_BAUD, the config "
+                        "file's baud, else 1000000)")
+    parser.add_argument("--bag", metavar="DIR", type=Path,
+                        help="record the node's inputs and outputs into a new rosbag2 DIR "
+                        "(MCAP, CDR; with the rosbags library)")
+    parser.add_argument("--lifecycle", action="store_true",
+                        help="a managed (lifecycle) node: configure opens the boards, "
+                        "activate publishes and takes commands, deactivate disables the boards")
+    parser.add_argument("--config", metavar="FILE", help="the config file (default: "
+                        "FPGALINK_CONFIG, else ./fpgalink.toml, else "
+                        "~/.config/fpgalink/fpgalink.toml)")
     return parser
 
 
 #: Exit codes: 0 stopped by a signal, 1 stdout failed, 2 usage, 3 ROS 2 not installed, 4
 #: boards not reached.
 EXIT_STDOUT = 1
+
+
+@dataclass
+class Startup:
+    """Where the node's boards are, as resolved from the command line, the environment and
+    the config file; ``ports`` empty: the emulated robot in this process."""
+
+    robot: str | None
+    ports: dict[str, str]
+    baud: int
+    #: where the ports came from (``command line``, ``environment FPGALINK_PORT``,
+    #: ``config file PATH``, ``default``), and the same for baud and robot
+    sources: dict[str, str] = field(default_factory=dict)
+
+
+def resolve(options: argparse.Namespace) -> Startup:
+    """The CLI's order (:mod:`fpgalink.cli.settings`) for what the node uses of it: the
+    command line, then the environment, then the config file, then the default.
+    :class:`~fpgalink.config.ConfigError` for a file or value that cannot be used."""
+    from fpgalink.config import (
+        CONFIG_KEYS,
+        ConfigError,
+        config_ports,
+        load_config,
+        parse_ports,
+        whole,
+    )
+    from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
+
+    env = os.environ
+    config, path = load_config(options.config)  # --config, FPGALINK_CONFIG, or the search
+    where = f"config file {path}"
+    unknown = sorted(set(config) - CONFIG_KEYS)
+    if unknown:
+        raise ConfigError(f"config {path}: unknown key {unknown[0]!r} (known: "
+                          f"{', '.join(sorted(CONFIG_KEYS))})")
+    sources: dict[str, str] = {}
+    if options.port:
+        endpoints, sources["port"] = parse_ports(options.port), "command line"
+    elif env.get("FPGALINK_PORT", "").strip():
+        endpoints = parse_ports(env["FPGALINK_PORT"].split(), "FPGALINK_PORT")
+        sources["port"] = "environment FPGALINK_PORT"
+    elif path is not None and (endpoints := config_ports(config, path)):
+        sources["port"] = where
+    else:
+        endpoints, sources["port"] = (), "default"
+    if options.baud is not None:
+        baud, sources["baud"] = options.baud, "command line"
+    elif env.get("FPGALINK_BAUD", "").strip():
+        try:
+            baud = int(env["FPGALINK_BAUD"])
+        except ValueError:
+            raise ConfigError(f"environment FPGALINK_BAUD: {env['FPGALINK_BAUD']!r} is not a "
+                              "whole number") from None
+        sources["baud"] = "environment FPGALINK_BAUD"
+    elif "baud" in config:
+        baud, sources["baud"] = config["baud"], where
+    else:
+        baud, sources["baud"] = 1_000_000, "default"
+    baud = whole(baud, "baud", sources["baud"], MIN_BAUD, MAX_BAUD)
+    robot: str | None = options.robot
+    sources["robot"] = "command line" if robot else "default"
+    if robot is None and config.get("robot") is not None:
+        if not isinstance(config["robot"], str) or not config["robot"].strip():
+            raise ConfigError(f"{where}: robot must be a non-empty string, got "
+                              f"{config['robot']!r}")
+        robot_path = Path(config["robot"])
+        # Relative to the file, as the CLI takes it.
+        robot = str(robot_path if robot_path.is_absolute() or path is None
+                    else path.parent / robot_path)
+        sources["robot"] = where
+    return Startup(robot, {e.name: e.url for e in endpoints}, baud, sources)
+
+
+#: Exit codes: 0 stopped by a signal, 2 usage, 3 ROS 2 not installed, 4 boards not reached.
 EXIT_USAGE = 2
 EXIT_NO_ROS2 = 3
 EXIT_BOARDS = 4
@@ -102,38 +196,53 @@ def main(argv: list[str] | None = None) -> None:
     except Exception as exc:  # rclpy's own error for unknown ROS arguments
         _fail(f"{exc} (this command's options go before --ros-args, or after a --)")
     options = _parser().parse_args(own)
+    from fpgalink.config import ConfigError
     from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
 
     try:
-        description = load_robot(options.robot) if options.robot else seed_robot()
+        startup = resolve(options)
+    except ConfigError as exc:
+        _fail(str(exc))
+    try:
+        description = load_robot(startup.robot) if startup.robot else seed_robot()
         if options.surface:
             description = description.on_surface(options.surface)
     except DescriptionError as exc:
         _fail(str(exc))
-    ports: dict[str, str] = {}
-    for item in options.port:
-        name, sep, url = item.partition("=")
-        if not sep or not url:
-            _fail(f"--port {item!r}: expected NAME=URL, one per board "
-                  f"({', '.join(description.boards)})")
-        ports[name] = url
+    ports = startup.ports
     if not ports:
         query = f"surface={quote(description.surface)}" + (
-            f"&robot={quote(options.robot)}" if options.robot else "")
+            f"&robot={quote(startup.robot)}" if startup.robot else "")
         ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
     elif set(ports) != set(description.boards):
-        _fail(f"the robot's boards are {', '.join(description.boards)}; give --port for "
-              f"each (got {', '.join(sorted(ports))})")
+        _fail(f"the robot's boards are {', '.join(description.boards)}; give a port for "
+              f"each, --port NAME=URL or [ports] NAME = URL (got "
+              f"{', '.join(sorted(ports))} from {startup.sources['port']})")
+    bag = None
+    if options.bag is not None:
+        from fpgalink.ros2.bag import BagError, NodeBag
+
+        try:
+            bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
+                                        "robot": description.name})
+        except BagError as exc:
+            _fail(str(exc))
     rclpy.init(args=argv)
     try:
-        code = asyncio.run(_run(description, ports, options.baud))
+        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
+                                bag, options.lifecycle))
     finally:
+        if bag is not None:
+            bag.close()
+            print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
+                  flush=True)
         with contextlib.suppress(Exception):
             rclpy.shutdown()
     sys.exit(code)
 
 
-async def _run(description: object, ports: dict[str, str], baud: int) -> int:
+async def _run(description: object, ports: dict[str, str], baud: int, source: str,
+               bag: Any = None, lifecycle: bool = False) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -147,6 +256,10 @@ async def _run(description: object, ports: dict[str, str], baud: int) -> int:
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    if lifecycle:
+        from fpgalink.ros2.managed import run_managed
+
+        return await run_managed(description, ports, baud, bag, stop)
     robot = Robot.open(description, ports, baud=baud)
     try:
         await robot.start()
@@ -156,7 +269,7 @@ async def _run(description: object, ports: dict[str, str], baud: int) -> int:
     node = Node(NODE_NAME, start_parameter_services=False)
     try:
         try:
-            bridge = RosBridge(robot, node, loop)
+            bridge = RosBridge(robot, node, loop, bag=bag)
             await bridge.declare_board_parameters()
         except (ParameterException, BadOverride) as exc:  # a -p value out of range, …
             print(f"{PROG}: error: --ros-args -p: {_parameter_error(exc)}", file=sys.stderr,
@@ -167,7 +280,8 @@ async def _run(description: object, ports: dict[str, str], baud: int) -> int:
         bridge.executor = executor
         node.get_logger().info(
             f"up: boards {', '.join(f'{b}={u}' for b, u in ports.items())}"
-            + (" (emulated robot)" if robot.truth() is not None else ""))
+            + (" (emulated robot)" if robot.truth() is not None else "")
+            + (f" (ports from {source})" if source not in ("command line", "default") else ""))
         running = asyncio.ensure_future(bridge.run())
         waiting = asyncio.ensure_future(stop.wait())
         await asyncio.wait({running, waiting}, return_when=asyncio.FIRST_COMPLETED)

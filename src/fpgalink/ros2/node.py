@@ -10,7 +10,9 @@ Topics (relative names, so ``--ros-args -r __ns:=/robot`` and remaps work): see
 docs/ros2.md. ROS parameters: the node's own (``joint_state_rate``, ``cmd_vel_timeout``,
 ``goal_tolerance``, ``odom_frame``, ``base_frame``, ``telemetry_timeout_periods``,
 ``require_enable``, ``enable_timeout``, ``use_stamped_vel``, ``publish_odom_tf``,
-``joint_states_best_effort``) and every board parameter as
+``joint_states_best_effort``, the kinematics and limits under diff_drive_controller's
+names, ``robot_description``, ``publish_static_tf``, ``publish_clock``, …: the table in
+docs/ros2.md) and every board parameter as
 ``BOARD.NAME`` or ``BOARD.NAME.CHANNEL`` (``L.TsTimerPeriod``, ``L.Kp_Wheel_Pid.A``).
 """
 
@@ -43,29 +45,33 @@ from rcl_interfaces.msg import (
     SetParametersResult,
 )
 from rclpy.callback_groups import ReentrantCallbackGroup
+from rclpy.exceptions import ParameterUninitializedException
 from rclpy.executors import SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.parameter_service import ParameterService
 from rclpy.qos import (
+    DurabilityPolicy,
     QoSProfile,
     ReliabilityPolicy,
     qos_profile_parameters,
     qos_profile_sensor_data,
 )
+from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
-from std_msgs.msg import Bool
+from std_msgs.msg import Bool, String
 
 from fpgalink.aio.link import LinkEvent, LinkEventKind
 from fpgalink.boardclock import BOARD_CLOCK_WRAP_US, BoardClock
 from fpgalink.errors import FpgalinkError, ParameterError, ParameterRefused, ValueMismatch
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, channel_name
-from fpgalink.protocol.robot import WHEEL_NAMES
+from fpgalink.protocol.urdf import FixedJoint, fixed_joints, robot_urdf
 from fpgalink.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.health import Status
 from fpgalink.robot.joints import SampleSets
 from fpgalink.robot.supervision import State, StopReason
+from fpgalink.ros2.bag import NodeBag
 
 __all__ = ["NODE_NAME", "BadOverride", "RosBridge", "board_parameter_name", "spin_in_thread"]
 
@@ -79,6 +85,11 @@ IMU_FRAME = "ImuALink"
 #: A warning repeated within this is counted, not printed (a flood of bad cmd_vel).
 WARNING_PERIOD_S = 2.0
 CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/TwistStamped"}
+#: As robot_state_publisher publishes ``robot_description`` and tf2_ros's static broadcaster
+#: ``/tf_static``: kept for every subscriber that comes later.
+LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
+                     reliability=ReliabilityPolicy.RELIABLE)
+COVARIANCES = ("pose_covariance_diagonal", "twist_covariance_diagonal")
 
 
 class BadOverride(Exception):
@@ -200,8 +211,12 @@ class RosBridge:
     then ``await bridge.run()`` until cancelled."""
 
     def __init__(self, robot: Robot, node: Node, loop: asyncio.AbstractEventLoop,
-                 executor: Any = None) -> None:
+                 executor: Any = None, bag: NodeBag | None = None,
+                 managed: bool = False) -> None:
         self.robot = robot
+        self.bag = bag
+        #: a managed node (``--lifecycle``) publishes and takes commands only while active
+        self.active = not managed
         self.node = node
         self.loop = loop
         self.executor = executor
@@ -224,8 +239,13 @@ class RosBridge:
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
         self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
+        # Before declaring: rclpy runs this on each declared value (a -p too) and on sets.
+        node.add_on_set_parameters_callback(self._check_parameters)
         self._declare_node_parameters()
         self._read_node_parameters()
+        self._joint_names = self._declare_wheel_names()
+        self._prefix = self._frame_prefix()
+        self.urdf = self._declare_robot_description()
         self._sets = SampleSets(robot.description.boards, self._publish_period)
         # Reliable as joint_state_broadcaster's (robot_state_publisher and most consumers
         # subscribe reliable, which never matches a best-effort publisher); sensor-data QoS
@@ -233,29 +253,41 @@ class RosBridge:
         joint_qos: QoSProfile = (qos_profile_sensor_data if self._value("joint_states_best_effort")
                                  else QoSProfile(depth=10,
                                                  reliability=ReliabilityPolicy.RELIABLE))
-        self.joint_pub = node.create_publisher(JointState, "joint_states", joint_qos)
-        self.odom_pub = node.create_publisher(Odometry, "odom", 10)
+        self.joint_pub = self._publisher(JointState, "joint_states", joint_qos)
+        self.odom_pub = self._publisher(Odometry, "odom", 10)
         # Absolute, as diagnostic_updater publishes it (one /diagnostics for the whole
         # graph, the statuses named after the node).
-        self.diag_pub = node.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        self.truth_pub = (node.create_publisher(Odometry, "truth", 10)
+        self.diag_pub = self._publisher(DiagnosticArray, "/diagnostics", 10)
+        self.truth_pub = (self._publisher(Odometry, "truth", 10)
                           if robot.truth() is not None else None)
         self.tf_type = _tf_message_type()
         # /tf as tf2_ros's broadcaster publishes it (absolute, reliable, depth 100).
-        self.tf_pub = None if self.tf_type is None else node.create_publisher(
+        self.tf_pub = None if self.tf_type is None else self._publisher(
             self.tf_type, "/tf", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         if self.tf_type is None and self._value("publish_odom_tf"):
             self.log.warning("publish_odom_tf: tf2_msgs is not installed (Jazzy has no wheel "
-                             "of it; `make tf2-msgs` generates it): running without /tf")
+                             "of it; `make tf2-msgs` generates it): running without /tf "
+                             "and /tf_static")
+        self.description_pub = self._publisher(String, "robot_description", LATCHED)
+        self.tf_static_pub = None
+        if self.tf_type is not None and node.get_parameter("publish_static_tf").value:
+            self.tf_static_pub = self._publisher(self.tf_type, "/tf_static", LATCHED)
+        if not managed:
+            self.publish_latched()
+        self.clock_pub = self._clock_publisher()
+        self.cmd_vel_out_pub = (
+            self._publisher(TwistStamped, "cmd_vel_out", 10)
+            if node.get_parameter("publish_limited_velocity").value else None)
         stamped = bool(self._value("use_stamped_vel"))
         self.cmd_vel_sub = node.create_subscription(
             TwistStamped if stamped else Twist, "cmd_vel",
-            self._threadsafe(self._on_cmd_vel), 10)
+            self._threadsafe(self._on_cmd_vel, "cmd_vel"), 10)
         self.imu_pub = self._imu_publisher()
         node.create_subscription(JointState, "wheel_refs",
-                                 self._threadsafe(self._on_wheel_refs), 10)
-        node.create_subscription(PoseStamped, "goal_pose", self._threadsafe(self._on_goal), 10)
-        node.create_subscription(Bool, "enable", self._threadsafe(self._on_enable), 10)
+                                 self._threadsafe(self._on_wheel_refs, "wheel_refs"), 10)
+        node.create_subscription(PoseStamped, "goal_pose",
+                                 self._threadsafe(self._on_goal, "goal_pose"), 10)
+        node.create_subscription(Bool, "enable", self._threadsafe(self._on_enable, "enable"), 10)
 
     # --- parameters -----------------------------------------------------------------------
 
@@ -291,6 +323,10 @@ class RosBridge:
         double("wheel_separation_multiplier", model.chi, 1.0, 20.0,
                "the skid-steer factor χ: the effective track is χ × wheel_separation; it "
                "differs per surface (default: the robot file's for its surface)")
+        for side in ("left", "right"):
+            double(f"{side}_wheel_radius_multiplier", 1.0, 0.5, 2.0,
+                   f"the {side} wheels' rolling radius over wheel_radius (worn or "
+                   "differently inflated wheels): drive and odometry use it")
         double("enable_timeout", DEFAULT_CMD_TIMEOUT_S, 0.05, 10.0,
                "with require_enable: true on enable at least this often keeps the robot "
                "enabled (the seed's /globalEnable deadman), s")
@@ -312,24 +348,182 @@ class RosBridge:
         for name, default in (("odom_frame", "odom"), ("base_frame", "base_link")):
             node.declare_parameter(name, default, ParameterDescriptor(
                 type=ParameterType.PARAMETER_STRING, description=f"frame id: {name}"))
+        node.declare_parameter("tf_frame_prefix_enable", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="prefix every frame id this node publishes (as diff_drive_controller)"))
+        node.declare_parameter("tf_frame_prefix", "", ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING, read_only=True,
+            description="the prefix; empty: the node's namespace (/bot: bot/odom)"))
+        node.declare_parameter("publish_static_tf", True, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="the URDF's fixed joints on /tf_static, as robot_state_publisher "
+                        "(false where one runs)"))
+        node.declare_parameter("publish_limited_velocity", False, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="publish each cmd_vel as driven, after the limits, on cmd_vel_out"))
+        node.declare_parameter("pose_covariance_diagonal", Parameter.Type.DOUBLE_ARRAY,
+                               ParameterDescriptor(
+            description="odom's pose covariance diagonal (x, y, z, roll, pitch, yaw); unset: "
+                        "computed from the odometry's motion model"))
+        node.declare_parameter("twist_covariance_diagonal", [0.0] * 6, ParameterDescriptor(
+            type=ParameterType.PARAMETER_DOUBLE_ARRAY,
+            description="odom's twist covariance diagonal (vx, vy, vz, wx, wy, wz)"))
+        description = self.robot.description
+        double("linear.x.max_velocity", description.max_linear_speed, 0.001,
+               description.max_linear_speed,
+               "the robot's speed limit, m/s, at most the robot file's; a command beyond a "
+               "limit is scaled keeping its curvature")
+        double("angular.z.max_velocity", description.max_angular_speed_rad, 0.001,
+               description.max_angular_speed_rad,
+               "the robot's turn rate limit, rad/s, at most the robot file's")
 
     def _value(self, name: str) -> Any:
         return self._node_values[name]
 
+    def _parameter_value(self, name: str) -> Any:
+        """Its value; ``None`` for one declared by type and not given (unset: computed)."""
+        try:
+            return self.node.get_parameter(name).value
+        except ParameterUninitializedException:
+            return None
+
+    def _check_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
+        """What a descriptor cannot say: six finite covariances ≥ 0."""
+        for parameter in parameters:
+            if parameter.name in COVARIANCES and parameter.value is not None:
+                values = list(parameter.value)
+                if len(values) != 6 or not all(math.isfinite(v) and v >= 0 for v in values):
+                    return SetParametersResult(successful=False, reason=(
+                        f"{parameter.name} takes six finite numbers ≥ 0 (x, y, z, roll, "
+                        f"pitch, yaw), got {values}"))
+        return SetParametersResult(successful=True)
+
+    def _declare_wheel_names(self) -> dict[str, str]:
+        """``left_wheel_names``/``right_wheel_names`` (read-only, as diff_drive_controller
+        takes them): the description's wheel → the name joint_states, wheel_refs and the
+        URDF give it."""
+        wheels = self.robot.description.wheels
+        names: dict[str, str] = {}
+        for side, left in (("left", True), ("right", False)):
+            ours = [w.name for w in wheels if w.left is left]
+            name = f"{side}_wheel_names"
+            given = self.node.declare_parameter(name, ours, ParameterDescriptor(
+                type=ParameterType.PARAMETER_STRING_ARRAY, read_only=True,
+                description=f"the {side} wheels' joint names, front to back (default: the "
+                            "robot file's)")).value
+            if len(given) != len(ours) or not all(str(g).strip() for g in given):
+                raise BadOverride(f"{name}: {len(ours)} non-empty names, front to back "
+                                  f"(the robot's {', '.join(ours)}), got {list(given)}")
+            names.update(zip(ours, (str(g) for g in given), strict=True))
+        if len(set(names.values())) != len(names):
+            raise BadOverride(f"left_wheel_names, right_wheel_names: each wheel a name of "
+                              f"its own, got {list(names.values())}")
+        return names
+
+    def _frame_prefix(self) -> str:
+        """diff_drive_controller's rule: the given prefix, else the namespace; never a
+        leading ``/``, always a trailing one (``/bot`` → ``bot/``, ``/`` → none)."""
+        if not self.node.get_parameter("tf_frame_prefix_enable").value:
+            return ""
+        prefix = str(self.node.get_parameter("tf_frame_prefix").value) \
+            or self.node.get_namespace()
+        if not prefix.endswith("/"):
+            prefix += "/"
+        return prefix.lstrip("/")
+
+    def frame(self, name: str) -> str:
+        return self._prefix + name
+
+    def _declare_robot_description(self) -> str:
+        """The robot's URDF (its wheels under this node's joint names), or one given with
+        ``-p robot_description:=…``: a read-only parameter and the latched topic, as
+        robot_state_publisher has it."""
+        urdf = robot_urdf(self.robot.description, self._joint_names)
+        given = str(self.node.declare_parameter("robot_description", urdf, ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING, read_only=True,
+            description="the robot's URDF (default: generated from the robot file, its "
+                        "wheels' joints named as in joint_states)")).value)
+        try:
+            self._fixed_joints: list[FixedJoint] = fixed_joints(given)
+        except ValueError as exc:
+            raise BadOverride(f"robot_description: {exc}") from None
+        return given
+
+    def publish_latched(self) -> None:
+        """robot_description and /tf_static, once (a managed node's when it is activated)."""
+        self.description_pub.publish(String(data=self.urdf))
+        if self.tf_static_pub is not None:
+            self.tf_static_pub.publish(self._static_transforms())
+
+    def _clock_publisher(self) -> Any:
+        """``/clock`` from the emulated robot's own time (``publish_clock``, only where the
+        robot is emulated in this process: a real robot has no time but the host's)."""
+        emulated = self.robot.truth() is not None
+        wanted = bool(self.node.declare_parameter("publish_clock", emulated, ParameterDescriptor(
+            type=ParameterType.PARAMETER_BOOL, read_only=True,
+            description="publish /clock from the emulated robot's time (default: true for "
+                        "the emulated robot in this process; refused for real ports)")).value)
+        if wanted and not emulated:
+            raise BadOverride("publish_clock: only the emulated robot in this process has a "
+                              "time of its own (no --port)")
+        if not wanted:
+            return None
+        self.published["clock"] = 0
+        return self.node.create_publisher(Clock, "/clock", QoSProfile(
+            depth=1, reliability=ReliabilityPolicy.RELIABLE))
+
+    def _publish_clock(self) -> None:
+        truth = self.robot.truth()
+        if truth is None or self.clock_pub is None:
+            return
+        self.clock_pub.publish(Clock(clock=_time_msg(round(float(truth["t"]) * 1e9))))
+        self.published["clock"] += 1
+
+    def _static_transforms(self) -> Any:
+        """The URDF's fixed joints, as robot_state_publisher puts them on /tf_static."""
+        assert self.tf_type is not None
+        stamp = self.node.get_clock().now().to_msg()
+        transforms = []
+        for joint in self._fixed_joints:
+            transform = TransformStamped()
+            transform.header.stamp = stamp
+            transform.header.frame_id = self.frame(joint.parent)
+            transform.child_frame_id = self.frame(joint.child)
+            (transform.transform.translation.x, transform.transform.translation.y,
+             transform.transform.translation.z) = joint.xyz
+            q = transform.transform.rotation
+            q.x, q.y, q.z, q.w = _quaternion(*joint.rpy)
+            transforms.append(transform)
+        return self.tf_type(transforms=transforms)
+
     def _read_node_parameters(self) -> None:
         """Cache the node's own parameters (read per message at up to 1 kHz)."""
-        self._node_values = {name: self.node.get_parameter(name).value for name in (
+        self._node_values = {name: self._parameter_value(name) for name in (
             "joint_state_rate", "cmd_vel_timeout", "goal_tolerance", "odom_frame",
             "base_frame", "telemetry_timeout_periods", "enable_timeout", "require_enable",
             "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort", "wheel_radius",
-            "wheel_separation", "wheel_separation_multiplier")}
+            "wheel_separation", "wheel_separation_multiplier", "pose_covariance_diagonal",
+            "twist_covariance_diagonal", "linear.x.max_velocity", "angular.z.max_velocity",
+            "left_wheel_radius_multiplier", "right_wheel_radius_multiplier")}
         values = self._node_values
+        limits = (float(values["linear.x.max_velocity"]),
+                  math.degrees(float(values["angular.z.max_velocity"])))
+        description = self.robot.description
+        if limits != (description.max_linear_speed, description.max_angular_speed):
+            # robot.drive reads them from its description on every command.
+            self.robot.description = dataclasses.replace(
+                description, max_linear_speed=limits[0], max_angular_speed=limits[1])
         model = self.robot.kinematics
         wanted = (float(values["wheel_radius"]), float(values["wheel_separation"]),
-                  float(values["wheel_separation_multiplier"]))
-        if wanted != (model.wheel_radius, model.track, model.chi):
+                  float(values["wheel_separation_multiplier"]),
+                  float(values["left_wheel_radius_multiplier"]),
+                  float(values["right_wheel_radius_multiplier"]))
+        if wanted != (model.wheel_radius, model.track, model.chi, model.left_radius_multiplier,
+                      model.right_radius_multiplier):
             # Drive and odometry with them from now on (ranges checked by the descriptors).
-            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2])
+            self.robot.set_kinematics(wheel_radius=wanted[0], track=wanted[1], chi=wanted[2],
+                                      left_radius_multiplier=wanted[3],
+                                      right_radius_multiplier=wanted[4])
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
@@ -411,10 +605,30 @@ class RosBridge:
 
     # --- subscriptions (messages arrive on the executor's thread) ------------------------
 
-    def _threadsafe(self, handler: Callable[[Any], None]) -> Callable[[Any], None]:
+    def _threadsafe(self, handler: Callable[[Any], None], topic: str) -> Callable[[Any], None]:
+        resolved = self.node.resolve_topic_name(topic)
+
+        def record_and_handle(message: Any) -> None:
+            if not self.active:  # a managed node, not activated: no commands
+                return
+            if self.bag is not None:
+                self._record(resolved, message)  # as received, whatever the node makes of it
+            handler(message)
+
         def forward(message: Any) -> None:
-            self.loop.call_soon_threadsafe(handler, message)
+            self.loop.call_soon_threadsafe(record_and_handle, message)
         return forward
+
+    def _publisher(self, kind: Any, topic: str, qos: Any) -> Any:
+        publisher = self.node.create_publisher(kind, topic, qos)
+        return publisher if self.bag is None else _RecordedPublisher(publisher, self._record)
+
+    def _record(self, topic: str, message: Any) -> None:
+        if self.bag is None:
+            return
+        stopped = self.bag.write(topic, message, self.node.get_clock().now().nanoseconds)
+        if stopped is not None:
+            self.log.error(stopped)
 
     def _on_cmd_vel(self, message: Twist | TwistStamped) -> None:
         twist = message.twist if isinstance(message, TwistStamped) else message
@@ -423,7 +637,18 @@ class RosBridge:
             self._throttled_warning("non-finite", f"cmd_vel ignored: not finite ({v}, {omega})")
             return
         self._cancel_goal()
-        self._command(lambda: self.robot.drive(v, omega), v == 0.0 and omega == 0.0)
+        self._command(functools.partial(self._drive, v, omega), v == 0.0 and omega == 0.0)
+
+    def _drive(self, v: float, omega: float) -> None:
+        command = self.robot.drive(v, omega)
+        if self.cmd_vel_out_pub is not None:
+            # What the wheels were asked, after the limits (diff_drive_controller's
+            # publish_limited_velocity).
+            out = TwistStamped()
+            out.header.stamp = self.node.get_clock().now().to_msg()
+            out.header.frame_id = self.frame(str(self._value("base_frame")))
+            out.twist.linear.x, out.twist.angular.z = command.v, command.omega
+            self.cmd_vel_out_pub.publish(out)
 
     def _on_wheel_refs(self, message: JointState) -> None:
         names = list(message.name)
@@ -433,16 +658,17 @@ class RosBridge:
             self.log.warning("wheel_refs ignored: give one velocity (rad/s) or effort (N·m) "
                              "per named joint")
             return
-        unknown = sorted(set(names) - set(WHEEL_NAMES))
+        joints = tuple(self._joint_names.values())
+        unknown = sorted(set(names) - set(joints))
         if unknown or not all(math.isfinite(v) for v in values):
-            self.log.warning(f"wheel_refs ignored: joints {WHEEL_NAMES}, finite values "
+            self.log.warning(f"wheel_refs ignored: joints {joints}, finite values "
                              f"(got {names}, {values})")
             return
         wanted = dict(zip(names, values, strict=True))
         description = self.robot.description
         references: dict[str, list[float]] = {b: [0.0, 0.0] for b in description.boards}
         for wheel in description.wheels:
-            value = wanted.get(wheel.name, 0.0) * wheel.forward
+            value = wanted.get(self._joint_names[wheel.name], 0.0) * wheel.forward
             references[wheel.board][wheel.channel - 1] = value if torque else \
                 math.degrees(value)
 
@@ -507,7 +733,7 @@ class RosBridge:
             self.robot.disable()
 
     def _on_goal(self, message: PoseStamped) -> None:
-        frame = self._value("odom_frame")
+        frame = self.frame(str(self._value("odom_frame")))
         if message.header.frame_id and message.header.frame_id != frame:
             self.log.warning(f"goal_pose in frame {message.header.frame_id!r} taken as "
                              f"{frame!r} (this node knows only its odometry)")
@@ -518,8 +744,11 @@ class RosBridge:
         self._goal = asyncio.ensure_future(self._go_to(p.x, p.y, yaw if has_heading else None))
 
     async def _go_to(self, x: float, y: float, theta: float | None) -> None:
-        settings = dataclasses.replace(self.robot.goto_settings,
-                                       position_tolerance=float(self._value("goal_tolerance")))
+        base = self.robot.goto_settings
+        settings = dataclasses.replace(
+            base, position_tolerance=float(self._value("goal_tolerance")),
+            max_speed=min(base.max_speed, float(self._value("linear.x.max_velocity"))),
+            max_turn_rate=min(base.max_turn_rate, float(self._value("angular.z.max_velocity"))))
         self.log.info(f"goal ({x:.2f}, {y:.2f}): going")
         try:
             pose = await self.robot.go_to(x, y, theta, timeout=120.0, settings=settings)
@@ -577,6 +806,10 @@ class RosBridge:
         async for sample in link.telemetry(maxsize=4096):
             complete = self._sets.add(board, sample, self.loop.time())
             if complete is not None:
+                if self.clock_pub is not None:
+                    # One tick per set: the emulated time the samples were taken in, at
+                    # joint_state_rate; use_sim_time nodes (this one too) run on it.
+                    self._publish_clock()
                 stamp_ns = self._publish_joints(complete)
                 if stamp_ns is not None:
                     self._publish_odometry(self._odometry_stamp(complete, stamp_ns))
@@ -600,12 +833,16 @@ class RosBridge:
         if states is None:
             return None
         now_ns = self.node.get_clock().now().nanoseconds
+        if now_ns == 0:
+            # use_sim_time before the first /clock: no time yet (ROS's convention), and
+            # a board clock mapped onto it would start its estimate from nothing.
+            return None
         self._set_stamps = {board: self._clocks[board].ns(samples[board].t_us, now_ns)
                             for board in self.robot.description.boards}
         stamp_ns = self._set_stamps[self.robot.description.boards[0]]
         message = JointState()
         message.header.stamp = _time_msg(stamp_ns)
-        message.name = list(states.names)
+        message.name = [self._joint_names.get(name, name) for name in states.names]
         message.position = list(states.position)
         message.velocity = list(states.velocity)
         message.effort = list(states.effort)
@@ -640,12 +877,15 @@ class RosBridge:
         state = self.robot.odometry_state
         message = Odometry()
         message.header.stamp = _time_msg(stamp_ns)
-        message.header.frame_id = str(self._value("odom_frame"))
-        message.child_frame_id = str(self._value("base_frame"))
+        message.header.frame_id = self.frame(str(self._value("odom_frame")))
+        message.child_frame_id = self.frame(str(self._value("base_frame")))
         _pose_into(message, state.pose.x, state.pose.y, state.pose.theta)
         message.twist.twist.linear.x = state.v
         message.twist.twist.angular.z = state.omega
-        message.pose.covariance = state.covariance_6x6()
+        pose_diagonal = self._value("pose_covariance_diagonal")
+        message.pose.covariance = state.covariance_6x6() if pose_diagonal is None \
+            else _diagonal(pose_diagonal)
+        message.twist.covariance = _diagonal(self._value("twist_covariance_diagonal"))
         self.odom_pub.publish(message)
         self.published["odom"] += 1
         if self.tf_pub is not None and self.tf_type is not None \
@@ -677,7 +917,7 @@ class RosBridge:
         if truth is None or truth.get("imu") is None:
             return None
         self.published["imu"] = 0
-        return self.node.create_publisher(Imu, "imu/data", qos_profile_sensor_data)
+        return self._publisher(Imu, "imu/data", qos_profile_sensor_data)
 
     async def _imu_loop(self) -> None:
         """sensor_msgs/Imu at :data:`IMU_RATE_HZ`: angular velocity and linear acceleration
@@ -699,7 +939,7 @@ class RosBridge:
                 continue
             message = Imu()
             message.header.stamp = self.node.get_clock().now().to_msg()
-            message.header.frame_id = IMU_FRAME
+            message.header.frame_id = self.frame(IMU_FRAME)
             gyro, accel = reading["angular_velocity"], reading["linear_acceleration"]
             (message.angular_velocity.x, message.angular_velocity.y,
              message.angular_velocity.z) = (float(v) for v in gyro)
@@ -790,6 +1030,21 @@ class RosBridge:
         return array
 
 
+class _RecordedPublisher:
+    """A publisher whose messages also go into the bag (``--bag``)."""
+
+    def __init__(self, publisher: Any, record: Callable[[str, Any], None]) -> None:
+        self._publisher = publisher
+        self._record = record
+
+    def publish(self, message: Any) -> None:
+        self._publisher.publish(message)
+        self._record(self._publisher.topic_name, message)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._publisher, name)
+
+
 #: Link events that are faults: logged as errors, and diagnostics published at once.
 _FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
                           LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
@@ -818,3 +1073,19 @@ def _pose_into(message: Odometry, x: float, y: float, theta: float) -> None:
     message.pose.pose.orientation.z = math.sin(theta / 2.0)
     message.pose.pose.orientation.w = math.cos(theta / 2.0)
 
+
+
+def _diagonal(values: Any) -> list[float]:
+    matrix = [0.0] * 36
+    for index, value in enumerate(values):
+        matrix[index * 7] = float(value)
+    return matrix
+
+
+def _quaternion(roll: float, pitch: float, yaw: float) -> tuple[float, float, float, float]:
+    """(x, y, z, w) of URDF's fixed-axis roll, pitch, yaw."""
+    cr, sr = math.cos(roll / 2), math.sin(roll / 2)
+    cp, sp = math.cos(pitch / 2), math.sin(pitch / 2)
+    cy, sy = math.cos(yaw / 2), math.sin(yaw / 2)
+    return (sr * cp * cy - cr * sp * sy, cr * sp * cy + sr * cp * sy,
+            cr * cp * sy - sr * sp * cy, cr * cp * cy + sr * sp * sy)

@@ -11,7 +11,7 @@ from dataclasses import replace
 import pytest
 
 from fpgalink.protocol.robot import WHEEL_NAMES, seed_robot
-from fpgalink.protocol.urdf import robot_urdf, seed_urdf
+from fpgalink.protocol.urdf import FixedJoint, fixed_joints, robot_urdf, seed_urdf
 
 
 def floats(text: str | None) -> list[float]:
@@ -73,3 +73,38 @@ def test_the_physics_body_puts_the_wheels_where_the_urdf_does() -> None:
     rotors = sum(model.body_mass[model.body(f"{n}_rotor").id] for n in WHEEL_NAMES)
     assert chassis + wheels + rotors == pytest.approx(seed_robot().body.mass)
     assert rotors < 0.5  # the rotors' inertia is their joints' armature, not mass
+
+
+def test_wheels_renamed_rename_their_joints_and_links_only() -> None:
+    names = {"FL": "left_front", "BL": "left_back"}
+    root = ET.fromstring(robot_urdf(seed_robot(), names))
+    joints = {j.get("name"): j for j in root.iter("joint")}
+    assert {"left_front", "left_back", "FR", "BR"} <= set(joints)
+    assert not {"FL", "BL"} & set(joints)
+    assert child(joints["left_front"], "child").get("link") == "left_front_link"
+    assert robot_urdf(seed_robot(), {}) == seed_urdf()
+
+
+def test_fixed_joints_are_read_from_any_urdf() -> None:
+    # The shipped one: the seed's IMU and its backward-facing laser.
+    assert fixed_joints(seed_urdf()) == [
+        FixedJoint("imu", "base_link", "ImuALink", (0.125, -0.03, 0.11), (0.0, 0.0, 0.0)),
+        FixedJoint("laser_joint", "base_link", "laser", (0.39, 0.02, 0.23),
+                   (0.0, 0.0, 3.14159))]
+    # No origin: at the parent's.
+    assert fixed_joints('<robot name="r"><joint name="j" type="fixed"><parent link="a"/>'
+                        '<child link="b"/></joint></robot>') == [
+        FixedJoint("j", "a", "b", (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))]
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    ("not xml", "not XML"),
+    ("<sdf/>", "not a URDF"),
+    ('<robot><joint name="j" type="fixed"><parent link="a"/></joint></robot>',
+     "without its parent and child"),
+    ('<robot><joint name="j" type="fixed"><parent link="a"/><child link="b"/>'
+     '<origin xyz="1 2"/></joint></robot>', "three finite numbers"),
+])
+def test_a_urdf_that_cannot_be_read_says_why(text: str, says: str) -> None:
+    with pytest.raises(ValueError, match=says):
+        fixed_joints(text)

@@ -66,3 +66,17 @@ def test_a_wheel_limit_binds_on_a_fast_turn_with_speed() -> None:
 def test_non_finite_commands_are_refused(v: float, omega: float) -> None:
     with pytest.raises(LocalProtocolError, match="finite"):
         wheel_command(ROBOT, v, omega)
+
+
+def test_a_sides_radius_multiplier_turns_that_side_slower_for_the_same_ground_speed() -> None:
+    from fpgalink.protocol.robot import SkidSteer
+
+    description = seed_robot()
+    model = description.kinematics()
+    larger_left = SkidSteer(model.wheel_radius, model.track, model.chi, 1.25, 1.0)
+    plain = wheel_command(description, 0.1, 0.0, model)
+    command = wheel_command(description, 0.1, 0.0, larger_left)
+    assert command.left_dps == pytest.approx(plain.left_dps / 1.25)
+    assert command.right_dps == pytest.approx(plain.right_dps)
+    assert larger_left.body_twist(command.left_dps, command.right_dps) == pytest.approx(
+        (0.1, 0.0))

@@ -203,3 +203,17 @@ def test_a_restarted_board_is_a_new_reference_not_a_jump() -> None:
     assert odo.pose.x == pytest.approx(x + step, abs=1e-9)
     assert odo.pose.theta == pytest.approx(0.0, abs=1e-12)
     assert odo.reanchors == 1
+
+
+def test_a_sides_radius_multiplier_scales_that_sides_distance_only() -> None:
+    # The left wheels 2 % larger (diff_drive_controller's left_wheel_radius_multiplier):
+    # equal counts on both sides are a curve to the right, its mean path 1 % longer.
+    from fpgalink.protocol.robot import SkidSteer
+
+    model = ROBOT.kinematics()
+    odo = odometry()
+    odo.set_kinematics(ROBOT, SkidSteer(model.wheel_radius, model.track, model.chi, 1.02, 1.0))
+    turns = 2.0 / (math.tau * 0.2)
+    drive_counts(odo, round(turns * COUNTS_PER_TURN), round(turns * COUNTS_PER_TURN), 400)
+    assert odo.distance == pytest.approx(2.0 * 1.01, abs=2e-4)
+    assert odo.pose.theta == pytest.approx(-2.0 * 0.02 / model.effective_track, abs=1e-4)

@@ -1,0 +1,180 @@
+"""Running a campaign's scenarios: here (``jobs=1``), on every local core (processes), or on
+a Dask cluster (``dask=ADDRESS`` or ``"local"``). Results come back as each scenario
+finishes, in any order; :func:`run_campaign` returns them in the campaign's order.
+
+A scenario that fails is a failed :class:`~fpgalink.campaign.scenario.Result`, never the end
+of the campaign; so is a worker process that dies under one (the pool is rebuilt for the
+rest). A scenario is deterministic (emulated time, seeded), so where it ran does not change
+its figures: a campaign run here, on 2 processes or on a cluster gives the same table.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import importlib
+import multiprocessing
+import os
+import signal
+import threading
+from collections.abc import Callable, Iterator, Sequence
+from typing import Any
+
+from fpgalink.campaign.scenario import Result, run_scenario
+from fpgalink.campaign.spec import Campaign, CampaignError, Scenario
+
+__all__ = ["DASK_MISSING", "default_jobs", "iter_results", "run_campaign"]
+
+DASK_MISSING = ("--dask needs dask.distributed: pip install 'fpgalink[campaign]' (or "
+                "'dask[distributed]')")
+
+
+def default_jobs() -> int:
+    """Every core this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | None = None,
+                 on_result: Callable[[Result], None] | None = None) -> list[Result]:
+    """Every scenario of ``campaign``; ``on_result`` is called as each finishes."""
+    results = []
+    for result in iter_results(campaign.scenarios, jobs=jobs, dask=dask):
+        if on_result is not None:
+            on_result(result)
+        results.append(result)
+    return sorted(results, key=lambda r: r.index)
+
+
+def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
+                 dask: str | None = None) -> Iterator[Result]:
+    if dask is not None:
+        yield from _on_dask(scenarios, dask, jobs)
+        return
+    jobs = default_jobs() if jobs is None else jobs
+    if jobs < 1:
+        raise CampaignError(f"jobs must be at least 1, got {jobs}")
+    if jobs == 1 or len(scenarios) == 1:
+        for scenario in scenarios:
+            yield run_scenario(scenario)
+        return
+    yield from _on_processes(scenarios, min(jobs, len(scenarios)))
+
+
+def _worker_started() -> None:
+    # Ctrl-C reaches the whole process group: the parent stops the campaign and ends its
+    # workers; a worker that died of it on its own would print a traceback and look like a
+    # scenario that killed it.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
+def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
+    return concurrent.futures.ProcessPoolExecutor(jobs, mp_context=context,
+                                                  initializer=_worker_started)
+
+
+def _submit_all(pool: concurrent.futures.ProcessPoolExecutor, scenarios: Sequence[Scenario]
+                ) -> dict[concurrent.futures.Future[Result], Scenario]:
+    """Submit every scenario; the workers start here, with SIGINT ignored from their first
+    instruction (an ignored signal stays ignored across exec, and Python then installs no
+    KeyboardInterrupt handler), so a Ctrl-C during their start-up does not reach them."""
+    hold = threading.current_thread() is threading.main_thread()
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if hold else None
+    try:
+        return {pool.submit(run_scenario, s): s for s in scenarios}
+    finally:
+        if hold:
+            signal.signal(signal.SIGINT, previous)
+
+
+def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
+    """End the workers now, running scenarios and all (Python 3.14 has
+    ``kill_workers()``; before it, the pool's own process table)."""
+    processes = getattr(pool, "_processes", None) or {}
+    for process in list(processes.values()):
+        process.kill()
+    pool.shutdown(wait=False, cancel_futures=True)
+
+
+def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
+    # spawn, not fork: a fresh interpreter per worker on every platform, and no copy of an
+    # event loop, threads or open files from the parent.
+    context = multiprocessing.get_context("spawn")
+    waiting = list(scenarios)
+    while waiting:
+        pool = _pool(jobs, context)
+        try:
+            futures = _submit_all(pool, waiting)
+            broken = False
+            for future in concurrent.futures.as_completed(futures):
+                scenario = futures[future]
+                try:
+                    result = future.result()
+                except concurrent.futures.process.BrokenProcessPool:
+                    broken = True
+                    continue
+                waiting.remove(scenario)
+                yield result
+            pool.shutdown()
+            if broken:
+                # One scenario killed its worker (and the pool with it): which one is not
+                # known, so each unfinished one is tried once more, alone.
+                for scenario in list(waiting):
+                    yield _alone(scenario, context)
+                    waiting.remove(scenario)
+        except BaseException:  # interrupted, or the consumer stopped: no worker left behind
+            _stop(pool)
+            raise
+
+
+def _alone(scenario: Scenario, context: Any) -> Result:
+    pool = _pool(1, context)
+    try:
+        (future,) = _submit_all(pool, [scenario])
+        result: Result = future.result()
+        pool.shutdown()
+        return result
+    except concurrent.futures.process.BrokenProcessPool:
+        return Result(scenario.index, scenario.name, "failed", {},
+                      "its worker process died (killed, or out of memory)",
+                      grid=scenario.grid)
+    except BaseException:
+        _stop(pool)
+        raise
+
+
+def _on_dask(scenarios: Sequence[Scenario], address: str, jobs: int | None
+             ) -> Iterator[Result]:
+    try:
+        # dask.distributed is untyped: held as Any.
+        distributed: Any = importlib.import_module("dask.distributed")
+    except ImportError:
+        raise CampaignError(DASK_MISSING) from None
+    Client, LocalCluster, as_completed = (distributed.Client, distributed.LocalCluster,
+                                          distributed.as_completed)
+    cluster = None
+    if address == "local":
+        # Processes, one thread each: a scenario holds the GIL the whole time it runs.
+        cluster = LocalCluster(n_workers=jobs or default_jobs(), threads_per_worker=1,
+                               processes=True, dashboard_address=None)
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(address, timeout="10s")
+        except (OSError, TimeoutError) as exc:
+            raise CampaignError(f"--dask {address}: no scheduler there ({exc})") from None
+    try:
+        futures = {client.submit(run_scenario, s, pure=False): s for s in scenarios}
+        for future, outcome in as_completed(futures, with_results=True, raise_errors=False):
+            scenario = futures[future]
+            if isinstance(outcome, Result):
+                yield outcome
+            else:  # the worker died or the scheduler gave up on the task
+                yield Result(scenario.index, scenario.name, "failed", {},
+                             f"dask: {type(outcome).__name__}: {outcome}".splitlines()[0],
+                             grid=scenario.grid)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()

@@ -1,0 +1,320 @@
+"""``campaign`` and ``tune``: many scenarios on emulated robots, on every core (or a Dask
+cluster), into one table (docs/campaigns.md)."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import signal
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import click
+
+from fpgalink.campaign import (
+    Campaign,
+    CampaignError,
+    Result,
+    default_jobs,
+    load_campaign,
+    parse_campaign,
+    run_campaign,
+)
+from fpgalink.campaign.results import columns, rows, write_csv, write_json, write_parquet
+from fpgalink.campaign.scenario import TOTALS
+from fpgalink.cli.formats import Column, emit_rows, format_option
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
+
+__all__ = ["campaign", "tune"]
+
+#: The seed's §3.4 pidtune gains (high gear) converted to this board's units
+#: (docs/emulator.md §12: Kp 7.11, Ti 23.66, Td 0.43 in Matlab's units).
+SEED_GAINS = {"Kp_Wheel_Pid": 2502.0, "Ti_Wheel_Pid": 0.30, "Td_Wheel_Pid": 0.060}
+GAIN_NAMES = {"kp": "Kp_Wheel_Pid", "ti": "Ti_Wheel_Pid", "td": "Td_Wheel_Pid"}
+
+
+def _jobs_and_dask(jobs: int | None, dask: str | None) -> tuple[int | None, str | None]:
+    if jobs is not None and jobs < 1:
+        raise CliError("--jobs must be at least 1", ExitCode.BAD_INPUT)
+    return jobs, dask
+
+
+def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> list[Result]:
+    total = len(spec.scenarios)
+    where = f"Dask ({dask})" if dask else \
+        f"{min(jobs or default_jobs(), total)} process(es)"
+    if not quiet:
+        note(f"campaign {spec.name}: {total} scenario(s) on {where}")
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+
+    failed = 0
+    with Progress("[progress.description]{task.description}", BarColumn(),
+                  MofNCompleteColumn(), TimeElapsedColumn(), transient=True,
+                  disable=quiet or not sys.stderr.isatty()) as progress:
+        task = progress.add_task(spec.name, total=total)
+
+        def done(result: Result) -> None:
+            nonlocal failed
+            progress.advance(task)
+            if not result.ok:
+                failed += 1
+                note(f"scenario {result.index} ({result.name}) failed: {result.error}")
+
+        previous = signal.signal(signal.SIGTERM, _terminated)
+        try:
+            return run_campaign(spec, jobs=jobs, dask=dask, on_result=done)
+        except CampaignError as exc:
+            raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+        except _Terminated:
+            note("terminated: the campaign and its workers were stopped")
+            sys.exit(128 + signal.SIGTERM)
+        finally:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(Exception):
+    """SIGTERM, raised where the campaign waits, so its workers are ended with it."""
+
+
+def _terminated(signum: int, frame: object) -> None:
+    raise _Terminated
+
+
+def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign) -> None:
+    if out is None:
+        return
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        write_csv(out / "results.csv", table)
+        write_json(out / "results.json", table)
+        parquet = write_parquet(out / "results.parquet", table)
+    except OSError as exc:
+        raise CliError(f"--out {out}: {exc.strerror or exc}") from None
+    written = "results.csv, results.json" + (", results.parquet" if parquet else "")
+    if _summary_plot(out / "summary.png", table, spec):
+        written += ", summary.png"
+    note(f"wrote {written} into {out}")
+
+
+def _summary_plot(path: Path, table: list[dict[str, Any]], spec: Campaign) -> bool:
+    """One bar chart per numeric figure column (up to six), a bar per scenario."""
+    try:
+        from fpgalink.cli.figures import new_figure, save_figure
+    except ImportError:
+        return False
+    figure_columns = [c for c in columns(table) if "." in c and any(
+        isinstance(row.get(c), int | float) and not isinstance(row.get(c), bool)
+        for row in table)][:6]
+    if not figure_columns:
+        return False
+    try:
+        figure = new_figure((8.0, 2.2 * len(figure_columns)))
+    except ImportError:
+        return False
+    labels = [f"{row['index']}" for row in table]
+    for number, name in enumerate(figure_columns, 1):
+        axes = figure.add_subplot(len(figure_columns), 1, number)
+        values = [row.get(name) for row in table]
+        heights = [v if isinstance(v, int | float) and math.isfinite(v) else 0.0
+                   for v in values]
+        axes.bar(labels, heights)
+        axes.set_ylabel(name, fontsize=7)
+    figure.axes[0].set_title(f"campaign {spec.name}: one bar per scenario (index)")
+    figure.axes[-1].set_xlabel("scenario")
+    save_figure(figure, path)
+    return True
+
+
+def _emit(fmt: str, table: list[dict[str, Any]], title: str) -> None:
+    if fmt != "table":
+        emit_rows(fmt, [Column(n, n) for n in columns(table)], table)
+        return
+    # For people: one table per kind of row (scenarios with the same figures share one),
+    # what tells rows apart first, how it ran last.
+    kinds: dict[tuple[str, ...], list[dict[str, Any]]] = {}
+    for row in table:
+        kinds.setdefault(tuple(k for k, v in row.items() if "." in k and v is not None),
+                         []).append(row)
+    for group in kinds.values():
+        # A setting every row of the group shares goes into the title, not a column.
+        shared = {n: group[0].get(n) for n in columns(group) if n not in _NOT_SETTINGS
+                  and "." not in n and len({str(row.get(n)) for row in group}) == 1}
+        names = [n for n in columns(group) if n not in ("worker", *shared) and (
+            n in ("index", "status") or any(row.get(n) not in (None, "") for row in group))]
+        if len({row["scenario"] for row in group}) == 1:
+            shared = {"scenario": group[0]["scenario"], **shared}
+            names.remove("scenario")
+        cols = [Column(n, n, render=_cell, drop=0 if n in ("index", "status") else 1 + i)
+                for i, n in enumerate(names)]
+        said = ", ".join(f"{k} {_cell(v)}" for k, v in shared.items() if v not in (None, ""))
+        emit_rows(fmt, cols, group, title=title + (f" ({said})" if said else ""))
+
+
+#: Columns that are not a scenario's settings: its identity, how it ran, its totals.
+_NOT_SETTINGS = frozenset({"index", "scenario", "status", "error", "wall_s", "worker",
+                           *TOTALS})
+
+
+def _cell(value: Any) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, float):
+        return f"{value:.4g}"
+    return str(value)
+
+
+@click.command(epilog=EXIT_CODES_HELP + " A campaign with failed scenarios exits 1.")
+@click.argument("spec_file", metavar="SPEC.toml",
+                type=click.Path(dir_okay=False, path_type=Path))
+@click.option("--jobs", "-j", type=int, default=None,
+              help="Processes to run scenarios on [default: every core].")
+@click.option("--dask", metavar="ADDRESS",
+              help="Run on a Dask cluster: its scheduler's address (tcp://host:8786), or "
+                   "'local' for a LocalCluster of --jobs workers on this machine.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path),
+              help="Write results.csv, results.json (results.parquet with pyarrow) and "
+                   "summary.png into this directory.")
+@format_option
+def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | None,
+             fmt: str) -> None:
+    """Run the scenarios of SPEC.toml on emulated robots and print their figures.
+
+    Each scenario runs on a fresh in-process emulated robot, as fast as it goes (emulated
+    time), one row of figures per scenario; the same campaign gives the same figures
+    wherever it runs (docs/campaigns.md)."""
+    jobs, dask = _jobs_and_dask(jobs, dask)
+    try:
+        spec = load_campaign(spec_file)
+    except CampaignError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+    results = _run(spec, jobs, dask, quiet=fmt != "table")
+    table = rows(results)
+    _write(out, table, spec)
+    _emit(fmt, table, f"campaign {spec.name}")
+    failed = sum(not r.ok for r in results)
+    if failed:
+        raise CliError(f"{failed} of {len(results)} scenario(s) failed", ExitCode.FAILURE)
+
+
+def _grid(entries: Sequence[str]) -> list[tuple[str, list[float]]]:
+    grid = []
+    for entry in entries:
+        name, sep, values = entry.partition("=")
+        key = GAIN_NAMES.get(name.strip().lower())
+        if not sep or key is None:
+            raise CliError(f"--grid {entry!r}: write Kp=V1,V2,…, Ti=…, or Td=…",
+                           ExitCode.BAD_INPUT)
+        try:
+            numbers = [float(v) for v in values.split(",") if v.strip()]
+        except ValueError:
+            raise CliError(f"--grid {entry!r}: values must be numbers",
+                           ExitCode.BAD_INPUT) from None
+        if not numbers or not all(math.isfinite(v) for v in numbers):
+            raise CliError(f"--grid {entry!r}: give finite numbers", ExitCode.BAD_INPUT)
+        grid.append((key, numbers))
+    if not grid:
+        raise CliError("--grid: give at least one of Kp=…, Ti=…, Td=…", ExitCode.BAD_INPUT)
+    return grid
+
+
+def _score(row: dict[str, Any]) -> tuple[float, float, float]:
+    """Settled soonest, then least overshoot, then fastest rise; unsettled last."""
+    def num(key: str) -> float:
+        value = row.get(key)
+        return float(value) if isinstance(value, int | float) else math.inf
+    return (num("step.settling_s"), num("step.overshoot_pct"), num("step.rise_s"))
+
+
+@click.command(epilog=EXIT_CODES_HELP)
+@click.option("--channel", "-c", type=click.Choice(["A", "B"], case_sensitive=False),
+              required=True, help="The channel whose gains are tuned, on every board.")
+@click.option("--grid", "-g", "grid_entries", multiple=True, required=True,
+              metavar="NAME=V1,V2,…",
+              help="Gains to try: Kp=…, Ti=…, Td=… (repeat; every combination runs).")
+@click.option("--surface", default="gravel", show_default=True,
+              help="The ground the robot stands on.")
+@click.option("--body", type=click.Choice(["kinematic", "mujoco"]), default="kinematic",
+              show_default=True)
+@click.option("--to", "target", type=float, default=45.0, show_default=True,
+              help="The step, deg/s, on every wheel (the robot drives straight).")
+@click.option("--seconds", type=float, default=2.0, show_default=True)
+@click.option("--jobs", "-j", type=int, default=None)
+@click.option("--dask", metavar="ADDRESS")
+@click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
+              help="Save the figures of every combination as a PNG.")
+@format_option
+def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, target: float,
+         seconds: float, jobs: int | None, dask: str | None, plot: Path | None,
+         fmt: str) -> None:
+    """Pick the wheel PID gains that settle a step soonest, from a grid.
+
+    Every wheel steps with each combination of gains set on CHANNEL of every board; the
+    best settles soonest (then overshoots least). The seed's §3.4 pidtune gains, converted
+    to this board's units, run beside them as the reference row."""
+    jobs, dask = _jobs_and_dask(jobs, dask)
+    channel = channel.upper()
+    grid = _grid(grid_entries)
+    combos = [dict(zip([k for k, _ in grid], values, strict=True))
+              for values in itertools.product(*(v for _, v in grid))]
+    scenarios: list[dict[str, Any]] = [{"name": "seed §3.4", "params": {f"{k}.{channel}": v
+                                                  for k, v in SEED_GAINS.items()}}]
+    scenarios += [{"name": "grid", "params": {f"{k}.{channel}": v for k, v in combo.items()}}
+                  for combo in combos]
+    for scenario in scenarios:
+        scenario["script"] = [{"step": target, "wheel": channel, "seconds": seconds,
+                               "label": "step"}]
+    document = {"campaign": {"name": f"tune {channel}", "surface": surface, "body": body},
+                "scenario": scenarios}
+    try:
+        spec = parse_campaign(document, source="tune")
+    except CampaignError as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+    results = _run(spec, jobs, dask, quiet=fmt != "table")
+    table = rows(results)
+    for row in table:
+        row["kp"], row["ti"], row["td"] = (row.get(f"{name}{channel}")
+                                           for name in GAIN_NAMES.values())
+    ok = [row for row in table if row["status"] == "ok" and row["scenario"] == "grid"]
+    best = min(ok, key=_score) if ok else None
+    for row in table:
+        row["best"] = row is best
+    cols = [Column("scenario", "gains", drop=0), Column("kp", "Kp", render=_cell),
+            Column("ti", "Ti s", render=_cell), Column("td", "Td s", render=_cell),
+            Column("step.rise_s", "rise s", render=_cell),
+            Column("step.settling_s", "settling s", render=_cell),
+            Column("step.overshoot_pct", "overshoot %", render=_cell),
+            Column("step.error_dps", "error deg/s", render=_cell, drop=2),
+            Column("best", "best", render=lambda v: "◀ best" if v else "", drop=0),
+            Column("status", "status", drop=3)]
+    emit_rows(fmt, cols, table, title=f"tune channel {channel}: step to {target:g} deg/s "
+              f"on {surface} ({body})")
+    if plot is not None:
+        _tune_plot(plot, table, channel)
+    if best is None:
+        raise CliError("no combination ran: see the failures above", ExitCode.FAILURE)
+
+
+def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str) -> None:
+    from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+
+    check_plot_path(path)
+    figure = new_figure((8.0, 6.0))
+    names = [("step.settling_s", "settling s"), ("step.overshoot_pct", "overshoot %"),
+             ("step.rise_s", "rise s")]
+    labels = [f"Kp {_cell(r['kp'])}\nTi {_cell(r['ti'])}\nTd {_cell(r['td'])}"
+              + ("\n(seed)" if r["scenario"] == "seed §3.4" else "") for r in table]
+    for number, (key, unit) in enumerate(names, 1):
+        axes = figure.add_subplot(len(names), 1, number)
+        values = [float(r[key]) if isinstance(r.get(key), int | float) else 0.0
+                  for r in table]
+        colours = ["tab:green" if r["best"] else "tab:gray" if r["scenario"] != "grid"
+                   else "tab:blue" for r in table]
+        axes.bar(range(len(table)), values, color=colours)
+        axes.set_ylabel(unit)
+        axes.set_xticks(range(len(table)), labels if number == len(names) else [""] *
+                        len(table), fontsize=6)
+    figure.axes[0].set_title(f"tune channel {channel}: green the best, grey the seed's gains")
+    save_figure(figure, path)
+    note(f"wrote {path}")

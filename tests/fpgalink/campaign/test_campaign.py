@@ -1,0 +1,374 @@
+"""Campaigns (issue 27): the emulated-time loop, the declaration, scenarios giving the same
+figures wherever they run (here, in other processes, on a 2-worker Dask LocalCluster),
+failures reported and not fatal, and the CLI's campaign and tune commands.
+
+Every figure is read on emulated time, so these assertions hold on a machine under any load.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import subprocess
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from fpgalink.aio.virtualtime import NothingScheduled, run_virtual
+from fpgalink.campaign import (
+    Campaign,
+    CampaignError,
+    load_campaign,
+    parse_campaign,
+    run_campaign,
+    run_scenario,
+)
+from fpgalink.campaign.results import deterministic_rows
+from tests.support.cli import cli_env, run_cli
+
+ROOT = Path(__file__).resolve().parents[3]
+SEED36 = ROOT / "examples" / "campaigns" / "seed36.toml"
+
+
+# --- the emulated-time loop ------------------------------------------------------------
+
+
+def test_the_virtual_loop_jumps_to_each_timer_and_no_wall_time_passes() -> None:
+    async def main() -> tuple[float, list[float]]:
+        loop = asyncio.get_running_loop()
+        seen: list[float] = []
+        for delay in (0.25, 3600.0, 1e-3):
+            await asyncio.sleep(delay)
+            seen.append(loop.time())
+        return loop.time(), seen
+
+    import time
+
+    started = time.perf_counter()
+    end, seen = run_virtual(main())
+    assert seen == pytest.approx([0.25, 3600.25, 3600.251])
+    assert end == pytest.approx(3600.251)
+    assert time.perf_counter() - started < 60  # an hour of sleeping, not an hour
+
+
+def test_the_virtual_loop_says_so_when_nothing_can_ever_happen(monkeypatch: pytest.MonkeyPatch
+                                                               ) -> None:
+    import fpgalink.aio.virtualtime as vt
+
+    monkeypatch.setattr(vt, "IDLE_WAIT_S", 0.05)
+
+    async def main() -> None:
+        await asyncio.Event().wait()  # nothing will ever set it
+
+    with pytest.raises(NothingScheduled, match="nothing is scheduled"):
+        run_virtual(main())
+
+
+def test_the_virtual_loop_still_takes_a_threads_result() -> None:
+    async def main() -> int:
+        loop = asyncio.get_running_loop()
+        return await loop.run_in_executor(None, sum, [1, 2, 3])
+
+    assert run_virtual(main()) == 6
+
+
+# --- the declaration -------------------------------------------------------------------
+
+
+def _doc(**scenario: object) -> dict[str, object]:
+    return {"scenario": [{"script": [{"wait": 0.1}], **scenario}]}
+
+
+def test_a_grid_multiplies_every_scenario_and_sets_what_it_names() -> None:
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "seed": 4},
+        "grid": {"surface": ["gravel", "marble"], "Kp_Wheel_Pid.A": [300.0, 400.0, 500.0]},
+        "scenario": [{"name": "a", "script": [{"wait": 1}]},
+                     {"name": "b", "params": {"L.Ti_Wheel_Pid.B": 0.3},
+                      "script": [{"drive": [0.2, 0], "seconds": 1}]}]})
+    assert len(campaign.scenarios) == 2 * 2 * 3
+    assert [s.index for s in campaign.scenarios] == list(range(12))
+    b = [s for s in campaign.scenarios if s.name == "b"]
+    assert {(s.surface, s.params[-1].value) for s in b} == {
+        (surface, kp) for surface in ("gravel", "marble") for kp in (300.0, 400.0, 500.0)}
+    assert all(s.params[0].label == "L.Ti_Wheel_PidB" for s in b)
+    assert all(s.seed == 4 and s.body == "kinematic" for s in campaign.scenarios)
+    # The host's odometry takes the χ of the surface the scenario runs on.
+    assert {s.description.surface for s in campaign.scenarios} == {"gravel", "marble"}
+    urls = campaign.scenarios[0].urls()
+    assert urls["L"].startswith("emu://robot/L?surface=gravel&body=kinematic&seed=4&run=0")
+
+
+@pytest.mark.parametrize(("document", "says"), [
+    ({"scenario": []}, "no [[scenario]]"),
+    (_doc(surface="lava"), "surface: 'lava'; one of"),
+    (_doc(body="rigid"), "body"),
+    (_doc(params={"Kp_Whel_Pid": 1.0}), "unknown parameter"),
+    (_doc(params={"Kp_Wheel_Pid.A": -1.0}), "Kp_Wheel_Pid.A"),
+    (_doc(params={"Q.Kp_Wheel_Pid.A": 1.0}), "the robot has boards"),
+    (_doc(faults=["restart=3"]), "BOARD:FAULT"),
+    (_doc(script=[]), "non-empty list of actions"),
+    (_doc(script=[{"drive": [0.1, 0], "wait": 1}]), "exactly one of"),
+    (_doc(script=[{"drive": [float("nan"), 0], "seconds": 1}]), "a number in"),
+    (_doc(script=[{"drive": [0.1, 0], "seconds": 1e9}]), "a number in"),
+    (_doc(script=[{"step": 0}]), "no step"),
+    (_doc(seed=-1), "seed"),
+    (_doc(colour="red"), "unknown key 'colour'"),
+    ({"grid": {"surface": []}, **_doc()}, "non-empty list"),
+    ({"grid": {"seed": list(range(1000)), "Kp_Wheel_Pid": [float(v) for v in range(101)]},
+      **_doc()}, "at most"),
+])
+def test_a_campaign_written_wrong_is_one_line_naming_where(document: dict[str, object],
+                                                           says: str) -> None:
+    with pytest.raises(CampaignError) as caught:
+        parse_campaign(document, source="spec.toml")
+    message = str(caught.value)
+    assert says in message and "\n" not in message and message.startswith("spec.toml")
+
+
+def test_the_seed_table_campaign_file_reads(tmp_path: Path) -> None:
+    campaign = load_campaign(SEED36)
+    assert len(campaign.scenarios) == 10
+    assert {s.body for s in campaign.scenarios} == {"kinematic", "mujoco"}
+    (tmp_path / "big.toml").write_bytes(b"#" * (2 << 20))
+    with pytest.raises(CampaignError, match="larger than"):
+        load_campaign(tmp_path / "big.toml")
+    with pytest.raises(CampaignError, match="cannot read"):
+        load_campaign(tmp_path / "absent.toml")
+
+
+# --- running ---------------------------------------------------------------------------
+
+
+def _short(campaign: Campaign, seconds: float = 1.0, settle: float = 0.5) -> Campaign:
+    """The same scenarios with every action shortened (the figures' meaning unchanged)."""
+    return replace(campaign, scenarios=tuple(
+        replace(s, script=tuple(replace(a, seconds=seconds, settle=settle) for a in s.script))
+        for s in campaign.scenarios))
+
+
+def _kinematic_seed36() -> Campaign:
+    campaign = _short(load_campaign(SEED36))
+    kept = [s for s in campaign.scenarios if s.body == "kinematic"]
+    return replace(campaign, scenarios=tuple(replace(s, index=i) for i, s in enumerate(kept)))
+
+
+def test_a_scenario_measures_the_robot_from_its_truth_and_its_host() -> None:
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "surface": "gravel"},
+        "scenario": [{"name": "all", "script": [
+            {"wheels": [50, -50], "settle": 1, "seconds": 2, "label": "turn"},
+            {"step": 45, "wheel": "FL", "seconds": 1.5, "label": "step"},
+            {"goto": [0.6, 0.3], "seconds": 40, "label": "goto"}]}]})
+    result = run_scenario(campaign.scenarios[0])
+    assert result.ok, result.error
+    f = result.figures
+    # In place ±50 deg/s on gravel: the kinematic body turns at 2·r·ω/(χ·B), clockwise.
+    r, chi, track = 0.2, 1.65, 0.66
+    import math
+    expected = -math.degrees(2 * r * math.radians(50) / (chi * track))
+    assert f["turn.turn_rate_dps"] == pytest.approx(expected, rel=1e-3)
+    assert f["turn.wander_x_m"] == pytest.approx(0.0, abs=1e-6)
+    # The default gains' step (docs/emulator.md §12: 0 % overshoot, settled at 0.54 s).
+    assert f["step.overshoot_pct"] == 0.0
+    assert f["step.settling_s"] == pytest.approx(0.54, abs=0.02)
+    assert f["goto.outcome"] == "arrived"
+    assert isinstance(f["goto.error_m"], float) and f["goto.error_m"] < 0.06
+    assert f["lost"] == 0 and f["stops"] == 0 and f["restarts"] == 0
+    assert isinstance(f["telemetry"], int) and f["telemetry"] > 1000
+
+
+def test_a_fault_in_a_scenario_is_counted_and_the_robot_goes_on() -> None:
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "surface": "gravel"},
+        "scenario": [{"name": "restart", "faults": ["L:restart=2"], "script": [
+            {"drive": [0.3, 0], "seconds": 6, "label": "drive"}]}]})
+    result = run_scenario(campaign.scenarios[0])
+    assert result.ok, result.error
+    f = result.figures
+    assert f["restarts"] == 1 and isinstance(f["stops"], int) and f["stops"] >= 1
+    assert isinstance(f["first_stop"], str) and "board L" in f["first_stop"]
+    assert isinstance(f["stopped_s"], float) and 0.0 < f["stopped_s"] < 3.0
+    # Driving again after the restart: most of 6 s at 0.3 m/s.
+    assert isinstance(f["drive.distance_m"], float) and 0.9 < f["drive.distance_m"] < 1.8
+
+
+def test_a_failing_scenario_is_reported_and_the_others_still_run() -> None:
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic"},
+        "scenario": [{"name": "bad", "faults": ["L:meltdown=1"], "script": [{"wait": 0.5}]},
+                     {"name": "good", "script": [{"wait": 0.5}]}]})
+    results = run_campaign(campaign, jobs=1)
+    assert [r.status for r in results] == ["failed", "ok"]
+    assert results[0].error and "meltdown" in results[0].error
+    assert "\n" not in results[0].error
+
+
+def test_the_same_campaign_gives_the_same_table_in_one_process_and_on_two() -> None:
+    campaign = _kinematic_seed36()
+    here = run_campaign(campaign, jobs=1)
+    there = run_campaign(campaign, jobs=2)
+    assert all(r.ok for r in here), [r.error for r in here]
+    assert deterministic_rows(here) == deterministic_rows(there)
+    assert all(r.worker.split(":")[1] != str(__import__("os").getpid()) for r in there)
+
+
+def test_the_same_campaign_gives_the_same_table_on_a_dask_local_cluster() -> None:
+    pytest.importorskip("dask.distributed")
+    campaign = _kinematic_seed36()
+    here = run_campaign(campaign, jobs=1)
+    on_dask = run_campaign(campaign, dask="local", jobs=2)
+    assert deterministic_rows(here) == deterministic_rows(on_dask)
+    assert all(r.ok for r in on_dask)
+
+
+def test_a_scenario_is_the_same_under_another_hash_seed(tmp_path: Path) -> None:
+    # Set and dict order must not leak into the figures: another interpreter, another
+    # PYTHONHASHSEED, the same figures.
+    code = ("import json,sys; from fpgalink.campaign import parse_campaign, run_scenario; "
+            "c = parse_campaign({'campaign': {'body': 'kinematic'}, 'scenario': [{"
+            "'faults': ['R:restart=1'], 'script': [{'drive': [0.3, 20], 'seconds': 3}]}]}); "
+            "print(json.dumps(run_scenario(c.scenarios[0]).figures, sort_keys=True))")
+    outputs = set()
+    for seed in ("1", "2"):
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              env={**cli_env(), "PYTHONHASHSEED": seed}, cwd=ROOT,
+                              timeout=300)
+        assert done.returncode == 0, done.stderr
+        outputs.add(done.stdout)
+    assert len(outputs) == 1
+
+
+# --- the CLI ---------------------------------------------------------------------------
+
+
+def test_campaign_through_the_console_script(tmp_path: Path) -> None:
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nsurface = ["gravel", "marble"]\n'
+                    '[[scenario]]\nname = "turn"\n'
+                    'script = [{ wheels = [50, -50], settle = 0.5, seconds = 1 }]\n',
+                    encoding="utf-8")
+    out = tmp_path / "out"
+    done = run_cli("campaign", str(spec), "--jobs", "1", "--format", "json", "--out", str(out),
+                   timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = json.loads(done.stdout)
+    assert [(r["surface"], r["status"]) for r in rows] == [("gravel", "ok"), ("marble", "ok")]
+    # marble's χ is larger: the same wheel speeds turn the body more slowly
+    assert abs(rows[1]["1.wheels.turn_rate_dps"]) < abs(rows[0]["1.wheels.turn_rate_dps"])
+    assert json.loads((out / "results.json").read_text()) == rows
+    assert (out / "results.csv").read_text().splitlines()[0].startswith("index,scenario")
+    assert (out / "summary.png").stat().st_size > 1000
+
+
+def test_campaign_refuses_a_bad_file_in_one_line(tmp_path: Path) -> None:
+    spec = tmp_path / "c.toml"
+    spec.write_text('[[scenario]]\nscript = [{ fly = 1 }]\n', encoding="utf-8")
+    done = run_cli("campaign", str(spec))
+    assert done.returncode == 2
+    assert done.stderr.count("\n") == 1 and "exactly one of" in done.stderr
+    done = run_cli("campaign", str(spec), "--jobs", "0")
+    assert done.returncode == 2 and "--jobs" in done.stderr
+    # fpgaemu campaign is the same command
+    done = subprocess.run([sys.executable, "-m", "fpgaemu", "campaign", str(tmp_path / "no")],
+                          capture_output=True, text=True, env=cli_env(), cwd=ROOT, timeout=60)
+    assert done.returncode == 2 and "cannot read" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_a_failed_scenario_makes_the_campaign_exit_1(tmp_path: Path) -> None:
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n'
+                    '[[scenario]]\nfaults = ["L:meltdown=1"]\nscript = [{ wait = 0.2 }]\n',
+                    encoding="utf-8")
+    done = run_cli("campaign", str(spec), "--jobs", "1", "--format", "csv", timeout=300)
+    assert done.returncode == 1
+    assert "scenario 0" in done.stderr and "meltdown" in done.stderr
+    assert "Traceback" not in done.stderr
+    assert done.stdout.splitlines()[1].split(",")[2] == "failed"
+
+
+def test_tune_picks_the_gains_that_settle_soonest(tmp_path: Path) -> None:
+    plot = tmp_path / "tune.png"
+    done = run_cli("tune", "--channel", "A", "--grid", "Kp=100,520", "--grid", "Ti=0.24",
+                   "--seconds", "1.5", "--jobs", "1", "--format", "json", "--plot", str(plot),
+                   timeout=300)
+    assert done.returncode == 0, done.stderr
+    rows = json.loads(done.stdout)
+    assert [r["scenario"] for r in rows] == ["seed §3.4", "grid", "grid"]
+    assert rows[0]["kp"] == 2502.0 and rows[0]["best"] is False  # the reference row
+    best = [r for r in rows if r["best"]]
+    assert len(best) == 1 and best[0]["kp"] == 520.0  # Kp 100 is far too soft to settle
+    slow = next(r for r in rows if r["kp"] == 100.0)
+    assert slow["step.settling_s"] is None or slow["step.settling_s"] > \
+        best[0]["step.settling_s"]
+    assert plot.stat().st_size > 1000
+
+
+def test_tune_refuses_a_bad_grid() -> None:
+    for grid in ("Kq=1", "Kp=", "Kp=a,b", "Kp=inf"):
+        done = run_cli("tune", "-c", "A", "-g", grid)
+        assert done.returncode == 2, (grid, done.stderr)
+        assert "--grid" in done.stderr and "Traceback" not in done.stderr
+
+
+def _children(pid: int) -> set[int]:
+    found: set[int] = set()
+    for task in Path(f"/proc/{pid}/task").iterdir():
+        with contextlib.suppress(OSError):  # the thread ended meanwhile
+            found |= {int(p) for p in (task / "children").read_text().split()}
+    return found
+
+
+def _is_worker(pid: int) -> bool:
+    try:
+        return b"spawn_main" in Path(f"/proc/{pid}/cmdline").read_bytes()
+    except OSError:
+        return False
+
+
+@pytest.mark.parametrize(("signal_name", "group", "code", "says"), [
+    ("SIGINT", True, 130, "interrupted"),  # Ctrl-C: the whole process group
+    ("SIGTERM", False, 143, "terminated"),
+])
+def test_a_campaign_stopped_by_a_signal_ends_its_workers(
+        tmp_path: Path, signal_name: str, group: bool, code: int, says: str) -> None:
+    import os
+    import signal
+    import time
+
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nseed = [0, 1, 2, 3]\n'
+                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
+                    encoding="utf-8")
+    from tests.support.cli import CLI
+
+    proc = subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", "2"], cwd=ROOT,
+                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+    try:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        # Wait for both workers to be there (what the signal must not leave behind).
+        while len(workers) < 2 and time.monotonic() < deadline and proc.poll() is None:
+            workers = {p for p in _children(proc.pid) if _is_worker(p)}
+            time.sleep(0.05)
+        assert len(workers) == 2
+        sig = getattr(signal, signal_name)
+        if group:
+            os.killpg(proc.pid, sig)
+        else:
+            proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+    assert proc.returncode == code, err
+    assert says in err and "Traceback" not in err
+    deadline = time.monotonic() + 10
+    while any(_is_worker(p) for p in workers):
+        assert time.monotonic() < deadline, "a worker outlived the campaign"
+        time.sleep(0.05)

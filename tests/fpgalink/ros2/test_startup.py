@@ -1,0 +1,114 @@
+"""Where ``fpgalink-ros2`` finds its boards: the command line, then the environment, then
+``fpgalink.toml`` — the CLI's order (fpgalink.cli.settings) — else the emulated robot.
+The resolution needs no ROS; one run of the console script (in tests/ros2/netns.sh, as
+everything that may start DDS) shows the node using a config file's ports."""
+
+from __future__ import annotations
+
+import importlib.util
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fpgalink.config import ConfigError
+from fpgalink.ros2.__main__ import _parser, resolve
+
+ROOT = Path(__file__).resolve().parents[3]
+NETNS = ROOT / "tests" / "ros2" / "netns.sh"
+
+
+@pytest.fixture(autouse=True)
+def nowhere(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
+    """A working directory and a user config directory of the test's own, no variables."""
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
+    for name in ("FPGALINK_CONFIG", "FPGALINK_PORT", "FPGALINK_BAUD"):
+        monkeypatch.delenv(name, raising=False)
+    return tmp_path
+
+
+def startup(*args: str) -> tuple[dict[str, str], int, str | None, dict[str, str]]:
+    found = resolve(_parser().parse_args(list(args)))
+    return found.ports, found.baud, found.robot, found.sources
+
+
+def test_nothing_anywhere_is_the_emulated_robot() -> None:
+    ports, baud, robot, sources = startup()
+    assert ports == {} and baud == 1_000_000 and robot is None
+    assert sources == {"port": "default", "baud": "default", "robot": "default"}
+
+
+def test_the_config_files_ports_baud_and_robot_are_used(nowhere: Path) -> None:
+    (nowhere / "fpgalink.toml").write_text(
+        'baud = 2000000\nrobot = "robots/sap.toml"\n'
+        '[ports]\nL = "/dev/ttyUSB0"\nR = "socket://127.0.0.1:7001"\n', encoding="utf-8")
+    ports, baud, robot, sources = startup()
+    assert ports == {"L": "/dev/ttyUSB0", "R": "socket://127.0.0.1:7001"}
+    assert baud == 2_000_000
+    # Relative to the file, as the CLI takes it.
+    assert robot == str(nowhere / "robots" / "sap.toml")
+    assert sources["port"] == sources["baud"] == sources["robot"] == \
+        f"config file {nowhere / 'fpgalink.toml'}"
+
+
+def test_an_explicit_port_wins_over_the_environment_and_the_file(
+        nowhere: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    (nowhere / "fpgalink.toml").write_text('[ports]\nL = "/dev/a"\nR = "/dev/b"\n',
+                                           encoding="utf-8")
+    monkeypatch.setenv("FPGALINK_PORT", "L=/dev/env-a R=/dev/env-b")
+    monkeypatch.setenv("FPGALINK_BAUD", "500000")
+    ports, baud, _, sources = startup()
+    assert ports == {"L": "/dev/env-a", "R": "/dev/env-b"} and baud == 500_000
+    assert sources["port"] == "environment FPGALINK_PORT"
+    ports, baud, _, sources = startup("--port", "L=emu://robot/L", "--port", "R=emu://robot/R",
+                                      "--baud", "115200")
+    assert ports == {"L": "emu://robot/L", "R": "emu://robot/R"} and baud == 115_200
+    assert sources["port"] == sources["baud"] == "command line"
+
+
+def test_config_names_a_file_and_the_user_directory_is_searched(nowhere: Path) -> None:
+    (nowhere / "xdg" / "fpgalink").mkdir(parents=True)
+    (nowhere / "xdg" / "fpgalink" / "fpgalink.toml").write_text(
+        '[ports]\nL = "/dev/user-a"\nR = "/dev/user-b"\n', encoding="utf-8")
+    assert startup()[0] == {"L": "/dev/user-a", "R": "/dev/user-b"}
+    (nowhere / "other.toml").write_text('[ports]\nL = "/dev/o-a"\nR = "/dev/o-b"\n',
+                                        encoding="utf-8")
+    assert startup("--config", "other.toml")[0] == {"L": "/dev/o-a", "R": "/dev/o-b"}
+
+
+@pytest.mark.parametrize(("text", "says"), [
+    ('prot = "/dev/x"\n', "unknown key 'prot'"),
+    ('port = "/dev/x"\n[ports]\nL = "/dev/y"\n', "give port or [ports], not both"),
+    ("baud = 12\n", "baud must be a whole number"),
+    ("[ports\n", "fpgalink.toml"),
+])
+def test_a_config_file_that_cannot_be_used_says_why(nowhere: Path, text: str,
+                                                    says: str) -> None:
+    (nowhere / "fpgalink.toml").write_text(text, encoding="utf-8")
+    with pytest.raises(ConfigError, match=says.replace("[", r"\[")):
+        startup()
+
+
+def _why_no_console_run() -> str | None:
+    if importlib.util.find_spec("rclpy") is None:
+        return "rclpy is not installed"
+    probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
+    return None if probe.returncode == 0 else f"no network namespace: {probe.stderr.strip()}"
+
+
+def test_the_node_opens_the_config_files_ports(nowhere: Path) -> None:
+    missing = _why_no_console_run()
+    if missing is not None:
+        pytest.skip(missing)
+    (nowhere / "fpgalink.toml").write_text(
+        '[ports]\nL = "/dev/fpgalink-test-no-such-L"\nR = "/dev/fpgalink-test-no-such-R"\n',
+        encoding="utf-8")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]))
+    done = subprocess.run([str(NETNS), sys.executable, "-m", "fpgalink.ros2"], cwd=nowhere,
+                          env=env, capture_output=True, text=True, timeout=120, check=False)
+    # Those ports, not the emulated robot: they do not exist, so exit 4 (boards not reached).
+    assert done.returncode == 4, done
+    assert "/dev/fpgalink-test-no-such-L" in done.stderr, done.stderr
