@@ -99,6 +99,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.crc_ber
 	$(PY) -m benchmarks.flood --mb 5
 	$(PY) -m benchmarks.faults
+	$(PY) -m benchmarks.router
 	$(PY) -m benchmarks.campaign
 	$(PY) -m benchmarks.ceiling
 

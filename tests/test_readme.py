@@ -64,3 +64,32 @@ def test_the_parameter_table_shown_is_what_param_list_prints(tmp_path: Path) -> 
     printed = [line.rstrip() for line in result.stdout.splitlines()
                if line.startswith(("┃", "│"))]
     assert printed == [line.rstrip() for line in shown]
+
+
+def _demo_commands() -> list[list[str]]:
+    """The Makefile's demo recipe, each line a fpgalink-cli command from the venv."""
+    makefile = (ROOT / "Makefile").read_text(encoding="utf-8")
+    recipe = makefile[makefile.index("\ndemo:") + 1:].splitlines()[1:]
+    lines = [li.strip() for li in recipe[: next(i for i, li in enumerate(recipe)
+                                                  if not li.startswith("\t"))]]
+    prefix = "$(VENV)/bin/fpgalink-cli "
+    assert lines and all(li.startswith(prefix) for li in lines), lines
+    return [li.removeprefix(prefix).split() for li in lines]
+
+
+def test_make_demo_says_once_that_the_built_in_emulator_stands_in(tmp_path: Path) -> None:
+    """Issue 26: the notice was printed by each of the demo's commands."""
+    said = 0
+    for args in _demo_commands():
+        args = [str(tmp_path / a) if a.endswith(".png") else a for a in args]
+        for _ in range(3):  # a step stopped by a loaded machine's own stall: again
+            result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
+                                    capture_output=True, text=True, timeout=60, cwd=ROOT,
+                                    env={"COLUMNS": "200", "NO_COLOR": "1",
+                                         "PATH": "/usr/bin:/bin",
+                                         "XDG_CONFIG_HOME": str(tmp_path)})
+            if result.returncode != 7:
+                break
+        assert result.returncode == 0, result.stderr
+        said += result.stderr.count("using the built-in emulator")
+    assert said == 1

@@ -423,7 +423,12 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
             ready += [f"ready truth {url}" for url in truth_endpoint.urls]
-        print("\n".join(ready), flush=True)
+        try:
+            print("\n".join(ready), flush=True)
+        except BrokenPipeError:
+            _quiet_stdout()  # nobody reads the ready lines (| head -0): serve on
+        except OSError as exc:
+            raise _stdout_failed(exc) from None
         served = True
         await stop.wait()
     finally:
@@ -491,6 +496,33 @@ def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
         print(f"{name}: {note}", file=sys.stderr, flush=True)
 
 
+EXIT_FAILURE = 1
+
+
+def _from_clicks_echo(exc: BaseException) -> bool:
+    """Whether ``exc`` came out of click's own output (help, version): stdout failed, not
+    one of serve's ports, which says so itself."""
+    tb = exc.__traceback__
+    while tb is not None and tb.tb_next is not None:
+        tb = tb.tb_next
+    return tb is not None and tb.tb_frame.f_code is click.utils.echo.__code__
+
+
+class StdoutError(ServeError):
+    """stdout could not be written (``> /dev/full``)."""
+
+
+def _stdout_failed(exc: OSError) -> StdoutError:
+    return StdoutError(f"cannot write to stdout: {exc.strerror or exc}", EXIT_FAILURE)
+
+
+def _quiet_stdout() -> None:
+    """What is still buffered for a stdout that failed goes to /dev/null, so the
+    interpreter's last flush prints no traceback."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+
+
 @cli.command(context_settings={"ignore_unknown_options": True, "allow_extra_args": True,
                                "help_option_names": []})
 @click.argument("args", nargs=-1, type=click.UNPROCESSED)
@@ -506,11 +538,24 @@ def campaign(args: tuple[str, ...]) -> None:
 def main(argv: list[str] | None = None) -> NoReturn:
     try:
         cli.main(args=argv, prog_name="fpgaemu", standalone_mode=False)
+        sys.stdout.flush()
+    except BrokenPipeError:  # the reader went away (| head): nothing to say
+        _quiet_stdout()
+        sys.exit(0)
+    except OSError as exc:
+        if not _from_clicks_echo(exc):
+            raise
+        # > /dev/full: one line and exit 1, as fpgalink-cli, not a traceback.
+        _stdout_failed(exc).show()
+        _quiet_stdout()
+        sys.exit(EXIT_FAILURE)
     except click.exceptions.NoArgsIsHelpError as exc:  # pragma: no cover - click >= 8.2
         click.echo(exc.ctx.get_help() if exc.ctx else str(exc))
         sys.exit(0)
     except click.ClickException as exc:
         if isinstance(exc, ServeError):
+            if isinstance(exc, StdoutError):
+                _quiet_stdout()
             exc.show()
         else:  # click's own usage errors, as one line
             click.echo(f"fpgaemu: error: {' '.join(exc.format_message().split())}", err=True)

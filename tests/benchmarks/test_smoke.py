@@ -332,6 +332,23 @@ def test_faults_quick(tmp_path: Path) -> None:
     assert frozen["exit_code"] == 7 and frozen["said_why"] == 1.0
 
 
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_router_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("router", tmp_path)
+    assert "router CPU %" in stdout
+    direct, *routed = report["rows"]
+    assert direct["observers"] is None and direct["router_cpu_percent"] is None
+    assert [r["observers"] for r in routed] == report["config"]["observers"]
+    for row in [direct, *routed]:
+        assert row["requests"] > 0 and row["tm_in_window"] > 0, row
+        assert row["rtt_ms"]["min"] <= row["rtt_ms"]["median"] <= row["rtt_ms"]["max"]
+    for row in routed:
+        # Every observer got every TM the controller got, whatever the machine's load (the
+        # router drops only for a client that leaves its buffer full, which these read).
+        assert row["router_dropped_frames"] == 0 and set(row["observers_missing_tm"]) <= {0}
+        assert row["router_cpu_percent"] > 0
+
+
 @pytest.mark.timeout(TIMEOUT_S + 60)
 def test_campaign_quick(tmp_path: Path) -> None:
     stdout, report = run_quick("campaign", tmp_path)

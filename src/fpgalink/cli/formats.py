@@ -171,6 +171,8 @@ def _csv_cell(value: Any) -> Any:
         return ""
     if isinstance(value, bool):
         return "true" if value else "false"
+    if isinstance(value, list):  # a set of values in one cell: space-separated
+        return " ".join(str(_csv_cell(v)) for v in value)
     return value
 
 

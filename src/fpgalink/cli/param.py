@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime as dt
+import math
 import os
 import stat
 import sys
@@ -165,6 +166,12 @@ LIST_COLUMNS = (
     Column("A", "A", justify="right"),
     Column("B", "B", justify="right"),
 )
+#: The range as numbers, for scripts (the table's ``range`` says it in words): ``null`` for
+#: an unbounded side; ``allowed`` the discrete set where there is one.
+LIST_LIMIT_COLUMNS = (
+    Column("min", "min"), Column("min_exclusive", "min_exclusive"), Column("max", "max"),
+    Column("allowed", "allowed"),
+)
 
 
 @param.command("list", epilog=EXIT_CODES_HELP)
@@ -177,7 +184,10 @@ def list_(fmt: str, conn: ConnectionOptions) -> int:
     for p in PARAMETERS:
         row: dict[str, Any] = {"id": p.id, "name": p.name, "scope": p.scope.name.lower(),
                                "type": p.type.name.lower(), "range": p.range_text,
-                               "unit": p.unit or None, "board": None, "A": None, "B": None}
+                               "unit": p.unit or None, "board": None, "A": None, "B": None,
+                               "min": _limit(p.minimum, p.type), "min_exclusive": p.min_exclusive,
+                               "max": _limit(p.maximum, p.type),
+                               "allowed": list(p.allowed) if p.allowed is not None else None}
         if p.scope is Scope.BOARD:
             row["board"] = number(values[(p.id, BOARD)], p.type)
         else:
@@ -187,8 +197,15 @@ def list_(fmt: str, conn: ConnectionOptions) -> int:
         kinds = {p.name: p.type for p in PARAMETERS}
         rows = [{**row, **{k: "" if row[k] is None else format_value(row[k], kinds[row["name"]])
                            for k in ("board", "A", "B")}} for row in rows]
-    emit_rows(fmt, LIST_COLUMNS, rows, title=f"Parameters on {conn.single.url}")
+    columns = LIST_COLUMNS if fmt == "table" else (*LIST_COLUMNS, *LIST_LIMIT_COLUMNS)
+    emit_rows(fmt, columns, rows, title=f"Parameters on {conn.single.url}")
     return ExitCode.OK
+
+
+def _limit(value: float, kind: ParamType) -> int | float | None:
+    if not math.isfinite(value):
+        return None
+    return int(value) if kind is ParamType.INT else number(value, kind)
 
 
 async def _read(conn: ConnectionOptions) -> dict[tuple[int, int], int | float]:

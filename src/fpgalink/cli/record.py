@@ -101,6 +101,12 @@ def record(file: Path | None, duration: float | None, as_csv: bool, passive: boo
     if robot_file is not None or surface is not None or truth_url is not None:
         raise CliError("--robot, --surface and --truth go with --rosbag2 DIR",
                        ExitCode.BAD_INPUT)
+    if str(file) == "-":
+        # Not a file named "-" in the working directory, as it was: param dump - means stdout,
+        # and a user trying the same here wants a stream, which monitor gives.
+        raise CliError("record writes a file (MCAP, or CSV with --csv), not stdout: give a "
+                       "file name; for telemetry on stdout use monitor --format csv|jsonl",
+                       ExitCode.BAD_INPUT)
     announce_emulator(conn)
     if file.exists() and file.is_dir():
         raise CliError(f"{file} is a directory", ExitCode.BAD_INPUT)

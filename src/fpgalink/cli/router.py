@@ -4,7 +4,8 @@ clients, as mavlink-router does for a MAVLink vehicle, so ``monitor --passive`` 
 
 Each board gets a TCP port on loopback (``socket://127.0.0.1:PORT``, which ``open_link``
 and every command take as ``--port``), and with ``--pty N`` N pseudo-terminals, one client
-each (a client is connected while it has the pty open). Arbitration (docs/cli.md, ``router``):
+each (a client is connected while it has the pty open); ``--link NAME=PATH`` adds a pty
+behind a stable symlink. Arbitration (docs/cli.md, ``router``):
 
 * every client receives every whole frame the board sends, in order;
 * the first client to send a frame is the board's **controller**: its frames go to the
@@ -18,7 +19,11 @@ each (a client is connected while it has the pty open). Arbitration (docs/cli.md
 
 Every count is exact per client and printed when the client leaves and when the router
 stops (``--format json`` for scripts). Noise and broken frames on the board's line are
-counted by the router and not passed on; clients' links see only whole frames."""
+counted by the router and not passed on; clients' links see only whole frames.
+
+A board's port that goes away (a USB-UART pulled out, a TCP board gone) is reopened with
+backoff while the clients stay connected: to them it is a silence, which their links judge
+by what the board sends when it is heard again (back or restarted), as on a cable cut."""
 
 from __future__ import annotations
 
@@ -28,8 +33,10 @@ import dataclasses
 import os
 import select
 import socket
+import time
 from collections import Counter
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import click
@@ -38,6 +45,7 @@ from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, note
 from fpgalink.cli.session import install_stop_signals, run
+from fpgalink.errors import PortError
 from fpgalink.protocol.framing import DEFAULT_FRAMING, FrameDecoder, encode_frame
 
 __all__ = ["BoardRoute", "ClientStats", "router"]
@@ -46,6 +54,10 @@ __all__ = ["BoardRoute", "ClientStats", "router"]
 #: reach a motor controller over the network without any authentication).
 HOST = "127.0.0.1"
 DISABLE = encode_frame(b"RD", DEFAULT_FRAMING)
+#: First and longest wait between tries to reopen a board's port that went away, s: a
+#: USB-UART plugged back in is found within a quarter second, and a port that stays away
+#: costs four failed opens a second.
+REOPEN_BACKOFF = (0.05, 0.25)
 
 
 @dataclass
@@ -59,8 +71,11 @@ class ClientStats:
     bytes_to_client: int = 0
     dropped_frames: int = 0  #: the board's frames not delivered: its buffer was full
     frames_to_board: int = 0  #: its frames passed to the board (as the controller)
+    to_board_by_id: Counter[str] = field(default_factory=Counter)
     refused_frames: int = 0  #: its frames not passed on (an observer's writes)
     refused_by_id: Counter[str] = field(default_factory=Counter)
+    #: its frames as the controller while the board's port was gone: not sent, nowhere to
+    unsent_frames: int = 0
     noise_bytes: int = 0  #: bytes it sent that were not part of a whole frame
     connected: bool = True
 
@@ -121,7 +136,7 @@ class _PtyClient:
     the slave side open (the master sees a hang-up otherwise); each opening is a new client.
     The router does not hold the slave open itself, so it sees a client leave."""
 
-    def __init__(self, route: BoardRoute) -> None:
+    def __init__(self, route: BoardRoute, link: Path | None = None) -> None:
         import tty
 
         self.route = route
@@ -129,6 +144,15 @@ class _PtyClient:
         tty.setraw(slave)  # kept by the pty: nothing echoes before the client sets it up
         self.path = os.ttyname(slave)
         os.close(slave)
+        #: the stable name clients open (--link), removed when the router stops
+        self.link: Path | None = None
+        if link is not None:
+            try:
+                make_link(link, self.path)
+            except BaseException:
+                os.close(self.master)
+                raise
+            self.link = link
         os.set_blocking(self.master, False)
         self.decoder = FrameDecoder(route.framing)
         self.stats = ClientStats(0, self.path)
@@ -151,7 +175,7 @@ class _PtyClient:
         if not hung_up:
             self.connected = True
             self.decoder = FrameDecoder(self.route.framing)
-            self.route.joined(self, self.path)
+            self.route.joined(self, self.shown)
             loop.add_reader(self.master, self._readable)
             return
         self._timer = loop.call_later(PTY_POLL_S, self._check)
@@ -213,6 +237,50 @@ class _PtyClient:
             loop.remove_writer(self.master)
         with contextlib.suppress(OSError):
             os.close(self.master)
+        if self.link is not None:
+            with contextlib.suppress(OSError):
+                if self.link.is_symlink():
+                    self.link.unlink()
+
+    @property
+    def shown(self) -> str:
+        return self.path if self.link is None else f"{self.link} -> {self.path}"
+
+
+def make_link(path: Path, target: str) -> None:
+    """A symlink at ``path`` to ``target``. One left by an earlier router (killed before it
+    could remove it) is replaced; anything else there is not touched."""
+    if path.is_symlink():
+        path.unlink()
+    elif path.exists():
+        raise CliError(f"--link {path}: exists and is not a symlink; not replacing it",
+                       ExitCode.BAD_INPUT)
+    try:
+        path.symlink_to(target)
+    except OSError as exc:
+        raise CliError(f"--link {path}: {exc.strerror or exc}", ExitCode.PORT) from None
+
+
+def parse_links(values: tuple[str, ...], names: list[str]) -> list[tuple[str, Path]]:
+    """``--link PATH`` (one board) or ``--link NAME=PATH``; a board may have several."""
+    links: list[tuple[str, Path]] = []
+    for value in values:
+        name, sep, path = value.partition("=")
+        if not sep:
+            if len(names) != 1:
+                raise CliError(f"--link {value!r}: with several boards give NAME=PATH, "
+                               f"NAME one of {', '.join(names)}", ExitCode.BAD_INPUT)
+            name, path = names[0], value
+        if name not in names:
+            raise CliError(f"--link {value!r}: no board named {name!r} (boards: "
+                           f"{', '.join(names)})", ExitCode.BAD_INPUT)
+        if not path:
+            raise CliError(f"--link {value!r}: no path", ExitCode.BAD_INPUT)
+        links.append((name, Path(path)))
+    taken = [str(path) for _, path in links]
+    if len(set(taken)) != len(taken):
+        raise CliError("--link: the same path twice", ExitCode.BAD_INPUT)
+    return links
 
 
 class _Board(asyncio.Protocol):
@@ -238,6 +306,8 @@ class BoardRoute:
     client_buffer: int
     framing: Any = DEFAULT_FRAMING
     board: asyncio.BaseTransport | None = None
+    #: resolved when the board's port goes away (set anew each time it is opened)
+    lost: asyncio.Future[Exception | None] | None = None
     decoder: FrameDecoder = field(default_factory=lambda: FrameDecoder(DEFAULT_FRAMING))
     clients: list[_Client | _PtyClient] = field(default_factory=list)
     controller: _Client | _PtyClient | None = None
@@ -248,9 +318,56 @@ class BoardRoute:
     next_client: int = 1
     #: RD sent because the controller left (or the router stopped with one connected)
     disables_sent: int = 0
+    #: the controller left while the port was gone: RD goes first when it is back
+    disable_pending: bool = False
+    port_losses: int = 0
+    reconnects: int = 0
+    #: the board's frames cut short by its port going away (neither passed on nor counted
+    #: as a framing error: the line was cut, not garbled)
+    frames_cut: int = 0
+    lost_since: float | None = None  #: monotonic time the port went away, while it is away
+    #: -v: each enable and disable a client passes to the board is said, as it happens
+    #: (who enabled the motor, and whether it disabled it before it left)
+    verbose: int = 0
     server: asyncio.Server | None = None
 
     # --- the board ----------------------------------------------------------------------
+
+    async def open(self, baud: int) -> None:
+        """Open the board's port (:class:`PortError` when it cannot be)."""
+        from fpgalink.aio.transport import open_transport
+
+        holder: list[_Board] = []
+
+        def factory() -> _Board:
+            holder.append(_Board(self))
+            return holder[-1]
+
+        self.board, _ = await open_transport(self.url, baud, factory)
+        self.lost = holder[0].lost
+
+    def port_lost(self, exc: Exception | None) -> None:
+        self.board = None
+        self.port_losses += 1
+        # A frame the board had begun when its port went is not joined to the bytes of
+        # the port opened next.
+        if self.decoder.pending:
+            self.frames_cut += 1
+        self.decoder = FrameDecoder(self.framing)
+        self.lost_since = time.monotonic()
+        cause = str(exc) if exc else "closed by the other end"
+        note(f"board {self.name}: port {self.url} lost ({cause})")
+
+    def port_back(self, tries: int) -> None:
+        away = time.monotonic() - (self.lost_since or time.monotonic())
+        self.lost_since = None
+        self.reconnects += 1
+        note(f"board {self.name}: port {self.url} back after {away:.1f} s "
+             f"({tries} {'try' if tries == 1 else 'tries'}); its clients stayed connected")
+        if self.disable_pending and self.controller is None:
+            self.to_board(DISABLE)
+            self.disables_sent += 1
+        self.disable_pending = False
 
     def from_board(self, data: bytes) -> None:
         for item in self.decoder.feed(data):
@@ -270,10 +387,13 @@ class BoardRoute:
                 client.stats.frames_to_client += 1
                 client.stats.bytes_to_client += len(wire)
 
-    def to_board(self, wire: bytes) -> None:
+    def to_board(self, wire: bytes) -> bool:
+        """Whether the board's port took ``wire`` (not while it is gone)."""
         board = self.board
         if isinstance(board, asyncio.WriteTransport) and not board.is_closing():
             board.write(wire)
+            return True
+        return False
 
     # --- the clients --------------------------------------------------------------------
 
@@ -292,10 +412,16 @@ class BoardRoute:
             note(f"board {self.name}: client #{stats.client} ({stats.peer}) is the "
                  "controller")
         if client is self.controller:
-            self.to_board(encode_frame(content, self.framing))
-            stats.frames_to_board += 1
+            if self.to_board(encode_frame(content, self.framing)):
+                stats.frames_to_board += 1
+                message_id = _message_id(content)
+                stats.to_board_by_id[message_id] += 1
+                if self.verbose and message_id in ("RE", "RD"):
+                    note(f"board {self.name}: client #{stats.client} sent {message_id}")
+            else:
+                stats.unsent_frames += 1
             return
-        message_id = content[:2].decode("ascii", "replace")
+        message_id = _message_id(content)
         if stats.refused_frames == 0:
             note(f"board {self.name}: client #{stats.client} is an observer: its {message_id} "
                  f"was refused (client #{self.controller.stats.client} controls the board); "
@@ -310,11 +436,21 @@ class BoardRoute:
         stats.connected = False
         if client is self.controller:
             self.controller = None
-            self.to_board(DISABLE)  # the board is not left driven by a client that is gone
-            self.disables_sent += 1
+            # The board is not left driven by a client that is gone.
+            if self.to_board(DISABLE):
+                self.disables_sent += 1
+            else:
+                self.disable_pending = True
         note(f"board {self.name}: client #{stats.client} ({stats.role}) left: "
              f"{stats.frames_to_client} frames to it, {stats.dropped_frames} dropped, "
              f"{stats.frames_to_board} to the board, {stats.refused_frames} refused")
+
+
+def _message_id(content: bytes) -> str:
+    """The frame's message ID as it is counted: the first two bytes (``E``, a heartbeat, is
+    one letter and its counter)."""
+    return content[:1].decode("ascii", "replace") if content[:1] == b"E" else \
+        content[:2].decode("ascii", "replace")
 
 
 def _rows(routes: list[BoardRoute]) -> list[dict[str, Any]]:
@@ -323,6 +459,7 @@ def _rows(routes: list[BoardRoute]) -> list[dict[str, Any]]:
         for stats in route.history:
             row = dataclasses.asdict(stats)
             row["refused_by_id"] = dict(stats.refused_by_id)
+            row["to_board_by_id"] = dict(stats.to_board_by_id)
             rows.append({"board": route.name, **row})
     return rows
 
@@ -334,6 +471,7 @@ SUMMARY_COLUMNS = (
     Column("dropped_frames", "dropped", justify="right"),
     Column("frames_to_board", "to board", justify="right"),
     Column("refused_frames", "refused", justify="right"),
+    Column("unsent_frames", "unsent", justify="right", drop=3),
     Column("bytes_to_client", "bytes to it", justify="right", drop=1),
 )
 
@@ -346,55 +484,64 @@ SUMMARY_COLUMNS = (
 @click.option("--pty", "ptys", type=click.IntRange(0, 16), default=0, show_default=True,
               help="Also offer each board on this many pseudo-terminals, one client each "
                    "(a path such as /dev/pts/7, given as --port).")
+@click.option("--link", "links", multiple=True, metavar="[NAME=]PATH",
+              help="A pseudo-terminal for board NAME behind a stable symlink PATH (as "
+                   "fpgaemu serve --link), one client at a time; repeatable, removed on "
+                   "exit.")
+@click.option("--reconnect/--no-reconnect", default=True, show_default=True,
+              help="Reopen a board's port that goes away (unplugged) while its clients "
+                   "stay connected; with --no-reconnect the router stops (exit 5).")
 @click.option("--client-buffer", type=click.IntRange(4096, 1 << 30), default=1 << 20,
               show_default=True,
               help="Bytes a client may leave unread before the board's frames are dropped "
                    "for it (counted).")
 @format_option
 @connection_options(multi=True)
-def router(first_port: int, ptys: int, client_buffer: int, fmt: str,
-           conn: ConnectionOptions) -> int:
+def router(first_port: int, ptys: int, links: tuple[str, ...], reconnect: bool,
+           client_buffer: int, fmt: str, conn: ConnectionOptions) -> int:
     """Share each board among several local clients: one controller, observers read-only.
 
     Opens every board's port (--port NAME=URL, repeatable) and serves each on
-    127.0.0.1 over TCP, printing "ready NAME socket://127.0.0.1:PORT" once all are served;
-    give that URL as --port to any command or to open_link. Every client receives every
-    frame its board sends. The first client to send is the controller; frames from the
-    others are refused and counted (run watchers with --passive). When the controller
-    leaves, the board gets RD. Ctrl-C or SIGTERM stops the router and prints each
-    client's counts (frames delivered, dropped for a full buffer, passed, refused).
+    127.0.0.1 over TCP, printing "ready NAME socket://127.0.0.1:PORT" once all are served
+    (and "ready NAME PATH -> /dev/pts/N" for each --link); give that URL or PATH as --port
+    to any command or to open_link. Every client receives every frame its board sends.
+    The first client to send is the controller; frames from the others are refused and
+    counted (run watchers with --passive). When the controller leaves, the board gets
+    RD. A board's port that goes away is reopened until it is back. -v says each RE and
+    RD a client passes. Ctrl-C or SIGTERM stops the router and prints each client's counts
+    (frames delivered, dropped for a full buffer, passed, refused).
     """
-    routes = [BoardRoute(e.name, e.url, client_buffer) for e in conn.endpoints]
-    code = run(_route(conn, routes, first_port, ptys), ", ".join(r.url for r in routes))
+    routes = [BoardRoute(e.name, e.url, client_buffer, verbose=conn.verbose)
+              for e in conn.endpoints]
+    slots = parse_links(links, [r.name for r in routes])
+    code = run(_route(conn, routes, first_port, ptys, slots, reconnect),
+               ", ".join(r.url for r in routes))
     rows = _rows(routes)
     if fmt == "json":
         emit_document({"boards": [{"board": r.name, "url": r.url,
                                    "frames_from_board": r.frames_from_board,
                                    "board_framing_errors": r.board_framing_errors,
-                                   "disables_sent": r.disables_sent}
+                                   "frames_cut": r.frames_cut,
+                                   "disables_sent": r.disables_sent,
+                                   "port_losses": r.port_losses,
+                                   "reconnects": r.reconnects}
                                   for r in routes], "clients": rows})
     else:
         emit_rows(fmt, SUMMARY_COLUMNS, rows, title="Router clients")
+    for route in routes:
+        if route.port_losses:
+            note(f"board {route.name}: its port went away {route.port_losses} time(s) and "
+                 f"came back {route.reconnects} time(s)")
     return code
 
 
 async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: int,
-                 ptys: int) -> int:
-    from fpgalink.aio.transport import open_transport
-
+                 ptys: int, links: list[tuple[str, Path]], reconnect: bool) -> int:
     stop = asyncio.Event()
     install_stop_signals(stop)
-    boards: list[_Board] = []
     try:
         for index, route in enumerate(routes):
-            holder: list[_Board] = []
-
-            def factory(route: BoardRoute = route, holder: list[_Board] = holder) -> _Board:
-                holder.append(_Board(route))
-                return holder[-1]
-
-            route.board, _ = await open_transport(route.url, conn.baud, factory)
-            boards.append(holder[0])
+            await route.open(conn.baud)
             port = first_port + index if first_port else 0
             try:
                 route.server = await asyncio.get_running_loop().create_server(
@@ -403,7 +550,11 @@ async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: 
                 raise CliError(f"board {route.name}: cannot listen on {HOST}:{port}: "
                                f"{exc.strerror or exc}", ExitCode.PORT) from None
             try:
-                route.ptys = [_PtyClient(route) for _ in range(ptys)]
+                for _ in range(ptys):
+                    route.ptys.append(_PtyClient(route))
+                for name, path in links:
+                    if name == route.name:
+                        route.ptys.append(_PtyClient(route, path))
             except OSError as exc:
                 raise CliError(f"board {route.name}: cannot make a pty: "
                                f"{exc.strerror or exc}", ExitCode.PORT) from None
@@ -412,24 +563,41 @@ async def _route(conn: ConnectionOptions, routes: list[BoardRoute], first_port: 
             port = route.server.sockets[0].getsockname()[1]
             echo_out(f"ready {route.name} socket://{HOST}:{port}")
             for slot in route.ptys:
-                echo_out(f"ready {route.name} {slot.path}")
+                echo_out(f"ready {route.name} {slot.shown}")
                 slot.start()
-        lost: list[asyncio.Future[Any]] = [asyncio.ensure_future(b.lost) for b in boards]
+        kept = [asyncio.ensure_future(_keep(route, conn.baud, reconnect)) for route in routes]
         stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
-        done, _ = await asyncio.wait([stopped, *lost], return_when=asyncio.FIRST_COMPLETED)
-        stopped.cancel()
-        for future in lost:
+        done, _ = await asyncio.wait([stopped, *kept], return_when=asyncio.FIRST_COMPLETED)
+        for future in (stopped, *kept):
             future.cancel()
-        gone = [r for r, f in zip(routes, lost, strict=True) if f in done]
-        return _lost(gone) if gone else ExitCode.OK
+        gone = [r for r, f in zip(routes, kept, strict=True) if f in done]
+        for route in gone:
+            note(f"board {route.name}: its port {route.url} closed: the router stops "
+                 "(--no-reconnect)")
+        return ExitCode.PORT if gone else ExitCode.OK
     finally:
         await _close(routes)
 
 
-def _lost(gone: list[BoardRoute]) -> int:
-    for route in gone:
-        note(f"board {route.name}: its port {route.url} closed: the router stops")
-    return ExitCode.PORT
+async def _keep(route: BoardRoute, baud: int, reconnect: bool) -> None:
+    """Returns only when the board's port went away for good (--no-reconnect)."""
+    while True:
+        assert route.lost is not None
+        route.port_lost(await route.lost)
+        if not reconnect:
+            return
+        delay, ceiling = REOPEN_BACKOFF
+        tries = 0
+        while True:
+            await asyncio.sleep(delay)
+            tries += 1
+            try:
+                await route.open(baud)
+            except PortError:
+                delay = min(2 * delay, ceiling)
+                continue
+            route.port_back(tries)
+            break
 
 
 async def _close(routes: list[BoardRoute]) -> None:
@@ -438,8 +606,8 @@ async def _close(routes: list[BoardRoute]) -> None:
             route.server.close()
         if route.controller is not None:
             route.controller = None
-            route.to_board(DISABLE)
-            route.disables_sent += 1
+            if route.to_board(DISABLE):
+                route.disables_sent += 1
         for client in list(route.clients):
             if isinstance(client, _Client):
                 client.close()

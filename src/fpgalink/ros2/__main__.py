@@ -39,6 +39,7 @@ def _fail(message: str, code: int = 2) -> None:
 EXIT_CODES_TABLE = """\
 exit codes:
   0    stopped by SIGINT or SIGTERM, the robot stopped and the boards disabled
+  1    stdout could not be written (--help or --version into a full disk)
   2    bad input: usage, a robot description, a --port
   3    ROS 2 is not installed (the message says how to install it)
   4    the boards could not be reached, or a link failed while running"""
@@ -74,6 +75,11 @@ def _parser() -> argparse.ArgumentParser:
                         "FPGALINK_CONFIG, else ./fpgalink.toml, else "
                         "~/.config/fpgalink/fpgalink.toml)")
     return parser
+
+
+#: Exit codes: 0 stopped by a signal, 1 stdout failed, 2 usage, 3 ROS 2 not installed, 4
+#: boards not reached.
+EXIT_STDOUT = 1
 
 
 @dataclass
@@ -154,15 +160,32 @@ EXIT_NO_ROS2 = 3
 EXIT_BOARDS = 4
 
 
+def _say(text: str) -> None:
+    """``text`` on stdout, then exit 0; a stdout that cannot take it is one line and exit 1
+    (argparse's own printing would drop the error and exit 0)."""
+    import os
+
+    try:
+        sys.stdout.write(text)
+        sys.stdout.flush()
+    except OSError as exc:
+        # What is still buffered goes to /dev/null: the interpreter's last flush is quiet.
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        if isinstance(exc, BrokenPipeError):  # the reader went away (| head): done
+            sys.exit(0)
+        _fail(f"cannot write to stdout: {exc.strerror or exc}", EXIT_STDOUT)
+    sys.exit(0)
+
+
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv if argv is None else argv)
     before_ros = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
     if "-h" in before_ros or "--help" in before_ros:
-        _parser().print_help()
-        print(f"\nROS 2: {ROS2_INSTALL_HINT}.")
-        sys.exit(0)
+        _say(f"{_parser().format_help()}\nROS 2: {ROS2_INSTALL_HINT}.\n")
     if "--version" in before_ros:  # answers without ROS 2, as --help does
-        _parser().parse_args(["--version"])
+        from fpgalink import __version__
+
+        _say(f"{PROG} {__version__}\n")
     if not available():
         _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
     import rclpy

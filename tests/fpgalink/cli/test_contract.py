@@ -75,11 +75,18 @@ def test_param_list_json_csv_and_table(fake_board: Callable[..., BoardThread]) -
     assert isinstance(rows, list) and len(rows) >= 10
     period = next(r for r in rows if r["name"] == "TsTimerPeriod")
     assert period["board"] == 4 and period["A"] is None and isinstance(period["id"], int)
+    # The range as numbers too, not only "1..1000" (an unbounded side null).
+    assert (period["min"], period["max"], period["min_exclusive"]) == (1, 1000, False)
+    ti = next(r for r in rows if r["name"] == "Ti_Wheel_Pid")
+    assert (ti["min"], ti["max"], ti["min_exclusive"]) == (0, None, True)
+    direction = next(r for r in rows if r["name"] == "IncSenzCountDirection")
+    assert direction["allowed"] == [-1, 1] and period["allowed"] is None
     numbers_only(rows)
     done = cli("param", "list", "--format", "csv", "--port", fake.url)
     assert done.returncode == 0, done.stderr
     table = list(csv.DictReader(io.StringIO(done.stdout)))
     assert len(table) == len(rows) and {r["name"] for r in table} == {r["name"] for r in rows}
+    assert next(r for r in table if r["name"] == "IncSenzCountDirection")["allowed"] == "-1 1"
 
 
 def test_param_get_and_set_json(fake_board: Callable[..., BoardThread]) -> None:
@@ -195,6 +202,48 @@ def test_a_full_stdout_is_one_line_and_exit_1(
     assert "Traceback" not in done.stderr
     errors = [li for li in done.stderr.splitlines() if li.startswith("fpgalink-cli: error:")]
     assert len(errors) == 1 and "No space left" in errors[0], done.stderr
+
+
+@pytest.mark.parametrize("args", [
+    ["--version"], ["param", "get", "TsTimerPeriod"],
+    ["send", "PG", "--hex", "0100", "--reply", "PA"],
+    ["monitor", "--duration", "0.3", "--format", "jsonl"],
+    ["step", "--channel", "A", "--to", "20", "--pre", "0.05", "--hold", "0.2"],
+    ["drive", "--v", "0.05", "--for", "0.2"], ["goto", "0.02", "0"],
+    ["router", "--port", "emu://"], ["codegen", "c", "{tmp}/c"],
+], ids=lambda a: " ".join(a[:2]))
+def test_every_other_command_on_a_full_stdout_is_one_line_and_exit_1(
+        args: list[str], tmp_path: Path) -> None:
+    """The rest of the commands (issue 26: every command), each against the built-in
+    emulator; whatever it prints first meets the full disk."""
+    args = [a.format(tmp=tmp_path) for a in args]
+    with open("/dev/full", "w") as full:
+        done = cli_through_stalls(*args, "--port", "emu://", stdout=full) \
+            if args[0] in ("step", "param", "send") else cli_through_stalls(*args, stdout=full)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr
+    errors = [li for li in done.stderr.splitlines() if li.startswith("fpgalink-cli: error:")]
+    assert errors == ["fpgalink-cli: error: cannot write to stdout: No space left on device"], \
+        done.stderr
+
+
+@pytest.mark.parametrize(("program", "args"), [
+    ("fpgaemu", ["--help"]), ("fpgaemu", ["--version"]), ("fpgaemu", ["serve", "--pty"]),
+    ("fpgaemu", ["serve", "--tcp", "127.0.0.1:0"]),
+    ("fpgalink-ros2", ["--help"]), ("fpgalink-ros2", ["--version"]),
+], ids=lambda a: a if isinstance(a, str) else " ".join(a))
+def test_the_other_programs_on_a_full_stdout_are_one_line_and_exit_1(
+        program: str, args: list[str]) -> None:
+    """fpgaemu (click's help into it was a traceback; serve's ready line too) and
+    fpgalink-ros2 (argparse dropped the error and exited 0) agree with fpgalink-cli."""
+    script = Path(sys.executable).parent / program
+    module = {"fpgaemu": "fpgaemu", "fpgalink-ros2": "fpgalink.ros2"}[program]
+    command = [str(script)] if script.exists() else [sys.executable, "-m", module]
+    with open("/dev/full", "w") as full:
+        done = subprocess.run([*command, *args], stdout=full, stderr=subprocess.PIPE,
+                              text=True, cwd=ROOT, env=cli_env(), timeout=60)
+    assert done.returncode == 1, done.stderr
+    assert done.stderr == f"{program}: error: cannot write to stdout: No space left on device\n"
 
 
 # --- help, usage, negative numbers ------------------------------------------------------------
@@ -355,3 +404,13 @@ def test_monitor_on_an_80_column_terminal_tells_the_boards_ports_apart(tmp_path:
         board = cells[1] or board
         ports[board] = ports.get(board, "") + cells[2]
     assert ports == {name: str(path) for name, path in links.items()}, last
+
+
+@pytest.mark.parametrize("args", [["record", "-"], ["record", "-", "--csv"]])
+def test_record_to_dash_says_it_writes_a_file(args: list[str], tmp_path: Path) -> None:
+    """Issue 26's rough edges: ``record -`` made a file named "-" where ``param dump -``
+    means stdout; now one line pointing at monitor's streams, and no file."""
+    done = cli(*args, "--duration", "0.2", cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, "not stdout", "monitor --format csv|jsonl")
+    assert not (tmp_path / "-").exists()

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
@@ -86,3 +87,28 @@ def test_plot_of_something_not_mcap_is_one_line(tmp_path: Path, content: bytes) 
     done = run_cli("plot", str(path), "-o", str(tmp_path / "x.png"))
     assert done.returncode == 2, done.stderr
     assert_one_line_error(done.stderr, "not a readable MCAP file")
+
+
+def _svg_texts(path: Path) -> list[str]:
+    """The figure's texts: matplotlib's SVG keeps each as a comment beside its glyphs."""
+    return re.findall(r"<!-- (.*?) -->", path.read_text(encoding="utf-8"))
+
+
+@pytest.mark.parametrize(("fields", "labels"), [
+    (None, ["a.speed / a.ref, deg/s", "b.speed / b.ref, deg/s"]),
+    ("a.current,a.pwm,a.position", ["a.current, A", "a.pwm, PWM counts",
+                                    "a.position, encoder counts"]),
+])
+def test_every_axis_gives_its_unit_and_references_are_dashed(
+        recording: Path, tmp_path: Path, fields: str | None, labels: list[str]) -> None:
+    """Issue 26: units on every y axis; a reference equal to its speed not hidden under it
+    (dashed, in the lines and in their legend)."""
+    out = tmp_path / "out.svg"
+    done = run_cli("plot", str(recording), *(["--fields", fields] if fields else []),
+                   "-o", str(out))
+    assert done.returncode == 0, done.stderr
+    texts = _svg_texts(out)
+    for label in labels:
+        assert label in texts, texts
+    references = sum(1 for t in texts if t.endswith(".ref"))  # legend entries
+    assert out.read_text().count("stroke-dasharray") == 2 * references

@@ -5,6 +5,8 @@ disabled when its controller goes; the accounting exact per client."""
 
 from __future__ import annotations
 
+import functools
+import itertools
 import json
 import signal
 import subprocess
@@ -16,7 +18,8 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from tests.support.cli import CLI, ROOT, cli_env, stalled
+from tests.fpgalink.cli.test_errors import assert_one_line_error
+from tests.support.cli import CLI, ROOT, cli_env, serve_pty, stalled
 from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(180)
@@ -268,3 +271,169 @@ def test_a_client_that_does_not_read_loses_frames_alone_and_counted(tmp_path: Pa
             >= clients[2]["frames_to_client"])
     assert clients[2]["role"] == "controller" and clients[2]["dropped_frames"] == 0
     assert len(_counters(controller.stdout)) > 500
+
+
+def _said(router: Router, what: str) -> bool:
+    return what in router.stderr()
+
+
+def _serve_tcp(*options: str) -> tuple[subprocess.Popen[str], str]:
+    """``fpgaemu serve --tcp 127.0.0.1:0 OPTIONS`` and its URL, once ready."""
+    proc = subprocess.Popen([sys.executable, "-m", "fpgaemu", "serve", "--tcp", "127.0.0.1:0",
+                             *options], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                            text=True, cwd=ROOT)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()  # the ready line, or "" if it could not serve
+    assert line.startswith("ready "), line
+    return proc, line.split()[2]
+
+
+@pytest.mark.parametrize("kind", ["pty", "tcp"])
+def test_a_board_unplugged_and_back_is_reopened_with_its_clients_kept(
+        tmp_path: Path, kind: str) -> None:
+    """``fpgaemu serve --fault unplug``: the board's pty goes and comes back behind its
+    symlink, or its TCP port stops listening and listens again. The router reopens it; its
+    clients (a controller on the router's own --link pty, an observer over TCP) stay
+    connected, see the silence, and get every frame again after it, the observer every TM
+    the controller got."""
+    board_link, client_link = tmp_path / "fpga0", tmp_path / "router0"
+    # Unplugged 6 s into the board's life, for 1 s: after the router has opened it.
+    if kind == "pty":
+        serve, _ = serve_pty("--link", str(board_link), "--fault", "unplug=6:1")
+        board = str(board_link)
+    else:
+        serve, board = _serve_tcp("--fault", "unplug=6:1")
+    router = None
+    try:
+        router = Router(tmp_path, "--link", str(client_link), "--port", board)
+        assert router.proc.stdout is not None
+        ready = router.proc.stdout.readline().split()
+        assert ready[:4] == ["ready", "0", str(client_link), "->"], ready
+        assert client_link.is_symlink()
+        outputs = {role: tmp_path / f"{role}.jsonl" for role in ("controller", "observer")}
+        clients: dict[str, subprocess.Popen[str]] = {}
+        # The observer is connected before the controller asks for telemetry.
+        for role, args, sign in (
+                ("observer", ["--passive", "--port", router.urls["0"]], "client #1 connected"),
+                ("controller", ["--port", str(client_link)], "is the controller")):
+            with outputs[role].open("w") as out:
+                clients[role] = subprocess.Popen(
+                    [*SCRIPT, "monitor", "--format", "jsonl", *args], stdout=out,
+                    stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
+            wait_until_sync(functools.partial(_said, router, sign), 30, f"the {role}")
+        try:
+            wait_until_sync(lambda: "back after" in router.stderr(), 60,
+                            f"the port back: {router.stderr()}")
+            after = len(_counters(outputs["controller"].read_text()))
+            wait_until_sync(lambda: len(_counters(outputs["controller"].read_text()))
+                            > after + 200, 30, "the controller's TMs after the replug")
+            clients["controller"].send_signal(signal.SIGINT)
+            clients["controller"].communicate(timeout=30)
+            last = max(_counters(outputs["controller"].read_text()))
+            # The observer writes each sample as it reads it: wait until it has the last.
+            wait_until_sync(lambda: last in _counters(outputs["observer"].read_text()), 30,
+                            "the observer to read the controller's last TM")
+        finally:
+            for client in clients.values():
+                if client.poll() is None:
+                    client.send_signal(signal.SIGINT)
+                    client.communicate(timeout=30)
+        summary = router.stop()
+    finally:
+        if router is not None:
+            router.kill()
+        serve.terminate()
+        serve.wait(timeout=10)
+    assert not client_link.exists()  # its symlink goes with the router
+    (board,) = summary["boards"]
+    assert board["port_losses"] == 1 and board["reconnects"] == 1
+    driven = _counters(outputs["controller"].read_text())
+    # The unplugged second is one long gap in the counters, telemetry before and after it.
+    # (A TM the emulated board itself drops, its TX queue full, is a gap of a few.)
+    gaps = [(a, b) for a, b in itertools.pairwise(driven) if b - a > 500]
+    assert len(gaps) == 1, gaps
+    assert driven.index(gaps[0][1]) < len(driven) - 200
+    assert set(driven) <= set(_counters(outputs["observer"].read_text()))
+    stats = {c["role"]: c for c in summary["clients"]}
+    assert stats["controller"]["peer"].startswith(f"{client_link} -> /dev/")
+    assert stats["controller"]["dropped_frames"] == stats["observer"]["dropped_frames"] == 0
+    # An observer's link may ask the board heard again after the silence whether it
+    # restarted: refused, as anything it sends; nothing of it reaches the board.
+    assert stats["observer"]["frames_to_board"] == 0, stats["observer"]
+
+
+def test_with_no_reconnect_a_port_that_goes_stops_the_router(tmp_path: Path) -> None:
+    serve, path = serve_pty()
+    try:
+        router = Router(tmp_path, "--no-reconnect", "--port", path)
+        serve.terminate()  # the board's pty goes with its server
+        serve.wait(timeout=10)
+        router.proc.communicate(timeout=30)
+        router.err.close()
+    finally:
+        router.kill()
+        if serve.poll() is None:
+            serve.kill()
+    assert router.proc.returncode == 5, router.stderr()
+    assert f"its port {path} closed: the router stops" in router.stderr()
+
+
+@pytest.mark.parametrize(("links", "needle"), [
+    (["X=/tmp/nowhere"], "no board named 'X'"),
+    (["{tmp}/file"], "exists and is not a symlink"),
+    (["{tmp}/a", "0={tmp}/a"], "the same path twice"),
+])
+def test_bad_links_are_one_line_exit_2(links: list[str], needle: str, tmp_path: Path) -> None:
+    (tmp_path / "file").write_text("mine\n")
+    args = [a for link in links for a in ("--link", link.format(tmp=tmp_path))]
+    done = subprocess.run([*SCRIPT, "router", *args, "--port", "emu://"], capture_output=True,
+                          text=True, cwd=ROOT, env=cli_env(), timeout=60)
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, needle)
+    assert (tmp_path / "file").read_text() == "mine\n"
+
+
+def _enabled_or_gone(router: Router, command: subprocess.Popen[str], client: str) -> bool:
+    return command.poll() is not None or router.stderr().count(f"{client} RE") == 2
+
+
+@pytest.mark.parametrize("command", [["drive", "--v", "0.05", "--for", "120"],
+                                     ["goto", "5", "0", "--time-limit", "120"]])
+def test_sigterm_stops_a_robot_command_that_disables_both_boards_first(
+        tmp_path: Path, command: list[str]) -> None:
+    """SIGTERM as Ctrl-C (issue 26): the router, between the command and the boards, says
+    what the command itself sends each board (-v) — its own RD before it left, not the one
+    the router sends for a controller that goes."""
+    query = "surface=ideal"
+    router = Router(tmp_path, "-v", "--port", f"L=emu://robot/L?{query}",
+                    "--port", f"R=emu://robot/R?{query}")
+    try:
+        for attempt in range(1, 4):  # a loaded machine's own stall (exit 7): again
+            driving = subprocess.Popen([*SCRIPT, *command, *router.ports()],
+                                       stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                       text=True, cwd=ROOT, env=cli_env())
+            client = f"client #{attempt} sent"
+            try:
+                wait_until_sync(functools.partial(_enabled_or_gone, router, driving, client),
+                                60, "both boards enabled")
+                driving.send_signal(signal.SIGTERM)
+                out, err = driving.communicate(timeout=30)
+            finally:
+                if driving.poll() is None:
+                    driving.kill()
+            if not stalled(subprocess.CompletedProcess(command, driving.returncode, out, err)):
+                break
+        assert driving.returncode == 143, err
+        assert "Traceback" not in err
+        # Its RD came from it, before it left.
+        said = router.stderr()
+        for board in ("L", "R"):
+            disabled = said.index(f"board {board}: {client} RD")
+            assert disabled < said.index(f"board {board}: client #{attempt} (controller) left")
+        summary = router.stop()
+    finally:
+        router.kill()
+    for board in ("L", "R"):
+        (stats,) = [c for c in summary["clients"]
+                    if c["board"] == board and c["client"] == attempt]
+        assert stats["to_board_by_id"]["RD"] >= 1, stats

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import pytest
@@ -95,3 +96,22 @@ def test_step_shows_its_progress_on_a_terminal() -> None:
         os.close(master)
     text = seen.decode("utf-8", "replace")
     assert "holding 0 deg/s on A" in text and "stepped to 20 deg/s" in text
+
+
+def test_the_step_plot_marks_what_the_table_measures(tmp_path: Path) -> None:
+    """Issue 26: the step plot's axes give units, its title the gains, and it marks the rise,
+    the settling time, the ±2 % band, the reference (dashed) and the PWM limit."""
+    pytest.importorskip("matplotlib")
+    svg = tmp_path / "step.svg"
+    done = run_driving("step", "--channel", "A", "--to", "45", "--hold", "1.5", "--plot",
+                       str(svg), "--port", "emu://", timeout=60)
+    assert done.returncode == 0, done.stderr
+    # matplotlib's SVG keeps each text as a comment beside its glyphs.
+    texts = re.findall(r"<!-- (.*?) -->", svg.read_text(encoding="utf-8"))
+    for label in ("channel A speed, deg/s", "PWM, counts", "time since the step, s",
+                  "±2% band", "reference", "limit ±32760 (MaxControlSignal)"):
+        assert label in texts, texts
+    assert any(t.startswith("Kp 520") and "Ti 0.24 s" in t for t in texts), texts
+    assert any(t.startswith("rise 10–90 %: ") for t in texts), texts
+    assert any(t.startswith("settled (2 %): ") for t in texts), texts
+    assert "stroke-dasharray" in svg.read_text()

@@ -52,4 +52,4 @@ def test_version_and_the_exit_code_table_without_ros2() -> None:
     result = run("from fpgalink.ros2.__main__ import main\nmain(['fpgalink-ros2', '--help'])")
     assert result.returncode == 0
     table = result.stdout[result.stdout.index("exit codes:"):].splitlines()
-    assert [line.split()[0] for line in table[1:5]] == ["0", "2", "3", "4"]
+    assert [line.split()[0] for line in table[1:6]] == ["0", "1", "2", "3", "4"]
