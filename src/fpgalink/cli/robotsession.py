@@ -65,18 +65,29 @@ def output_options(func: Callable[..., T]) -> Callable[..., T]:
     func = rosbag_option(func)
     for option in (  # innermost first: --help lists --plot, --record, --rosbag2
         click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
-                     help="Save the path (odometry, and truth when emulated) to a "
-                          ".png/.svg/.pdf."),
+                     callback=_a_file, help="Save the path (odometry, and truth when "
+                     "emulated) to a .png/.svg/.pdf."),
         click.option("--record", type=click.Path(dir_okay=False, path_type=Path),
+                     callback=_a_file,
                      help="Record odometry, truth and commands into an MCAP file."),
     )[::-1]:
         func = option(func)
     return func
 
 
+def _a_file(ctx: click.Context, param: click.Parameter, value: Path | None) -> Path | None:
+    """``-`` is not stdout here: these write binary files (a file named ``-`` was made)."""
+    if value is not None and str(value) == "-":
+        raise click.BadParameter("a file name, not '-': this writes a file, not stdout (for "
+                                 "telemetry on stdout use monitor --format csv|jsonl)",
+                                 ctx, param)
+    return value
+
+
 def rosbag_option(func: Callable[..., T]) -> Callable[..., T]:
     return click.option(
         "--rosbag2", "rosbag", type=click.Path(file_okay=False, path_type=Path),
+        callback=_a_file,
         metavar="DIR", help="Also record joint_states, odom, diagnostics (and truth when "
         "emulated) into a new rosbag2 DIR (MCAP, CDR), as the ROS 2 node publishes them. "
         "Needs the ros2 extra's rosbags.")(func)

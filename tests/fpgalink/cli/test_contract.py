@@ -414,3 +414,15 @@ def test_record_to_dash_says_it_writes_a_file(args: list[str], tmp_path: Path) -
     assert done.returncode == 2, done.stderr
     assert_one_line_error(done.stderr, "not stdout", "monitor --format csv|jsonl")
     assert not (tmp_path / "-").exists()
+
+
+@pytest.mark.parametrize("args", [["drive", "--for", "0.2", "--record", "-"],
+                                  ["goto", "0.1", "0", "--plot", "-"],
+                                  ["drive", "--for", "0.2", "--rosbag2", "-"]])
+def test_a_robot_commands_files_are_never_dash(args: list[str], tmp_path: Path) -> None:
+    """``drive``/``goto --record -`` made a file named "-": refused before anything runs."""
+    done = cli(*args, cwd=tmp_path)
+    assert done.returncode == 2, done.stderr
+    assert "not '-'" in done.stderr and "Traceback" not in done.stderr
+    assert done.stderr.count("\n") == 1
+    assert not (tmp_path / "-").exists()
