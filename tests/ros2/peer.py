@@ -1028,6 +1028,14 @@ def _lifecycle(peer: Peer) -> None:
         facts["stamps_after_deactivate"] = sum(1 for stamp, _, _ in peer.joints
                                                if stamp > deactivated_ns)
         facts["inactive"] = state()
+        # Activated again: publishing and driving again (a second run of the node's tasks).
+        facts["reactivate"] = transition("activate")
+        reactivated_ns = time.time_ns()
+        peer.spin_until(lambda: peer.odom and _stamp_ns(peer.odom[-1].header) > reactivated_ns
+                        and peer.odom[-1].twist.twist.linear.x > 0.05,
+                        "driving once active again", lambda: peer.drive(0.1, 0.0))
+        facts["joints_after_reactivate"] = sum(1 for stamp, _, _ in peer.joints
+                                               if stamp > reactivated_ns)
         facts["shutdown"] = transition("shutdown")
     finally:
         try:

@@ -560,5 +560,7 @@ def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> N
     # deactivate: nothing published after it, commands ignored, the boards disabled.
     assert facts["deactivate"] and facts["inactive"] == "inactive", facts
     assert facts["joints_after_deactivate"] == 0 and facts["stamps_after_deactivate"] == 0
+    # activate again: its tasks run again (they were cancelled at once before the fix).
+    assert facts["reactivate"] and facts["joints_after_reactivate"] > 0, facts
     # shutdown ends the process cleanly.
     assert facts["shutdown"] and facts["exit"] == 0, facts

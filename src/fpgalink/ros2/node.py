@@ -766,7 +766,11 @@ class RosBridge:
     # --- running --------------------------------------------------------------------------
 
     async def run(self) -> None:
-        """Publish and supervise until cancelled."""
+        """Publish and supervise until cancelled (again after each cancel: a managed node
+        is activated, deactivated and activated again)."""
+        # A new run's own tasks and listeners only: the last run's were cancelled and
+        # removed in its finally (gathering them again would end this run at once).
+        self._tasks, self._removers = [], []
         for board, link in self.robot.links.items():
             self._removers.append(link.on_event(functools.partial(self._log_link_event, board)))
             self._tasks.append(asyncio.ensure_future(self._follow(board, link)))
