@@ -10,9 +10,11 @@ a run does not depend on the machine's speed or load. Campaigns
 (:mod:`fpgalink.campaign`) run their scenarios on it.
 
 Only for hosts whose every far end is in this process: a real port's bytes arrive on the
-wall clock, which this loop does not follow. Threads may still hand results back
-(``run_in_executor``, ``call_soon_threadsafe``): while such work is outstanding the loop
-waits for it on the wall clock, then goes on in emulated time.
+wall clock, which this loop does not follow. Threads may hand results back
+(``run_in_executor``, ``call_soon_threadsafe``), but the loop waits for them on the wall
+clock only while no timer is pending: with one pending, emulated time runs on to it at
+once, so a timeout around a thread's work expires in emulated time, whatever the thread
+takes (campaigns run no threads).
 """
 
 from __future__ import annotations

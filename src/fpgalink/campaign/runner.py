@@ -3,13 +3,15 @@ a Dask cluster (``dask=ADDRESS`` or ``"local"``). Results come back as each scen
 finishes, in any order; :func:`run_campaign` returns them in the campaign's order.
 
 A scenario that fails is a failed :class:`~fpgalink.campaign.scenario.Result`, never the end
-of the campaign; so is a worker process that dies under one (the pool is rebuilt for the
-rest). A scenario is deterministic (emulated time, seeded), so where it ran does not change
-its figures: a campaign run here, on 2 processes or on a cluster gives the same table.
+of the campaign; so is a worker process that dies under one (only that scenario is lost,
+and its worker started again). A scenario is deterministic (emulated time, seeded), so
+where it ran does not change its figures: a campaign run here, on 2 processes or on a
+cluster gives the same table.
 """
 
 from __future__ import annotations
 
+import collections
 import concurrent.futures
 import importlib
 import multiprocessing
@@ -98,49 +100,45 @@ def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
 
 
 def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
+    """``jobs`` one-worker pools, each given the next scenario as it finishes one: a worker
+    that dies (killed, out of memory) costs exactly the scenario it was running, and only
+    its own pool is started again; the others run on."""
     # spawn, not fork: a fresh interpreter per worker on every platform, and no copy of an
     # event loop, threads or open files from the parent.
     context = multiprocessing.get_context("spawn")
-    waiting = list(scenarios)
-    while waiting:
-        pool = _pool(jobs, context)
-        try:
-            futures = _submit_all(pool, waiting)
-            broken = False
-            for future in concurrent.futures.as_completed(futures):
-                scenario = futures[future]
+    pending = collections.deque(scenarios)
+    pools = [_pool(1, context) for _ in range(jobs)]
+    running: dict[concurrent.futures.Future[Result], tuple[int, Scenario]] = {}
+
+    def start(slot: int) -> None:
+        if pending:
+            scenario = pending.popleft()
+            (future,) = _submit_all(pools[slot], [scenario])
+            running[future] = (slot, scenario)
+
+    try:
+        for slot in range(jobs):
+            start(slot)
+        while running:
+            done, _ = concurrent.futures.wait(
+                running, return_when=concurrent.futures.FIRST_COMPLETED)
+            for future in done:
+                slot, scenario = running.pop(future)
                 try:
                     result = future.result()
                 except concurrent.futures.process.BrokenProcessPool:
-                    broken = True
-                    continue
-                waiting.remove(scenario)
+                    result = Result(scenario.index, scenario.name, "failed", {},
+                                    "its worker process died (killed, or out of memory)",
+                                    grid=scenario.grid)
+                    pools[slot].shutdown(wait=False)
+                    pools[slot] = _pool(1, context)
+                start(slot)
                 yield result
+        for pool in pools:
             pool.shutdown()
-            if broken:
-                # One scenario killed its worker (and the pool with it): which one is not
-                # known, so each unfinished one is tried once more, alone.
-                for scenario in list(waiting):
-                    yield _alone(scenario, context)
-                    waiting.remove(scenario)
-        except BaseException:  # interrupted, or the consumer stopped: no worker left behind
+    except BaseException:  # interrupted, or the consumer stopped: no worker left behind
+        for pool in pools:
             _stop(pool)
-            raise
-
-
-def _alone(scenario: Scenario, context: Any) -> Result:
-    pool = _pool(1, context)
-    try:
-        (future,) = _submit_all(pool, [scenario])
-        result: Result = future.result()
-        pool.shutdown()
-        return result
-    except concurrent.futures.process.BrokenProcessPool:
-        return Result(scenario.index, scenario.name, "failed", {},
-                      "its worker process died (killed, or out of memory)",
-                      grid=scenario.grid)
-    except BaseException:
-        _stop(pool)
         raise
 
 

@@ -172,15 +172,14 @@ class _Run:
 
     async def _hold(self, seconds: float,
                     sample: Callable[[dict[str, Any]], None] | None = None) -> None:
-        """``seconds`` of emulated time in control periods, the truth sampled after each."""
-        periods = round(seconds / CONTROL_PERIOD_S)
-        for _ in range(periods):
-            await asyncio.sleep(CONTROL_PERIOD_S)
+        """Exactly ``seconds`` of emulated time in control periods (the last one shorter),
+        the truth sampled after each: figures over ``seconds`` are over what was sampled."""
+        loop = asyncio.get_running_loop()
+        end = loop.time() + seconds
+        while (left := end - loop.time()) > 1e-9:
+            await asyncio.sleep(min(CONTROL_PERIOD_S, left))
             if sample is not None:
                 sample(self._truth())
-        rest = seconds - periods * CONTROL_PERIOD_S
-        if rest > 1e-9:
-            await asyncio.sleep(rest)
 
     def _hold_references(self, refs: dict[str, list[float]]) -> None:
         """Each board's two wheel references (deg/s, board sign), now and renewed with the

@@ -28,6 +28,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
+from urllib.parse import quote
 
 from fpgalink.protocol.errors import FpgalinkError
 from fpgalink.protocol.params import Scope, lookup, resolve
@@ -125,8 +126,8 @@ class Scenario:
         query = [f"surface={self.surface}", f"body={self.body}", f"seed={self.seed}",
                  f"run={self.index}"]
         if self.robot_file:
-            query.append(f"robot={self.robot_file}")
-        query += [f"fault={fault}" for fault in self.faults]
+            query.append(f"robot={quote(self.robot_file)}")  # a path may hold + # % &
+        query += [f"fault={quote(fault)}" for fault in self.faults]
         return {name: f"emu://robot/{name}?" + "&".join(query)
                 for name in self.description.boards}
 

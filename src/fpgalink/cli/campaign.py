@@ -42,6 +42,19 @@ def _jobs_and_dask(jobs: int | None, dask: str | None) -> tuple[int | None, str 
 
 
 def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> list[Result]:
+    # First: a SIGTERM from here on ends the campaign and its workers (exit 143).
+    previous = signal.signal(signal.SIGTERM, _terminated)
+    try:
+        return _run_campaign(spec, jobs, dask, quiet)
+    except _Terminated:
+        note("terminated: the campaign and its workers were stopped")
+        sys.exit(128 + signal.SIGTERM)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool
+                  ) -> list[Result]:
     total = len(spec.scenarios)
     where = f"Dask ({dask})" if dask else \
         f"{min(jobs or default_jobs(), total)} process(es)"
@@ -62,20 +75,16 @@ def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> lis
                 failed += 1
                 note(f"scenario {result.index} ({result.name}) failed: {result.error}")
 
-        previous = signal.signal(signal.SIGTERM, _terminated)
         try:
             return run_campaign(spec, jobs=jobs, dask=dask, on_result=done)
         except CampaignError as exc:
             raise CliError(str(exc), ExitCode.BAD_INPUT) from None
-        except _Terminated:
-            note("terminated: the campaign and its workers were stopped")
-            sys.exit(128 + signal.SIGTERM)
-        finally:
-            signal.signal(signal.SIGTERM, previous)
 
 
-class _Terminated(Exception):
-    """SIGTERM, raised where the campaign waits, so its workers are ended with it."""
+class _Terminated(BaseException):
+    """SIGTERM, raised where the campaign waits, so its workers are ended with it. Not an
+    Exception: a scenario running in this process (``--jobs 1``) reports the exceptions it
+    meets as its failure, and this must end the campaign instead, as Ctrl-C does."""
 
 
 def _terminated(signum: int, frame: object) -> None:

@@ -372,3 +372,102 @@ def test_a_campaign_stopped_by_a_signal_ends_its_workers(
     while any(_is_worker(p) for p in workers):
         assert time.monotonic() < deadline, "a worker outlived the campaign"
         time.sleep(0.05)
+
+
+def test_a_sigterm_ends_a_campaign_running_in_this_process(tmp_path: Path) -> None:
+    # --jobs 1: the scenario runs in the CLI's own process, where it reports the exceptions
+    # it meets as its failure; the signal must end the campaign all the same.
+    import signal
+
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nseed = [0, 1]\n'
+                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
+                    encoding="utf-8")
+    from tests.support.cli import CLI
+
+    proc = subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", "1"], cwd=ROOT,
+                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True)
+    try:
+        assert proc.stderr is not None
+        # The campaign's first line comes after the handler is in place.
+        assert "scenario(s) on" in proc.stderr.readline()
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err
+    assert "terminated" in err and "failed" not in err and "Traceback" not in err
+
+
+def test_a_worker_that_dies_costs_only_its_scenario() -> None:
+    import os
+    import signal
+    import time
+
+    from fpgalink.campaign.runner import iter_results
+
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic"},
+        "grid": {"seed": [0, 1]},
+        "scenario": [{"name": "long", "script": [{"wait": 3600}]},
+                     {"name": "short", "script": [{"wait": 0.2}]}]})
+    # The two long scenarios take both workers first (an emulated hour each): kill those
+    # workers while they run; the short ones then run on the workers started again.
+    gen = iter_results(campaign.scenarios, jobs=2)
+
+    def kill_workers() -> None:
+        deadline = time.monotonic() + 120
+        workers: set[int] = set()
+        while len(workers) < 2:
+            assert time.monotonic() < deadline, "no workers"
+            workers = {p for p in _children(os.getpid()) if _is_worker(p)}
+            time.sleep(0.05)
+        time.sleep(0.5)  # both long scenarios under way (they run an hour: no race)
+        for pid in workers:
+            os.kill(pid, signal.SIGKILL)
+
+    import threading
+
+    killer = threading.Thread(target=kill_workers)
+    killer.start()
+    try:
+        results = list(gen)
+    finally:
+        killer.join()
+    by_name: dict[str, list[str]] = {}
+    for r in results:
+        by_name.setdefault(r.name, []).append(r.status)
+    assert sorted(by_name["long"]) == ["failed", "failed"]
+    assert by_name["short"] == ["ok", "ok"]
+    assert all("worker process died" in (r.error or "") for r in results if not r.ok)
+
+
+def test_figures_are_over_the_seconds_asked_even_between_control_periods() -> None:
+    import math
+
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "surface": "gravel"},
+        "scenario": [{"script": [{"wheels": [50, -50], "settle": 1, "seconds": 0.25,
+                                  "label": "turn"}]}]})
+    result = run_scenario(campaign.scenarios[0])
+    assert result.ok, result.error
+    expected = -math.degrees(2 * 0.2 * math.radians(50) / (1.65 * 0.66))
+    assert result.figures["turn.turn_rate_dps"] == pytest.approx(expected, rel=1e-3)
+    assert result.figures["emulated_s"] == pytest.approx(1.25, abs=1e-6)
+
+
+def test_a_robot_file_whose_path_holds_url_characters(tmp_path: Path) -> None:
+    from fpgalink.protocol.robot import SEED_ROBOT_TOML
+
+    folder = tmp_path / "c++ #1 50%"
+    folder.mkdir()
+    (folder / "robot.toml").write_text(SEED_ROBOT_TOML, encoding="utf-8")
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "robot": "robot.toml"},
+        "scenario": [{"faults": ["L:restart=0.5"], "script": [{"wait": 1.0}]}]},
+        base=folder)
+    result = run_scenario(campaign.scenarios[0])
+    assert result.ok, result.error
+    assert result.figures["restarts"] == 1  # the fault after the path arrived too
