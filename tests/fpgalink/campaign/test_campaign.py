@@ -330,6 +330,20 @@ def _is_worker(pid: int) -> bool:
         return False
 
 
+def _long_campaign(tmp_path: Path, *, seeds: int, jobs: int) -> subprocess.Popen[str]:
+    """The CLI running scenarios of 600 s emulated (minutes of wall time), in a process
+    group of its own so a test can signal the group as a terminal's Ctrl-C does."""
+    from tests.support.cli import CLI
+
+    spec = tmp_path / "c.toml"
+    spec.write_text(f'[campaign]\nbody = "kinematic"\n[grid]\nseed = {list(range(seeds))}\n'
+                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
+                    encoding="utf-8")
+    return subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", str(jobs)], cwd=ROOT,
+                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, start_new_session=True)
+
+
 @pytest.mark.parametrize(("signal_name", "group", "code", "says"), [
     ("SIGINT", True, 130, "interrupted"),  # Ctrl-C: the whole process group
     ("SIGTERM", False, 143, "terminated"),
@@ -340,15 +354,7 @@ def test_a_campaign_stopped_by_a_signal_ends_its_workers(
     import signal
     import time
 
-    spec = tmp_path / "c.toml"
-    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nseed = [0, 1, 2, 3]\n'
-                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
-                    encoding="utf-8")
-    from tests.support.cli import CLI
-
-    proc = subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", "2"], cwd=ROOT,
-                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+    proc = _long_campaign(tmp_path, seeds=4, jobs=2)
     try:
         deadline = time.monotonic() + 120
         workers: set[int] = set()
@@ -379,15 +385,7 @@ def test_a_sigterm_ends_a_campaign_running_in_this_process(tmp_path: Path) -> No
     # it meets as its failure; the signal must end the campaign all the same.
     import signal
 
-    spec = tmp_path / "c.toml"
-    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nseed = [0, 1]\n'
-                    '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
-                    encoding="utf-8")
-    from tests.support.cli import CLI
-
-    proc = subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", "1"], cwd=ROOT,
-                            env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True)
+    proc = _long_campaign(tmp_path, seeds=2, jobs=1)
     try:
         assert proc.stderr is not None
         # The campaign's first line comes after the handler is in place.
