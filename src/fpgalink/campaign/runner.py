@@ -76,15 +76,16 @@ def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
                                                   initializer=_worker_started)
 
 
-def _submit_all(pool: concurrent.futures.ProcessPoolExecutor, scenarios: Sequence[Scenario]
-                ) -> dict[concurrent.futures.Future[Result], Scenario]:
-    """Submit every scenario; the workers start here, with SIGINT ignored from their first
-    instruction (an ignored signal stays ignored across exec, and Python then installs no
-    KeyboardInterrupt handler), so a Ctrl-C during their start-up does not reach them."""
+def _submit(pool: concurrent.futures.ProcessPoolExecutor, scenario: Scenario
+            ) -> concurrent.futures.Future[Result]:
+    """Submit ``scenario``. A pool's worker starts at its first submit, here, with SIGINT
+    ignored from its first instruction (an ignored signal stays ignored across exec, and
+    Python then installs no KeyboardInterrupt handler), so a Ctrl-C during its start-up
+    does not reach it."""
     hold = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if hold else None
     try:
-        return {pool.submit(run_scenario, s): s for s in scenarios}
+        return pool.submit(run_scenario, scenario)
     finally:
         if hold:
             signal.signal(signal.SIGINT, previous)
@@ -113,8 +114,7 @@ def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
     def start(slot: int) -> None:
         if pending:
             scenario = pending.popleft()
-            (future,) = _submit_all(pools[slot], [scenario])
-            running[future] = (slot, scenario)
+            running[_submit(pools[slot], scenario)] = (slot, scenario)
 
     try:
         for slot in range(jobs):

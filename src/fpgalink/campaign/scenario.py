@@ -27,7 +27,8 @@ from fpgalink.aio.virtualtime import run_virtual
 from fpgalink.campaign.spec import Action, ParamSetting, Scenario
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import Telemetry
-from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, lookup
+from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, lookup
+from fpgalink.protocol.robot import WheelMount
 from fpgalink.robot.response import step_metrics
 from fpgalink.robot.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.supervision import State, SupervisionEvent
@@ -152,7 +153,7 @@ class _Run:
     async def _set(self, setting: ParamSetting) -> None:
         param = lookup(setting.name)
         boards = [setting.board] if setting.board else list(self.robot.links)
-        channels = [setting.channel] if setting.channel or param.scope.name == "BOARD" \
+        channels = [setting.channel] if setting.channel or param.scope is Scope.BOARD \
             else [CHANNEL_A, CHANNEL_B]
         for board in boards:
             for channel in channels:
@@ -181,29 +182,35 @@ class _Run:
             if sample is not None:
                 sample(self._truth())
 
-    def _hold_references(self, refs: dict[str, list[float]]) -> None:
-        """Each board's two wheel references (deg/s, board sign), now and renewed with the
-        enable (an enable after a stop starts from zero references)."""
+    def _hold_command(self, send: Callable[[], object]) -> None:
+        """``send`` the action's command now and with every renewal of the enable (an
+        enable after a stop starts from zero references); only while enabled."""
         robot = self.robot
 
         def command() -> None:
             if robot.state is State.ENABLED:
-                for board, (ref_a, ref_b) in refs.items():
-                    robot.links[board].set_references(ref_a, ref_b)
+                send()
 
         self.command = command
         command()
 
-    # --- actions ------------------------------------------------------------------------
-
-    async def wheels(self, action: Action) -> None:
+    def _hold_references(self, speed: Callable[[WheelMount], float]) -> None:
+        """Every wheel at ``speed(wheel)`` deg/s forward (its board's sign applied)."""
         robot = self.robot
         refs: dict[str, list[float]] = {b: [0.0, 0.0] for b in robot.links}
         for wheel in robot.description.wheels:
-            side = action.left if wheel.left else action.right
-            refs[wheel.board][wheel.channel - 1] = side * wheel.forward
+            refs[wheel.board][wheel.channel - 1] = speed(wheel) * wheel.forward
 
-        self._hold_references(refs)
+        def send() -> None:
+            for board, (ref_a, ref_b) in refs.items():
+                robot.links[board].set_references(ref_a, ref_b)
+
+        self._hold_command(send)
+
+    # --- actions ------------------------------------------------------------------------
+
+    async def wheels(self, action: Action) -> None:
+        self._hold_references(lambda wheel: action.left if wheel.left else action.right)
         await self._hold(action.settle)
         track = _Track(self._truth())
         await self._hold(action.seconds, track.add)
@@ -215,15 +222,8 @@ class _Run:
         self._put(action, "wander_y_m", track.span_y)
 
     async def drive(self, action: Action) -> None:
-        robot = self.robot
         omega = math.radians(action.omega)
-
-        def command() -> None:
-            if robot.state is State.ENABLED:
-                robot.drive(action.v, omega)
-
-        self.command = command
-        command()
+        self._hold_command(lambda: self.robot.drive(action.v, omega))
         track = _Track(self._truth())
         await self._hold(action.seconds, track.add)
         self._put(action, "distance_m", track.path)
@@ -234,12 +234,13 @@ class _Run:
         robot = self.robot
         loop = asyncio.get_running_loop()
         started = loop.time()
+        end = started + action.seconds
         theta = None if action.theta is None else math.radians(action.theta)
-        outcome = "arrived"
         while True:
             try:
                 await robot.go_to(action.x, action.y, theta,
-                                  timeout=max(1e-3, started + action.seconds - loop.time()))
+                                  timeout=max(1e-3, end - loop.time()))
+                outcome = "arrived"
                 break
             except GoalTimeout:
                 outcome = "timeout"
@@ -248,13 +249,10 @@ class _Run:
                 # A fault stopped it: as a user would, wait for the robot to be enabled
                 # again (the keeper asks) and go on towards the goal.
                 outcome = "stopped"
-                while robot.state is not State.ENABLED:
-                    if loop.time() >= started + action.seconds:
-                        break
+                while robot.state is not State.ENABLED and loop.time() < end:
                     await asyncio.sleep(CONTROL_PERIOD_S)
-                if loop.time() >= started + action.seconds:
+                if loop.time() >= end:
                     break
-                outcome = "arrived"
         truth = self._truth()
         self._put(action, "outcome", outcome)
         self._put(action, "time_s", loop.time() - started)
@@ -266,11 +264,9 @@ class _Run:
     async def step(self, action: Action) -> None:
         robot = self.robot
         loop = asyncio.get_running_loop()
+        channel = {"A": CHANNEL_A, "B": CHANNEL_B}.get((action.wheel or "").upper())
         wheels = [w for w in robot.description.wheels
-                  if action.wheel is None or w.name == action.wheel
-                  or (action.wheel.upper() in ("A", "B")
-                      and w.channel == (CHANNEL_A if action.wheel.upper() == "A"
-                                        else CHANNEL_B))]
+                  if action.wheel in (None, w.name) or w.channel == channel]
         if not wheels:
             raise ValueError(f"step wheel {action.wheel!r}: the robot's wheels are "
                              f"{', '.join(w.name for w in robot.description.wheels)} "
@@ -289,11 +285,7 @@ class _Run:
                 samples[board].append(sample)
 
         collectors = [asyncio.ensure_future(collect(board)) for board in subs]
-        refs: dict[str, list[float]] = {b: [0.0, 0.0] for b in robot.links}
-        for wheel in robot.description.wheels:
-            refs[wheel.board][wheel.channel - 1] = action.to * wheel.forward
-
-        self._hold_references(refs)
+        self._hold_references(lambda wheel: action.to)
         await self._hold(action.seconds)
         for sub in subs.values():
             sub.close()

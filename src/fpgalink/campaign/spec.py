@@ -83,7 +83,8 @@ class Action:
     * ``goto``: the seed's position controller (Algorithm 1) to ``x``, ``y`` (and
       ``theta`` deg), within ``seconds``: arrival, the true distance left;
     * ``step``: every wheel's reference from rest to ``to`` deg/s (drives straight) for
-      ``seconds``: rise, settling, overshoot of the named ``wheel`` (or each);
+      ``seconds``: rise, settling, overshoot, the worst of the named ``wheel`` (a joint
+      name, or ``A``/``B`` for every wheel on that channel; default every wheel);
     * ``wait``: ``seconds`` with the wheels at rest.
     """
 

@@ -35,10 +35,9 @@ SEED_GAINS = {"Kp_Wheel_Pid": 2502.0, "Ti_Wheel_Pid": 0.30, "Td_Wheel_Pid": 0.06
 GAIN_NAMES = {"kp": "Kp_Wheel_Pid", "ti": "Ti_Wheel_Pid", "td": "Td_Wheel_Pid"}
 
 
-def _jobs_and_dask(jobs: int | None, dask: str | None) -> tuple[int | None, str | None]:
+def _check_jobs(jobs: int | None) -> None:
     if jobs is not None and jobs < 1:
         raise CliError("--jobs must be at least 1", ExitCode.BAD_INPUT)
-    return jobs, dask
 
 
 def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> list[Result]:
@@ -193,7 +192,7 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
     Each scenario runs on a fresh in-process emulated robot, as fast as it goes (emulated
     time), one row of figures per scenario; the same campaign gives the same figures
     wherever it runs (docs/campaigns.md)."""
-    jobs, dask = _jobs_and_dask(jobs, dask)
+    _check_jobs(jobs)
     try:
         spec = load_campaign(spec_file)
     except CampaignError as exc:
@@ -262,7 +261,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
     Every wheel steps with each combination of gains set on CHANNEL of every board; the
     best settles soonest (then overshoots least). The seed's §3.4 pidtune gains, converted
     to this board's units, run beside them as the reference row."""
-    jobs, dask = _jobs_and_dask(jobs, dask)
+    _check_jobs(jobs)
     channel = channel.upper()
     grid = _grid(grid_entries)
     combos = [dict(zip([k for k, _ in grid], values, strict=True))
