@@ -42,6 +42,7 @@ from typing import Any
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
+from fpgaemu.fastpath import FusedTick
 from fpgaemu.hwcontrol import HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
@@ -150,6 +151,10 @@ class Firmware:
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
+        #: run a regular tick fused (:mod:`fpgaemu.fastpath`; off: every tick through the
+        #: modules, the reference the fused tick is tested against)
+        self.fused_ticks = True
+        self._fused: FusedTick | None = None
         self.last_tick = 0  #: the cycle of the last timer interrupt
 
     def _gains(self, code: int) -> PidGains:
@@ -169,6 +174,7 @@ class Firmware:
         settings (what was flashed), nothing of this run's state."""
         firmware = Firmware(self._pending_settings)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
+        firmware.fused_ticks = self.fused_ticks
         return firmware
 
     def attach(self, board: Board) -> None:
@@ -192,6 +198,7 @@ class Firmware:
         for code, ch in self.channels.items():
             ch.hardware = HardwareController(board, board.channels[code])
             self._configure_hardware(code)
+        self._fused = FusedTick(self, board)
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.set_skippable(self.skippable_event)
@@ -452,6 +459,8 @@ class Firmware:
             self._book_finished(cycle)
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
+            return
+        if self.fused_ticks and self._fused is not None and self._fused(cycle):
             return
         board = self._board
         assert board is not None
