@@ -1,4 +1,4 @@
-"""The fused timer tick: one emulated millisecond's regular work in one Python frame.
+"""The fused paths: an emulated millisecond's regular work, each piece in one Python frame.
 
 A board's millisecond is nearly always the same work: the timer interrupt brings both
 wheels up to the tick (:class:`~fpgaemu.motor.Motors`), samples the encoders' M/T speed,
@@ -17,6 +17,14 @@ this tick calls the module instead: the wheels under a body's physics, a stalled
 wheel, Hall sensor noise, a controller other than the software speed loop, a TX line that
 is busy, faulted or watched, a queue holding messages. Nothing is skipped or reordered, so
 an irregular tick is the modules' tick.
+
+The host's frames take two more: :func:`receive_idle` puts the host's bytes on a clean line
+and hands them to the frame decoder (:meth:`Board.host_write`), and :func:`complete_frame`
+completes the usual frame at its STOP (START, ordinary content, STOP in one run: the RX RAM,
+the registers and the interrupt), where the modules take about 20 calls between them.
+
+Measured (``python -m benchmarks.emulator``, the ``board.modules`` case beside ``board``):
+see docs/emulator.md.
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ from fpgaemu.motor import GEAR_RATIO, MAX_DUTY, PHYSICS_STEP_CYCLES, Motors
 from fpgaemu.pid import DERIVATIVE_FILTER_N
 from fpgaemu.timeline import CLOCK_HZ, us
 from fpgaemu.uart import ByteRun
+from fpgaemu.uartcommand import _HUNT, RxInterrupt, UartCommand, _Cursor
 from fpgalink.protocol import ChannelTelemetry, TelemetryFlags, encode_telemetry
 from fpgalink.protocol.crc import append_crc
 from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
@@ -40,13 +49,14 @@ if TYPE_CHECKING:
     from fpgaemu.pid import Pid
     from fpgaemu.pwm import Pwm
 
-__all__ = ["FusedTick"]
+__all__ = ["FusedTick", "complete_frame", "receive_idle"]
 
 _CYCLES_PER_US = us(1)
 _ENABLE, _END_STOP, _SATURATED = (int(f) for f in (
     TelemetryFlags.ENABLE, TelemetryFlags.END_STOP, TelemetryFlags.SATURATED))
 _SPEED_SW = 0  # ActiveController: the firmware's speed PID (fpgaemu.firmware.SPEED_SW)
 _new_tuple = tuple.__new__
+_new_object = object.__new__
 
 
 class FusedTick:
@@ -314,4 +324,87 @@ def _send_idle(firmware: Firmware, board: Board, content: bytes, cycle: int) -> 
     uartsend.frame_wire_bytes = wire_bytes
     tx.stats.sent += 1
     firmware._in_flight.append((done, wire_bytes, cycle))
+    return True
+
+
+# --- the host's frames: a clean line into the frame decoder ----------------------------------
+
+
+def receive_idle(board: Board, data: bytes | bytearray | memoryview, cycle: int | None
+                 ) -> int | None:
+    """:meth:`Board.host_write` → :meth:`UartRead.transmit` → :meth:`UartCommand.receive`
+    for a line without faults, written out: the run of bytes with its completion cycles,
+    handed to the frame decoder. ``None`` (nothing done) for anything else: a faulted line,
+    nothing to send, a cycle in the past (the module raises)."""
+    line = board.uartread
+    now = board.timeline.now
+    at = now if cycle is None else cycle
+    if line.faults is not None or not data or at < now:
+        return None
+    # Without faults the receiver never holds slots and the line ends high: UartRead._send's
+    # bit-level branch cannot be taken.
+    content = bytes(data)
+    n = len(content)
+    start = max(at, line.line_free_at)
+    stats = line.stats
+    stats.bytes_sent += n
+    step = line.byte_step
+    done = line.line_free_at = start + n * step - line.byte_gap
+    line._last_level = 1
+    stats.bytes_received += n
+    command = board.uartcommand
+    cursor = _new_object(_Cursor)
+    cursor.run = _new_tuple(ByteRun, (content, start + line.cycles_per_byte, step))
+    cursor.pos = 0
+    command._runs.append(cursor)
+    command._stats.bytes_received += n
+    if command._candidate is None:
+        command._arm()
+    return done
+
+
+def complete_frame(command: UartCommand, cycle: int) -> bool:
+    """:meth:`UartCommand._on_candidate` for the usual frame, written out: the decoder
+    hunting and the oldest run holding exactly START, three or more ordinary content bytes
+    and the STOP now completing (later runs may wait behind it); the content into the RX
+    RAM's write half, the registers, the next STOP armed, the interrupt to the processor.
+    ``False`` (nothing done) for anything else: escapes, noise, a frame split over runs, a
+    direct command, a frame filter, an empty or oversized frame."""
+    runs = command._runs
+    cursor = command._candidate_cursor
+    if (cursor is None or not runs or runs[0] is not cursor or cursor.pos
+            or command._state != _HUNT or command.frame_filter is not None or command._due):
+        return False
+    data = cursor.run.data
+    index = command._candidate_index
+    length = index - 1
+    if (index != len(data) - 1 or data[0] != command.framing.start or length <= 2
+            or length > command._limit):
+        return False
+    match = command._ordinary_run(data, 1, index)
+    if match is None or match.end() != index:
+        return False
+    command._candidate = None
+    command._candidate_cursor = None
+    # _process's usual case: _store, then _complete
+    half = command._write_half
+    owned = command._owned
+    stats = command._stats
+    if owned[half]:
+        owned[half] = False
+        stats.overruns += 1
+    base = half * command.half_size
+    command.bram._mem[base:base + length] = data[1:index]
+    owned[half] = True
+    command._write_half = half ^ 1
+    command.start_address = base
+    command.length = length
+    stats.frames += 1
+    cursor.pos = index + 1
+    runs.popleft()
+    if runs:
+        command._arm()
+    interrupt = _new_tuple(RxInterrupt, (cycle, base, length))
+    for listener in command._rx_listeners:
+        listener(interrupt)
     return True

@@ -151,9 +151,7 @@ class Firmware:
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
-        #: run a regular tick fused (:mod:`fpgaemu.fastpath`; off: every tick through the
-        #: modules, the reference the fused tick is tested against)
-        self.fused_ticks = True
+        #: the fused tick (:mod:`fpgaemu.fastpath`), on a board configured with ``fused``
         self._fused: FusedTick | None = None
         self.last_tick = 0  #: the cycle of the last timer interrupt
 
@@ -174,7 +172,6 @@ class Firmware:
         settings (what was flashed), nothing of this run's state."""
         firmware = Firmware(self._pending_settings)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
-        firmware.fused_ticks = self.fused_ticks
         return firmware
 
     def attach(self, board: Board) -> None:
@@ -198,7 +195,7 @@ class Firmware:
         for code, ch in self.channels.items():
             ch.hardware = HardwareController(board, board.channels[code])
             self._configure_hardware(code)
-        self._fused = FusedTick(self, board)
+        self._fused = FusedTick(self, board) if board.config.fused else None
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.set_skippable(self.skippable_event)
@@ -460,7 +457,7 @@ class Firmware:
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
             return
-        if self.fused_ticks and self._fused is not None and self._fused(cycle):
+        if self._fused is not None and self._fused(cycle):
             return
         board = self._board
         assert board is not None

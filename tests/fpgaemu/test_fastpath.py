@@ -69,14 +69,13 @@ def _wire(item: tuple[Any, ...], counter: int) -> bytes:
     return data
 
 
+#: (cycles to run, messages, written one host write each (else as one), read the state)
 step = st.tuples(st.integers(0, ms(3)), st.lists(message, min_size=0, max_size=3),
-                 st.booleans())
+                 st.booleans(), st.booleans())
 
 
 def _pair(**options: Any) -> tuple[Board, Board]:
-    fused, modules = build_board(**options), build_board(**options)
-    _firmware(modules).fused_ticks = False
-    return fused, modules
+    return build_board(**options), build_board(**options, fused=False)
 
 
 def _firmware(board: Board) -> Any:
@@ -108,15 +107,18 @@ def test_fused_board_is_the_modules_board(faults: list[str], noise: float, gear:
         for at in range(100, warm_ms, 100):
             board.host_write(encode_frame(b"RE"), ms(at))
         board.run_until(ms(warm_ms))
-    for delay, messages, read_state in steps:
+    for delay, messages, separately, read_state in steps:
         at = boards[0].now + delay
-        wire = b""
+        writes = []
         for item in messages:
             counter += 1
-            wire += _wire(item, counter)
+            writes.append(_wire(item, counter))
+        if not separately:
+            writes = [b"".join(writes)]
         for board in boards:
-            if wire:
-                board.host_write(wire, board.now)
+            for wire in writes:
+                if wire:
+                    board.host_write(wire, board.now + len(writes))
             board.run_until(at)
         fused, modules = (board.read_host_bytes_timed() for board in boards)
         assert fused == modules
@@ -139,8 +141,8 @@ def test_fused_ticks_run_on_a_regular_board() -> None:
         board.host_write(encode_frame(_counted(b"RV", 0, struct.pack("<ff", 40.0, 30.0))),
                          ms(0.3))
         board.run_until(ms(300))
-    fused, modules = (_firmware(board)._fused.fused for board in boards)
-    assert fused == 300 and modules == 0
+    assert _firmware(boards[0])._fused.fused == 300
+    assert _firmware(boards[1])._fused is None
     same_state(*boards)
     assert _firmware(boards[0]).channels[1].speed > 10.0  # the wheels did turn
 
@@ -174,9 +176,8 @@ def test_golden_trace_with_and_without_the_fused_paths() -> None:
        command=st.tuples(finite, finite), seconds=st.integers(20, 120))
 def test_fused_robot_is_the_modules_robot(body: str, command: tuple[float, float],
                                           seconds: int) -> None:
-    robots = [EmulatedRobot(body=body, settings={"GetDataPeriodical": 1}) for _ in range(2)]
-    for board in robots[1].boards.values():
-        _firmware(board).fused_ticks = False
+    robots = [EmulatedRobot(body=body, settings={"GetDataPeriodical": 1}, fused=fused)
+              for fused in (True, False)]
     for robot in robots:
         for board in robot.boards.values():
             board.host_write(encode_frame(b"RE"), 50)

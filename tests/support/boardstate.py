@@ -13,7 +13,7 @@ from enum import Enum
 from typing import Any
 
 #: Switches that select the fast paths themselves (the thing compared), not board state.
-IGNORED = frozenset({"fused_ticks", "_fused", "fused_rx", "fused"})
+IGNORED = frozenset({"_fused", "fused"})
 
 
 def board_state(root: object, ignored: frozenset[str] = IGNORED) -> dict[str, object]:
