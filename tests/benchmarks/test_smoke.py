@@ -96,7 +96,10 @@ def test_emulator_quick(tmp_path: Path) -> None:
     assert config["reps"] == 1 and config["emulated_s"] == 1.0
 
     assert set(report["cases"]) == {"board", "board+host", "board.tm_only", "board.idle",
-                                    "robot", "robot.mujoco"}
+                                    "robot", "robot.mujoco", "board.modules",
+                                    "robot.modules"}
+    assert set(report["fused_ratios"]) == {"board", "robot"}
+    assert "fused paths: board" in stdout
     idle = report["cases"].pop("board.idle")
     (rep,) = idle["repetitions"]
     assert rep["periods"] == 10_000 and rep["tm_sent"] == 0 and rep["missed"] == 0
@@ -110,7 +113,8 @@ def test_emulator_quick(tmp_path: Path) -> None:
         assert rep["tm_sent"] - boards <= rep["tm_finished"] <= rep["tm_sent"], key
         assert rep["rv_handled"] == rep["rv_sent"], key
         # robot: 2 × 100
-        expected_rv = {"board.tm_only": 0, "robot": 200, "robot.mujoco": 200}.get(key, 1000)
+        expected_rv = {"board.tm_only": 0, "robot": 200, "robot.mujoco": 200,
+                       "robot.modules": 200}.get(key, 1000)
         assert rep["rv_sent"] == expected_rv, key
         # A tick each (a TM nobody waits for has no event at its end), and an RV's STOP each.
         assert case["events"] >= boards * case["periods"] + rep["rv_sent"], key
