@@ -33,7 +33,7 @@ from math import copysign, floor, isfinite, radians
 from typing import TYPE_CHECKING
 
 from fpgaemu.encoder import SPEED_TIMEOUT_CYCLES
-from fpgaemu.motor import GEAR_RATIO, MAX_DUTY, PHYSICS_STEP_CYCLES, Motors
+from fpgaemu.motor import GEAR_RATIO, MAX_DUTY, PHYSICS_STEP_CYCLES, DrivenMotors, Motors
 from fpgaemu.pid import DERIVATIVE_FILTER_N
 from fpgaemu.timeline import CLOCK_HZ, us
 from fpgaemu.uart import ByteRun
@@ -70,6 +70,8 @@ class FusedTick:
         #: per channel, once the board is complete: the software's channel and its I/O
         self._channels: list[tuple[Channel, ChannelIo]] | None = None
         self._motors: Motors | None = None
+        #: the motors, of either kind, whose ``advance_to`` is each PWM stage's listener
+        self._wheels: Motors | DrivenMotors | None = None
         #: ticks done fused, and ticks a stage gave to its module (for the benchmark)
         self.fused = 0
 
@@ -80,6 +82,7 @@ class FusedTick:
         self._channels = [(ch, board.channels[code]) for code, ch in firmware.channels.items()]
         motors = board.peripherals.get("motors")
         self._motors = motors if type(motors) is Motors else None
+        self._wheels = motors if isinstance(motors, Motors | DrivenMotors) else None
 
     def __call__(self, cycle: int) -> bool:
         """Do the tick at ``cycle``; ``False`` (nothing done) when a channel runs a
@@ -93,12 +96,13 @@ class FusedTick:
             return False
         self.fused += 1
         # --- the wheels up to the tick (board.settle) -------------------------------------
-        motors = self._motors
-        if (motors is not None and len(board._settlers) == 1 and motors._noise is None
-                and cycle - motors._cycle <= PHYSICS_STEP_CYCLES):
-            _advance_identified(motors, board, cycle)
+        identified = self._motors
+        if (identified is not None and len(board._settlers) == 1 and identified._noise is None
+                and cycle - identified._cycle <= PHYSICS_STEP_CYCLES):
+            _advance_identified(identified, board, cycle)
         else:
             board.settle(cycle)
+        motors = self._wheels
         dt = board.timer.period_cycles / CLOCK_HZ
         telemetry = values[(2, BOARD)] == 1
         samples = []
@@ -268,7 +272,8 @@ def _pid_update(pid: Pid, reference: float, measurement: float, dt: float) -> in
     return round(candidate)
 
 
-def _write_duty(pwm: Pwm, duty: int, cycle: int, motors: Motors | None) -> None:
+def _write_duty(pwm: Pwm, duty: int, cycle: int, motors: Motors | DrivenMotors | None
+                ) -> None:
     """:meth:`Pwm.write_duty`. Its listener is the motors' ``advance_to``, which the settle
     at this tick has already brought to ``cycle`` (a call would return at once), so it is
     not called then."""
