@@ -164,8 +164,11 @@ def test_the_state_walk_sees_a_one_ulp_difference() -> None:
     assert "_heap" in (first_difference(board_state(a), board_state(b)) or "")
 
 
-def test_golden_trace_with_and_without_the_fused_paths() -> None:
-    fused, modules = _pair()
+def test_golden_trace_with_and_without_the_fused_paths(firmware_kind: str) -> None:
+    """The golden trace on both firmwares: the C core has no fused tick of its own, but it
+    takes its frames from the fused receive (its state lives in C memory, so here the wire
+    bytes and the logic's state are what is compared)."""
+    fused, modules = _pair(firmware=firmware_kind)
     assert digest(trace(fused)) == digest(trace(modules))
     same_state(fused, modules)
     assert len(scenario()) > 2000
