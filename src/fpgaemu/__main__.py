@@ -361,8 +361,14 @@ def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, s
 
 def _make_link(path: Path, target: str) -> None:
     """A symlink at ``path`` to ``target``; an older symlink there (from a board served
-    before) is replaced, anything else is not touched."""
+    before, whose pty is gone or is now ours) is replaced. A symlink to a pty that is there
+    may be another serve's or a router's, live, and is not touched; nor is anything else."""
     if path.is_symlink():
+        pointed = os.readlink(path)
+        if pointed != target and os.path.exists(path):
+            raise ServeError(f"--link {path}: a symlink to {pointed}, which exists (another "
+                             "fpgaemu serve or router may be serving it); not replacing it — "
+                             "remove it if it is stale", EXIT_CANNOT_SERVE)
         path.unlink()
     elif path.exists():
         raise ServeError(f"--link {path}: exists and is not a symlink; not replacing it",
@@ -381,7 +387,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
-    made: list[Path] = []
+    made: list[tuple[Path, PtyEndpoint]] = []
     truth_endpoint: TruthEndpoint | None = None
     loop.add_signal_handler(signal.SIGUSR1, lambda: _report_all(endpoints, truth_endpoint,
                                                                  final=False))
@@ -398,7 +404,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 where = pty.path
                 if name in links:
                     _make_link(links[name], pty.path)
-                    made.append(links[name])
+                    made.append((links[name], pty))
                     pty.link = links[name]
                     where = f"{links[name]} -> {pty.path}"
                 ready.append(f"ready {name} {where}")
@@ -436,9 +442,11 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             await truth_endpoint.close()
         for _, endpoint in endpoints:
             await endpoint.close()
-        for path in made:
+        for path, pty in made:
             with contextlib.suppress(OSError):
-                if path.is_symlink():
+                # Only our own (the pty it serves now, after any replug): another serve
+                # may have taken the name since.
+                if os.readlink(path) == pty.path:
                     path.unlink()
         if served:  # a serve that could not start says only why (one line)
             _report_all(endpoints, truth_endpoint, final=True)

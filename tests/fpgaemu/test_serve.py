@@ -172,3 +172,31 @@ async def test_emu_transport_buffers_what_the_host_writes_and_pauses_the_protoco
     assert transport.get_write_buffer_size() == 0
     assert board.uartread.stats.bytes_sent == len(payload)  # every byte, none dropped
     assert board.uartcommand.stats.noise_bytes == 20_000
+
+
+def test_serve_link_to_a_live_pty_is_not_taken_over(tmp_path: Any) -> None:
+    """``fpgaemu serve --link``: a symlink to a pty that is there may be another serve's or
+    a router's: refused, the link untouched; a dangling one, or one to our own new pty, is
+    replaced."""
+    import os
+
+    import pytest
+
+    from fpgaemu.__main__ import ServeError, _make_link
+
+    master, slave = os.openpty()
+    try:
+        live = os.ttyname(slave)
+        link = tmp_path / "fpga0"
+        link.symlink_to(live)
+        with pytest.raises(ServeError, match="which exists"):
+            _make_link(link, "/dev/pts/999999")
+        assert os.readlink(link) == live
+        _make_link(link, live)
+        link.unlink()
+        link.symlink_to(tmp_path / "gone")
+        _make_link(link, live)
+        assert os.readlink(link) == live
+    finally:
+        os.close(master)
+        os.close(slave)

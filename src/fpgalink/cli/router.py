@@ -239,7 +239,8 @@ class _PtyClient:
             os.close(self.master)
         if self.link is not None:
             with contextlib.suppress(OSError):
-                if self.link.is_symlink():
+                # Only our own: another router may have taken the name since.
+                if os.readlink(self.link) == self.path:
                     self.link.unlink()
 
     @property
@@ -248,9 +249,16 @@ class _PtyClient:
 
 
 def make_link(path: Path, target: str) -> None:
-    """A symlink at ``path`` to ``target``. One left by an earlier router (killed before it
-    could remove it) is replaced; anything else there is not touched."""
+    """A symlink at ``path`` to ``target``. One left by an earlier router killed before it
+    could remove it (its pty is gone, or is now ours) is replaced; a symlink to a pty that
+    is there may be another router's or ``fpgaemu serve``'s, live, and is not touched;
+    nor is anything else."""
     if path.is_symlink():
+        pointed = os.readlink(path)
+        if pointed != target and os.path.exists(path):
+            raise CliError(f"--link {path}: a symlink to {pointed}, which exists (another "
+                           "router or fpgaemu serve may be serving it); not replacing it — "
+                           "remove it if it is stale", ExitCode.BAD_INPUT)
         path.unlink()
     elif path.exists():
         raise CliError(f"--link {path}: exists and is not a symlink; not replacing it",
@@ -364,10 +372,15 @@ class BoardRoute:
         self.reconnects += 1
         note(f"board {self.name}: port {self.url} back after {away:.1f} s "
              f"({tries} {'try' if tries == 1 else 'tries'}); its clients stayed connected")
-        if self.disable_pending and self.controller is None:
-            self.to_board(DISABLE)
+        # The controller that left while the port was gone may have left the board enabled
+        # (an outage shorter than its 300 ms watchdog): RD goes first, whoever controls it
+        # now. A new controller's frames sent during the outage were not delivered; its
+        # next RE enables the board again.
+        if self.disable_pending and self.to_board(DISABLE):
             self.disables_sent += 1
-        self.disable_pending = False
+            self.disable_pending = False
+            note(f"board {self.name}: RD sent for the controller that left while the port "
+                 "was gone")
 
     def from_board(self, data: bytes) -> None:
         for item in self.decoder.feed(data):

@@ -437,3 +437,110 @@ def test_sigterm_stops_a_robot_command_that_disables_both_boards_first(
         (stats,) = [c for c in summary["clients"]
                     if c["board"] == board and c["client"] == attempt]
         assert stats["to_board_by_id"]["RD"] >= 1, stats
+
+
+class _Wire:
+    """A board's port that takes what the router writes (an ``asyncio.WriteTransport``)."""
+
+    def __init__(self) -> None:
+        import asyncio
+
+        class Transport(asyncio.WriteTransport):
+            def __init__(self, sink: list[bytes]) -> None:
+                super().__init__()
+                self.sink = sink
+
+            def write(self, data: bytes | bytearray | memoryview) -> None:
+                self.sink.append(bytes(data))
+
+            def is_closing(self) -> bool:
+                return False
+
+        self.written: list[bytes] = []
+        self.transport = Transport(self.written)
+
+
+def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
+        capsys: pytest.CaptureFixture[str]) -> None:
+    """The controller leaves while the board's port is gone and another client takes over
+    before it is back: the RD the first one was owed goes to the board first (the board
+    may still be enabled, an outage shorter than its watchdog), then the new controller's
+    frames. Before, a new controller cancelled it: the motor stayed driven."""
+    from fpgalink.cli.router import DISABLE, BoardRoute, ClientStats
+    from fpgalink.protocol.framing import encode_frame
+
+    class Client:
+        def __init__(self) -> None:
+            self.stats = ClientStats(0, "test")
+
+    route = BoardRoute("L", "emu://", 1 << 16)
+    wire = _Wire()
+    route.board = wire.transport
+    first: Any = Client()
+    second: Any = Client()
+    route.joined(first, "first")
+    route.joined(second, "second")
+    route.from_client(first, b"RE")
+    assert wire.written == [encode_frame(b"RE")]
+    route.port_lost(None)
+    route.left(first)
+    assert route.disable_pending and route.disables_sent == 0
+    route.from_client(second, b"RE")  # the port is gone: unsent
+    assert second.stats.unsent_frames == 1
+    assert route.controller is second
+    route.board = wire.transport
+    route.port_back(1)
+    assert wire.written[1:] == [DISABLE]
+    assert route.disables_sent == 1 and not route.disable_pending
+    route.from_client(second, b"RE")
+    assert wire.written[2:] == [encode_frame(b"RE")]
+    assert "RD sent for the controller that left while the port was gone" in (
+        capsys.readouterr().err)
+
+
+def test_a_link_to_a_live_pty_is_not_taken_over_and_only_our_own_is_removed(
+        tmp_path: Path) -> None:
+    """``--link``: a symlink to a pty that is there may be another router's or serve's,
+    live: refused, one line, the link untouched. A dangling one (a killed router's) or one
+    to the very pty we now have is replaced. At the end only a link still pointing at our
+    pty is removed."""
+    import os
+
+    from fpgalink.cli.output import CliError
+    from fpgalink.cli.router import make_link
+
+    master, slave = os.openpty()
+    try:
+        live = os.ttyname(slave)
+        link = tmp_path / "fpga0"
+        link.symlink_to(live)
+        with pytest.raises(CliError, match="which exists") as caught:
+            make_link(link, "/dev/pts/999999")
+        assert caught.value.exit_code == 2 and os.readlink(link) == live
+        make_link(link, live)  # the pty we now have: ours, replaced
+        assert os.readlink(link) == live
+        link.unlink()
+        link.symlink_to(tmp_path / "gone")  # dangling: a killed router's
+        make_link(link, live)
+        assert os.readlink(link) == live
+    finally:
+        os.close(master)
+        os.close(slave)
+
+
+def test_bad_link_refused_through_the_console_script(tmp_path: Path) -> None:
+    import os
+
+    master, slave = os.openpty()
+    try:
+        link = tmp_path / "taken"
+        link.symlink_to(os.ttyname(slave))
+        done = subprocess.run([*SCRIPT, "router", "--link", str(link), "--port", "emu://"],
+                              capture_output=True, text=True, cwd=ROOT, env=cli_env(),
+                              timeout=60)
+        assert done.returncode == 2, done.stderr
+        assert_one_line_error(done.stderr, "another router or fpgaemu serve")
+        assert os.readlink(link) == os.ttyname(slave)
+    finally:
+        os.close(master)
+        os.close(slave)
