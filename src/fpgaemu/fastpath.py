@@ -29,12 +29,11 @@ see docs/emulator.md.
 
 from __future__ import annotations
 
-from math import copysign, floor, isfinite, radians
+from math import copysign, floor, radians
 from typing import TYPE_CHECKING
 
 from fpgaemu.encoder import SPEED_TIMEOUT_CYCLES
 from fpgaemu.motor import GEAR_RATIO, MAX_DUTY, PHYSICS_STEP_CYCLES, DrivenMotors, Motors
-from fpgaemu.pid import DERIVATIVE_FILTER_N
 from fpgaemu.timeline import CLOCK_HZ, us
 from fpgaemu.uart import ByteRun
 from fpgaemu.uartcommand import _HUNT, RxInterrupt, UartCommand, _Cursor
@@ -46,7 +45,6 @@ if TYPE_CHECKING:
     from fpgaemu.board import Board, ChannelIo
     from fpgaemu.encoder import QuadratureEncoder
     from fpgaemu.firmware import Channel, Firmware
-    from fpgaemu.pid import Pid
     from fpgaemu.pwm import Pwm
 
 __all__ = ["FusedTick", "complete_frame", "receive_idle"]
@@ -147,7 +145,7 @@ class FusedTick:
                 saturated = False
             else:
                 pid = ch.pid
-                _write_duty(pwm, _pid_update(pid, ch.reference, speed, dt), cycle, motors)
+                _write_duty(pwm, pid.update(ch.reference, speed, dt), cycle, motors)
                 saturated = pid.saturated
             if telemetry:
                 flags = _ENABLE if pwm.global_enable else 0
@@ -235,41 +233,6 @@ def _follow(enc: QuadratureEncoder, cycle0: int, angle0: float, cycle1: int, ang
             enc._angle = angle1
             return
     enc.follow(cycle0, angle0, cycle1, angle1)
-
-
-def _pid_update(pid: Pid, reference: float, measurement: float, dt: float) -> int:
-    """:meth:`Pid.update`, written out."""
-    if not (isfinite(reference) and isfinite(measurement)):
-        pid.reset()
-        return 0
-    g = pid.gains
-    kp = g.kp
-    error = reference - measurement
-    proportional = kp * error
-    if g.td > 0.0 and pid._last_measurement is not None and dt > 0:
-        tf = g.td / DERIVATIVE_FILTER_N
-        raw = -kp * g.td * (measurement - pid._last_measurement) / dt
-        pid._derivative += (raw - pid._derivative) * dt / (tf + dt)
-    pid._last_measurement = measurement
-    step = kp * dt / g.ti * error
-    candidate = proportional + pid.integral + step + pid._derivative
-    limit = pid.limit
-    if candidate > limit:
-        if step < 0:
-            pid.integral += step
-        pid.saturated = True
-        return round(limit)
-    if candidate < -limit:
-        if step > 0:
-            pid.integral += step
-        pid.saturated = True
-        return round(-limit)
-    if candidate != candidate:
-        pid.reset()
-        return 0
-    pid.integral += step
-    pid.saturated = False
-    return round(candidate)
 
 
 def _write_duty(pwm: Pwm, duty: int, cycle: int, motors: Motors | DrivenMotors | None
