@@ -330,6 +330,15 @@ class McapSink:
             self._space.cut_back()
             raise
 
+    def metadata(self, name: str, data: dict[str, str]) -> None:
+        """A metadata record (``name``: key → text) beside the one given at the start."""
+        try:
+            self._writer.add_metadata(name, data)  # closes the chunk: complete here
+            self._space.mark_good()
+        except OSError:
+            self._space.cut_back()
+            raise
+
     def _flush(self) -> None:
         self._writer.flush()  # type: ignore[no-untyped-call]
         self._space.mark_good()
