@@ -78,6 +78,8 @@ class ScenarioRecording:
         self._robot: Robot | None = None
         self._removers: list[Callable[[], None]] = []
         self._next_truth = -math.inf
+        self._boards: list[_BoardState] = []
+        self._last = 0.0  #: the latest log time written: the file's end
         metadata = {
             "scenario": scenario.name, "index": str(scenario.index), "body": scenario.body,
             "surface": scenario.surface, "seed": str(scenario.seed),
@@ -104,6 +106,7 @@ class ScenarioRecording:
         self._robot = robot
         for board, link in robot.links.items():
             state = _BoardState(board)
+            self._boards.append(state)
             self._removers.append(link.add_listener(
                 functools.partial(self._guard, self._received, state)))
             self._removers.append(link.on_event(
@@ -148,7 +151,8 @@ class ScenarioRecording:
         assert self._robot is not None
         stats = self._robot.links[state.board].stats
         received = stats.telemetry_received
-        rate = (received - state.stats_received) / (now - state.stats_at)
+        span = now - state.stats_at
+        rate = (received - state.stats_received) / span if span > 0 else 0.0
         record: dict[str, Any] = {"timestamp": now, "telemetry_rate": round(rate, 6)}
         for name in STATS_FIELDS[1:]:
             record[name] = getattr(stats, name)
@@ -179,6 +183,9 @@ class ScenarioRecording:
         for remove in self._removers:
             remove()
         self._removers.clear()
+        if self._robot is not None:  # each board's count at the end, links closed
+            for state in self._boards:
+                self._guard(self._stats, state, self._last)
         sink, self._sink = self._sink, None
         if sink is None:
             return
@@ -203,6 +210,7 @@ class ScenarioRecording:
              publish_time: float | None = None) -> None:
         if self._sink is not None:
             self._sink.add(topic, record, log_time, publish_time)
+            self._last = log_time
 
     def _guard(self, hook: Callable[..., None], *args: Any) -> None:
         if self._sink is None:
