@@ -60,6 +60,9 @@ FLUSH_S = 0.5
 CHUNK_BYTES = 64 * 1024
 #: Room kept allocated past the end of the data for the summary and the next chunk.
 RESERVE_BYTES = 512 * 1024
+#: One encoder for every message: ``json.dumps`` with options builds a new one per call,
+#: a cost paid at every telemetry sample.
+_ENCODE = json.JSONEncoder(separators=(",", ":"), allow_nan=False).encode
 
 
 # --- telemetry as rows ------------------------------------------------------------------------
@@ -320,7 +323,7 @@ class McapSink:
         try:
             self._writer.add_message(
                 self._channels[topic], log_time=log_ns,
-                data=json.dumps(record, separators=(",", ":"), allow_nan=False).encode(),
+                data=_ENCODE(record).encode(),
                 publish_time=log_ns if publish_time is None else int(publish_time * 1e9),
                 sequence=self._sequence)
             self.messages += 1
