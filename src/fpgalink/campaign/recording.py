@@ -91,6 +91,9 @@ class ScenarioRecording:
                                   library=f"fpgalink-campaign {__version__}")
         except Exception as exc:  # whatever it was, the scenario runs unrecorded
             self._failed(exc, "cannot write")
+            if path.is_file():  # a header and no room for more is no recording
+                with contextlib.suppress(OSError):
+                    path.unlink()
 
     @property
     def written(self) -> bool:

@@ -32,7 +32,7 @@ from fpgalink.campaign import (
     run_scenario,
 )
 from fpgalink.campaign.results import deterministic_rows
-from tests.support.cli import cli_env, run_cli
+from tests.support.cli import CAN_MOUNT, cli_env, cli_on_small_disk, run_cli
 
 ROOT = Path(__file__).resolve().parents[3]
 SEED36 = ROOT / "examples" / "campaigns" / "seed36.toml"
@@ -696,3 +696,30 @@ def test_campaign_mcap_through_the_console_script(tmp_path: Path) -> None:
     # Recording needs a directory to write into.
     done = run_cli("campaign", str(spec), "--mcap")
     assert done.returncode == 2 and "--out" in done.stderr
+
+
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
+def test_a_disk_that_fills_leaves_a_complete_recording_and_the_figures(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    spec = tmp_path / "c.toml"
+    # A 10 s scenario records about 0.9 MB: on a 1 MB disk the first fills it; then the
+    # second finds no room to start one.
+    spec.write_text('[campaign]\nbody = "kinematic"\nmcap = true\n[grid]\nseed = [0, 1]\n'
+                    '[[scenario]]\nname = "turn"\nscript = [{ wheels = [50, -50], seconds = 10 '
+                    '}]\n', encoding="utf-8")
+    done, out = cli_on_small_disk(tmp_path, "1m", "out", "campaign", str(spec), "--jobs", "1",
+                                  "--out", "{out}", timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr and "2 of 2 recording(s) failed" in done.stderr
+    rows = json.loads((out / "results.json").read_text())
+    assert [r["status"] for r in rows] == ["ok", "ok"]  # the figures stand
+    assert rows[0]["1.wheels.turn_rate_dps"] == rows[1]["1.wheels.turn_rate_dps"]
+    first, second = rows
+    assert "stopped at" in first["mcap_error"] and "No space left" in first["mcap_error"]
+    with (out / "0-turn.mcap").open("rb") as stream:
+        reader = make_reader(stream)  # summary and footer: the normal reader
+        assert reader.get_summary() is not None
+        assert sum(1 for _ in reader.iter_messages()) > 1000
+    assert "cannot write" in second["mcap_error"] and second["mcap"] is None
+    assert not (out / "1-turn.mcap").exists()
