@@ -360,6 +360,18 @@ class McapSink:
     def stats(self, board: str, record: dict[str, Any]) -> None:
         self.add(f"/board/{board}/stats", record, record["timestamp"])
 
+    def abandon(self) -> None:
+        """Close the file as it stands, cut back to its last complete chunk, without a
+        summary: for a writer that may have been interrupted in the middle of a message (a
+        signal's exception), whose pending chunk cannot be trusted. mcap's
+        ``NonSeekingReader`` reads what is there."""
+        if self._closed:
+            return
+        self._closed = True
+        self._space.cut_back()
+        with contextlib.suppress(OSError):
+            self._file.close()
+
     def close(self) -> None:
         """Write the summary and footer (the file then opens with ``make_reader``);
         :class:`RecordingError` when they cannot be written."""

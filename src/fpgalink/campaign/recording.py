@@ -192,12 +192,26 @@ class ScenarioRecording:
                   **{name: json.dumps(value) for name, value in figures.items()}}
         try:
             sink.metadata("fpgalink.result", result)
-        except OSError as exc:
+        except Exception as exc:
             self._failed(exc, "cannot write")
         try:
             sink.close()
         except RecordingError as exc:
             self.error = self.error or str(exc)
+        except Exception as exc:
+            self.error = self.error or (
+                f"{self.path}: cannot finish: {type(exc).__name__}: {exc}".splitlines()[0])
+
+    def abandon(self) -> None:
+        """The campaign is being stopped, by an exception raised wherever the scenario was
+        (a write included): the file is left at its last complete chunk, without summary."""
+        for remove in self._removers:
+            remove()
+        self._removers.clear()
+        sink, self._sink = self._sink, None
+        if sink is not None:
+            with contextlib.suppress(Exception):
+                sink.abandon()
 
     # --- plumbing ---------------------------------------------------------------------------
 
@@ -229,7 +243,7 @@ class ScenarioRecording:
         # one would change under it); without a sink they do nothing.
         sink, self._sink = self._sink, None
         if sink is not None:
-            with contextlib.suppress(RecordingError):
+            with contextlib.suppress(Exception):
                 sink.close()  # complete up to the last chunk, or cut back to it
 
 

@@ -91,12 +91,12 @@ def run_scenario(scenario: Scenario, mcap: str | Path | None = None) -> Result:
         status, text = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
         if where is not None and not isinstance(exc, FpgalinkError):
             text += f" ({os.path.basename(where.filename)}:{where.lineno})"
-    except BaseException:  # the campaign is being stopped: said so in the recording
-        status, text = "stopped", "the campaign was stopped while it ran"
-        raise
-    finally:
+    except BaseException:  # the campaign is being stopped
         if recording is not None:
-            recording.close(status, text, figures)
+            recording.abandon()
+        raise
+    if recording is not None:
+        recording.close(status, text, figures)
     return Result(scenario.index, scenario.name, status, figures, text,
                   time.perf_counter() - started, worker, scenario.grid, settings,
                   str(recording.path) if recording is not None and recording.written else None,

@@ -93,10 +93,14 @@ def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: boo
             raise CliError(str(exc), ExitCode.BAD_INPUT) from None
 
 
-class _Terminated(BaseException):
+class _Terminated(SystemExit):
     """SIGTERM, raised where the campaign waits, so its workers are ended with it. Not an
     Exception: a scenario running in this process (``--jobs 1``) reports the exceptions it
-    meets as its failure, and this must end the campaign instead, as Ctrl-C does."""
+    meets as its failure, and this must end the campaign instead, as Ctrl-C does. A
+    SystemExit, because a scenario here spends most of its time in the event loop's
+    callbacks (the emulator's, the link's), and asyncio lets only SystemExit and
+    KeyboardInterrupt out of a callback: any other exception is logged and the loop runs on
+    (a SIGTERM was taken for a callback's error and the campaign went on)."""
 
 
 def _terminated(signum: int, frame: object) -> None:
