@@ -101,6 +101,15 @@ def test_the_config_file_reader_stands_on_the_protocol_alone(where: str, path: P
                 if not within(n, "fpgalink.protocol")}, where
 
 
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.recording"))
+def test_the_recording_writer_stands_on_the_protocol_alone(where: str, path: Path) -> None:
+    # The CLI's record, drive and goto and the campaigns write MCAP through it, and the
+    # campaigns may not import the CLI: it sits below both, beside the sans-I/O layer.
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.protocol")}, where
+    assert not names & {"asyncio", "socket", "serial", "threading"}, where
+
+
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.cli"))
 def test_the_cli_never_imports_the_ros2_node(where: str, path: Path) -> None:
     # Both stand on the robot; a recording in rosbag2 form uses rosbags, not the node.
@@ -115,7 +124,8 @@ def test_the_ros2_node_stands_on_the_robot_and_below(where: str, path: Path) -> 
 
 @pytest.mark.parametrize(("where", "path"),
                          [m for package in ("fpgalink.protocol", "fpgalink.connection",
-                                            "fpgalink.aio", "fpgalink.robot")
+                                            "fpgalink.aio", "fpgalink.robot",
+                                            "fpgalink.recording")
                           for m in modules(package)])
 def test_only_the_ros2_package_knows_ros(where: str, path: Path) -> None:
     ros = {n for n in imports_of(path)

@@ -1,6 +1,7 @@
 """Campaigns: many scenarios on emulated robots, run as fast as they go, on every core or a
 Dask cluster, each giving figures (step response, turn rate, go-to error, odometry against
-truth, stops and losses) into one table (docs/campaigns.md).
+truth, stops and losses) into one table, and each into an MCAP recording if asked
+(docs/campaigns.md).
 
 ```python
 from fpgalink.campaign import load_campaign, run_campaign

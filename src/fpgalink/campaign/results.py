@@ -15,8 +15,9 @@ from fpgalink.campaign.scenario import Result
 __all__ = ["columns", "rows", "write_csv", "write_json", "write_parquet"]
 
 #: Columns that say how a row ran rather than what it measured: left out of comparisons
-#: (``deterministic_rows``) because they differ from run to run by nature.
-RUN_COLUMNS = ("wall_s", "worker")
+#: (``deterministic_rows``) because they differ from run to run by nature (the recording's
+#: path names the run's directory; present only when the scenario was recorded).
+RUN_COLUMNS = ("wall_s", "worker", "mcap", "mcap_error")
 HEAD = ("index", "scenario", "status", "error", "surface", "body", "seed", "faults")
 
 
@@ -29,6 +30,9 @@ def rows(results: Sequence[Result]) -> list[dict[str, Any]]:
         row.update(r.figures)
         row["wall_s"] = round(r.wall_s, 3)
         row["worker"] = r.worker
+        if r.mcap is not None or r.mcap_error is not None:
+            row["mcap"] = r.mcap
+            row["mcap_error"] = r.mcap_error
         out.append(row)
     return out
 

@@ -19,12 +19,14 @@ import os
 import signal
 import threading
 from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
 from typing import Any
 
+from fpgalink.campaign.recording import recording_name
 from fpgalink.campaign.scenario import Result, run_scenario
 from fpgalink.campaign.spec import Campaign, CampaignError, Scenario
 
-__all__ = ["DASK_MISSING", "default_jobs", "iter_results", "run_campaign"]
+__all__ = ["DASK_MISSING", "default_jobs", "iter_results", "recording_paths", "run_campaign"]
 
 DASK_MISSING = ("--dask needs dask.distributed: pip install 'fpgalink[campaign]' (or "
                 "'dask[distributed]')")
@@ -39,10 +41,12 @@ def default_jobs() -> int:
 
 
 def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | None = None,
-                 on_result: Callable[[Result], None] | None = None) -> list[Result]:
-    """Every scenario of ``campaign``; ``on_result`` is called as each finishes."""
+                 on_result: Callable[[Result], None] | None = None,
+                 mcap_dir: str | Path | None = None) -> list[Result]:
+    """Every scenario of ``campaign``; ``on_result`` is called as each finishes. The
+    scenarios that record (``mcap``) write their MCAP files into ``mcap_dir``."""
     results = []
-    for result in iter_results(campaign.scenarios, jobs=jobs, dask=dask):
+    for result in iter_results(campaign.scenarios, jobs=jobs, dask=dask, mcap_dir=mcap_dir):
         if on_result is not None:
             on_result(result)
         results.append(result)
@@ -50,18 +54,36 @@ def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | Non
 
 
 def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
-                 dask: str | None = None) -> Iterator[Result]:
+                 dask: str | None = None, mcap_dir: str | Path | None = None
+                 ) -> Iterator[Result]:
+    paths = recording_paths(scenarios, mcap_dir)
     if dask is not None:
-        yield from _on_dask(scenarios, dask, jobs)
+        yield from _on_dask(scenarios, paths, dask, jobs)
         return
     jobs = default_jobs() if jobs is None else jobs
     if jobs < 1:
         raise CampaignError(f"jobs must be at least 1, got {jobs}")
     if jobs == 1 or len(scenarios) == 1:
         for scenario in scenarios:
-            yield run_scenario(scenario)
+            yield run_scenario(scenario, paths[scenario.index])
         return
-    yield from _on_processes(scenarios, min(jobs, len(scenarios)))
+    yield from _on_processes(scenarios, paths, min(jobs, len(scenarios)))
+
+
+def recording_paths(scenarios: Sequence[Scenario], mcap_dir: str | Path | None
+                    ) -> dict[int, str | None]:
+    """Each scenario's MCAP file (``None``: not recorded), by index. Absolute, so a worker
+    writes where it was meant to whatever its working directory; on a cluster that is the
+    same path on each worker's own filesystem (docs/campaigns.md)."""
+    recorded = [s for s in scenarios if s.mcap]
+    if recorded and mcap_dir is None:
+        first = recorded[0]
+        raise CampaignError(f"scenario {first.index} ({first.name}) records MCAP (mcap = "
+                            "true): give the directory for the recordings (mcap_dir)")
+    digits = len(str(max((s.index for s in scenarios), default=0)))
+    where = Path(os.path.abspath(mcap_dir)) if mcap_dir is not None else None
+    return {s.index: str(where / recording_name(s, digits)) if s.mcap and where else None
+            for s in scenarios}
 
 
 def _worker_started() -> None:
@@ -76,8 +98,8 @@ def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
                                                   initializer=_worker_started)
 
 
-def _submit(pool: concurrent.futures.ProcessPoolExecutor, scenario: Scenario
-            ) -> concurrent.futures.Future[Result]:
+def _submit(pool: concurrent.futures.ProcessPoolExecutor, scenario: Scenario,
+            mcap: str | None) -> concurrent.futures.Future[Result]:
     """Submit ``scenario``. A pool's worker starts at its first submit, here, with SIGINT
     ignored from its first instruction (an ignored signal stays ignored across exec, and
     Python then installs no KeyboardInterrupt handler), so a Ctrl-C during its start-up
@@ -85,7 +107,7 @@ def _submit(pool: concurrent.futures.ProcessPoolExecutor, scenario: Scenario
     hold = threading.current_thread() is threading.main_thread()
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if hold else None
     try:
-        return pool.submit(run_scenario, scenario)
+        return pool.submit(run_scenario, scenario, mcap)
     finally:
         if hold:
             signal.signal(signal.SIGINT, previous)
@@ -100,7 +122,8 @@ def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
+def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], jobs: int
+                  ) -> Iterator[Result]:
     """``jobs`` one-worker pools, each given the next scenario as it finishes one: a worker
     that dies (killed, out of memory) costs exactly the scenario it was running, and only
     its own pool is started again; the others run on."""
@@ -114,7 +137,7 @@ def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
     def start(slot: int) -> None:
         if pending:
             scenario = pending.popleft()
-            running[_submit(pools[slot], scenario)] = (slot, scenario)
+            running[_submit(pools[slot], scenario, paths[scenario.index])] = (slot, scenario)
 
     try:
         for slot in range(jobs):
@@ -142,8 +165,8 @@ def _on_processes(scenarios: Sequence[Scenario], jobs: int) -> Iterator[Result]:
         raise
 
 
-def _on_dask(scenarios: Sequence[Scenario], address: str, jobs: int | None
-             ) -> Iterator[Result]:
+def _on_dask(scenarios: Sequence[Scenario], paths: dict[int, str | None], address: str,
+             jobs: int | None) -> Iterator[Result]:
     try:
         # dask.distributed is untyped: held as Any.
         distributed: Any = importlib.import_module("dask.distributed")
@@ -163,7 +186,8 @@ def _on_dask(scenarios: Sequence[Scenario], address: str, jobs: int | None
         except (OSError, TimeoutError) as exc:
             raise CampaignError(f"--dask {address}: no scheduler there ({exc})") from None
     try:
-        futures = {client.submit(run_scenario, s, pure=False): s for s in scenarios}
+        futures = {client.submit(run_scenario, s, paths[s.index], pure=False): s
+                   for s in scenarios}
         for future, outcome in as_completed(futures, with_results=True, raise_errors=False):
             scenario = futures[future]
             if isinstance(outcome, Result):

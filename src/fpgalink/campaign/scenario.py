@@ -21,9 +21,11 @@ import time
 import traceback
 from collections.abc import Callable, Coroutine
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from fpgalink.aio.virtualtime import run_virtual
+from fpgalink.campaign.recording import ScenarioRecording
 from fpgalink.campaign.spec import Action, ParamSetting, Scenario
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import Telemetry
@@ -58,38 +60,55 @@ class Result:
     worker: str = ""
     grid: tuple[tuple[str, Any], ...] = ()
     settings: dict[str, Any] = field(default_factory=dict)
+    #: the scenario's MCAP file, where the worker wrote it (on the worker's machine), if
+    #: one was asked for and is there
+    mcap: str | None = None
+    #: why the recording failed or stopped (one line); the figures stand all the same
+    mcap_error: str | None = None
 
     @property
     def ok(self) -> bool:
         return self.status == "ok"
 
 
-def run_scenario(scenario: Scenario) -> Result:
-    """Run ``scenario`` here and now; any failure is the result's ``error`` (one line), never
-    an exception: a campaign goes on past a scenario that fails."""
+def run_scenario(scenario: Scenario, mcap: str | Path | None = None) -> Result:
+    """Run ``scenario`` here and now, recorded into the MCAP file ``mcap`` if given; any
+    failure is the result's ``error`` (one line), never an exception: a campaign goes on past
+    a scenario that fails. A recording that fails is the result's ``mcap_error``: the
+    scenario runs on, its figures unchanged."""
     started = time.perf_counter()
     worker = f"{socket.gethostname()}:{os.getpid()}"
     settings = {"surface": scenario.surface, "body": scenario.body, "seed": scenario.seed,
                 **{p.label: p.value for p in scenario.params},
                 "faults": " ".join(scenario.faults)}
     figures: dict[str, Figure] = {}
+    recording = None if mcap is None else ScenarioRecording(Path(mcap), scenario)
+    status, text = "ok", None
     try:
-        run_virtual(_Run(scenario, figures).main())
+        run_virtual(_Run(scenario, figures, recording).main())
     except Exception as exc:
         where = traceback.extract_tb(exc.__traceback__)[-1] if exc.__traceback__ else None
-        text = f"{type(exc).__name__}: {exc}".splitlines()[0]
+        status, text = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0]
         if where is not None and not isinstance(exc, FpgalinkError):
             text += f" ({os.path.basename(where.filename)}:{where.lineno})"
-        return Result(scenario.index, scenario.name, "failed", figures, text,
-                      time.perf_counter() - started, worker, scenario.grid, settings)
-    return Result(scenario.index, scenario.name, "ok", figures, None,
-                  time.perf_counter() - started, worker, scenario.grid, settings)
+    except BaseException:  # the campaign is being stopped
+        if recording is not None:
+            recording.abandon()
+        raise
+    if recording is not None:
+        recording.close(status, text, figures)
+    return Result(scenario.index, scenario.name, status, figures, text,
+                  time.perf_counter() - started, worker, scenario.grid, settings,
+                  str(recording.path) if recording is not None and recording.written else None,
+                  recording.error if recording is not None else None)
 
 
 class _Run:
-    def __init__(self, scenario: Scenario, figures: dict[str, Figure]) -> None:
+    def __init__(self, scenario: Scenario, figures: dict[str, Figure],
+                 recording: ScenarioRecording | None = None) -> None:
         self.scenario = scenario
         self.figures = figures
+        self.recording = recording
         self.stops: list[SupervisionEvent] = []
         self.stopped_s = 0.0  #: emulated seconds the robot stood stopped by a fault
         self.stopped_at: float | None = None
@@ -99,6 +118,8 @@ class _Run:
         scenario = self.scenario
         robot = Robot.open(scenario.description, scenario.urls())
         self.robot = robot
+        if self.recording is not None:
+            self.recording.attach(robot)  # before the start: the boards from their first word
         loop = asyncio.get_running_loop()
         async with robot:
             started = loop.time()
@@ -108,6 +129,8 @@ class _Run:
             keeper = asyncio.ensure_future(self._keep_enabled())
             try:
                 for action in scenario.script:
+                    if self.recording is not None:
+                        self.recording.action(action)
                     await _ACTIONS[action.kind](self, action)
                     self.command = None
                     with contextlib.suppress(FpgalinkError):
@@ -140,6 +163,8 @@ class _Run:
 
     async def _watch(self) -> None:
         async for event in self.robot.events():
+            if self.recording is not None:
+                self.recording.supervision(event)
             if event.recovered:
                 continue
             if event.reason is not None:

@@ -9,6 +9,7 @@ name = "in-place turns"
 body = "kinematic"            # or "mujoco" (default: kinematic — fast and exact)
 surface = "gravel"
 seed = 0
+mcap = true                   # record each scenario (into the run's directory)
 
 [grid]                        # every scenario once per combination
 surface = ["gravel", "marble"]
@@ -120,6 +121,8 @@ class Scenario:
     script: tuple[Action, ...]
     #: the grid point this scenario came from (key → value), for the results table
     grid: tuple[tuple[str, Any], ...] = ()
+    #: record the scenario into an MCAP file (in the directory the campaign is run with)
+    mcap: bool = False
 
     def urls(self) -> dict[str, str]:
         """Each board's ``emu://`` URL: an in-process robot of its own (``run=`` keeps two
@@ -155,11 +158,11 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
     where = source
     _only(document, {"campaign", "grid", "scenario"}, where)
     head = _table(document.get("campaign", {}), f"{where}: [campaign]")
-    _only(head, {"name", "body", "surface", "seed", "robot", "params", "faults"},
+    _only(head, {"name", "body", "surface", "seed", "robot", "params", "faults", "mcap"},
           f"{where}: [campaign]")
     defaults = _common(head, f"{where}: [campaign]", base, {
         "body": "kinematic", "surface": "gravel", "seed": 0, "robot": None,
-        "params": (), "faults": ()})
+        "params": (), "faults": (), "mcap": False})
     name = _text(head.get("name", Path(source).stem), f"{where}: [campaign] name")
     grid = _grid(_table(document.get("grid", {}), f"{where}: [grid]"), f"{where}: [grid]")
     raw = document.get("scenario")
@@ -169,8 +172,8 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
     for number, table in enumerate(raw, 1):
         at = f"{where}: scenario {number}"
         table = _table(table, at)
-        _only(table, {"name", "body", "surface", "seed", "robot", "params", "faults", "script"},
-              at)
+        _only(table, {"name", "body", "surface", "seed", "robot", "params", "faults", "mcap",
+                      "script"}, at)
         settings = _common(table, at, base, defaults)
         label = _text(table.get("name", f"scenario {number}"), f"{at} name")
         script = _script(table.get("script"), f"{at} ({label})")
@@ -201,7 +204,7 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
                 name=label, index=len(scenarios), body=chosen["body"],
                 surface=chosen["surface"], seed=chosen["seed"], description=description,
                 robot_file=chosen["robot"], params=tuple(params), faults=chosen["faults"],
-                script=script, grid=shown))
+                script=script, grid=shown, mcap=chosen["mcap"]))
     return Campaign(name, tuple(scenarios), source)
 
 
@@ -229,6 +232,10 @@ def _common(table: Mapping[str, Any], where: str, base: Path | None,
     out.setdefault("description", seed_robot())
     if "params" in table:
         out["params"] = tuple(_params(table["params"], f"{where} params"))
+    if "mcap" in table:
+        if not isinstance(table["mcap"], bool):
+            raise CampaignError(f"{where} mcap: true or false")
+        out["mcap"] = table["mcap"]
     if "faults" in table:
         faults = table["faults"]
         if not isinstance(faults, list) or not all(isinstance(f, str) for f in faults):

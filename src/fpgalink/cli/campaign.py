@@ -8,6 +8,7 @@ import math
 import signal
 import sys
 from collections.abc import Sequence
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -22,7 +23,14 @@ from fpgalink.campaign import (
     parse_campaign,
     run_campaign,
 )
-from fpgalink.campaign.results import columns, rows, write_csv, write_json, write_parquet
+from fpgalink.campaign.results import (
+    RUN_COLUMNS,
+    columns,
+    rows,
+    write_csv,
+    write_json,
+    write_parquet,
+)
 from fpgalink.campaign.scenario import TOTALS
 from fpgalink.cli.formats import Column, emit_rows, format_option
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
@@ -40,11 +48,12 @@ def _check_jobs(jobs: int | None) -> None:
         raise CliError("--jobs must be at least 1", ExitCode.BAD_INPUT)
 
 
-def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> list[Result]:
+def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool,
+         mcap_dir: Path | None = None) -> list[Result]:
     # First: a SIGTERM from here on ends the campaign and its workers (exit 143).
     previous = signal.signal(signal.SIGTERM, _terminated)
     try:
-        return _run_campaign(spec, jobs, dask, quiet)
+        return _run_campaign(spec, jobs, dask, quiet, mcap_dir)
     except _Terminated:
         note("terminated: the campaign and its workers were stopped")
         sys.exit(128 + signal.SIGTERM)
@@ -52,8 +61,8 @@ def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool) -> lis
         signal.signal(signal.SIGTERM, previous)
 
 
-def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool
-                  ) -> list[Result]:
+def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool,
+                  mcap_dir: Path | None) -> list[Result]:
     total = len(spec.scenarios)
     where = f"Dask ({dask})" if dask else \
         f"{min(jobs or default_jobs(), total)} process(es)"
@@ -73,17 +82,25 @@ def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: boo
             if not result.ok:
                 failed += 1
                 note(f"scenario {result.index} ({result.name}) failed: {result.error}")
+            if result.mcap_error is not None:
+                note(f"scenario {result.index} ({result.name}): recording: "
+                     f"{result.mcap_error}")
 
         try:
-            return run_campaign(spec, jobs=jobs, dask=dask, on_result=done)
+            return run_campaign(spec, jobs=jobs, dask=dask, on_result=done,
+                                mcap_dir=mcap_dir)
         except CampaignError as exc:
             raise CliError(str(exc), ExitCode.BAD_INPUT) from None
 
 
-class _Terminated(BaseException):
+class _Terminated(SystemExit):
     """SIGTERM, raised where the campaign waits, so its workers are ended with it. Not an
     Exception: a scenario running in this process (``--jobs 1``) reports the exceptions it
-    meets as its failure, and this must end the campaign instead, as Ctrl-C does."""
+    meets as its failure, and this must end the campaign instead, as Ctrl-C does. A
+    SystemExit, because a scenario here spends most of its time in the event loop's
+    callbacks (the emulator's, the link's), and asyncio lets only SystemExit and
+    KeyboardInterrupt out of a callback: any other exception is logged and the loop runs on
+    (a SIGTERM was taken for a callback's error and the campaign went on)."""
 
 
 def _terminated(signum: int, frame: object) -> None:
@@ -93,6 +110,7 @@ def _terminated(signum: int, frame: object) -> None:
 def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign) -> None:
     if out is None:
         return
+    recorded = sum(1 for row in table if row.get("mcap"))
     try:
         out.mkdir(parents=True, exist_ok=True)
         write_csv(out / "results.csv", table)
@@ -103,6 +121,8 @@ def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign) -> Non
     written = "results.csv, results.json" + (", results.parquet" if parquet else "")
     if _summary_plot(out / "summary.png", table, spec):
         written += ", summary.png"
+    if recorded:
+        written += f" and {recorded} recording(s) (INDEX-NAME.mcap)"
     note(f"wrote {written} into {out}")
 
 
@@ -149,7 +169,7 @@ def _emit(fmt: str, table: list[dict[str, Any]], title: str) -> None:
         # A setting every row of the group shares goes into the title, not a column.
         shared = {n: group[0].get(n) for n in columns(group) if n not in _NOT_SETTINGS
                   and "." not in n and len({str(row.get(n)) for row in group}) == 1}
-        names = [n for n in columns(group) if n not in ("worker", *shared) and (
+        names = [n for n in columns(group) if n not in (*_NOT_SHOWN, *shared) and (
             n in ("index", "status") or any(row.get(n) not in (None, "") for row in group))]
         if len({row["scenario"] for row in group}) == 1:
             shared = {"scenario": group[0]["scenario"], **shared}
@@ -161,8 +181,10 @@ def _emit(fmt: str, table: list[dict[str, Any]], title: str) -> None:
 
 
 #: Columns that are not a scenario's settings: its identity, how it ran, its totals.
-_NOT_SETTINGS = frozenset({"index", "scenario", "status", "error", "wall_s", "worker",
-                           *TOTALS})
+_NOT_SETTINGS = frozenset({"index", "scenario", "status", "error", *RUN_COLUMNS, *TOTALS})
+#: Left out of the table for people: where it ran, and the recordings (their paths are long,
+#: and a failed one is said on stderr as it happens).
+_NOT_SHOWN = ("worker", "mcap", "mcap_error")
 
 
 def _cell(value: Any) -> str:
@@ -184,9 +206,13 @@ def _cell(value: Any) -> str:
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path),
               help="Write results.csv, results.json (results.parquet with pyarrow) and "
                    "summary.png into this directory.")
+@click.option("--mcap/--no-mcap", default=None,
+              help="Record every scenario (or none) into --out as INDEX-NAME.mcap: "
+                   "telemetry, events and the truth in emulated time [default: the "
+                   "scenarios the file marks mcap = true].")
 @format_option
 def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | None,
-             fmt: str) -> None:
+             mcap: bool | None, fmt: str) -> None:
     """Run the scenarios of SPEC.toml on emulated robots and print their figures.
 
     Each scenario runs on a fresh in-process emulated robot, as fast as it goes (emulated
@@ -197,13 +223,29 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
         spec = load_campaign(spec_file)
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
-    results = _run(spec, jobs, dask, quiet=fmt != "table")
+    if mcap is not None:
+        spec = replace(spec, scenarios=tuple(replace(s, mcap=mcap) for s in spec.scenarios))
+    recorded = sum(s.mcap for s in spec.scenarios)
+    if recorded:
+        if out is None:
+            raise CliError("recording MCAP (--mcap, or mcap = true in the file) writes into "
+                           "--out DIR: give one", ExitCode.BAD_INPUT)
+        try:  # before the first scenario, not after the last
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CliError(f"--out {out}: {exc.strerror or exc}") from None
+    results = _run(spec, jobs, dask, quiet=fmt != "table",
+                   mcap_dir=out if recorded else None)
     table = rows(results)
     _write(out, table, spec)
     _emit(fmt, table, f"campaign {spec.name}")
     failed = sum(not r.ok for r in results)
-    if failed:
-        raise CliError(f"{failed} of {len(results)} scenario(s) failed", ExitCode.FAILURE)
+    unrecorded = sum(r.mcap_error is not None for r in results)
+    said = [f"{failed} of {len(results)} scenario(s) failed"] if failed else []
+    if unrecorded:
+        said.append(f"{unrecorded} of {recorded} recording(s) failed")
+    if said:
+        raise CliError("; ".join(said), ExitCode.FAILURE)
 
 
 def _grid(entries: Sequence[str]) -> list[tuple[str, list[float]]]:

@@ -32,28 +32,12 @@ from fpgalink.cli.session import (
     wait_or_stop,
 )
 from fpgalink.cli.sinks import STATS_FIELDS, CsvSink, DiskFull, McapSink, Sink
-from fpgalink.errors import UnknownParameter
-from fpgalink.protocol import ParamAck, ParamNack, Parsed, lookup
+from fpgalink.protocol import Parsed
+from fpgalink.recording import parameter_record
 
 __all__ = ["record"]
 
 STATS_PERIOD_S = 1.0
-
-
-def _parameter_record(message: Parsed) -> dict[str, Any] | None:
-    if not isinstance(message, ParamAck | ParamNack):
-        return None
-    try:
-        name = lookup(message.param_id).full_name(message.channel)
-    except UnknownParameter:  # an id we do not know: still worth recording
-        name = f"param{message.param_id}"
-    record: dict[str, Any] = {"timestamp": time.time(), "name": name,
-                              "param_id": message.param_id, "channel": message.channel}
-    if isinstance(message, ParamAck):
-        record.update(value=message.value, status="in_force", detail="")
-    else:
-        record.update(status="refused", detail=message.reason)
-    return json_safe(record)
 
 
 @click.command(epilog=EXIT_CODES_HELP)
@@ -222,7 +206,7 @@ def _tap_parameters(session: BoardSession, write: Any) -> None:
     name = session.endpoint.name
 
     def on_message(message: Parsed) -> None:
-        rec = _parameter_record(message)
+        rec = parameter_record(message, time.time())
         if rec is not None:
             write(name, rec)
 

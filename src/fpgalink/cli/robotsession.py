@@ -22,6 +22,7 @@ from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import CliError, ExitCode, echo_out, note
+from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA
 
 if TYPE_CHECKING:
     from fpgalink.cli.rosbag import RosbagWriter
@@ -40,18 +41,6 @@ SAMPLE_S = 0.05
 BAG_TRUTH_PERIOD_S = 0.01
 #: How often the bag's disk is checked for room (diagnostics go out every fourth check).
 BAG_ROOM_CHECK_S = 0.25
-TRUTH_SCHEMA = {
-    "title": "fpgalink.Pose2D", "type": "object",
-    "properties": {"t": {"type": "number"}, "x": {"type": "number"},
-                   "y": {"type": "number"}, "theta": {"type": "number"},
-                   "v": {"type": "number"}, "omega": {"type": "number"}},
-}
-COMMAND_SCHEMA = {
-    "title": "fpgalink.BodyCommand", "type": "object",
-    "properties": {"v": {"type": "number"}, "omega": {"type": "number"},
-                   "left": {"type": "number"}, "right": {"type": "number"},
-                   "scale": {"type": "number"}},
-}
 
 
 def robot_options(func: Callable[..., T]) -> Callable[..., T]:
@@ -387,7 +376,7 @@ class RobotRun:
         from fpgalink.cli.sinks import McapSink
 
         assert self.record_path is not None
-        topics = {"/robot/odometry": TRUTH_SCHEMA, "/robot/truth": TRUTH_SCHEMA,
+        topics = {"/robot/odometry": POSE_SCHEMA, "/robot/truth": POSE_SCHEMA,
                   "/robot/command": COMMAND_SCHEMA}
         try:
             self._sink = McapSink(self.record_path, list(self.description.boards),

@@ -7,7 +7,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import functools
-import math
 import signal
 import sys
 import time
@@ -28,7 +27,16 @@ from fpgalink.protocol import (
     Malformed,
     Message,
     Parsed,
-    Telemetry,
+)
+
+# Telemetry as rows lives below the CLI, beside the MCAP writer (campaigns write them too).
+from fpgalink.recording import (
+    CHANNEL_FIELDS,
+    TELEMETRY_FIELDS,
+    compact,
+    json_safe,
+    telemetry_row,
+    telemetry_schema,
 )
 
 __all__ = [
@@ -122,22 +130,6 @@ def on_messages(link: Link, callback: Callable[[Parsed], None]) -> Callable[[], 
 
     return link.add_listener(listener)
 
-#: Per channel, in TM wire order; ``ref`` is the reference the board is following.
-CHANNEL_FIELDS = ("position", "speed", "current", "pwm", "ref", "flags")
-TELEMETRY_FIELDS = (
-    "timestamp", "t_us", "counter",
-    *(f"{ch}_{name}" for ch in ("a", "b") for name in CHANNEL_FIELDS),
-)
-_UNITS = {"position": "encoder counts", "speed": "deg/s", "current": "A",
-          "pwm": "duty, ±32760 = ±100 %", "ref": "reference (deg/s or N·m)",
-          "flags": "bit0 enable, bit1 end-stop, bit2 saturated"}
-
-def json_safe(row: dict[str, Any]) -> dict[str, Any]:
-    """JSON has no NaN or infinity: a non-finite number (a board can send one) is written as
-    ``null``, so every line stays valid JSON (docs/cli.md)."""
-    return {k: None if isinstance(v, float) and not math.isfinite(v) else v
-            for k, v in row.items()}
-
 
 def write_stdout(text: str) -> None:
     """Write to stdout; a write error (a full disk behind a redirect) is one line, exit 1.
@@ -149,40 +141,6 @@ def write_stdout(text: str) -> None:
     except OSError as exc:
         raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
                        ) from None
-
-
-def telemetry_row(sample: Telemetry, timestamp: float) -> dict[str, Any]:
-    row: dict[str, Any] = {"timestamp": timestamp, "t_us": sample.t_us,
-                           "counter": sample.counter}
-    for prefix, channel in (("a", sample.a), ("b", sample.b)):
-        for name, value in zip(CHANNEL_FIELDS, channel, strict=True):
-            row[f"{prefix}_{name}"] = value
-    return row
-
-
-def telemetry_schema() -> dict[str, Any]:
-    """JSON Schema of a row: flat numeric fields, so Foxglove and PlotJuggler plot
-    ``/board/<name>/telemetry.a_speed`` without configuration."""
-    properties: dict[str, Any] = {
-        "timestamp": {"type": "number", "description": "host epoch time of the sample, s"},
-        "t_us": {"type": "integer", "description": "board time, µs (wraps at 2^32)"},
-        "counter": {"type": "integer", "description": "the TM message counter"},
-    }
-    for prefix in ("a", "b"):
-        for name in CHANNEL_FIELDS:
-            kind = "integer" if name in ("position", "pwm", "flags") else "number"
-            properties[f"{prefix}_{name}"] = {
-                "type": kind, "description": f"channel {prefix.upper()} {_UNITS[name]}"
-            }
-    return {"title": "fpgalink.Telemetry", "type": "object", "properties": properties,
-            "required": list(TELEMETRY_FIELDS)}
-
-
-def compact(value: Any) -> Any:
-    """Floats from the wire are float32: 7 significant digits say all they hold."""
-    if isinstance(value, float):
-        return float(f"{value:.7g}")
-    return value
 
 
 def flag_letters(channel: ChannelTelemetry) -> str:

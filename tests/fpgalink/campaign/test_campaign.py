@@ -1,6 +1,7 @@
 """Campaigns (issue 27): the emulated-time loop, the declaration, scenarios giving the same
 figures wherever they run (here, in other processes, on a 2-worker Dask LocalCluster),
-failures reported and not fatal, and the CLI's campaign and tune commands.
+failures reported and not fatal, each scenario's MCAP recording, and the CLI's campaign and
+tune commands.
 
 Every figure is read on emulated time, so these assertions hold on a machine under any load.
 """
@@ -9,11 +10,15 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import json
+import os
+import stat
 import subprocess
 import sys
 from dataclasses import replace
 from pathlib import Path
+from typing import Any, cast
 
 import pytest
 
@@ -27,7 +32,7 @@ from fpgalink.campaign import (
     run_scenario,
 )
 from fpgalink.campaign.results import deterministic_rows
-from tests.support.cli import cli_env, run_cli
+from tests.support.cli import CAN_MOUNT, cli_env, cli_on_small_disk, run_cli
 
 ROOT = Path(__file__).resolve().parents[3]
 SEED36 = ROOT / "examples" / "campaigns" / "seed36.toml"
@@ -102,6 +107,13 @@ def test_a_grid_multiplies_every_scenario_and_sets_what_it_names() -> None:
     assert urls["L"].startswith("emu://robot/L?surface=gravel&body=kinematic&seed=4&run=0")
 
 
+def test_which_scenarios_record_is_the_campaigns_choice_unless_a_scenario_says() -> None:
+    campaign = parse_campaign({"campaign": {"mcap": True}, "scenario": [
+        {"script": [{"wait": 1}]}, {"mcap": False, "script": [{"wait": 1}]}]})
+    assert [s.mcap for s in campaign.scenarios] == [True, False]
+    assert not any(s.mcap for s in parse_campaign(_doc()).scenarios)
+
+
 @pytest.mark.parametrize(("document", "says"), [
     ({"scenario": []}, "no [[scenario]]"),
     (_doc(surface="lava"), "surface: 'lava'; one of"),
@@ -116,6 +128,7 @@ def test_a_grid_multiplies_every_scenario_and_sets_what_it_names() -> None:
     (_doc(script=[{"drive": [0.1, 0], "seconds": 1e9}]), "a number in"),
     (_doc(script=[{"step": 0}]), "no step"),
     (_doc(seed=-1), "seed"),
+    (_doc(mcap="yes"), "mcap: true or false"),
     (_doc(colour="red"), "unknown key 'colour'"),
     ({"grid": {"surface": []}, **_doc()}, "non-empty list"),
     ({"grid": {"seed": list(range(1000)), "Kp_Wheel_Pid": [float(v) for v in range(101)]},
@@ -330,7 +343,8 @@ def _is_worker(pid: int) -> bool:
         return False
 
 
-def _long_campaign(tmp_path: Path, *, seeds: int, jobs: int) -> subprocess.Popen[str]:
+def _long_campaign(tmp_path: Path, *, seeds: int, jobs: int, extra: tuple[str, ...] = ()
+                   ) -> subprocess.Popen[str]:
     """The CLI running scenarios of 600 s emulated (minutes of wall time), in a process
     group of its own so a test can signal the group as a terminal's Ctrl-C does."""
     from tests.support.cli import CLI
@@ -339,7 +353,7 @@ def _long_campaign(tmp_path: Path, *, seeds: int, jobs: int) -> subprocess.Popen
     spec.write_text(f'[campaign]\nbody = "kinematic"\n[grid]\nseed = {list(range(seeds))}\n'
                     '[[scenario]]\nscript = [{ wheels = [50, -50], seconds = 600 }]\n',
                     encoding="utf-8")
-    return subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", str(jobs)], cwd=ROOT,
+    return subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", str(jobs), *extra], cwd=ROOT,
                             env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, start_new_session=True)
 
@@ -397,6 +411,37 @@ def test_a_sigterm_ends_a_campaign_running_in_this_process(tmp_path: Path) -> No
             proc.kill()
     assert proc.returncode == 143, err
     assert "terminated" in err and "failed" not in err and "Traceback" not in err
+
+
+def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> None:
+    # The signal's exception may break into a write: the file is left at its last complete
+    # chunk, without summary, for the reader that needs none.
+    import signal
+    import time
+
+    from mcap.reader import NonSeekingReader
+
+    out = tmp_path / "out"
+    path = out / "0-scenario_1.mcap"
+    proc = _long_campaign(tmp_path, seeds=1, jobs=1, extra=("--mcap", "--out", str(out)))
+    try:
+        deadline = time.monotonic() + 120
+        while not (path.exists() and path.stat().st_size > 200_000):
+            assert time.monotonic() < deadline and proc.poll() is None, "no recording"
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 143, err
+    assert "Traceback" not in err
+    with path.open("rb") as stream:
+        topics = []
+        with contextlib.suppress(Exception):  # the end: no summary, no footer
+            for _, channel, _ in NonSeekingReader(stream).iter_messages(log_time_order=False):
+                topics.append(channel.topic)
+    assert topics.count("/board/L/telemetry") > 1000 and "/robot/truth" in topics
 
 
 def test_a_worker_that_dies_costs_only_its_scenario() -> None:
@@ -469,3 +514,244 @@ def test_a_robot_file_whose_path_holds_url_characters(tmp_path: Path) -> None:
     result = run_scenario(campaign.scenarios[0])
     assert result.ok, result.error
     assert result.figures["restarts"] == 1  # the fault after the path arrived too
+
+
+# --- recordings (MCAP) -----------------------------------------------------------------
+
+
+def _read_mcap(path: Path) -> tuple[list[tuple[str, int, int, bytes]], dict[str, dict[str, str]]]:
+    """Every message in file order (topic, log time, publish time, data) and the metadata."""
+    from mcap.reader import make_reader
+
+    with path.open("rb") as stream:
+        reader = make_reader(stream)
+        messages = [(channel.topic, message.log_time, message.publish_time, message.data)
+                    for _, channel, message in reader.iter_messages(log_time_order=False)]
+        metadata = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+    return messages, metadata
+
+
+def _on(messages: list[tuple[str, int, int, bytes]], topic: str) -> list[dict[str, Any]]:
+    return [json.loads(data) for t, _, _, data in messages if t == topic]
+
+
+def test_a_recorded_scenario_holds_its_run_in_emulated_time(tmp_path: Path) -> None:
+    campaign = parse_campaign({
+        "campaign": {"body": "kinematic", "surface": "gravel"},
+        "scenario": [{"name": "turn, go", "faults": ["L:restart=1.5"],
+                      "params": {"Kp_Wheel_Pid.A": 520.0}, "script": [
+                          {"wheels": [50, -50], "settle": 0.5, "seconds": 1, "label": "turn"},
+                          {"drive": [0.3, 0], "seconds": 1.5, "label": "go"}]}]})
+    scenario = campaign.scenarios[0]
+    path = tmp_path / "run.mcap"
+    recorded = run_scenario(scenario, path)
+    assert recorded.ok and recorded.mcap == str(path) and recorded.mcap_error is None
+    # Recording changes nothing it records.
+    assert recorded.figures == run_scenario(scenario).figures
+    messages, metadata = _read_mcap(path)
+    topics = {t for t, _, _, _ in messages}
+    boards = ("L", "R")
+    assert topics == {f"/board/{b}/{kind}" for b in boards
+                      for kind in ("telemetry", "params", "events", "stats")} | {
+        "/robot/truth", "/robot/odometry", "/robot/events", "/scenario/actions"}
+    # Emulated time: from 0, never going back in the file, ending just after the script
+    # (the robot's start and close on either side of emulated_s).
+    times = [log for _, log, _, _ in messages]
+    assert times == sorted(times) and times[0] >= 0
+    emulated_s = recorded.figures["emulated_s"]
+    assert isinstance(emulated_s, float) and emulated_s == pytest.approx(3.0, abs=0.05)
+    assert emulated_s < times[-1] / 1e9 < emulated_s + 1.0
+    # Every sample the host received is in the file: each board's count is its link's at the
+    # end (the last stats message), about one per emulated millisecond (the TM period).
+    for board in boards:
+        rows = _on(messages, f"/board/{board}/telemetry")
+        stats = _on(messages, f"/board/{board}/stats")
+        assert len(rows) == stats[-1]["telemetry_received"]
+        span = [log / 1e9 for t, log, _, _ in messages if t == f"/board/{board}/telemetry"]
+        assert len(rows) == pytest.approx((span[-1] - span[0]) * 1000, rel=0.03)
+        assert len(stats) == int(times[-1] / 1e9) + 1  # every emulated second, and the end
+    # R never restarted: its samples in order, none missing (the board's counter numbers
+    # its parameter answers too, so a sample may follow one).
+    counters = [row["counter"] for row in _on(messages, "/board/R/telemetry")]
+    assert all(1 <= (b - a) % 100_000 <= 2 for a, b in itertools.pairwise(counters))
+    assert recorded.figures["lost"] == 0
+    assert sum(len(_on(messages, f"/board/{b}/telemetry")) for b in boards) >= \
+        cast(int, recorded.figures["telemetry"])
+    # The truth, 50 times per emulated second, ending where the figures say the body went.
+    truth = _on(messages, "/robot/truth")
+    assert len(truth) == pytest.approx((truth[-1]["t"] - truth[0]["t"]) * 50, abs=3)
+    assert [r["t"] for r in truth] == sorted(r["t"] for r in truth)
+    assert truth[-1]["distance"] == pytest.approx(recorded.figures["distance_m"], abs=0.01)
+    assert len(_on(messages, "/robot/odometry")) == len(truth)
+    # What happened: the parameter set, the restart, the stop it caused, the actions.
+    assert any(r["name"] == "Kp_Wheel_PidA" and r.get("value") == 520.0
+               and r["status"] == "in_force" for r in _on(messages, "/board/L/params"))
+    assert any(e["message"].startswith("board_restarted")
+               for e in _on(messages, "/board/L/events"))
+    stops = [e for e in _on(messages, "/robot/events") if e["message"].startswith("stopped")]
+    assert len(stops) == recorded.figures["stops"] and all(e["level"] == 3 for e in stops)
+    assert [e["message"] for e in _on(messages, "/scenario/actions")] == [
+        "turn: wheels for 1 s", "go: drive for 1.5 s"]
+    # The file says what it is and what came of it.
+    assert metadata["fpgalink"]["scenario"] == "turn, go"
+    assert metadata["fpgalink"]["faults"] == "L:restart=1.5"
+    result = metadata["fpgalink.result"]
+    assert result.pop("status") == "ok" and result.pop("error") == ""
+    assert {k: json.loads(v) for k, v in result.items()} == recorded.figures
+
+
+def _two_short() -> Campaign:
+    return parse_campaign({
+        "campaign": {"body": "kinematic", "mcap": True},
+        "grid": {"surface": ["gravel", "marble"]},
+        "scenario": [{"name": "turn/left", "script": [
+            {"wheels": [50, -50], "settle": 0.2, "seconds": 0.5}]}]})
+
+
+def test_recordings_are_the_same_in_one_process_and_on_two_and_leave_the_table_as_it_was(
+        tmp_path: Path) -> None:
+    campaign = _two_short()
+    here = run_campaign(campaign, jobs=1, mcap_dir=tmp_path / "here")
+    there = run_campaign(campaign, jobs=2, mcap_dir=tmp_path / "there")
+    unrecorded = run_campaign(replace(campaign, scenarios=tuple(
+        replace(s, mcap=False) for s in campaign.scenarios)), jobs=1)
+    assert all(r.ok and r.mcap_error is None for r in here + there), [
+        (r.error, r.mcap_error) for r in here + there]
+    assert deterministic_rows(here) == deterministic_rows(there) == \
+        deterministic_rows(unrecorded)
+    assert [Path(r.mcap or "").name for r in there] == ["0-turn_left.mcap", "1-turn_left.mcap"]
+    for a, b in zip(here, there, strict=True):
+        assert a.mcap is not None and b.mcap is not None
+        assert Path(b.mcap).parent == tmp_path / "there"
+        # The same scenario, the same recording, message for message (emulated time).
+        assert _read_mcap(Path(a.mcap)) == _read_mcap(Path(b.mcap))
+    with pytest.raises(CampaignError, match="mcap_dir"):
+        run_campaign(campaign, jobs=1)
+
+
+def test_a_dask_worker_writes_the_recordings(tmp_path: Path) -> None:
+    pytest.importorskip("dask.distributed")
+    campaign = _two_short()
+    on_dask = run_campaign(campaign, dask="local", jobs=2, mcap_dir=tmp_path / "dask")
+    here = run_campaign(campaign, jobs=1, mcap_dir=tmp_path / "here")
+    assert all(r.ok and r.mcap is not None for r in on_dask), [r.error for r in on_dask]
+    assert all(str(os.getpid()) != r.worker.split(":")[1] for r in on_dask)
+    for a, b in zip(here, on_dask, strict=True):
+        assert _read_mcap(Path(cast(str, a.mcap))) == _read_mcap(Path(cast(str, b.mcap)))
+
+
+def test_a_recording_that_cannot_be_written_costs_the_recording_not_the_scenario(
+        tmp_path: Path) -> None:
+    campaign = replace(_two_short(), scenarios=_two_short().scenarios[:1])
+    figures = run_scenario(replace(campaign.scenarios[0], mcap=False)).figures
+    # A directory that cannot be made (a file is in the way).
+    (tmp_path / "file").write_text("")
+    [result] = run_campaign(campaign, jobs=1, mcap_dir=tmp_path / "file" / "out")
+    assert result.ok and result.figures == figures
+    assert result.mcap is None and result.mcap_error is not None
+    assert "file/out" in result.mcap_error and "\n" not in result.mcap_error
+    assert deterministic_rows([result]) == deterministic_rows(
+        run_campaign(replace(campaign, scenarios=(replace(campaign.scenarios[0], mcap=False),
+                                                  )), jobs=1))
+    # A full disk: the file is a private /dev/full (char 1:7; the real one is not touched).
+    full_dir = tmp_path / "full"
+    full_dir.mkdir()
+    try:
+        os.mknod(full_dir / "0-turn_left.mcap", stat.S_IFCHR | 0o666, os.makedev(1, 7))
+    except PermissionError:
+        pytest.skip("mknod needs root")
+    [result] = run_campaign(campaign, jobs=1, mcap_dir=full_dir)
+    assert result.ok and result.figures == figures
+    assert result.mcap is None
+    assert result.mcap_error is not None and "No space left" in result.mcap_error
+
+
+def test_a_disk_that_fills_during_a_scenario_stops_its_recording_only(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+
+    from fpgalink.recording import McapSink
+
+    campaign = replace(_two_short(), scenarios=_two_short().scenarios[:1])
+    figures = run_scenario(replace(campaign.scenarios[0], mcap=False)).figures
+    add = McapSink.add
+
+    def filling(self: McapSink, *args: Any, **kwargs: Any) -> None:
+        if self.messages >= 500:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        add(self, *args, **kwargs)
+
+    monkeypatch.setattr(McapSink, "add", filling)
+    [result] = run_campaign(campaign, jobs=1, mcap_dir=tmp_path)
+    assert result.ok and result.figures == figures
+    assert result.mcap_error is not None and "No space left" in result.mcap_error
+    assert "s emulated" in result.mcap_error
+    # What was written before stays readable, summary and all.
+    assert result.mcap is not None
+    messages, _ = _read_mcap(Path(result.mcap))
+    assert len(messages) == 500
+
+
+def test_campaign_mcap_through_the_console_script(tmp_path: Path) -> None:
+    spec = tmp_path / "c.toml"
+    spec.write_text('[campaign]\nbody = "kinematic"\n[grid]\nsurface = ["gravel", "marble"]\n'
+                    '[[scenario]]\nname = "turn"\n'
+                    'script = [{ wheels = [50, -50], settle = 0.2, seconds = 0.5 }]\n',
+                    encoding="utf-8")
+    plain, recorded = tmp_path / "plain", tmp_path / "recorded"
+    done = run_cli("campaign", str(spec), "--jobs", "2", "--out", str(plain), timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert not list(plain.glob("*.mcap"))
+    # The second scenario's file is blocked (a directory is in its place): a counted
+    # warning, the campaign and its table go on.
+    (recorded / "1-turn.mcap").mkdir(parents=True)
+    done = run_cli("campaign", str(spec), "--jobs", "2", "--mcap", "--out", str(recorded),
+                   "--format", "json", timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert "scenario 1 (turn): recording:" in done.stderr
+    assert "1 of 2 recording(s) failed" in done.stderr and "Traceback" not in done.stderr
+    rows = json.loads(done.stdout)
+    assert [r["status"] for r in rows] == ["ok", "ok"]
+    assert Path(rows[0]["mcap"]).is_absolute()
+    assert Path(rows[0]["mcap"]).samefile(recorded / "0-turn.mcap")
+    assert rows[0]["mcap_error"] is None and rows[1]["mcap"] is None
+    messages, _ = _read_mcap(recorded / "0-turn.mcap")
+    assert {"/board/L/telemetry", "/robot/truth"} <= {t for t, _, _, _ in messages}
+    # results.json as without recording, but for the columns that say how a row ran.
+    from fpgalink.campaign.results import RUN_COLUMNS
+
+    def measured(out: Path) -> list[dict[str, Any]]:
+        table = json.loads((out / "results.json").read_text())
+        return [{k: v for k, v in row.items() if k not in RUN_COLUMNS} for row in table]
+
+    assert measured(recorded) == measured(plain)
+    # Recording needs a directory to write into.
+    done = run_cli("campaign", str(spec), "--mcap")
+    assert done.returncode == 2 and "--out" in done.stderr
+
+
+@pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
+def test_a_disk_that_fills_leaves_a_complete_recording_and_the_figures(tmp_path: Path) -> None:
+    from mcap.reader import make_reader
+
+    spec = tmp_path / "c.toml"
+    # A 10 s scenario records about 0.9 MB: on a 1 MB disk the first fills it; then the
+    # second finds no room to start one.
+    spec.write_text('[campaign]\nbody = "kinematic"\nmcap = true\n[grid]\nseed = [0, 1]\n'
+                    '[[scenario]]\nname = "turn"\nscript = [{ wheels = [50, -50], seconds = 10 '
+                    '}]\n', encoding="utf-8")
+    done, out = cli_on_small_disk(tmp_path, "1m", "out", "campaign", str(spec), "--jobs", "1",
+                                  "--out", "{out}", timeout=300)
+    assert done.returncode == 1, done.stderr
+    assert "Traceback" not in done.stderr and "2 of 2 recording(s) failed" in done.stderr
+    rows = json.loads((out / "results.json").read_text())
+    assert [r["status"] for r in rows] == ["ok", "ok"]  # the figures stand
+    assert rows[0]["1.wheels.turn_rate_dps"] == rows[1]["1.wheels.turn_rate_dps"]
+    first, second = rows
+    assert "stopped at" in first["mcap_error"] and "No space left" in first["mcap_error"]
+    with (out / "0-turn.mcap").open("rb") as stream:
+        reader = make_reader(stream)  # summary and footer: the normal reader
+        assert reader.get_summary() is not None
+        assert sum(1 for _ in reader.iter_messages()) > 1000
+    assert "cannot write" in second["mcap_error"] and second["mcap"] is None
+    assert not (out / "1-turn.mcap").exists()
