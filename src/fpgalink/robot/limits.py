@@ -63,7 +63,7 @@ def check_limit(name: str, value: float) -> str | None:
     if not math.isfinite(value) or value * sign < 0 or (value == 0 and name in _NONZERO):
         why = " (0 would never let the command change that way)" \
             if value == 0 and name in _NONZERO else ""
-        return f"{name} takes a finite number {wanted}, or NaN for no limit; got {value!r}{why}"
+        return f"{name} takes a finite number {wanted}, or NaN (not set); got {value!r}{why}"
     return None
 
 
