@@ -733,14 +733,30 @@ def ddc_scenario(peer: Peer) -> None:
         _ddc(peer, exits)
 
 
+def _bad_values_at_start(*values: str, ports: dict[str, str] | None = None
+                         ) -> dict[str, dict[str, Any]]:
+    """Each ``-p VALUE`` given to a node of its own, all at once: the exit code and stderr
+    lines of each."""
+    own = [f"--port={b}={url}" for b, url in (ports or {}).items()]
+    runs = {value: subprocess.Popen([sys.executable, "-m", "fpgalink.ros2", *own,
+                                     "--ros-args", "-p", value],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            for value in values}
+    facts = {}
+    for value, run in runs.items():
+        try:
+            _, stderr = run.communicate(timeout=PATIENCE)
+        except subprocess.TimeoutExpired:
+            run.kill()
+            _, stderr = run.communicate()
+        facts[value] = {"code": run.returncode, "stderr": stderr.splitlines()}
+    return facts
+
+
 def _bad_values() -> None:
     """A bad ``-p`` at start: exit 2 with one line naming the parameter and its range."""
-    facts = {}
-    for value in ("cmd_vel_timeout:=-1.0", "joint_state_rate:=fast", "L.Kp_Wheel_Pid.A:=-5.0"):
-        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2", "--ros-args", "-p", value],
-                              capture_output=True, text=True, timeout=PATIENCE, check=False)
-        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
-    report("bad_values", **facts)
+    report("bad_values", **_bad_values_at_start(
+        "cmd_vel_timeout:=-1.0", "joint_state_rate:=fast", "L.Kp_Wheel_Pid.A:=-5.0"))
 
 
 def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
@@ -980,18 +996,23 @@ def _read_bag(path: Path, peer: Peer) -> dict[str, Any]:
 
 
 def _lifecycle(peer: Peer) -> None:
-    """``--lifecycle``: nothing published until activated, commands then, nothing after
-    deactivate, the boards disabled; shutdown ends the process."""
+    """``--lifecycle``: a configure that failed (the boards' ports not there yet) asked
+    again; nothing published until activated; cleanup and configure again; commands once
+    active, nothing after deactivate, the boards disabled; shutdown ends the process.
+    Beside it, a node whose configure fails after declaring its parameters (a bad -p),
+    configured twice."""
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState, GetState
 
-    change = peer.create_client(ChangeState, f"{NODE}/change_state")
-    get = peer.create_client(GetState, f"{NODE}/get_state")
+    def client(kind: Any, name: str, namespace: str = "") -> Any:
+        return peer.create_client(kind, f"{namespace}{NODE}/{name}")
 
-    def state() -> str:
+    change, get = client(ChangeState, "change_state"), client(GetState, "get_state")
+
+    def state(get: Any = get) -> str:
         return str(peer.call(get, GetState.Request()).current_state.label)
 
-    def transition(label: str) -> bool:
+    def transition(label: str, change: Any = change) -> bool:
         return bool(peer.call(change, ChangeState.Request(
             transition=Transition(label=label))).success)
 
@@ -999,11 +1020,40 @@ def _lifecycle(peer: Peer) -> None:
     peer.odom.clear()
     # The node before may still have messages queued in this peer: counted by their stamps.
     started_ns = time.time_ns()
-    node = start_node(KINEMATIC, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
+    links = Path(tempfile.mkdtemp(prefix="fpgalink-lifecycle-"))
+    ports = {b: str(links / b) for b in ("L", "R")}  # fpgaemu serve --link makes them later
+    node = start_node(ports, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
                       own=("--lifecycle",))
+    bad = start_node(KINEMATIC, "-r", "__ns:=/bad", "-p", "L.Kp_Wheel_Pid.A:=-5.0",
+                     own=("--lifecycle",))
+    serve: Process | None = None
     facts: dict[str, Any] = {}
     try:
+        # Its -p is refused by board L after every node parameter was declared: a second
+        # configure must fail the same way (it failed on the parameters the first left).
+        bad_change = client(ChangeState, "change_state", "/bad/")
+        facts["bad_configures"] = [transition("configure", bad_change) for _ in range(2)]
+        facts["bad_state"] = state(client(GetState, "get_state", "/bad/"))
+
+        def bad_errors() -> list[str]:
+            return [text for level, text in peer.logs if level >= 40
+                    and text.startswith("configure: ") and "boards not reached" not in text]
+
+        peer.spin_until(lambda: len(bad_errors()) >= 2, "both configures' errors")
+        facts["bad_errors"] = bad_errors()
+        facts["bad_shutdown"] = transition("shutdown", bad_change)
+        facts["bad_exit"] = bad.proc.wait(PATIENCE)
+
         facts["unconfigured"] = state()
+        # No ports yet: configure fails, saying so; asked again once the boards are there.
+        facts["configure_without_boards"] = transition("configure")
+        facts["after_failed_configure"] = state()
+        peer.spin_until(lambda: peer.logged("configure: boards not reached"), "why, said")
+        facts["not_reached"] = peer.logged("configure: boards not reached")
+        serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
+                        "--surface", "ideal", "--body", "kinematic",
+                        *(f"--link={b}={path}" for b, path in ports.items()))
+        serve.ready_lines(3)
         facts["configure"] = transition("configure")
         facts["configured"] = state()
         listing = ListParameters.Request()
@@ -1011,7 +1061,13 @@ def _lifecycle(peer: Peer) -> None:
         facts["board_parameters"] = len(peer.call(peer.list_client, listing).result.names)
         facts["joints_before_activate"] = sum(1 for stamp, _, _ in peer.joints
                                               if stamp > started_ns)
+        # cleanup withdraws what configure declared; configured again, all is declared anew.
         facts["cleanup"] = transition("cleanup")
+        facts["cleaned_up"] = state()
+        facts["configure_again"] = transition("configure")
+        facts["configured_again"] = state()
+        facts["board_parameters_again"] = len(peer.call(peer.list_client,
+                                                        listing).result.names)
         facts["activate"] = transition("activate")
         facts["active"] = state()
         peer.spin_until(lambda: peer.odom and _stamp_ns(peer.odom[-1].header) > started_ns
@@ -1042,7 +1098,60 @@ def _lifecycle(peer: Peer) -> None:
             facts["exit"] = node.proc.wait(PATIENCE)
         except subprocess.TimeoutExpired:
             facts["exit"] = node.stop(signal.SIGKILL)
+        bad.stop(signal.SIGKILL)
+        if serve is not None:
+            serve.stop()
+        shutil.rmtree(links, ignore_errors=True)
         report("lifecycle", **facts)
+
+
+#: The describe node's linear.x.max_acceleration: given with -p, then set at run time (m/s²).
+RAMP_ACCELERATIONS = (0.2, 0.5)
+
+
+def _ramps(peer: Peer, cmd_vel_out: list[TwistStamped], drive_fast: Any) -> dict[str, Any]:
+    """The describe node's steps on cmd_vel as ramps: the step to 0.3 m/s just driven
+    (0.1 m/s after linear.x.max_velocity) at the -p max_acceleration, the stop after it,
+    and, with another max_acceleration set at run time, a step again and its stop. Each
+    as cmd_vel_out (what the node drove) and odom (the wheels' measured speed), stamped
+    on the emulator's clock; a refused set's reason besides."""
+    def stamped(messages: list[Any]) -> list[tuple[float, float]]:
+        return [(_stamp_ns(m.header) / 1e9,
+                 m.twist.linear.x if isinstance(m, TwistStamped) else m.twist.twist.linear.x)
+                for m in messages]
+
+    def stop() -> None:
+        peer.cmd.publish(_twist(0.0, 0.0))
+
+    def at_rest() -> bool:
+        return bool(cmd_vel_out) and cmd_vel_out[-1].twist.linear.x == 0.0 \
+            and abs(peer.odom[-1].twist.twist.linear.x) < 0.002
+
+    def at_top() -> bool:
+        return bool(cmd_vel_out) and cmd_vel_out[-1].twist.linear.x >= 0.1 - 1e-9 \
+            and peer.odom[-1].twist.twist.linear.x > 0.095
+
+    phases: dict[str, Any] = {}
+    marks = [(0, 0)]  # (cmd_vel_out, odom) at each phase's start
+    peer.spin_until(at_top, "the first ramp's top", drive_fast)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    peer.spin_until(at_rest, "at rest after the first stop", stop)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    phases["set_ok"], phases["set_reason"] = peer.set_double(
+        "linear.x.max_acceleration", RAMP_ACCELERATIONS[1])
+    phases["read_back"] = peer.get_double("linear.x.max_acceleration")
+    phases["bad_ok"], phases["bad_reason"] = peer.set_double("linear.x.max_deceleration", 0.5)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    peer.spin_until(at_top, "the second ramp's top", drive_fast)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    peer.spin_until(at_rest, "at rest after the second stop", stop)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    for name, (start, end) in zip(("up", "down", "up_again", "down_again"),
+                                  ((marks[0], marks[1]), (marks[1], marks[2]),
+                                   (marks[3], marks[4]), (marks[4], marks[5])), strict=True):
+        phases[name] = {"out": stamped(cmd_vel_out[start[0]:end[0]]),
+                        "odom": stamped(peer.odom[start[1]:end[1]])}
+    return phases
 
 
 def describe_scenario(peer: Peer) -> None:
@@ -1063,6 +1172,7 @@ def describe_scenario(peer: Peer) -> None:
                       "-p", "right_wheel_names:=[right_front,right_back]",
                       "-p", "publish_limited_velocity:=true",
                       "-p", "linear.x.max_velocity:=0.1",
+                      "-p", f"linear.x.max_acceleration:={RAMP_ACCELERATIONS[0]}",
                       "-p", f"twist_covariance_diagonal:={TWIST_COVARIANCE}",
                       "-p", "require_enable:=false", "-p", "use_sim_time:=true",
                       "-p", "telemetry_timeout_periods:=1000", own=(f"--bag={bag}",))
@@ -1123,7 +1233,7 @@ def describe_scenario(peer: Peer) -> None:
                too_fast_reason=too_fast_reason, multiplier_ok=multiplier_ok,
                multiplier=peer.get_double("left_wheel_radius_multiplier"),
                zero_ok=zero_ok, zero_reason=zero_reason)
-        peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
+        report("ramps", **_ramps(peer, cmd_vel_out, drive_fast))
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))
     try:
@@ -1131,14 +1241,9 @@ def describe_scenario(peer: Peer) -> None:
     finally:
         shutil.rmtree(bag.parent, ignore_errors=True)
     _lifecycle(peer)
-    facts = {}
-    for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
-        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
-                               *(f"--port={b}={url}" for b, url in KINEMATIC.items()),
-                               "--ros-args", "-p", value],
-                              capture_output=True, text=True, timeout=PATIENCE, check=False)
-        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
-    report("describe_bad_values", **facts)
+    report("describe_bad_values", **_bad_values_at_start(
+        "left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]",
+        "linear.x.max_deceleration:=0.5", ports=KINEMATIC))
 
 
 def main() -> None:

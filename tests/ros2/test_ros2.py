@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import itertools
 import json
 import math
 import os
 import signal
+import statistics
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -490,7 +492,8 @@ def test_twist_covariance_diagonal_is_a_parameter(scenarios: dict[str, Scenario]
     assert facts["twist_covariance"] == [0.01, 0.02, 1e6, 1e6, 1e6, 0.03]
     bad = scenarios["describe"].check("describe_bad_values")
     for value, name in (("pose_covariance_diagonal:=[1.0,2.0]", "pose_covariance_diagonal"),
-                        ("left_wheel_names:=[only_one]", "left_wheel_names")):
+                        ("left_wheel_names:=[only_one]", "left_wheel_names"),
+                        ("linear.x.max_deceleration:=0.5", "linear.x.max_deceleration")):
         assert bad[value]["code"] == 2, bad[value]
         assert len(bad[value]["stderr"]) == 1, bad[value]
         assert bad[value]["stderr"][0].startswith(
@@ -511,6 +514,57 @@ def test_velocity_limits_are_parameters_and_cmd_vel_out_says_what_was_driven(
     assert facts["multiplier_ok"] and facts["multiplier"] == 1.05, facts
     assert facts["zero_ok"] is False and "right_wheel_radius_multiplier" in \
         facts["zero_reason"], facts
+
+
+def _rise(samples: list[list[float]], low: float, high: float) -> float:
+    """Seconds from the last sample at or below ``low`` to the first at or above ``high``
+    after it."""
+    start = max(i for i, (_, v) in enumerate(samples) if v <= low)
+    end = next(i for i in range(start, len(samples)) if samples[i][1] >= high)
+    return samples[end][0] - samples[start][0]
+
+
+def _steepest(samples: list[list[float]], window: float) -> float:
+    """The largest |change of speed| per second over any stretch of at least ``window``
+    seconds (stamps on the emulator's clock)."""
+    steepest = 0.0
+    for i, (t0, v0) in enumerate(samples):
+        for t1, v1 in samples[i + 1:]:
+            if t1 - t0 >= window:
+                steepest = max(steepest, abs(v1 - v0) / (t1 - t0))
+                break
+    return steepest
+
+
+def test_a_step_on_cmd_vel_becomes_a_ramp_at_max_acceleration(
+        scenarios: dict[str, Scenario]) -> None:
+    # linear.x.max_acceleration 0.2 m/s² given with -p, 0.5 set at run time; each time a
+    # step to 0.3 m/s (0.1 after max_velocity), then to 0: the node drives a ramp, and the
+    # wheels' measured speed (odom, on the boards' clock) follows it no faster. Times are
+    # the emulator's: a loaded host slows a ramp (a step is at most 0.1 s), never speeds it.
+    facts = scenarios["describe"].check("ramps")
+    increments: dict[str, list[float]] = {}
+    for phase, acceleration, start, end in (("up", 0.2, 0.0, 0.1), ("down", 0.2, 0.1, 0.0),
+                                            ("up_again", 0.5, 0.0, 0.1),
+                                            ("down_again", 0.5, 0.1, 0.0)):
+        out, odom = facts[phase]["out"], facts[phase]["odom"]
+        speeds = [start, *(v for _, v in out)]
+        assert speeds[-1] == pytest.approx(end, abs=1e-9), (phase, out)
+        # Driven in steps of at most max_acceleration × 0.1 s, never a jump.
+        increments[phase] = [abs(b - a) for a, b in itertools.pairwise(speeds)]
+        assert max(increments[phase]) <= acceleration * 0.1 + 1e-9, (phase, out)
+        assert len({v for v in speeds if 0.0 < v < 0.1}) >= 3, (phase, out)
+        # The wheels: no faster than the limit (a quarter more for the PID catching up).
+        assert _steepest(odom, 0.1) <= 1.25 * acceleration + 0.02, (phase, odom)
+        if end > start:
+            assert _rise(odom, 0.01, 0.09) >= 0.8 * 0.08 / acceleration, (phase, odom)
+    # The run-time set: taken, read back; a deceleration of the wrong sign refused, saying so.
+    assert facts["set_ok"] and facts["read_back"] == 0.5, facts
+    assert facts["bad_ok"] is False and facts["bad_reason"].startswith(
+        "linear.x.max_deceleration takes a finite number < 0"), facts
+    # 0.5 m/s² steps by more than 0.2 m/s² does (their medians, whatever the load).
+    assert statistics.median(increments["up_again"]) > \
+        1.5 * statistics.median(increments["up"]), increments
 
 
 def test_the_emulated_robot_publishes_clock_and_use_sim_time_stamps_on_it(
@@ -549,11 +603,18 @@ def test_bag_records_the_nodes_inputs_as_received_and_its_outputs_as_published(
 def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["describe"].check("lifecycle")
     assert facts["unconfigured"] == "unconfigured"
+    # Its ports not there yet: configure fails, says why, and is asked again later.
+    assert facts["configure_without_boards"] is False, facts
+    assert facts["after_failed_configure"] == "unconfigured", facts
+    assert facts["not_reached"], facts
     # configure opens the boards and declares their parameters, publishing nothing yet.
     assert facts["configure"] and facts["configured"] == "inactive", facts
     assert facts["board_parameters"] >= 19, facts
     assert facts["joints_before_activate"] == 0, facts
-    assert facts["cleanup"] is False  # refused, said in the log; still inactive
+    # cleanup: unconfigured, and configured again (every parameter declared anew).
+    assert facts["cleanup"] and facts["cleaned_up"] == "unconfigured", facts
+    assert facts["configure_again"] and facts["configured_again"] == "inactive", facts
+    assert facts["board_parameters_again"] == facts["board_parameters"], facts
     # activate: joint_states, odom, and cmd_vel drives.
     assert facts["activate"] and facts["active"] == "active", facts
     assert facts["driven_v"] > 0.05
@@ -564,3 +625,15 @@ def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> N
     assert facts["reactivate"] and facts["joints_after_reactivate"] > 0, facts
     # shutdown ends the process cleanly.
     assert facts["shutdown"] and facts["exit"] == 0, facts
+
+
+def test_a_configure_that_failed_after_declaring_parameters_can_be_asked_again(
+        scenarios: dict[str, Scenario]) -> None:
+    # A bad -p of a board parameter fails configure after the node's own parameters were
+    # declared; the second configure fails for the same reason (before, on the parameters
+    # the first had left: "Parameter(s) already declared").
+    facts = scenarios["describe"].check("lifecycle")
+    assert facts["bad_configures"] == [False, False] and facts["bad_state"] == "unconfigured"
+    first, second = facts["bad_errors"][:2]
+    assert first == second and first.startswith("configure: L.Kp_Wheel_Pid.A: "), facts
+    assert facts["bad_shutdown"] and facts["bad_exit"] == 0, facts
