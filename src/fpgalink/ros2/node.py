@@ -769,11 +769,12 @@ class RosBridge:
                 and self.robot.supervisor.last_stop is self._ramp_stop
                 and self.robot.state is State.ENABLED)
 
-    def _control_step(self, samples: dict[str, Telemetry]) -> None:
+    def _control_step(self, samples: dict[str, Telemetry], stamp_ns: int | None) -> None:
         """One step of the limiter towards the cmd_vel it follows, once per set of samples
         (at joint_state_rate, as diff_drive_controller steps at its controller manager's
         update_rate), its time step on the first board's clock (the time the stamps are
-        on; the emulator's own for an emulated robot)."""
+        on; the emulator's own for an emulated robot); what it drove said on cmd_vel_out
+        stamped as the set's joint_states (``stamp_ns``)."""
         t_us = samples[self.robot.description.boards[0]].t_us
         last, self._step_t_us = self._step_t_us, t_us
         if self._ramp is None:
@@ -798,16 +799,17 @@ class RosBridge:
             # The robot's own limits (its wheels' top speed) may have scaled it.
             self._limiter.follow(command.v, command.omega)
             self._ramp_owner = command
-            self._publish_driven(command)
+            self._publish_driven(command, stamp_ns)
         if self._ramp == self._limiter.last == (0.0, 0.0):
             self._ramp = None  # at rest: the next cmd_vel starts from here
 
-    def _publish_driven(self, command: Any) -> None:
+    def _publish_driven(self, command: Any, stamp_ns: int | None = None) -> None:
         if self.cmd_vel_out_pub is not None:
             # What the wheels were asked, after the limits (diff_drive_controller's
-            # publish_limited_velocity).
+            # publish_limited_velocity), stamped now or at its control step's samples.
             out = TwistStamped()
-            out.header.stamp = self.node.get_clock().now().to_msg()
+            out.header.stamp = self.node.get_clock().now().to_msg() if stamp_ns is None \
+                else _time_msg(stamp_ns)
             out.header.frame_id = self.frame(str(self._value("base_frame")))
             out.twist.linear.x, out.twist.angular.z = command.v, command.omega
             self.cmd_vel_out_pub.publish(out)
@@ -982,7 +984,7 @@ class RosBridge:
                 stamp_ns = self._publish_joints(complete)
                 if stamp_ns is not None:
                     self._publish_odometry(self._odometry_stamp(complete, stamp_ns))
-                self._control_step(complete)
+                self._control_step(complete, stamp_ns)
 
     async def _supervision_log(self) -> None:
         async for event in self.robot.events():
