@@ -762,45 +762,72 @@ def _bad_values() -> None:
         "linear.x.max_deceleration:=0.5"))
 
 
-def _configure_again_after_a_failure(peer: Peer) -> None:
+class ConfigureAgain:
     """A ``--lifecycle`` node (in /bad) whose ``-p`` board L refuses, after every node
     parameter was declared: a second configure must fail the same way (it failed on the
-    parameters the first left), and the node still shut down cleanly."""
-    from lifecycle_msgs.msg import Transition
-    from lifecycle_msgs.srv import ChangeState, GetState
+    parameters the first left), and the node still shut down cleanly. Its calls go one
+    after another while this peer spins for the ddc scenario's own checks."""
 
-    node = start_node(KINEMATIC, "-r", "__ns:=/bad", "-p", "L.Kp_Wheel_Pid.A:=-5.0",
-                      own=("--lifecycle",))
-    change = peer.create_client(ChangeState, f"/bad/{NODE}/change_state")
-    get = peer.create_client(GetState, f"/bad/{NODE}/get_state")
+    def __init__(self, peer: Peer) -> None:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState, GetState
 
-    def errors() -> list[str]:
-        return [text for level, text in peer.logs if level >= 40
-                and text.startswith("configure: ")]
+        self.peer = peer
+        self.node = start_node(KINEMATIC, "-r", "__ns:=/bad", "-p", "L.Kp_Wheel_Pid.A:=-5.0",
+                               own=("--lifecycle",))
+        change = peer.create_client(ChangeState, f"/bad/{NODE}/change_state")
+        get = peer.create_client(GetState, f"/bad/{NODE}/get_state")
 
-    facts: dict[str, Any] = {}
-    try:
-        facts["configures"] = [bool(peer.call(change, ChangeState.Request(
-            transition=Transition(label="configure"))).success) for _ in range(2)]
-        facts["state"] = str(peer.call(get, GetState.Request()).current_state.label)
-        peer.spin_until(lambda: len(errors()) >= 2, "both configures' errors said")
-        facts["errors"] = errors()
-        facts["shutdown"] = bool(peer.call(change, ChangeState.Request(
-            transition=Transition(label="shutdown"))).success)
-        facts["exit"] = node.proc.wait(PATIENCE)
-    finally:
-        node.stop(signal.SIGKILL)
-        report("configure_again", **facts)
+        def transition(label: str) -> tuple[Any, Any]:
+            return change, ChangeState.Request(transition=Transition(label=label))
+
+        self.calls = [transition("configure"), transition("configure"),
+                      (get, GetState.Request()), transition("shutdown")]
+        self.answers: list[Any] = []
+
+    def start(self) -> None:
+        """The first call, once the node's services are there (it started meanwhile)."""
+        for client in {id(c): c for c, _ in self.calls}.values():
+            if not client.wait_for_service(timeout_sec=PATIENCE):
+                raise TimeoutError(f"service {client.srv_name} not there")
+        self._next()
+
+    def _next(self, done: Any = None) -> None:
+        if done is not None:
+            self.answers.append(done.result())
+        if len(self.answers) < len(self.calls):
+            client, request = self.calls[len(self.answers)]
+            client.call_async(request).add_done_callback(self._next)
+
+    def errors(self) -> list[str]:
+        return [text for level, text in self.peer.logs
+                if level >= 40 and text.startswith("configure: ")]
+
+    def finish(self) -> None:
+        facts: dict[str, Any] = {}
+        try:
+            self.peer.spin_until(lambda: len(self.answers) == len(self.calls)
+                                 and len(self.errors()) >= 2,
+                                 "the /bad node's transitions, its errors said")
+            facts = {"configures": [bool(a.success) for a in self.answers[:2]],
+                     "state": str(self.answers[2].current_state.label),
+                     "shutdown": bool(self.answers[3].success), "errors": self.errors(),
+                     "exit": self.node.proc.wait(PATIENCE)}
+        finally:
+            self.node.stop(signal.SIGKILL)
+            report("configure_again", **facts)
 
 
 def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
-    _bad_values()
-    _configure_again_after_a_failure(peer)
-    peer.logs.clear()
-    """What a diff_drive_controller user relies on: the first cmd_vel after enable not
+    """What a diff_drive_controller user relies on: bad -p values refused at start, a
+    lifecycle configure asked again after a failure, the first cmd_vel after enable not
     dropped, a flood of non-finite commands warned about without flooding the log, a
     publisher of the other Twist type named, driving on cmd_vel alone without the enable
     deadman (require_enable false), and TwistStamped on cmd_vel (use_stamped_vel)."""
+    configure_again = ConfigureAgain(peer)
+    exits.callback(configure_again.node.stop, signal.SIGKILL)
+    _bad_values()
+    configure_again.start()
     serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
                     "--surface", "ideal")
     ready = {line[1]: line[2] for line in serve.ready_lines(3)}
@@ -881,6 +908,7 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         report("kinematics", chi=chi, separation=peer.get_double("wheel_separation"),
                radius=peer.get_double("wheel_radius"), chi_ok=chi_ok, chi_reason=chi_reason,
                before=turn_before, after=turn_after)
+        configure_again.finish()
     finally:
         report("node_exit", code=node.stop())
     # use_stamped_vel: a node taking TwistStamped; this peer's Twist publisher is named.
