@@ -268,6 +268,7 @@ class RosBridge:
         self._ramp: tuple[float, float] | None = None
         self._ramp_owner: object = None
         self._ramp_stop: object = None
+        self._wheel_refs_drove = False  #: since the last ramp began
         self._step_t_us: int | None = None  #: the first board's sample time at the last step
         self._file_limits = (robot.description.max_linear_speed,
                              robot.description.max_angular_speed_rad)
@@ -754,9 +755,15 @@ class RosBridge:
             raise RobotStopped("the robot is not enabled" + (
                 f" ({stop.describe()})" if stop else ""), stop)
         if self._ramp is None or not self._ramp_holds():
-            # From what the robot drives now (another command may have driven it).
+            # From what the robot drives now (another command may have driven it): its body
+            # command, or after wheel_refs (no body command) the speeds measured.
             driven = self.robot.command
-            now = (driven.v, driven.omega) if driven is not None else (0.0, 0.0)
+            if self._wheel_refs_drove:
+                state = self.robot.odometry_state
+                now = (state.v, state.omega)
+            else:
+                now = (driven.v, driven.omega) if driven is not None else (0.0, 0.0)
+            self._wheel_refs_drove = False
             if now != self._limiter.last:
                 self._limiter.reset(*now)
             self._ramp_owner, self._ramp_stop = driven, self.robot.supervisor.last_stop
@@ -841,6 +848,7 @@ class RosBridge:
                 raise RobotStopped("the robot is not enabled")
             for board, (ref_a, ref_b) in references.items():
                 self.robot.links[board].set_references(ref_a, ref_b)
+            self._wheel_refs_drove = True
 
         self._cancel_goal()
         self._ramp = None
