@@ -57,6 +57,8 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 
+from fpgalink.protocol.robot import SEED_ROBOT_TOML
+
 PATIENCE = 30.0
 #: A truth line's tick is found among the published stamps within this of where the
 #: offset followed so far puts it (a tick is 1 ms).
@@ -733,22 +735,99 @@ def ddc_scenario(peer: Peer) -> None:
         _ddc(peer, exits)
 
 
+def _bad_values_at_start(*values: str, ports: dict[str, str] | None = None
+                         ) -> dict[str, dict[str, Any]]:
+    """Each ``-p VALUE`` given to a node of its own, all at once: the exit code and stderr
+    lines of each."""
+    own = [f"--port={b}={url}" for b, url in (ports or {}).items()]
+    runs = {value: subprocess.Popen([sys.executable, "-m", "fpgalink.ros2", *own,
+                                     "--ros-args", "-p", value],
+                                    stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            for value in values}
+    facts = {}
+    for value, run in runs.items():
+        try:
+            _, stderr = run.communicate(timeout=PATIENCE)
+        except subprocess.TimeoutExpired:
+            run.kill()
+            _, stderr = run.communicate()
+        facts[value] = {"code": run.returncode, "stderr": stderr.splitlines()}
+    return facts
+
+
 def _bad_values() -> None:
     """A bad ``-p`` at start: exit 2 with one line naming the parameter and its range."""
-    facts = {}
-    for value in ("cmd_vel_timeout:=-1.0", "joint_state_rate:=fast", "L.Kp_Wheel_Pid.A:=-5.0"):
-        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2", "--ros-args", "-p", value],
-                              capture_output=True, text=True, timeout=PATIENCE, check=False)
-        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
-    report("bad_values", **facts)
+    report("bad_values", **_bad_values_at_start(
+        "cmd_vel_timeout:=-1.0", "joint_state_rate:=fast", "L.Kp_Wheel_Pid.A:=-5.0",
+        "linear.x.max_deceleration:=0.5"))
+
+
+class ConfigureAgain:
+    """A ``--lifecycle`` node (in /bad) whose ``-p`` board L refuses, after every node
+    parameter was declared: a second configure must fail the same way (it failed on the
+    parameters the first left), and the node still shut down cleanly. Its calls go one
+    after another while this peer spins for the ddc scenario's own checks."""
+
+    def __init__(self, peer: Peer) -> None:
+        from lifecycle_msgs.msg import Transition
+        from lifecycle_msgs.srv import ChangeState, GetState
+
+        self.peer = peer
+        self.node = start_node(KINEMATIC, "-r", "__ns:=/bad", "-p", "L.Kp_Wheel_Pid.A:=-5.0",
+                               own=("--lifecycle",))
+        change = peer.create_client(ChangeState, f"/bad/{NODE}/change_state")
+        get = peer.create_client(GetState, f"/bad/{NODE}/get_state")
+
+        def transition(label: str) -> tuple[Any, Any]:
+            return change, ChangeState.Request(transition=Transition(label=label))
+
+        self.calls = [transition("configure"), transition("configure"),
+                      (get, GetState.Request()), transition("shutdown")]
+        self.answers: list[Any] = []
+
+    def start(self) -> None:
+        """The first call, once the node's services are there (it started meanwhile)."""
+        for client in {id(c): c for c, _ in self.calls}.values():
+            if not client.wait_for_service(timeout_sec=PATIENCE):
+                raise TimeoutError(f"service {client.srv_name} not there")
+        self._next()
+
+    def _next(self, done: Any = None) -> None:
+        if done is not None:
+            self.answers.append(done.result())
+        if len(self.answers) < len(self.calls):
+            client, request = self.calls[len(self.answers)]
+            client.call_async(request).add_done_callback(self._next)
+
+    def errors(self) -> list[str]:
+        return [text for level, text in self.peer.logs
+                if level >= 40 and text.startswith("configure: ")]
+
+    def finish(self) -> None:
+        facts: dict[str, Any] = {}
+        try:
+            self.peer.spin_until(lambda: len(self.answers) == len(self.calls)
+                                 and len(self.errors()) >= 2,
+                                 "the /bad node's transitions, its errors said")
+            facts = {"configures": [bool(a.success) for a in self.answers[:2]],
+                     "state": str(self.answers[2].current_state.label),
+                     "shutdown": bool(self.answers[3].success), "errors": self.errors(),
+                     "exit": self.node.proc.wait(PATIENCE)}
+        finally:
+            self.node.stop(signal.SIGKILL)
+            report("configure_again", **facts)
 
 
 def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
-    _bad_values()
-    """What a diff_drive_controller user relies on: the first cmd_vel after enable not
+    """What a diff_drive_controller user relies on: bad -p values refused at start, a
+    lifecycle configure asked again after a failure, the first cmd_vel after enable not
     dropped, a flood of non-finite commands warned about without flooding the log, a
     publisher of the other Twist type named, driving on cmd_vel alone without the enable
     deadman (require_enable false), and TwistStamped on cmd_vel (use_stamped_vel)."""
+    configure_again = ConfigureAgain(peer)
+    exits.callback(configure_again.node.stop, signal.SIGKILL)
+    _bad_values()
+    configure_again.start()
     serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
                     "--surface", "ideal")
     ready = {line[1]: line[2] for line in serve.ready_lines(3)}
@@ -829,6 +908,7 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
         report("kinematics", chi=chi, separation=peer.get_double("wheel_separation"),
                radius=peer.get_double("wheel_radius"), chi_ok=chi_ok, chi_reason=chi_reason,
                before=turn_before, after=turn_after)
+        configure_again.finish()
     finally:
         report("node_exit", code=node.stop())
     # use_stamped_vel: a node taking TwistStamped; this peer's Twist publisher is named.
@@ -980,8 +1060,9 @@ def _read_bag(path: Path, peer: Peer) -> dict[str, Any]:
 
 
 def _lifecycle(peer: Peer) -> None:
-    """``--lifecycle``: nothing published until activated, commands then, nothing after
-    deactivate, the boards disabled; shutdown ends the process."""
+    """``--lifecycle``: a configure that failed (the boards not there yet) asked
+    again; nothing published until activated; cleanup and configure again; commands once
+    active, nothing after deactivate, the boards disabled; shutdown ends the process."""
     from lifecycle_msgs.msg import Transition
     from lifecycle_msgs.srv import ChangeState, GetState
 
@@ -999,11 +1080,21 @@ def _lifecycle(peer: Peer) -> None:
     peer.odom.clear()
     # The node before may still have messages queued in this peer: counted by their stamps.
     started_ns = time.time_ns()
-    node = start_node(KINEMATIC, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
+    # Its boards cannot be opened until their robot file is there (the emulator's own
+    # robot, the seed's): the first configure fails as for a port that does not exist.
+    robot_file = Path(tempfile.mkdtemp(prefix="fpgalink-lifecycle-")) / "robot.toml"
+    ports = {b: f"{url}&robot={robot_file}" for b, url in KINEMATIC.items()}
+    node = start_node(ports, "-r", "__ns:=/bot", "-p", "telemetry_timeout_periods:=1000",
                       own=("--lifecycle",))
     facts: dict[str, Any] = {}
     try:
         facts["unconfigured"] = state()
+        # No boards yet: configure fails, saying so; asked again once they are there.
+        facts["configure_without_boards"] = transition("configure")
+        facts["after_failed_configure"] = state()
+        peer.spin_until(lambda: peer.logged("configure: boards not reached"), "why, said")
+        facts["not_reached"] = peer.logged("configure: boards not reached")
+        robot_file.write_text(SEED_ROBOT_TOML, encoding="utf-8")
         facts["configure"] = transition("configure")
         facts["configured"] = state()
         listing = ListParameters.Request()
@@ -1011,7 +1102,13 @@ def _lifecycle(peer: Peer) -> None:
         facts["board_parameters"] = len(peer.call(peer.list_client, listing).result.names)
         facts["joints_before_activate"] = sum(1 for stamp, _, _ in peer.joints
                                               if stamp > started_ns)
+        # cleanup withdraws what configure declared; configured again, all is declared anew.
         facts["cleanup"] = transition("cleanup")
+        facts["cleaned_up"] = state()
+        facts["configure_again"] = transition("configure")
+        facts["configured_again"] = state()
+        facts["board_parameters_again"] = len(peer.call(peer.list_client,
+                                                        listing).result.names)
         facts["activate"] = transition("activate")
         facts["active"] = state()
         peer.spin_until(lambda: peer.odom and _stamp_ns(peer.odom[-1].header) > started_ns
@@ -1037,12 +1134,61 @@ def _lifecycle(peer: Peer) -> None:
         facts["joints_after_reactivate"] = sum(1 for stamp, _, _ in peer.joints
                                                if stamp > reactivated_ns)
         facts["shutdown"] = transition("shutdown")
+
     finally:
         try:
             facts["exit"] = node.proc.wait(PATIENCE)
         except subprocess.TimeoutExpired:
             facts["exit"] = node.stop(signal.SIGKILL)
+        shutil.rmtree(robot_file.parent, ignore_errors=True)
         report("lifecycle", **facts)
+
+
+#: The describe node's linear.x.max_acceleration: given with -p, then set at run time (m/s²).
+RAMP_ACCELERATIONS = (0.2, 0.5)
+
+
+def _ramps(peer: Peer, cmd_vel_out: list[TwistStamped], drive_fast: Any) -> dict[str, Any]:
+    """The describe node's steps on cmd_vel as ramps: the step to 0.3 m/s just driven
+    (0.1 m/s after linear.x.max_velocity) at the -p max_acceleration, the stop after it,
+    and, with another max_acceleration set at run time, a step again. Each as cmd_vel_out
+    (what the node drove) and odom (the wheels' measured speed), stamped on the emulator's
+    clock; a refused set's reason besides."""
+    def stamped(messages: list[Any]) -> list[tuple[float, float]]:
+        return [(_stamp_ns(m.header) / 1e9,
+                 m.twist.linear.x if isinstance(m, TwistStamped) else m.twist.twist.linear.x)
+                for m in messages]
+
+    def stop() -> None:
+        peer.cmd.publish(_twist(0.0, 0.0))
+
+    def at_rest() -> bool:
+        return bool(cmd_vel_out) and cmd_vel_out[-1].twist.linear.x == 0.0 \
+            and abs(peer.odom[-1].twist.twist.linear.x) < 0.005
+
+    def at_top() -> bool:
+        return bool(cmd_vel_out) and cmd_vel_out[-1].twist.linear.x >= 0.1 - 1e-9 \
+            and peer.odom[-1].twist.twist.linear.x > 0.09
+
+    phases: dict[str, Any] = {}
+    marks = [(0, 0)]  # (cmd_vel_out, odom) at each phase's start
+    peer.spin_until(at_top, "the first ramp's top", drive_fast)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    peer.spin_until(at_rest, "at rest after the first stop", stop)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    phases["set_ok"], phases["set_reason"] = peer.set_double(
+        "linear.x.max_acceleration", RAMP_ACCELERATIONS[1])
+    phases["read_back"] = peer.get_double("linear.x.max_acceleration")
+    phases["bad_ok"], phases["bad_reason"] = peer.set_double("linear.x.max_deceleration", 0.5)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    peer.spin_until(at_top, "the second ramp's top", drive_fast)
+    marks.append((len(cmd_vel_out), len(peer.odom)))
+    for name, (start, end) in zip(("up", "down", "up_again"),
+                                  ((marks[0], marks[1]), (marks[1], marks[2]),
+                                   (marks[3], marks[4])), strict=True):
+        phases[name] = {"out": stamped(cmd_vel_out[start[0]:end[0]]),
+                        "odom": stamped(peer.odom[start[1]:end[1]])}
+    return phases
 
 
 def describe_scenario(peer: Peer) -> None:
@@ -1063,6 +1209,7 @@ def describe_scenario(peer: Peer) -> None:
                       "-p", "right_wheel_names:=[right_front,right_back]",
                       "-p", "publish_limited_velocity:=true",
                       "-p", "linear.x.max_velocity:=0.1",
+                      "-p", f"linear.x.max_acceleration:={RAMP_ACCELERATIONS[0]}",
                       "-p", f"twist_covariance_diagonal:={TWIST_COVARIANCE}",
                       "-p", "require_enable:=false", "-p", "use_sim_time:=true",
                       "-p", "telemetry_timeout_periods:=1000", own=(f"--bag={bag}",))
@@ -1123,7 +1270,7 @@ def describe_scenario(peer: Peer) -> None:
                too_fast_reason=too_fast_reason, multiplier_ok=multiplier_ok,
                multiplier=peer.get_double("left_wheel_radius_multiplier"),
                zero_ok=zero_ok, zero_reason=zero_reason)
-        peer.spin_for(0.5, lambda: peer.cmd.publish(_twist(0.0, 0.0)))
+        report("ramps", **_ramps(peer, cmd_vel_out, drive_fast))
     finally:
         report("describe_node_exit", code=node.stop(signal.SIGINT))
     try:
@@ -1131,14 +1278,8 @@ def describe_scenario(peer: Peer) -> None:
     finally:
         shutil.rmtree(bag.parent, ignore_errors=True)
     _lifecycle(peer)
-    facts = {}
-    for value in ("left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]"):
-        done = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
-                               *(f"--port={b}={url}" for b, url in KINEMATIC.items()),
-                               "--ros-args", "-p", value],
-                              capture_output=True, text=True, timeout=PATIENCE, check=False)
-        facts[value] = {"code": done.returncode, "stderr": done.stderr.splitlines()}
-    report("describe_bad_values", **facts)
+    report("describe_bad_values", **_bad_values_at_start(
+        "left_wheel_names:=[only_one]", "pose_covariance_diagonal:=[1.0,2.0]", ports=KINEMATIC))
 
 
 def main() -> None:

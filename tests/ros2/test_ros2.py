@@ -11,10 +11,12 @@ from __future__ import annotations
 
 import contextlib
 import importlib.util
+import itertools
 import json
 import math
 import os
 import signal
+import statistics
 import subprocess
 import sys
 from collections.abc import Iterator
@@ -390,7 +392,9 @@ def test_a_bad_ros_args_value_at_start_exits_2_with_one_line(
     facts = scenarios["ddc"].check("bad_values")
     expected = {"cmd_vel_timeout:=-1.0": ("cmd_vel_timeout", "Min: 0.05, Max: 10.0"),
                 "joint_state_rate:=fast": ("joint_state_rate", "expecting type 'DOUBLE'"),
-                "L.Kp_Wheel_Pid.A:=-5.0": ("L.Kp_Wheel_Pid.A", "must be a float ≥ 0")}
+                "L.Kp_Wheel_Pid.A:=-5.0": ("L.Kp_Wheel_Pid.A", "must be a float ≥ 0"),
+                "linear.x.max_deceleration:=0.5": ("linear.x.max_deceleration",
+                                                   "takes a finite number < 0")}
     for value, (name, range_text) in expected.items():
         result = facts[value]
         assert result["code"] == 2, (value, result)
@@ -513,6 +517,62 @@ def test_velocity_limits_are_parameters_and_cmd_vel_out_says_what_was_driven(
         facts["zero_reason"], facts
 
 
+def _rise(samples: list[list[float]], low: float, high: float) -> float:
+    """Seconds from the last sample at or below ``low`` to the first at or above ``high``
+    after it."""
+    start = max(i for i, (_, v) in enumerate(samples) if v <= low)
+    end = next(i for i in range(start, len(samples)) if samples[i][1] >= high)
+    return samples[end][0] - samples[start][0]
+
+
+def _steepest(samples: list[list[float]], window: float) -> float:
+    """The largest |change of speed| per second over any stretch of at least ``window``
+    seconds (stamps on the emulator's clock)."""
+    steepest = 0.0
+    for i, (t0, v0) in enumerate(samples):
+        for t1, v1 in samples[i + 1:]:
+            if t1 - t0 >= window:
+                steepest = max(steepest, abs(v1 - v0) / (t1 - t0))
+                break
+    return steepest
+
+
+def test_a_step_on_cmd_vel_becomes_a_ramp_at_max_acceleration(
+        scenarios: dict[str, Scenario]) -> None:
+    # linear.x.max_acceleration 0.2 m/s² given with -p: a step to 0.3 m/s (0.1 after
+    # max_velocity), then to 0; 0.5 set at run time, the step again. Each a ramp: cmd_vel_out
+    # says what each control step drove, stamped at its samples (the boards' clock, as the
+    # limiter's time step), and the wheels' measured speed (odom) follows no faster. A
+    # loaded host slows a ramp (a step is at most 0.1 s), never speeds it.
+    facts = scenarios["describe"].check("ramps")
+    slopes: dict[str, list[float]] = {}
+    for phase, acceleration, start, end in (("up", 0.2, 0.0, 0.1), ("down", 0.2, 0.1, 0.0),
+                                            ("up_again", 0.5, 0.0, 0.1)):
+        out, odom = facts[phase]["out"], facts[phase]["odom"]
+        assert out[-1][1] == pytest.approx(end, abs=1e-9), (phase, out)
+        assert len({v for _, v in out if 0.0 < v < 0.1}) >= 3, (phase, out)  # not a jump
+        # Never faster than the limit, step by step: by at most a × 0.1 s, and at most a
+        # between stamps (which may be as close as 75 % of their samples' spacing while
+        # the board clock's mapping settles: fpgalink.boardclock).
+        speeds = [start, *(v for _, v in out)]
+        assert max(abs(b - a) for a, b in itertools.pairwise(speeds)) \
+            <= acceleration * 0.1 + 1e-9, (phase, out)
+        slopes[phase] = [abs(v1 - v0) / (t1 - t0)
+                         for (t0, v0), (t1, v1) in itertools.pairwise(out)]
+        assert max(slopes[phase]) <= acceleration / 0.75 + 1e-6, (phase, out)
+        # The wheels (odom, on the same clock): no faster (a quarter more for the PID
+        # catching up), and a ramp.
+        assert _steepest(odom, 0.1) <= 1.25 * acceleration / 0.75 + 0.02, (phase, odom)
+        if end > start:
+            assert _rise(odom, 0.01, 0.09) >= 0.75 * 0.8 * 0.08 / acceleration, (phase, odom)
+    # The run-time set: taken (the steps climb at 0.5 m/s², above what 0.2 allows), read
+    # back; a deceleration of the wrong sign refused, saying so.
+    assert statistics.median(slopes["up_again"]) > 0.2 / 0.75, slopes
+    assert facts["set_ok"] and facts["read_back"] == 0.5, facts
+    assert facts["bad_ok"] is False and facts["bad_reason"].startswith(
+        "linear.x.max_deceleration takes a finite number < 0"), facts
+
+
 def test_the_emulated_robot_publishes_clock_and_use_sim_time_stamps_on_it(
         scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["describe"].check("clock")
@@ -549,11 +609,18 @@ def test_bag_records_the_nodes_inputs_as_received_and_its_outputs_as_published(
 def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["describe"].check("lifecycle")
     assert facts["unconfigured"] == "unconfigured"
+    # Its ports not there yet: configure fails, says why, and is asked again later.
+    assert facts["configure_without_boards"] is False, facts
+    assert facts["after_failed_configure"] == "unconfigured", facts
+    assert facts["not_reached"], facts
     # configure opens the boards and declares their parameters, publishing nothing yet.
     assert facts["configure"] and facts["configured"] == "inactive", facts
     assert facts["board_parameters"] >= 19, facts
     assert facts["joints_before_activate"] == 0, facts
-    assert facts["cleanup"] is False  # refused, said in the log; still inactive
+    # cleanup: unconfigured, and configured again (every parameter declared anew).
+    assert facts["cleanup"] and facts["cleaned_up"] == "unconfigured", facts
+    assert facts["configure_again"] and facts["configured_again"] == "inactive", facts
+    assert facts["board_parameters_again"] == facts["board_parameters"], facts
     # activate: joint_states, odom, and cmd_vel drives.
     assert facts["activate"] and facts["active"] == "active", facts
     assert facts["driven_v"] > 0.05
@@ -563,4 +630,16 @@ def test_with_lifecycle_the_node_is_managed(scenarios: dict[str, Scenario]) -> N
     # activate again: its tasks run again (they were cancelled at once before the fix).
     assert facts["reactivate"] and facts["joints_after_reactivate"] > 0, facts
     # shutdown ends the process cleanly.
+    assert facts["shutdown"] and facts["exit"] == 0, facts
+
+
+def test_a_configure_that_failed_after_declaring_parameters_can_be_asked_again(
+        scenarios: dict[str, Scenario]) -> None:
+    # A bad -p of a board parameter fails configure after the node's own parameters were
+    # declared; the second configure fails for the same reason (before, on the parameters
+    # the first had left: "Parameter(s) already declared").
+    facts = scenarios["ddc"].check("configure_again")
+    assert facts["configures"] == [False, False] and facts["state"] == "unconfigured", facts
+    first, second = facts["errors"][:2]
+    assert first == second and first.startswith("configure: L.Kp_Wheel_Pid.A: "), facts
     assert facts["shutdown"] and facts["exit"] == 0, facts

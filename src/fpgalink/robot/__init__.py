@@ -3,6 +3,7 @@
 * the description and the skid-steer model, shared with the emulator, live in
   :mod:`fpgalink.protocol.robot` (re-exported here);
 * :mod:`.drive` — body command → wheel references, limits keeping the curvature;
+* :mod:`.limits` — diff_drive_controller's velocity, acceleration and jerk limits;
 * :mod:`.odometry` — pose from encoder counts, with a covariance;
 * :mod:`.supervision` — the deadman and the boards' liveness, as a table;
 * :mod:`.goto` — the seed's position controller (Algorithm 1);
@@ -26,6 +27,8 @@ _HOMES = {
     "seed_robot": "fpgalink.protocol.robot",
     "WheelCommand": "fpgalink.robot.drive",
     "wheel_command": "fpgalink.robot.drive",
+    "AxisLimits": "fpgalink.robot.limits",
+    "SpeedLimiter": "fpgalink.robot.limits",
     "Odometry": "fpgalink.robot.odometry",
     "OdometryState": "fpgalink.robot.odometry",
     "NotReady": "fpgalink.robot.supervision",
@@ -53,6 +56,7 @@ if TYPE_CHECKING:
     )
     from fpgalink.robot.drive import WheelCommand, wheel_command
     from fpgalink.robot.goto import GoTo, GoToSettings, Phase
+    from fpgalink.robot.limits import AxisLimits, SpeedLimiter
     from fpgalink.robot.odometry import Odometry, OdometryState
     from fpgalink.robot.robot import GoalTimeout, Robot, RobotError, RobotStopped
     from fpgalink.robot.supervision import NotReady, StopReason, SupervisionEvent, Supervisor
@@ -68,6 +72,7 @@ def __getattr__(name: str) -> object:
 
 
 __all__ = [
+    "AxisLimits",
     "DescriptionError",
     "GoTo",
     "GoToSettings",
@@ -82,6 +87,7 @@ __all__ = [
     "RobotError",
     "RobotStopped",
     "SkidSteer",
+    "SpeedLimiter",
     "StopReason",
     "SupervisionEvent",
     "Supervisor",

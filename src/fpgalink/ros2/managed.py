@@ -3,12 +3,13 @@
 - unconfigured: the boards are not opened; no topics but the lifecycle services
 - configure: the boards opened and started, every ROS parameter declared (board parameters
   read from the boards, ``-p`` overrides set on them), the parameter services up;
-  failure (boards not reached, a bad ``-p``) leaves the node unconfigured, the reason in the
-  log
+  failure (boards not reached, a bad ``-p``) leaves the node unconfigured as it was (what
+  that configure declared and created withdrawn), the reason in the log: configure can be
+  asked again
 - activate: publishing (``robot_description`` and ``/tf_static`` then) and commands
 - deactivate: publishing and commands stop, every board disabled
-- cleanup: refused (the parameters a configure declared cannot be withdrawn from an rclpy
-  node): shut down and start again
+- cleanup: the boards closed, what configure declared and created withdrawn (its
+  parameters, topics and services): unconfigured as at start, to be configured again
 - shutdown (from any state): the boards closed, and the process ends (exit 0)
 
 Transition callbacks run on rclpy's executor thread and wait for the asyncio loop, which
@@ -38,6 +39,36 @@ __all__ = ["run_managed"]
 TRANSITION_TIMEOUT_S = 60.0
 
 
+class _NodeMark:
+    """What a node has before a configure, to give back what a failed configure added:
+    its parameters (declared again next time, not ParameterAlreadyDeclared), publishers,
+    subscriptions, services and parameter checks."""
+
+    def __init__(self, node: LifecycleNode) -> None:
+        self.node = node
+        self.parameters = set(node._parameters)
+        self.publishers = list(node.publishers)
+        self.subscriptions = list(node.subscriptions)
+        self.services = list(node.services)
+        self.checks = list(node._on_set_parameters_callbacks)
+
+    def undo(self) -> None:
+        node = self.node
+        for name in set(node._parameters) - self.parameters:
+            # As undeclare_parameter does, which refuses read-only parameters (their -p
+            # override stays with the node and is taken again by the next declaration).
+            node._parameters.pop(name, None)
+            node._descriptors.pop(name, None)
+        for publisher in [p for p in node.publishers if p not in self.publishers]:
+            node.destroy_publisher(publisher)
+        for subscription in [s for s in node.subscriptions if s not in self.subscriptions]:
+            node.destroy_subscription(subscription)
+        for service in [s for s in node.services if s not in self.services]:
+            node.destroy_service(service)
+        node._on_set_parameters_callbacks[:] = [
+            c for c in node._on_set_parameters_callbacks if c in self.checks]
+
+
 class _ManagedNode(LifecycleNode):
     def __init__(self, loop: asyncio.AbstractEventLoop, description: RobotDescription,
                  ports: dict[str, str], baud: int, bag: NodeBag | None,
@@ -53,6 +84,8 @@ class _ManagedNode(LifecycleNode):
         self.robot: Robot | None = None
         self.bridge: RosBridge | None = None
         self.running: asyncio.Task[None] | None = None
+        #: what the node had before the configure that made the bridge (cleanup's undo)
+        self.mark: _NodeMark | None = None
 
     def _on_loop(self, coroutine: Coroutine[Any, Any, TransitionCallbackReturn]
                  ) -> TransitionCallbackReturn:
@@ -67,8 +100,6 @@ class _ManagedNode(LifecycleNode):
     # --- transitions (on the executor's thread) ------------------------------------------
 
     def on_configure(self, state: LifecycleState) -> TransitionCallbackReturn:
-        if self.bridge is not None:  # configured before, cleanup refused: nothing to do
-            return TransitionCallbackReturn.SUCCESS
         return self._on_loop(self._configure())
 
     def on_activate(self, state: LifecycleState) -> TransitionCallbackReturn:
@@ -78,9 +109,7 @@ class _ManagedNode(LifecycleNode):
         return self._on_loop(self._deactivate())
 
     def on_cleanup(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self.get_logger().warning("cleanup refused: the parameters a configure declared "
-                                  "cannot be withdrawn (shutdown, then start the node again)")
-        return TransitionCallbackReturn.FAILURE
+        return self._on_loop(self._cleanup())
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
         result = self._on_loop(self._shutdown())
@@ -95,23 +124,29 @@ class _ManagedNode(LifecycleNode):
 
     async def _configure(self) -> TransitionCallbackReturn:
         log = self.get_logger()
+        mark = _NodeMark(self)
         robot = Robot.open(self.description, self.ports, baud=self.baud)
+        configured = False
         try:
-            await robot.start()
-        except (RobotError, FpgalinkError) as exc:
-            log.error(f"configure: boards not reached: {exc}")
-            await robot.close()
-            return TransitionCallbackReturn.FAILURE
-        try:
-            bridge = RosBridge(robot, self, self.loop, executor=self.executor_ref,
-                               bag=self.bag, managed=True)
-            await bridge.declare_board_parameters()
-        except (ParameterException, BadOverride, FpgalinkError) as exc:
-            log.error(f"configure: {exc}")
-            await robot.close()
-            return TransitionCallbackReturn.FAILURE
-        bridge.serve_parameters()
-        self.robot, self.bridge = robot, bridge
+            try:
+                await robot.start()
+            except (RobotError, FpgalinkError) as exc:
+                log.error(f"configure: boards not reached: {exc}")
+                return TransitionCallbackReturn.FAILURE
+            try:
+                bridge = RosBridge(robot, self, self.loop, executor=self.executor_ref,
+                                   bag=self.bag, managed=True)
+                await bridge.declare_board_parameters()
+            except (ParameterException, BadOverride, FpgalinkError) as exc:
+                log.error(f"configure: {exc}")
+                return TransitionCallbackReturn.FAILURE
+            bridge.serve_parameters()
+            configured = True
+        finally:
+            if not configured:  # failed, or out of time: as before it, to be tried again
+                mark.undo()
+                await robot.close()
+        self.robot, self.bridge, self.mark = robot, bridge, mark
         log.info(f"configured: boards {', '.join(f'{b}={u}' for b, u in self.ports.items())}"
                  + (" (emulated robot)" if robot.truth() is not None else ""))
         return TransitionCallbackReturn.SUCCESS
@@ -139,6 +174,16 @@ class _ManagedNode(LifecycleNode):
         await self._stop_running()
         self.robot.disable()
         self.get_logger().info("deactivated: boards disabled, publishing stopped")
+        return TransitionCallbackReturn.SUCCESS
+
+    async def _cleanup(self) -> TransitionCallbackReturn:
+        if self.bridge is None or self.robot is None or self.mark is None:
+            return TransitionCallbackReturn.FAILURE
+        await self._stop_running()
+        self.mark.undo()
+        await self.robot.close()
+        self.robot = self.bridge = self.mark = None
+        self.get_logger().info("cleaned up: boards closed, their parameters withdrawn")
         return TransitionCallbackReturn.SUCCESS
 
     async def _stop_running(self) -> None:

@@ -70,6 +70,7 @@ from fpgalink.protocol.urdf import FixedJoint, fixed_joints, robot_urdf
 from fpgalink.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.health import Status
 from fpgalink.robot.joints import SampleSets
+from fpgalink.robot.limits import LIMIT_SIGNS, AxisLimits, SpeedLimiter, check_limit
 from fpgalink.robot.supervision import State, StopReason
 from fpgalink.ros2.bag import NodeBag
 
@@ -90,6 +91,29 @@ CMD_VEL_TYPES = {False: "geometry_msgs/msg/Twist", True: "geometry_msgs/msg/Twis
 LATCHED = QoSProfile(depth=1, durability=DurabilityPolicy.TRANSIENT_LOCAL,
                      reliability=ReliabilityPolicy.RELIABLE)
 COVARIANCES = ("pose_covariance_diagonal", "twist_covariance_diagonal")
+#: diff_drive_controller's limited axes, and the limits each has beside max_velocity (NaN:
+#: not set; fpgalink.robot.limits says how the unset ones follow from the others).
+AXES = {"linear.x": "m", "angular.z": "rad"}
+LIMITS = {
+    "min_velocity": "the lowest velocity, ≤ 0, {u}/s (NaN: −max_velocity); a command "
+                    "beyond it is scaled keeping its curvature",
+    "max_acceleration": "> 0, {u}/s²: speeding up in the positive direction (NaN: no "
+                        "acceleration limit at all, whatever else is set)",
+    "max_deceleration": "< 0, {u}/s²: slowing down while positive (NaN: "
+                        "max_acceleration_reverse)",
+    "max_acceleration_reverse": "< 0, {u}/s²: speeding up in the negative direction (NaN: "
+                                "−max_acceleration)",
+    "max_deceleration_reverse": "> 0, {u}/s²: slowing down while negative (NaN: "
+                                "max_acceleration)",
+    "min_acceleration": "< 0, {u}/s², Jazzy before 4.18 (later deprecated): the lowest "
+                        "acceleration either way (NaN: not set)",
+    "max_jerk": "> 0, {u}/s³ (NaN: no jerk limit)",
+    "min_jerk": "< 0, {u}/s³ (NaN: −max_jerk)",
+}
+LIMIT_GROUPS = ("velocity", "acceleration", "jerk")
+#: The longest control step the limiter takes (s): a stalled node (or a board clock that
+#: started again) would otherwise make its whole stall one step.
+MAX_CONTROL_STEP_S = 0.1
 
 
 class BadOverride(Exception):
@@ -236,6 +260,19 @@ class RosBridge:
         self._unnamed_checks: dict[str, int] = {}
         self._name_clash_said = False
         self._goal: asyncio.Task[None] | None = None
+        #: diff_drive_controller's acceleration and jerk limits on cmd_vel: the command the
+        #: limiter leads the robot to, one control step (a set of samples) at a time, and
+        #: what the robot drove and why it last stopped when that began (either changed:
+        #: another command or a stop took over)
+        self._limiter = SpeedLimiter()
+        self._ramp: tuple[float, float] | None = None
+        self._ramp_owner: object = None
+        self._ramp_stop: object = None
+        self._wheel_refs_drove = False  #: since the last ramp began
+        self._step_t_us: int | None = None  #: the first board's sample time at the last step
+        self._file_limits = (robot.description.max_linear_speed,
+                             robot.description.max_angular_speed_rad)
+        self._said: set[str] = set()  #: warnings given once
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
         self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
@@ -376,6 +413,20 @@ class RosBridge:
         double("angular.z.max_velocity", description.max_angular_speed_rad, 0.001,
                description.max_angular_speed_rad,
                "the robot's turn rate limit, rad/s, at most the robot file's")
+        for axis, unit in AXES.items():
+            for group in LIMIT_GROUPS:
+                node.declare_parameter(f"{axis}.has_{group}_limits", True, ParameterDescriptor(
+                    type=ParameterType.PARAMETER_BOOL,
+                    description=f"deprecated in Jazzy (set the limits to NaN instead): false "
+                                f"ignores {axis}'s {group} limits" + (
+                                    " (max_velocity is then the robot file's)"
+                                    if group == "velocity" else "")))
+            for name, text in LIMITS.items():
+                # No floating_point_range: NaN (not set) is outside any; _check_parameters.
+                node.declare_parameter(f"{axis}.{name}", math.nan, ParameterDescriptor(
+                    type=ParameterType.PARAMETER_DOUBLE, description=text.format(u=unit),
+                    additional_constraints="a finite number of its sign, or NaN: not set "
+                                           "(diff_drive_controller's defaults, docs/ros2.md)"))
 
     def _value(self, name: str) -> Any:
         return self._node_values[name]
@@ -388,8 +439,16 @@ class RosBridge:
             return None
 
     def _check_parameters(self, parameters: list[Parameter]) -> SetParametersResult:
-        """What a descriptor cannot say: six finite covariances ≥ 0."""
+        """What a descriptor cannot say: six finite covariances ≥ 0; a limit of its sign,
+        or NaN."""
         for parameter in parameters:
+            axis, _, limit = parameter.name.rpartition(".")
+            value = parameter.value
+            if axis in AXES and limit in LIMIT_SIGNS and limit != "max_velocity" \
+                    and isinstance(value, float):
+                reason = check_limit(limit, value)
+                if reason is not None:
+                    return SetParametersResult(successful=False, reason=f"{axis}.{reason}")
             if parameter.name in COVARIANCES and parameter.value is not None:
                 values = list(parameter.value)
                 if len(values) != 6 or not all(math.isfinite(v) and v >= 0 for v in values):
@@ -504,10 +563,15 @@ class RosBridge:
             "use_stamped_vel", "publish_odom_tf", "joint_states_best_effort", "wheel_radius",
             "wheel_separation", "wheel_separation_multiplier", "pose_covariance_diagonal",
             "twist_covariance_diagonal", "linear.x.max_velocity", "angular.z.max_velocity",
-            "left_wheel_radius_multiplier", "right_wheel_radius_multiplier")}
+            "left_wheel_radius_multiplier", "right_wheel_radius_multiplier",
+            *(f"{axis}.{name}" for axis in AXES for name in LIMITS),
+            *(f"{axis}.has_{group}_limits" for axis in AXES for group in LIMIT_GROUPS))}
         values = self._node_values
-        limits = (float(values["linear.x.max_velocity"]),
-                  math.degrees(float(values["angular.z.max_velocity"])))
+        self._limiter.linear, self._limiter.angular = (
+            self._axis_limits(axis, file_limit)
+            for axis, file_limit in zip(AXES, self._file_limits, strict=True))
+        limits = (self._limiter.linear.max_velocity,
+                  math.degrees(self._limiter.angular.max_velocity))
         description = self.robot.description
         if limits != (description.max_linear_speed, description.max_angular_speed):
             # robot.drive reads them from its description on every command.
@@ -530,6 +594,47 @@ class RosBridge:
             link.connection.stale_periods = int(self._node_values["telemetry_timeout_periods"])
         if hasattr(self, "_sets"):
             self._sets.min_period = self._publish_period
+
+    def _axis_limits(self, axis: str, file_limit: float) -> AxisLimits:
+        """An axis's limits from its parameters: ``max_velocity`` is always there (the
+        robot file's without ``has_velocity_limits``); the ``has_*_limits`` of older
+        configurations (deprecated in Jazzy) drop the others, as there, said once."""
+        values = self._node_values
+        wanted = {name: float(values[f"{axis}.{name}"]) for name in LIMITS}
+        wanted["max_velocity"] = float(values[f"{axis}.max_velocity"])
+        for group, names in (("velocity", ("min_velocity",)),
+                             ("acceleration", ("max_acceleration", "max_deceleration",
+                                               "max_acceleration_reverse",
+                                               "max_deceleration_reverse",
+                                               "min_acceleration")),
+                             ("jerk", ("max_jerk", "min_jerk"))):
+            if not values[f"{axis}.has_{group}_limits"]:
+                self._say_once(f"{axis}.has_{group}_limits", f"{axis}.has_{group}_limits: "
+                               "deprecated in Jazzy (set the limits to NaN instead): "
+                               f"{axis}'s {group} limits ignored")
+                wanted.update(dict.fromkeys(names, math.nan))
+                if group == "velocity":
+                    wanted["max_velocity"] = file_limit
+        if not math.isnan(wanted["min_acceleration"]):
+            self._say_once(f"{axis}.min_acceleration", f"{axis}.min_acceleration: Jazzy "
+                           "before 4.18's name, deprecated there since: taken as the "
+                           "default of max_deceleration and max_acceleration_reverse")
+        unused = [name for name, needs in (
+            ("max_deceleration", "max_acceleration"),
+            ("max_acceleration_reverse", "max_acceleration"),
+            ("max_deceleration_reverse", "max_acceleration"),
+            ("min_acceleration", "max_acceleration"), ("min_jerk", "max_jerk"))
+            if not math.isnan(wanted[name]) and math.isnan(wanted[needs])]
+        for name in unused:
+            self._say_once(f"{axis}.{name} unused", f"{axis}.{name}: no effect without "
+                           f"{axis}.{'max_jerk' if 'jerk' in name else 'max_acceleration'} "
+                           "(as in diff_drive_controller)")
+        return AxisLimits(**wanted)
+
+    def _say_once(self, key: str, text: str) -> None:
+        if key not in self._said:
+            self._said.add(key)
+            self.log.warning(text)
 
     async def declare_board_parameters(self) -> None:
         """Every board parameter as a ROS parameter, its value read from the board; a value
@@ -640,12 +745,78 @@ class RosBridge:
         self._command(functools.partial(self._drive, v, omega), v == 0.0 and omega == 0.0)
 
     def _drive(self, v: float, omega: float) -> None:
-        command = self.robot.drive(v, omega)
+        v, omega = self._limiter.target(v, omega)  # min_velocity, keeping the curvature
+        if not self._limiter.rate_limited:
+            self._ramp = None
+            self._publish_driven(self.robot.drive(v, omega))
+            return
+        if self.robot.state is not State.ENABLED:
+            stop = self.robot.supervisor.last_stop
+            raise RobotStopped("the robot is not enabled" + (
+                f" ({stop.describe()})" if stop else ""), stop)
+        if self._ramp is None or not self._ramp_holds():
+            # From what the robot drives now (another command may have driven it): its body
+            # command, or after wheel_refs (no body command) the speeds measured.
+            driven = self.robot.command
+            if self._wheel_refs_drove:
+                state = self.robot.odometry_state
+                now = (state.v, state.omega)
+            else:
+                now = (driven.v, driven.omega) if driven is not None else (0.0, 0.0)
+            self._wheel_refs_drove = False
+            if now != self._limiter.last:
+                self._limiter.reset(*now)
+            self._ramp_owner, self._ramp_stop = driven, self.robot.supervisor.last_stop
+        self._ramp = (v, omega)  # followed at each control step (_control_step)
+
+    def _ramp_holds(self) -> bool:
+        """Nothing took the robot over since the limiter last drove it: no other command,
+        no stop."""
+        return (self.robot.command is self._ramp_owner
+                and self.robot.supervisor.last_stop is self._ramp_stop
+                and self.robot.state is State.ENABLED)
+
+    def _control_step(self, samples: dict[str, Telemetry], stamp_ns: int | None) -> None:
+        """One step of the limiter towards the cmd_vel it follows, once per set of samples
+        (at joint_state_rate, as diff_drive_controller steps at its controller manager's
+        update_rate), its time step on the first board's clock (the time the stamps are
+        on; the emulator's own for an emulated robot); what it drove said on cmd_vel_out
+        stamped as the set's joint_states (``stamp_ns``)."""
+        t_us = samples[self.robot.description.boards[0]].t_us
+        last, self._step_t_us = self._step_t_us, t_us
+        if self._ramp is None:
+            self._limiter.reset(*self._limiter.last)  # held: no acceleration left over
+            return
+        if not self._ramp_holds():
+            self._ramp = None  # a stop or another command: the next cmd_vel starts afresh
+            return
+        if last is None:
+            return
+        dt = min(((t_us - last) % BOARD_CLOCK_WRAP_US) / 1e6,
+                 max(MAX_CONTROL_STEP_S, 1.5 * self._publish_period))
+        before = self._limiter.last
+        v, omega = self._limiter.step(*self._ramp, dt)
+        if (v, omega) != before:  # else the boards have it already
+            try:
+                command = self.robot.drive(v, omega)
+            except FpgalinkError as exc:
+                self._ramp = None
+                self._throttled_warning("ramp", f"command ignored: {exc}")
+                return
+            # The robot's own limits (its wheels' top speed) may have scaled it.
+            self._limiter.follow(command.v, command.omega)
+            self._ramp_owner = command
+            self._publish_driven(command, stamp_ns)
+        if self._ramp == self._limiter.last == (0.0, 0.0):
+            self._ramp = None  # at rest: the next cmd_vel starts from here
+
+    def _publish_driven(self, command: Any, stamp_ns: int | None = None) -> None:
         if self.cmd_vel_out_pub is not None:
             # What the wheels were asked, after the limits (diff_drive_controller's
-            # publish_limited_velocity).
+            # publish_limited_velocity), stamped now or at its control step's samples.
             out = TwistStamped()
-            out.header.stamp = self.node.get_clock().now().to_msg()
+            out.header.stamp = self.node.get_clock().now().to_msg() if stamp_ns is None \
+                else _time_msg(stamp_ns)
             out.header.frame_id = self.frame(str(self._value("base_frame")))
             out.twist.linear.x, out.twist.angular.z = command.v, command.omega
             self.cmd_vel_out_pub.publish(out)
@@ -677,8 +848,10 @@ class RosBridge:
                 raise RobotStopped("the robot is not enabled")
             for board, (ref_a, ref_b) in references.items():
                 self.robot.links[board].set_references(ref_a, ref_b)
+            self._wheel_refs_drove = True
 
         self._cancel_goal()
+        self._ramp = None
         self._command(send, all(v == 0.0 for v in values))
 
     def _command(self, send: Callable[[], object], zero: bool) -> None:
@@ -741,14 +914,15 @@ class RosBridge:
         yaw = math.atan2(2.0 * (q.w * q.z + q.x * q.y), 1.0 - 2.0 * (q.y * q.y + q.z * q.z))
         has_heading = not (q.x == q.y == q.z == 0.0 and q.w in (0.0, 1.0))
         self._cancel_goal()
+        self._ramp = None
         self._goal = asyncio.ensure_future(self._go_to(p.x, p.y, yaw if has_heading else None))
 
     async def _go_to(self, x: float, y: float, theta: float | None) -> None:
         base = self.robot.goto_settings
         settings = dataclasses.replace(
             base, position_tolerance=float(self._value("goal_tolerance")),
-            max_speed=min(base.max_speed, float(self._value("linear.x.max_velocity"))),
-            max_turn_rate=min(base.max_turn_rate, float(self._value("angular.z.max_velocity"))))
+            max_speed=min(base.max_speed, self._limiter.linear.max_velocity),
+            max_turn_rate=min(base.max_turn_rate, self._limiter.angular.max_velocity))
         self.log.info(f"goal ({x:.2f}, {y:.2f}): going")
         try:
             pose = await self.robot.go_to(x, y, theta, timeout=120.0, settings=settings)
@@ -789,6 +963,7 @@ class RosBridge:
             for remove in self._removers:
                 remove()
             self._cancel_goal()
+            self._ramp = None
 
     def _log_link_event(self, board: str, event: LinkEvent) -> None:
         text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
@@ -817,6 +992,7 @@ class RosBridge:
                 stamp_ns = self._publish_joints(complete)
                 if stamp_ns is not None:
                     self._publish_odometry(self._odometry_stamp(complete, stamp_ns))
+                self._control_step(complete, stamp_ns)
 
     async def _supervision_log(self) -> None:
         async for event in self.robot.events():
@@ -968,8 +1144,11 @@ class RosBridge:
                     and self.loop.time() - at > timeout
                     and (self._goal is None or self._goal.done())):
                 self.log.warning(f"no cmd_vel or wheel_refs for {timeout:g} s: wheels to rest")
-                with contextlib.suppress(FpgalinkError):
-                    self.robot.stop()
+                if self._ramp is not None and self._limiter.rate_limited:
+                    self._ramp = (0.0, 0.0)  # braking within the limits, as diff_drive_controller
+                else:
+                    with contextlib.suppress(FpgalinkError):
+                        self.robot.stop()
                 self._command_is_zero = True
 
     async def _diagnostics_loop(self) -> None:
