@@ -512,7 +512,7 @@ def fault_scenario(peer: Peer) -> None:
 
 def _fault_run(peer: Peer, check: str, body: Any) -> None:
     at = FAULT_AT_S
-    for attempt in range(3):
+    for attempt in range(5):  # a loaded machine may stop the robot before the fault
         fault = (f"L:restart={at:g}" if check == "restart" else f"R:tm-loss={at:g}:1")
         run = FaultRun(peer, fault, at)
         try:
