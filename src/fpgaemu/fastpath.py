@@ -29,10 +29,9 @@ see docs/emulator.md.
 
 from __future__ import annotations
 
-from math import copysign, floor, radians
+from math import floor, radians
 from typing import TYPE_CHECKING
 
-from fpgaemu.encoder import SPEED_TIMEOUT_CYCLES
 from fpgaemu.motor import GEAR_RATIO, MAX_DUTY, PHYSICS_STEP_CYCLES, DrivenMotors, Motors
 from fpgaemu.timeline import CLOCK_HZ, us
 from fpgaemu.uart import ByteRun
@@ -70,7 +69,7 @@ class FusedTick:
         self._motors: Motors | None = None
         #: the motors, of either kind, whose ``advance_to`` is each PWM stage's listener
         self._wheels: Motors | DrivenMotors | None = None
-        #: ticks done fused, and ticks a stage gave to its module (for the benchmark)
+        #: ticks done here (the rest went to the firmware's own tick)
         self.fused = 0
 
     def _wire(self) -> None:
@@ -108,31 +107,7 @@ class FusedTick:
         for ch, io in self._channels:
             encoder = io.encoder
             pwm = io.pwm
-            # SpeedReader.sample, written out
-            reader = encoder.firmware_reader
-            counts = encoder.counts_per_turn
-            if counts <= 0:
-                speed = 0.0
-            else:
-                deg_per_count = 360.0 / counts
-                last = encoder._last_edge_cycle
-                if last is None or reader.cycle is None:
-                    reader.speed = 0.0
-                elif last > reader.cycle:
-                    count = encoder._count
-                    reader.speed = ((count - reader.count) * deg_per_count * CLOCK_HZ
-                                    / (last - reader.cycle))
-                    reader.count = count
-                    reader.cycle = last
-                else:
-                    since = cycle - last
-                    if since > SPEED_TIMEOUT_CYCLES:
-                        reader.speed = 0.0
-                    elif since > 0:
-                        bound = deg_per_count * CLOCK_HZ / since
-                        if abs(reader.speed) > bound:
-                            reader.speed = copysign(bound, reader.speed)
-                speed = reader.speed * encoder.direction
+            speed = encoder.firmware_reader.sample(cycle)
             ch.speed = speed
             # QuadratureEncoder.position, written out
             value = (encoder._count * encoder.direction) & 0xFFFF_FFFF
