@@ -381,6 +381,7 @@ class Connection:
         #: a restart's resync: what is still to set, the request in flight, the outcome
         self._resync: deque[tuple[Param, int, int | float]] | None = None
         self._resync_request: int | None = None
+        self._resync_sent_at = 0.0
         self._resync_applied = 0
         self._resync_failed: list[tuple[str, FpgalinkError]] = []
         #: the board was out of reach since then (``where``: "" or on the reconnected
@@ -428,6 +429,10 @@ class Connection:
             self._trim_events()
         if self.liveness is Liveness.ALIVE:
             self._last_heard = now
+            if self._resync is not None and self._resync_request is None and not self._verify:
+                # Heard going on after a silence paused the resync: it goes on from the
+                # setting it was at (whether that one took is not known).
+                self._resync_next(now)
 
     def _mixed(self, items: list[bytes | FramingError], now: float) -> None:
         """Items that are not all TM: runs of TM-sized frames long enough to gain go a run at
@@ -870,6 +875,7 @@ class Connection:
         if queue:
             param, channel, value = queue.popleft()
             self._resync_request = self.set_param(param, channel, value, now)
+            self._resync_sent_at = now
             return
         self._resync = self._resync_request = None
         failed = tuple(self._resync_failed)
@@ -1115,8 +1121,15 @@ class Connection:
         if request.request_id == self._probe:
             self._probe = None
         if request.request_id == self._resync_request:
-            if outcome is Outcome.FAIL_LINK:
-                self._resync = self._resync_request = None  # again when the board is back
+            heard = self._last_heard
+            if outcome is Outcome.FAIL_LINK or (
+                    outcome is Outcome.FAIL_TIMEOUT
+                    and (heard is None or heard <= self._resync_sent_at)):
+                # The board went silent (or its port): paused, not given up. It goes on when
+                # the board is heard going on (restarted again meanwhile, it starts over).
+                if self._resync is not None and request.value is not None:
+                    self._resync.appendleft((request.param, request.channel, request.value))
+                self._resync_request = None
             else:
                 self._resync_failed.append((request.param.full_name(request.channel), error))
                 self._resync_next(now)

@@ -204,6 +204,95 @@ def test_a_parameter_that_fails_to_be_set_again_is_named() -> None:
     assert host.stats.resync_failures == 1
 
 
+
+@pytest.mark.parametrize("interruption", ["silence", "port"])
+def test_a_resync_interrupted_by_a_silence_goes_on_when_the_board_is_back(
+        interruption: str) -> None:
+    # A loaded machine's emulator (or a noisy cable) answers the resync's second set only
+    # after the liveness timeout: the board is lost mid-resync. Heard again going on (no
+    # second restart), the resync goes on from that set; done, it says so. (It was dropped:
+    # the robot stayed "restarted: reconfiguring" for good.)
+    host, board, _ = configured()
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)
+    list(host.events())
+    host.receive_data(board.answer(host.data_to_send()), 0.06)  # the first set, done
+    late = board.answer(host.data_to_send())  # the second one's answer, held up
+    assert late and host.resyncing
+    if interruption == "silence":
+        host.handle_timer(0.06 + host.liveness_timeout)
+    else:
+        host.port_lost(0.1, "unplugged")
+        host.reconnected(0.2)
+    events = list(host.events())
+    assert any(isinstance(e, RequestFailed) for e in events)
+    assert host.resyncing and not any(isinstance(e, BoardResynced) for e in events)
+    host.receive_data(late, 0.9)  # heard again: its counter going on
+    events = list(host.events()) + exchange(host, board, 0.91)
+    assert any(isinstance(e, BoardBack) for e in events)
+    assert not any(isinstance(e, BoardRestarted) for e in events)
+    (done,) = [e for e in events if isinstance(e, BoardResynced)]
+    assert done.ok and done.applied == 3  # the first set, then the second again, the third
+    assert board.values == {(8, 1): pytest.approx(400.0), (6, 2): 1000, (2, 0): 1}
+    assert not host.resyncing
+
+
+def test_a_resync_set_unanswered_while_nothing_is_heard_waits_for_the_board() -> None:
+    # Its tries run out (8 × 50 ms) before the liveness timeout (0.7 s) with nothing heard
+    # at all: a silence, not a refusal. Heard again (its answers, late), it goes on.
+    host, board, _ = configured()
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)
+    list(host.events())
+    late = b""
+    now = 0.05
+    while now < 0.5:
+        late += board.answer(host.data_to_send())
+        now += 0.01
+        host.handle_timer(now)
+    events = list(host.events())
+    assert any(isinstance(e, RequestFailed) for e in events)
+    assert host.resyncing and not any(isinstance(e, BoardResynced) for e in events)
+    assert host.stats.resync_failures == 0
+    host.receive_data(late, 0.55)
+    events = list(host.events()) + exchange(host, board, 0.56)
+    (done,) = [e for e in events if isinstance(e, BoardResynced)]
+    assert done.ok and done.applied == 3
+    assert board.values == {(8, 1): pytest.approx(400.0), (6, 2): 1000, (2, 0): 1}
+    # A board heard all along that does not answer one set is that set's failure.
+    host, board, _ = configured()
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)
+    list(host.events())
+    now = 0.05
+    while now < 1.4:
+        host.data_to_send()  # unanswered...
+        host.receive_data(board.send(ParamAck(1, 0, 1, 1)), now)  # ...while it says things
+        now += 0.01
+        host.handle_timer(now)
+    (done,) = [e for e in host.events() if isinstance(e, BoardResynced)]
+    assert [name for name, _ in done.failed] == [
+        "Kp_Wheel_PidA", "IncSenzResB", "GetDataPeriodical"]
+
+
+def test_a_board_restarting_again_during_a_paused_resync_is_set_up_from_the_start() -> None:
+    host, board, _ = configured()
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.05)
+    list(host.events())
+    host.receive_data(board.answer(host.data_to_send()), 0.06)
+    host.data_to_send()  # the second set: never answered
+    host.handle_timer(0.06 + host.liveness_timeout)
+    list(host.events())
+    board.power_cycle()
+    host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.9)
+    events = list(host.events()) + exchange(host, board, 0.91)
+    assert [e.evidence for e in events if isinstance(e, BoardRestarted)] == [
+        RestartEvidence.COUNTER_RESET]
+    (done,) = [e for e in events if isinstance(e, BoardResynced)]
+    assert done.ok and done.applied == 3
+    assert board.values == {(8, 1): pytest.approx(400.0), (6, 2): 1000, (2, 0): 1}
+
 # --- the watchdog -----------------------------------------------------------------------------
 
 

@@ -25,7 +25,7 @@ from collections.abc import AsyncIterator, Callable, Mapping
 from typing import Any
 
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open_link
-from fpgalink.errors import FpgalinkError
+from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
 from fpgalink.events import BoardResynced, Event, RequestDone, WatchdogLapsed
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
@@ -58,6 +58,9 @@ SETTLED_SPEED = 0.005
 SETTLED_TURN = math.radians(0.5)
 #: How long :meth:`Robot.start` waits for every board to be heard.
 START_TIMEOUT_S = 5.0
+#: A restarted board's read-back it did not answer is asked again this often (s) while it
+#: is heard: a late answer (a loaded machine) or a silence must not leave it blocked.
+_READ_BACK_RETRY_S = 0.1
 
 
 class RobotError(FpgalinkError):
@@ -121,6 +124,8 @@ class Robot:
         self._stale: dict[str, str] = {}
         #: boards heard again after a silence, not yet known whether they restarted
         self._checking: set[str] = set()
+        #: restarts seen per board: a read-back still trying belongs to the newest only
+        self._restarts: dict[str, int] = {}
         #: encoder counts each wheel had before its board's restarts (joint angles go on)
         self._count_offset: dict[tuple[str, int], int] = {}
         #: the exception that stopped the robot for good, if one did
@@ -404,6 +409,7 @@ class Robot:
         for its link to set again what it holds."""
         self._checking.discard(name)
         self._reconfiguring.add(name)
+        self._restarts[name] = self._restarts.get(name, 0) + 1
         self._stale.pop(name, None)
         latest = self.latest.pop(name, None)
         if latest is not None:
@@ -418,17 +424,26 @@ class Robot:
 
     async def _reconfigured(self, name: str, link: Link, resynced: BoardResynced) -> None:
         """The link set again what it holds: read back what odometry and joint states use,
-        then the board is ready (or says why not)."""
+        then the board is ready (or says why not). A read-back the board does not answer
+        (silent meanwhile, or answering late) is asked again once it is heard."""
         with self._guarded(f"reconfiguring board {name}"):
+            restart = self._restarts.get(name, 0)
             failure = None if resynced.ok else resynced.describe()
-            if failure is None:
+            said = False
+            while failure is None:
                 try:
-                    for wheel in self.description.wheels:
-                        if wheel.board == name:
-                            self._set_resolution(name, wheel.channel, int(
-                                await link.get_param("IncSenzRes", wheel.channel)))
-                            self.torque_coef[(name, wheel.channel)] = float(
-                                await link.get_param("TorqueCoef", wheel.channel))
+                    await self._read_back(name, link)
+                    break
+                except (BoardLost, RequestTimeout) as exc:
+                    if not said:
+                        said = True
+                        self._carry_out(self.supervisor.board_fault(
+                            name, Fault.RESTARTED, self._now(),
+                            f"restarted: reading back after the restart: {exc} "
+                            f"(asked again when it answers)"))
+                    await self._heard(link, _READ_BACK_RETRY_S)
+                    if self._restarts.get(name, 0) != restart:
+                        return  # restarted again: that restart's resync reads back
                 except (FpgalinkError, ValueError) as exc:
                     failure = f"reading back after the restart: {exc}"
             now = self._now()
@@ -436,9 +451,24 @@ class Robot:
                 self._carry_out(self.supervisor.board_fault(
                     name, Fault.RESTARTED, now, f"restarted: {failure}"))
                 return
-            if name in self._reconfiguring:
+            if name in self._reconfiguring and self._restarts.get(name, 0) == restart:
                 self._reconfiguring.discard(name)
                 self._board_recovered(name, resynced.describe(), now)
+
+    async def _read_back(self, name: str, link: Link) -> None:
+        for wheel in self.description.wheels:
+            if wheel.board == name:
+                self._set_resolution(name, wheel.channel, int(
+                    await link.get_param("IncSenzRes", wheel.channel)))
+                self.torque_coef[(name, wheel.channel)] = float(
+                    await link.get_param("TorqueCoef", wheel.channel))
+
+    @staticmethod
+    async def _heard(link: Link, pause: float) -> None:
+        """After ``pause``, once the board answers and is not being checked for a restart."""
+        await asyncio.sleep(pause)
+        while not link.board_alive or link.connection.verifying:
+            await asyncio.sleep(pause)
 
     def _board_recovered(self, name: str, detail: str, now: float) -> None:
         """One of the board's faults cleared: ready again once none is left."""

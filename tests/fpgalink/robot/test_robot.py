@@ -312,3 +312,66 @@ async def test_a_loop_blocked_past_the_deadman_is_not_a_caller_that_stopped_rene
             if event.state is State.DISABLED:
                 break
         assert event.reason is StopReason.DEADMAN, event
+
+
+class _HeldReads(asyncio.Protocol):
+    """Stands between a port and its link: while ``held``, what the board sends waits, as in
+    a host that stopped reading that port (or a starved emulator's pty); released, it all
+    arrives at once, late."""
+
+    def __init__(self, inner: asyncio.Protocol) -> None:
+        self.inner, self.held, self.waiting = inner, False, bytearray()
+
+    def data_received(self, data: bytes) -> None:
+        if self.held:
+            self.waiting += data
+        else:
+            self.inner.data_received(data)
+
+    def release(self) -> None:
+        self.held = False
+        data, self.waiting = bytes(self.waiting), bytearray()
+        if data:
+            self.inner.data_received(data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+@pytest.mark.parametrize("held_from", [LinkEventKind.BOARD_RESTARTED,
+                                       LinkEventKind.BOARD_RESYNCED])
+async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigured(
+        held_from: LinkEventKind) -> None:
+    # L restarts at 1.5 s; from the moment its link sets it up again (or reads it back), its
+    # answers reach this host 1 s late: past the liveness timeout, so L is lost mid-way, then
+    # heard going on (no second restart). What was interrupted goes on; the robot drives
+    # again. (It stayed "restarted: reconfiguring" for good on a loaded machine: the late
+    # answer made the board "back" and the link had dropped the rest of its resync.)
+    async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
+        link = robot.links["L"]
+        transport = link._transport  # the port's far end is here
+        assert transport is not None
+        held = _HeldReads(transport._protocol)  # type: ignore[attr-defined]
+        transport._protocol = held  # type: ignore[attr-defined]
+        seen: list[LinkEventKind] = []
+        loop = asyncio.get_running_loop()
+
+        def on_event(event: LinkEvent) -> None:
+            seen.append(event.kind)
+            if event.kind is held_from and not held.waiting and seen.count(held_from) == 1:
+                held.held = True
+                loop.call_later(1.0, held.release)
+
+        link.on_event(on_event)
+        await drive_until(robot, lambda: LinkEventKind.BOARD_BACK in seen, "L lost and back")
+        assert seen.count(LinkEventKind.BOARD_RESTARTED) == 1
+        assert LinkEventKind.BOARD_LOST in seen
+        x = robot.pose.x
+        await drive_until(robot, lambda: not robot.supervisor.blocked and robot.pose.x > x + 0.1,
+                          "driving again after L's reconfiguration")
+        assert seen.count(LinkEventKind.BOARD_RESTARTED) == 1
+        assert seen.count(LinkEventKind.BOARD_RESYNCED) == 1  # a paused resync goes on
+        statuses = {s.name: s for s in robot.health()}
+        assert statuses["board L"].level.name == "OK", statuses["board L"]
+        assert firmware(robot, "L").value("GetDataPeriodical") == 1
+        robot.disable()
