@@ -150,9 +150,8 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
                 try:
                     result = future.result()
                 except concurrent.futures.process.BrokenProcessPool:
-                    result = Result(scenario.index, scenario.name, "failed", {},
-                                    "its worker process died (killed, or out of memory)",
-                                    grid=scenario.grid)
+                    result = _lost(scenario, paths[scenario.index],
+                                   "its worker process died (killed, or out of memory)")
                     pools[slot].shutdown(wait=False)
                     pools[slot] = _pool(1, context)
                 start(slot)
@@ -163,6 +162,17 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
         for pool in pools:
             _stop(pool)
         raise
+
+
+def _lost(scenario: Scenario, mcap: str | None, why: str) -> Result:
+    """A scenario whose worker never returned: failed, and its recording, if it asked for
+    one, said unfinished (the file, where this machine sees it, holds what was written up to
+    the death, readable without its summary; on a cluster it is on the worker's machine)."""
+    if mcap is None:
+        return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid)
+    return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid,
+                  mcap=mcap if os.path.exists(mcap) else None,
+                  mcap_error=f"not finished: {why}")
 
 
 def _on_dask(scenarios: Sequence[Scenario], paths: dict[int, str | None], address: str,
@@ -193,9 +203,8 @@ def _on_dask(scenarios: Sequence[Scenario], paths: dict[int, str | None], addres
             if isinstance(outcome, Result):
                 yield outcome
             else:  # the worker died or the scheduler gave up on the task
-                yield Result(scenario.index, scenario.name, "failed", {},
-                             f"dask: {type(outcome).__name__}: {outcome}".splitlines()[0],
-                             grid=scenario.grid)
+                yield _lost(scenario, paths[scenario.index],
+                            f"dask: {type(outcome).__name__}: {outcome}".splitlines()[0])
     finally:
         client.close()
         if cluster is not None:

@@ -294,10 +294,13 @@ def _score(row: dict[str, Any]) -> tuple[float, float, float]:
 @click.option("--dask", metavar="ADDRESS")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="Save the figures of every combination as a PNG.")
+@click.option("--mcap", "mcap_dir", type=click.Path(file_okay=False, path_type=Path),
+              help="Record every combination's step into this directory as INDEX-NAME.mcap "
+                   "(telemetry, events and the truth in emulated time).")
 @format_option
 def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, target: float,
          seconds: float, jobs: int | None, dask: str | None, plot: Path | None,
-         fmt: str) -> None:
+         mcap_dir: Path | None, fmt: str) -> None:
     """Pick the wheel PID gains that settle a step soonest, from a grid.
 
     Every wheel steps with each combination of gains set on CHANNEL of every board; the
@@ -315,13 +318,19 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
     for scenario in scenarios:
         scenario["script"] = [{"step": target, "wheel": channel, "seconds": seconds,
                                "label": "step"}]
-    document = {"campaign": {"name": f"tune {channel}", "surface": surface, "body": body},
+    document = {"campaign": {"name": f"tune {channel}", "surface": surface, "body": body,
+                             "mcap": mcap_dir is not None},
                 "scenario": scenarios}
     try:
         spec = parse_campaign(document, source="tune")
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
-    results = _run(spec, jobs, dask, quiet=fmt != "table")
+    if mcap_dir is not None:
+        try:  # before the first combination, not after the last
+            mcap_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise CliError(f"--mcap {mcap_dir}: {exc.strerror or exc}") from None
+    results = _run(spec, jobs, dask, quiet=fmt != "table", mcap_dir=mcap_dir)
     table = rows(results)
     for row in table:
         row["kp"], row["ti"], row["td"] = (row.get(f"{name}{channel}")
@@ -344,6 +353,12 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
         _tune_plot(plot, table, channel)
     if best is None:
         raise CliError("no combination ran: see the failures above", ExitCode.FAILURE)
+    if mcap_dir is not None:
+        unrecorded = sum(r.mcap_error is not None for r in results)
+        if unrecorded:
+            raise CliError(f"{unrecorded} of {len(results)} recording(s) failed",
+                           ExitCode.FAILURE)
+        note(f"wrote {len(results)} recording(s) (INDEX-NAME.mcap) into {mcap_dir}")
 
 
 def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str) -> None:

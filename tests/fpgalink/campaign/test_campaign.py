@@ -305,11 +305,12 @@ def test_a_failed_scenario_makes_the_campaign_exit_1(tmp_path: Path) -> None:
 
 
 def test_tune_picks_the_gains_that_settle_soonest(tmp_path: Path) -> None:
-    plot = tmp_path / "tune.png"
+    plot, recordings = tmp_path / "tune.png", tmp_path / "steps"
     done = run_cli("tune", "--channel", "A", "--grid", "Kp=100,520", "--grid", "Ti=0.24",
                    "--seconds", "1.5", "--jobs", "1", "--format", "json", "--plot", str(plot),
-                   timeout=300)
+                   "--mcap", str(recordings), timeout=300)
     assert done.returncode == 0, done.stderr
+    assert "wrote 3 recording(s)" in done.stderr
     rows = json.loads(done.stdout)
     assert [r["scenario"] for r in rows] == ["seed §3.4", "grid", "grid"]
     assert rows[0]["kp"] == 2502.0 and rows[0]["best"] is False  # the reference row
@@ -319,13 +320,26 @@ def test_tune_picks_the_gains_that_settle_soonest(tmp_path: Path) -> None:
     assert slow["step.settling_s"] is None or slow["step.settling_s"] > \
         best[0]["step.settling_s"]
     assert plot.stat().st_size > 1000
+    # Each combination's step recorded, its gains in the file as set on the board.
+    files = sorted(recordings.iterdir())
+    assert [f.name for f in files] == ["0-seed_3.4.mcap", "1-grid.mcap", "2-grid.mcap"]
+    for path, row in zip(files, rows, strict=True):
+        messages, _ = _read_mcap(path)
+        assert len(_on(messages, "/board/L/telemetry")) > 1000
+        kp = [p["value"] for p in _on(messages, "/board/L/params")
+              if p["name"] == "Kp_Wheel_PidA" and p["status"] == "in_force"]
+        assert kp and kp[-1] == pytest.approx(row["kp"]), path
 
 
-def test_tune_refuses_a_bad_grid() -> None:
+def test_tune_refuses_a_bad_grid_or_recording_directory(tmp_path: Path) -> None:
     for grid in ("Kq=1", "Kp=", "Kp=a,b", "Kp=inf"):
         done = run_cli("tune", "-c", "A", "-g", grid)
         assert done.returncode == 2, (grid, done.stderr)
         assert "--grid" in done.stderr and "Traceback" not in done.stderr
+    (tmp_path / "file").write_text("")
+    done = run_cli("tune", "-c", "A", "-g", "Kp=520", "--mcap", str(tmp_path / "file" / "x"))
+    assert done.returncode != 0 and "--mcap" in done.stderr
+    assert "Traceback" not in done.stderr and len(done.stderr.strip().splitlines()) == 1
 
 
 def _children(pid: int) -> set[int]:
@@ -444,7 +458,7 @@ def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> No
     assert topics.count("/board/L/telemetry") > 1000 and "/robot/truth" in topics
 
 
-def test_a_worker_that_dies_costs_only_its_scenario() -> None:
+def test_a_worker_that_dies_costs_only_its_scenario(tmp_path: Path) -> None:
     import os
     import signal
     import time
@@ -454,11 +468,11 @@ def test_a_worker_that_dies_costs_only_its_scenario() -> None:
     campaign = parse_campaign({
         "campaign": {"body": "kinematic"},
         "grid": {"seed": [0, 1]},
-        "scenario": [{"name": "long", "script": [{"wait": 3600}]},
+        "scenario": [{"name": "long", "mcap": True, "script": [{"wait": 3600}]},
                      {"name": "short", "script": [{"wait": 0.2}]}]})
     # The two long scenarios take both workers first (an emulated hour each): kill those
     # workers while they run; the short ones then run on the workers started again.
-    gen = iter_results(campaign.scenarios, jobs=2)
+    gen = iter_results(campaign.scenarios, jobs=2, mcap_dir=tmp_path)
 
     def kill_workers() -> None:
         deadline = time.monotonic() + 120
@@ -485,6 +499,13 @@ def test_a_worker_that_dies_costs_only_its_scenario() -> None:
     assert sorted(by_name["long"]) == ["failed", "failed"]
     assert by_name["short"] == ["ok", "ok"]
     assert all("worker process died" in (r.error or "") for r in results if not r.ok)
+    # The recordings they had begun are said unfinished (there, if they were begun).
+    for r in results:
+        if r.ok:
+            assert r.mcap is None and r.mcap_error is None
+        else:
+            assert (r.mcap_error or "").startswith("not finished: its worker process died")
+            assert r.mcap is None or (Path(r.mcap).exists() and Path(r.mcap).parent == tmp_path)
 
 
 def test_figures_are_over_the_seconds_asked_even_between_control_periods() -> None:
