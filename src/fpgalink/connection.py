@@ -137,6 +137,10 @@ WATCHDOG_S = 0.3
 #: same run (a sample buffered before this host read it, the host's own timer lateness).
 _CLOCK_SLACK_S = 0.1
 _CLOCK_SLACK_SHARE = 0.1
+#: A setting a restart's resync sets again is asked this many more times when unanswered
+#: (each time with the request's own tries) before it counts as failed: answers that come
+#: later than one request's tries (a loaded machine) still confirm it.
+_RESYNC_ROUNDS = 4
 #: The two parameters that say whether, and how often, the board sends telemetry.
 _GET_DATA = lookup("GetDataPeriodical")
 _PERIOD = lookup("TsTimerPeriod")
@@ -381,7 +385,7 @@ class Connection:
         #: a restart's resync: what is still to set, the request in flight, the outcome
         self._resync: deque[tuple[Param, int, int | float]] | None = None
         self._resync_request: int | None = None
-        self._resync_sent_at = 0.0
+        self._resync_rounds = 0  #: the setting being set again: times it went unanswered
         self._resync_applied = 0
         self._resync_failed: list[tuple[str, FpgalinkError]] = []
         #: the board was out of reach since then (``where``: "" or on the reconnected
@@ -856,12 +860,21 @@ class Connection:
         self._period = self._seen_period = None
         self.telemetry_stale = False
         self._drop_probe()
+        self.resync(now)
+
+    def resync(self, now: float) -> None:
+        """Set again, one at a time, every parameter this side holds, as after a restart
+        (done by itself then); :class:`~fpgalink.events.BoardResynced` says how it went.
+        The caller asks for it again after one that failed for want of answers."""
+        if self._resync_request is not None:
+            self._requests.pop(self._resync_request, None)
         # The wire CRC first (every later message then carries it, as before), telemetry
         # last, so the stream comes back from a board configured as before.
         settings = sorted(self.held.values(),
                           key=lambda held: (held[0] is _GET_DATA) - (held[0] is _WIRE_CRC))
         self._resync = deque(settings)
         self._resync_request = None
+        self._resync_rounds = 0
         self._resync_applied = 0
         self._resync_failed = []
         self._resync_next(now)
@@ -875,7 +888,6 @@ class Connection:
         if queue:
             param, channel, value = queue.popleft()
             self._resync_request = self.set_param(param, channel, value, now)
-            self._resync_sent_at = now
             return
         self._resync = self._resync_request = None
         failed = tuple(self._resync_failed)
@@ -1121,18 +1133,28 @@ class Connection:
         if request.request_id == self._probe:
             self._probe = None
         if request.request_id == self._resync_request:
-            heard = self._last_heard
-            if outcome is Outcome.FAIL_LINK or (
-                    outcome is Outcome.FAIL_TIMEOUT
-                    and (heard is None or heard <= self._resync_sent_at)):
-                # The board went silent (or its port): paused, not given up. It goes on when
-                # the board is heard going on (restarted again meanwhile, it starts over).
-                if self._resync is not None and request.value is not None:
-                    self._resync.appendleft((request.param, request.channel, request.value))
-                self._resync_request = None
+            self._resync_request = None
+            setting = (request.param, request.channel, request.value)
+            if outcome is Outcome.FAIL_LINK:
+                # The board went silent (or its port): paused, not given up. It goes on
+                # when the board is heard going on (restarted again meanwhile, it starts
+                # over).
+                self._requeue(setting)
+            elif outcome is Outcome.FAIL_TIMEOUT and self._resync_rounds < _RESYNC_ROUNDS:
+                # Unanswered is not refused: asked again at once, so an answer that comes
+                # late (a loaded machine, a slow line) confirms the new request.
+                self._resync_rounds += 1
+                self._requeue(setting)
+                self._resync_next(now)
             else:
+                self._resync_rounds = 0
                 self._resync_failed.append((request.param.full_name(request.channel), error))
                 self._resync_next(now)
+
+    def _requeue(self, setting: tuple[Param, int, int | float | None]) -> None:
+        param, channel, value = setting
+        if self._resync is not None and value is not None:
+            self._resync.appendleft((param, channel, value))
 
     def _done(self, request: _Request, value: int | float, now: float) -> None:
         """A request confirmed ``value``: the configuration held, the telemetry expected,
@@ -1153,6 +1175,7 @@ class Connection:
                 self._back()
         elif request.request_id == self._resync_request:
             self._resync_applied += 1
+            self._resync_rounds = 0
             self._resync_next(now)
 
     def _settle_all(self, error: FpgalinkError) -> None:

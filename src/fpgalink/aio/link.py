@@ -360,6 +360,14 @@ class Link:
         self.connection.disable(self._now())
         self._flush()
 
+    def resync(self) -> None:
+        """Set again every parameter this link holds, as after a restart (done by itself
+        then): for a resync that failed for want of answers. ``BOARD_RESYNCED`` says how it
+        went."""
+        self._ensure_connected()
+        self.connection.resync(self._now())
+        self._flush()
+
     @property
     def enabled(self) -> bool:
         return self.connection.enabled

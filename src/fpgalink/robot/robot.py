@@ -424,25 +424,24 @@ class Robot:
 
     async def _reconfigured(self, name: str, link: Link, resynced: BoardResynced) -> None:
         """The link set again what it holds: read back what odometry and joint states use,
-        then the board is ready (or says why not). A read-back the board does not answer
-        (silent meanwhile, or answering late) is asked again once it is heard."""
+        then the board is ready (or says why not). What the board left unanswered (silent
+        meanwhile, or answering late) is asked again once it is heard: a resync that failed
+        only for that, and the read-back."""
         with self._guarded(f"reconfiguring board {name}"):
             restart = self._restarts.get(name, 0)
             failure = None if resynced.ok else resynced.describe()
-            said = False
-            while failure is None:
+            if failure is not None and all(isinstance(error, RequestTimeout | BoardLost)
+                                           for _, error in resynced.failed):
+                self._carry_out(self.supervisor.board_fault(
+                    name, Fault.RESTARTED, self._now(),
+                    f"restarted: {failure} (set again when it answers)"))
+                await self._heard(link, _READ_BACK_RETRY_S)
+                if self._restarts.get(name, 0) == restart and name in self._reconfiguring:
+                    link.resync()  # its BOARD_RESYNCED comes back here
+                return
+            if failure is None:
                 try:
-                    await self._read_back(name, link)
-                    break
-                except (BoardLost, RequestTimeout) as exc:
-                    if not said:
-                        said = True
-                        self._carry_out(self.supervisor.board_fault(
-                            name, Fault.RESTARTED, self._now(),
-                            f"restarted: reading back after the restart: {exc} "
-                            f"(asked again when it answers)"))
-                    await self._heard(link, _READ_BACK_RETRY_S)
-                    if self._restarts.get(name, 0) != restart:
+                    if not await self._read_back(name, link, restart):
                         return  # restarted again: that restart's resync reads back
                 except (FpgalinkError, ValueError) as exc:
                     failure = f"reading back after the restart: {exc}"
@@ -455,18 +454,43 @@ class Robot:
                 self._reconfiguring.discard(name)
                 self._board_recovered(name, resynced.describe(), now)
 
-    async def _read_back(self, name: str, link: Link) -> None:
+    async def _read_back(self, name: str, link: Link, restart: int) -> bool:
+        """Read back each wheel's resolution and torque coefficient, each asked again until
+        the board answers it (False: the board restarted again meanwhile)."""
         for wheel in self.description.wheels:
             if wheel.board == name:
-                self._set_resolution(name, wheel.channel, int(
-                    await link.get_param("IncSenzRes", wheel.channel)))
-                self.torque_coef[(name, wheel.channel)] = float(
-                    await link.get_param("TorqueCoef", wheel.channel))
+                for param in ("IncSenzRes", "TorqueCoef"):
+                    value = await self._read_one(name, link, param, wheel.channel, restart)
+                    if value is None:
+                        return False
+                    if param == "IncSenzRes":
+                        self._set_resolution(name, wheel.channel, int(value))
+                    else:
+                        self.torque_coef[(name, wheel.channel)] = float(value)
+        return True
+
+    async def _read_one(self, name: str, link: Link, param: str, channel: int, restart: int
+                        ) -> int | float | None:
+        said = False
+        while True:
+            try:
+                return await link.get_param(param, channel)
+            except (BoardLost, RequestTimeout) as exc:
+                if not said:
+                    said = True
+                    self._carry_out(self.supervisor.board_fault(
+                        name, Fault.RESTARTED, self._now(),
+                        f"restarted: reading back after the restart: {exc} "
+                        f"(asked again when it answers)"))
+                await self._heard(link, _READ_BACK_RETRY_S)
+                if self._restarts.get(name, 0) != restart:
+                    return None
 
     @staticmethod
     async def _heard(link: Link, pause: float) -> None:
-        """After ``pause``, once the board answers and is not being checked for a restart."""
-        await asyncio.sleep(pause)
+        """Once the board answers and is not being checked for a restart: at once if it
+        does (a request asked again at once is confirmed by a late answer to the last),
+        else looked at every ``pause``."""
         while not link.board_alive or link.connection.verifying:
             await asyncio.sleep(pause)
 

@@ -375,3 +375,51 @@ async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigur
         assert statuses["board L"].level.name == "OK", statuses["board L"]
         assert firmware(robot, "L").value("GetDataPeriodical") == 1
         robot.disable()
+
+
+class _LateReads(asyncio.Protocol):
+    """Stands between a port and its link: everything the board sends arrives ``delay``
+    late, as from a starved emulator's or node's process, or a slow line."""
+
+    def __init__(self, inner: asyncio.Protocol, delay: float) -> None:
+        self.inner, self.delay = inner, delay
+        self.loop = asyncio.get_running_loop()
+
+    def data_received(self, data: bytes) -> None:
+        self.loop.call_later(self.delay, self.inner.data_received, data)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+async def test_a_restarted_board_answering_later_than_a_requests_tries_is_reconfigured(
+        ) -> None:
+    # From L's restart on, its every answer comes 0.45 s late: after a request's 8 tries of
+    # 50 ms, and nearly its liveness timeout. Nothing it was asked counts as refused: each
+    # setting and each read-back is asked again until an answer confirms it (a late answer
+    # confirms the request asked again). The robot drives again.
+    async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
+        link = robot.links["L"]
+        transport = link._transport  # the port's far end is here
+        assert transport is not None
+        seen: list[LinkEvent] = []
+
+        def on_event(event: LinkEvent) -> None:
+            seen.append(event)
+            if event.kind is LinkEventKind.BOARD_RESTARTED:
+                transport._protocol = _LateReads(  # type: ignore[attr-defined]
+                    transport._protocol, 0.45)  # type: ignore[attr-defined]
+
+        link.on_event(on_event)
+        x = robot.pose.x
+        await drive_until(robot, lambda: any(e.kind is LinkEventKind.BOARD_RESYNCED
+                                             for e in seen)
+                          and not robot.supervisor.blocked and robot.pose.x > x + 0.1,
+                          "driving again after L's reconfiguration")
+        assert [e.kind for e in seen].count(LinkEventKind.BOARD_RESTARTED) == 1
+        (resynced,) = [e for e in seen if e.kind is LinkEventKind.BOARD_RESYNCED]
+        assert "confirmed" in resynced.detail, resynced.detail
+        assert link.stats.retries > 8  # answers did come too late for a request's tries
+        statuses = {s.name: s for s in robot.health()}
+        assert statuses["board L"].level.name == "OK", statuses["board L"]
+        robot.disable()
