@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import os
 from collections.abc import AsyncIterator, Callable
+from pathlib import Path
 from typing import Any
 
 import pytest
@@ -219,14 +220,14 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
             await restarted.stop()
 
 
-async def test_pty_vanishing_is_reported_and_retried() -> None:
+async def test_pty_vanishing_is_reported_and_retried(tmp_path: Path) -> None:
     loop = asyncio.get_running_loop()
     # Everything the loop's exception handler receives: nothing may escape the link.
     loop_errors: list[dict[str, Any]] = []
     previous_handler = loop.get_exception_handler()
     loop.set_exception_handler(lambda _loop, context: loop_errors.append(context))
     try:
-        await _pty_vanishing(loop)
+        await _pty_vanishing(loop, tmp_path / "board")
     finally:
         loop.set_exception_handler(previous_handler)
     # pyserial-asyncio reports the failed read/write on the vanished pty through the handler
@@ -235,9 +236,13 @@ async def test_pty_vanishing_is_reported_and_retried() -> None:
     assert unexpected == [], unexpected
 
 
-async def _pty_vanishing(loop: asyncio.AbstractEventLoop) -> None:
-    async with serve("--pty", "--fault", "drop-frames=PS:1000", *STREAMING) as server:
-        path = server.url
+async def _pty_vanishing(loop: asyncio.AbstractEventLoop, link_path: Path) -> None:
+    # Opened through serve's --link: the pty's own number may be taken by another process
+    # once it is gone (tests running beside this one), the link's path by nobody.
+    async with serve("--pty", "--link", str(link_path), "--fault", "drop-frames=PS:1000",
+                     *STREAMING) as server:
+        path = str(link_path)
+        assert os.path.realpath(path) == os.path.realpath(server.url)
         async with open_link(path, request_timeout=2.0,
                              reconnect_backoff=(0.02, 0.05)) as link:
             _events, _samples = await _unplug_with_a_request_pending(
