@@ -159,9 +159,11 @@ def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
     # A loaded host's node publishes a fraction of the 1 kHz sets (a set is skipped, never
     # delayed), and its board-clock offset moves while it learns the delays (so the match
     # loses the thread after a stall): how many truth ticks find their message depends on
-    # the load. What does not: three or more lines agreeing on one offset, and every
-    # message found at a line's tick holding that tick's speeds.
-    assert facts["offset_votes"] >= 3 and facts["at_stamp"] >= 3, facts
+    # the load (and so does how many exact matches fall in one 0.1 ms bin of offset: the
+    # vote that only picks where to start; under two busy loops it was 2). What does not:
+    # two lines agreeing exactly on one offset, three or more messages found at their
+    # lines' ticks, and every one of them holding that tick's speeds.
+    assert facts["offset_votes"] >= 2 and facts["at_stamp"] >= 3, facts
     assert facts["equal_left"] == facts["at_stamp"], facts
     # The right board's sample is its latest at publishing: at most a tick from the left's.
     assert facts["equal_right"] >= 1, facts

@@ -27,7 +27,7 @@ from fpgalink.aio.transport import (
     open_transport,
 )
 from fpgalink.connection import Connection, LinkStats, Liveness
-from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
+from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError, RequestTimeout
 from fpgalink.events import (
     BoardBack,
     BoardFault,
@@ -225,6 +225,10 @@ class Link:
         self.url = url  #: where the board is, for messages
         self.reconnect = reconnect and reopen is not None
         self.reconnect_backoff = reconnect_backoff
+        #: a parameter request left unanswered after its tries while the board is heard
+        #: is asked again at once this many more times (a late answer then confirms the
+        #: request asked after it: a loaded machine, a slow line); 0: it fails at once
+        self.unanswered_rounds = 0
         self.state = LinkState.CONNECTING
         self._reopen = reopen
         self._transport: asyncio.BaseTransport | None = None
@@ -401,12 +405,23 @@ class Link:
         param, code = resolve(name, channel)
         coerced = param.coerce(value)
         self._ensure_connected()
-        return await self._request(self.connection.set_param(param, code, coerced, self._now()))
+        return await self._patiently(
+            lambda: self.connection.set_param(param, code, coerced, self._now()))
 
     async def get_param(self, name: str | int, channel: int | str | None = None) -> int | float:
         param, code = resolve(name, channel)
         self._ensure_connected()
-        return await self._request(self.connection.get_param(param, code, self._now()))
+        return await self._patiently(lambda: self.connection.get_param(param, code, self._now()))
+
+    async def _patiently(self, ask: Callable[[], int]) -> int | float:
+        rounds = self.unanswered_rounds
+        while True:
+            try:
+                return await self._request(ask())
+            except RequestTimeout:
+                if rounds <= 0 or not self.board_alive:
+                    raise
+                rounds -= 1
 
     async def read_params(self, *, hold: bool = False) -> dict[tuple[int, int], int | float]:
         """Every parameter address's value, ``{(param id, channel): value}``, in table order;
@@ -821,6 +836,7 @@ def open_link(
     read_latency: float | None = None,
     heartbeat_give_up: float = 0.28,
     stale_periods: int = 50,
+    unanswered_rounds: int = 0,
 ) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
     ``socket://host:port``, or ``emu://`` for an emulated board in this process (any scheme
@@ -828,7 +844,8 @@ def open_link(
     ``reconnect`` reopens the URL with backoff when the port vanishes; ``read_latency``
     lets the link batch reads (:meth:`Link.set_read_latency`); ``heartbeat_give_up`` and
     ``stale_periods``: when a late heartbeat is not sent, and how many timer periods
-    without telemetry are a fault (:class:`~fpgalink.Connection`)."""
+    without telemetry are a fault (:class:`~fpgalink.Connection`); ``unanswered_rounds``:
+    :attr:`Link.unanswered_rounds`."""
     connection = Connection(
         framing=framing, baud=baud, heartbeat_interval=heartbeat_interval,
         liveness_timeout=liveness_timeout, request_timeout=request_timeout,
@@ -842,4 +859,5 @@ def open_link(
     link = Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
                 reconnect_backoff=reconnect_backoff)
     link.set_read_latency(read_latency)
+    link.unanswered_rounds = unanswered_rounds
     return link

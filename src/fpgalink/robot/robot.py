@@ -58,6 +58,10 @@ SETTLED_SPEED = 0.005
 SETTLED_TURN = math.radians(0.5)
 #: How long :meth:`Robot.start` waits for every board to be heard.
 START_TIMEOUT_S = 5.0
+#: A request a board that is heard leaves unanswered after its tries (8 × 50 ms) is asked
+#: again at once this many more times (Link.unanswered_rounds): on a loaded machine an
+#: answer comes later than the tries, and a robot must not give up at start for it.
+UNANSWERED_ROUNDS = 4
 #: A restarted board's read-back it did not answer is asked again this often (s) while it
 #: is heard: a late answer (a loaded machine) or a silence must not leave it blocked.
 _READ_BACK_RETRY_S = 0.1
@@ -138,7 +142,8 @@ class Robot:
         ``stale_periods``: timer periods without a board's telemetry that stop the robot
         (:class:`~fpgalink.Connection`); ``options`` go to the robot (deadman_s,
         control_period, goto_settings)."""
-        links = {name: open_link(url, baud, name=name, stale_periods=stale_periods)
+        links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
+                                 unanswered_rounds=UNANSWERED_ROUNDS)
                  for name, url in ports.items()}
         return cls(description, links, **options)
 

@@ -19,7 +19,7 @@ from fpgalink import (
     RequestTimeout,
     ValueMismatch,
 )
-from fpgalink.aio.link import Link, LinkEvent, LinkState
+from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
 from fpgalink.protocol import Disable, Enable, ParamAck, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
@@ -283,3 +283,39 @@ async def test_commands_before_open_say_so() -> None:
     link, _, _ = make_link()
     with pytest.raises(LinkClosed, match="not open"):
         link.enable()
+
+
+class _LateReads(asyncio.Protocol):
+    """Everything the board sends reaches the link ``delay`` late."""
+
+    def __init__(self, inner: asyncio.Protocol, delay: float) -> None:
+        self.inner, self.delay = inner, delay
+        self.loop = asyncio.get_running_loop()
+
+    def data_received(self, data: bytes) -> None:
+        self.loop.call_later(self.delay, self.inner.data_received, data)
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.inner, name)
+
+
+@pytest.mark.parametrize("rounds", [0, 4])
+async def test_unanswered_rounds_let_a_late_answer_confirm_the_request_asked_again(
+        rounds: int) -> None:
+    # A board that streams (it is heard) but whose every answer comes 0.45 s late: after a
+    # request's 8 tries of 50 ms. With rounds the request is asked again at once and the
+    # late answer confirms it; without, it fails as before. A board not heard at all is
+    # never asked more than its tries.
+    async with open_link("emu://", unanswered_rounds=rounds) as link:
+        await link.set_param("GetDataPeriodical", 1)
+        await wait_until(lambda: link.board_alive, 5.0, "the board heard")
+        transport = link._transport
+        assert transport is not None
+        transport._protocol = _LateReads(transport._protocol, 0.45)  # type: ignore[attr-defined]
+        if rounds:
+            assert await link.set_param("Kp_Wheel_PidA", 400.0) == 400.0
+            assert await link.get_param("Kp_Wheel_PidA") == 400.0
+            assert link.stats.retries >= 7  # the first request went unanswered
+        else:
+            with pytest.raises(RequestTimeout):
+                await link.set_param("Kp_Wheel_PidA", 400.0)
