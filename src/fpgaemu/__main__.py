@@ -9,7 +9,6 @@ input (usage, a parameter or fault spec, a config file), 5 when a board cannot b
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import ipaddress
 import math
 import os
@@ -387,7 +386,6 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
     endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]] = []
-    made: list[tuple[Path, PtyEndpoint]] = []
     truth_endpoint: TruthEndpoint | None = None
     loop.add_signal_handler(signal.SIGUSR1, lambda: _report_all(endpoints, truth_endpoint,
                                                                  final=False))
@@ -404,7 +402,6 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 where = pty.path
                 if name in links:
                     _make_link(links[name], pty.path)
-                    made.append((links[name], pty))
                     pty.link = links[name]
                     where = f"{links[name]} -> {pty.path}"
                 ready.append(f"ready {name} {where}")
@@ -442,12 +439,8 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             await truth_endpoint.close()
         for _, endpoint in endpoints:
             await endpoint.close()
-        for path, pty in made:
-            with contextlib.suppress(OSError):
-                # Only our own (the pty it serves now, after any replug): another serve
-                # may have taken the name since.
-                if os.readlink(path) == pty.path:
-                    path.unlink()
+            if isinstance(endpoint, PtyEndpoint):
+                endpoint.remove_own_link()
         if served:  # a serve that could not start says only why (one line)
             _report_all(endpoints, truth_endpoint, final=True)
     return 0

@@ -775,11 +775,25 @@ class PtyEndpoint:
         self.pacer.start()
         _schedule_unplugs(self.paced, self._unplug, self._replug)
 
+    def remove_own_link(self) -> None:
+        """Remove the ``--link`` if it points at the pty served now: another serve or router
+        may have taken the name since. An unplugged pty's link went with it, and its freed
+        number may be another's now."""
+        if self.link is None or self.unplugged:
+            return
+        with contextlib.suppress(OSError):
+            if os.readlink(self.link) == self.path:
+                self.link.unlink()
+
     def _unplug(self) -> None:
         """The USB-UART is pulled out: the pty goes (the host's next read fails), what the
-        host wrote that the line had not begun is gone, and the board runs on unheard."""
+        host wrote that the line had not begun is gone, and the board runs on unheard. The
+        ``--link`` goes with it, as udev's /dev/serial/by-id link goes with a pulled
+        USB-UART: the freed pty's number may be given to another program meanwhile, and a
+        host reopening the link must find nothing, not that program's pty."""
         if self.unplugged:
             return
+        self.remove_own_link()
         self.unplugged = True
         self.unplugs += 1
         loop = asyncio.get_running_loop()
@@ -800,20 +814,24 @@ class PtyEndpoint:
 
     def _replug(self) -> None:
         """Plugged in again: a new pty (a new name, as a USB-UART may come back as another
-        ttyUSB), the ``--link`` symlink pointed at it."""
+        ttyUSB), the ``--link`` symlink made again, pointing at it."""
         if not self.unplugged:
             return
         self._open_pty()
         self.unplugged = False
+        shown = self.path
         if self.link is not None:
-            with contextlib.suppress(OSError):
-                temporary = self.link.with_name(self.link.name + ".new")
-                with contextlib.suppress(FileNotFoundError):
-                    temporary.unlink()
-                temporary.symlink_to(self.path)
-                temporary.replace(self.link)  # atomic: the link never goes missing
+            shown = f"{self.link} -> {self.path}"
+            try:
+                if self.link.is_symlink() and not self.link.exists():
+                    self.link.unlink()  # a stale link (its pty gone): ours to replace
+                self.link.symlink_to(self.path)
+            except FileExistsError:
+                # Taken while unplugged (another serve or router): theirs, left alone.
+                shown = f"{self.path} (--link {self.link} is now another's, left alone)"
+            except OSError as exc:
+                shown = f"{self.path} (--link {self.link}: {exc.strerror or exc})"
         asyncio.get_running_loop().add_reader(self._master, self._readable)
-        shown = self.path if self.link is None else f"{self.link} -> {self.path}"
         say(f"plugged in again: {shown}")
 
     def _pause(self) -> None:

@@ -237,14 +237,17 @@ async def test_pty_vanishing_is_reported_and_retried(tmp_path: Path) -> None:
 
 
 async def _pty_vanishing(loop: asyncio.AbstractEventLoop, link_path: Path) -> None:
-    # Opened through serve's --link: the pty's own number may be taken by another process
-    # once it is gone (tests running beside this one), the link's path by nobody.
+    # Opened through serve's --link, which is removed once it is open: the device's name
+    # goes with it, as udev's by-id link does. A serve killed with SIGKILL cannot remove it,
+    # and the pty number it points at may be given to another process (a test running
+    # beside this one) before the link retries: the link then reconnected to that board.
     async with serve("--pty", "--link", str(link_path), "--fault", "drop-frames=PS:1000",
                      *STREAMING) as server:
         path = str(link_path)
         assert os.path.realpath(path) == os.path.realpath(server.url)
         async with open_link(path, request_timeout=2.0,
                              reconnect_backoff=(0.02, 0.05)) as link:
+            link_path.unlink()
             _events, _samples = await _unplug_with_a_request_pending(
                 link, server, loop, {LinkEventKind.PORT_LOST})
             await wait_until(lambda: not os.path.exists(path), PATIENCE, f"{path} to vanish")

@@ -8,6 +8,7 @@ import asyncio
 import json
 import math
 import signal
+from pathlib import Path
 
 import pytest
 
@@ -58,9 +59,13 @@ async def test_a_served_robot_moves_its_body_and_streams_the_truth() -> None:
             writer.close()
 
 
-async def test_killing_one_boards_server_stops_the_other_board_at_once() -> None:
-    async with serve("--pty") as left, serve("--pty") as right:
-        robot = Robot.open(seed_robot(), {"L": left.url, "R": right.url})
+async def test_killing_one_boards_server_stops_the_other_board_at_once(tmp_path: Path) -> None:
+    # L through serve's --link, removed before the kill (a device's name goes with it, as
+    # udev's by-id link does): L's link retries its path, and the killed serve's pty number
+    # may be given to another test's board meanwhile.
+    board_l = tmp_path / "L"
+    async with serve("--pty", "--link", str(board_l)) as left, serve("--pty") as right:
+        robot = Robot.open(seed_robot(), {"L": str(board_l), "R": right.url})
         async with robot:
             noticed: list[LinkEvent] = []
             robot.links["L"].on_event(noticed.append)
@@ -70,6 +75,7 @@ async def test_killing_one_boards_server_stops_the_other_board_at_once() -> None
             r_link = robot.links["R"]
             await wait_until(lambda: r_link.latest is not None and r_link.latest.a.flags & 1,
                              PATIENCE, "R enabled (TM flags)")
+            board_l.unlink()
             await left.send_signal(signal.SIGKILL)
             async for event in events:
                 if event.state is State.DISABLED:

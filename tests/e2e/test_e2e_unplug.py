@@ -69,3 +69,31 @@ async def test_an_in_process_board_has_no_port_to_pull_out() -> None:
     with pytest.raises(PortError, match="no port to pull out"):
         async with open_link("emu://?fault=unplug=1:1"):
             pass
+
+
+def test_serve_ending_while_unplugged_leaves_a_link_another_took_meanwhile(
+        tmp_path: Path) -> None:
+    """Unplugged, serve's ``--link`` went with its pty; another serve may make the same link
+    to the freed pty's number, given to it. serve ending meanwhile leaves that link alone."""
+    import os
+    import signal
+    import time
+
+    from tests.support.cli import serve_pty
+
+    link = tmp_path / "fpga0"
+    proc, _ = serve_pty("--link", str(link), "--fault", "unplug=0.5:600")
+    try:
+        freed = os.readlink(link)
+        deadline = time.monotonic() + PATIENCE
+        while link.is_symlink():  # unplugged: the link goes with the pty
+            assert time.monotonic() < deadline and proc.poll() is None, "not unplugged"
+            time.sleep(0.05)
+        link.symlink_to(freed)  # another's now, to the number it was given
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=PATIENCE)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 0, err
+    assert os.readlink(link) == freed

@@ -200,3 +200,43 @@ def test_serve_link_to_a_live_pty_is_not_taken_over(tmp_path: Any) -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+async def test_an_unplugged_ptys_link_goes_with_it_and_comes_back_to_the_new_pty(
+        tmp_path: Any) -> None:
+    """While unplugged, the ``--link`` is gone (as udev's by-id link of a pulled USB-UART):
+    the freed pty's number may be given to another program, whose pty a host reopening the
+    link must not reach. Plugged in again, it points at the new pty; a link another took
+    meanwhile is theirs and left alone."""
+    import os
+
+    from fpgaemu.serve import PtyEndpoint
+
+    link = tmp_path / "fpga0"
+    endpoint = PtyEndpoint(PacedBoard(build_board()))
+    endpoint.start()
+    try:
+        link.symlink_to(endpoint.path)
+        endpoint.link = link
+        endpoint._unplug()
+        assert not link.is_symlink()
+        endpoint._replug()
+        assert os.readlink(link) == endpoint.path and link.exists()
+        # Taken while unplugged: another program's pty now at that name.
+        endpoint._unplug()
+        other_master, other_slave = os.openpty()
+        try:
+            link.symlink_to(os.ttyname(other_slave))
+            endpoint._replug()
+            assert os.readlink(link) == os.ttyname(other_slave)
+        finally:
+            os.close(other_master)
+            os.close(other_slave)
+        # A stale link (its pty gone) is replaced.
+        endpoint._unplug()
+        link.unlink()
+        link.symlink_to(tmp_path / "gone")
+        endpoint._replug()
+        assert os.readlink(link) == endpoint.path
+    finally:
+        await endpoint.close()
