@@ -5,8 +5,9 @@ files read alike; it stands on the protocol alone, below both (neither may impor
 
 A recording survives what a disk can do to it:
 
-* chunks are closed every half second, so a hard kill loses at most that much, and what was
-  written stays readable;
+* chunks are closed when full (64 KiB) and every half second, so a hard kill loses at most
+  that much, and what was written stays readable; a writer abandoned (a signal's exception
+  may break into a write) is cut back to its last complete chunk;
 * room for the file's own summary is reserved ahead of the data with
   ``fallocate(FALLOC_FL_KEEP_SIZE)``, so when the disk fills the recording stops with an
   error *and* a complete file (:class:`DiskFull`); should a write fail all the same, the torn
@@ -327,6 +328,12 @@ class McapSink:
                 publish_time=log_ns if publish_time is None else int(publish_time * 1e9),
                 sequence=self._sequence)
             self.messages += 1
+            # The writer writes to the file only when a chunk is full, whole: once on disk,
+            # the file is complete there, and an abandoned file is cut back no further.
+            written = self._file.tell()
+            if written != self._space.good:
+                self._file.flush()
+                self._space.good = written
             if time.monotonic() - self._flushed >= FLUSH_S:
                 self._flush()
         except OSError:
