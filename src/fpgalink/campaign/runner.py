@@ -17,16 +17,18 @@ import importlib
 import multiprocessing
 import os
 import signal
-import threading
+import time
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from fpgalink.campaign.recording import recording_name
 from fpgalink.campaign.scenario import Result, run_scenario
 from fpgalink.campaign.spec import Campaign, CampaignError, Scenario
 
 __all__ = ["DASK_MISSING", "default_jobs", "iter_results", "recording_paths", "run_campaign"]
+
+_T = TypeVar("_T")
 
 DASK_MISSING = ("--dask needs dask.distributed: pip install 'fpgalink[campaign]' (or "
                 "'dask[distributed]')")
@@ -57,8 +59,10 @@ def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
                  dask: str | None = None, mcap_dir: str | Path | None = None
                  ) -> Iterator[Result]:
     paths = recording_paths(scenarios, mcap_dir)
+    # A file there older than this run is an earlier run's, not one a lost worker began.
+    began = time.time()
     if dask is not None:
-        yield from _on_dask(scenarios, paths, dask, jobs)
+        yield from _on_dask(scenarios, paths, dask, jobs, began)
         return
     jobs = default_jobs() if jobs is None else jobs
     if jobs < 1:
@@ -67,7 +71,7 @@ def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
         for scenario in scenarios:
             yield run_scenario(scenario, paths[scenario.index])
         return
-    yield from _on_processes(scenarios, paths, min(jobs, len(scenarios)))
+    yield from _on_processes(scenarios, paths, min(jobs, len(scenarios)), began)
 
 
 def recording_paths(scenarios: Sequence[Scenario], mcap_dir: str | Path | None
@@ -89,8 +93,11 @@ def recording_paths(scenarios: Sequence[Scenario], mcap_dir: str | Path | None
 def _worker_started() -> None:
     # Ctrl-C reaches the whole process group: the parent stops the campaign and ends its
     # workers; a worker that died of it on its own would print a traceback and look like a
-    # scenario that killed it.
+    # scenario that killed it. Ignoring it discards one held since the worker's start
+    # (:func:`_submit`), then it is let through.
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    if hasattr(signal, "pthread_sigmask"):
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
 
 
 def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
@@ -98,19 +105,21 @@ def _pool(jobs: int, context: Any) -> concurrent.futures.ProcessPoolExecutor:
                                                   initializer=_worker_started)
 
 
-def _submit(pool: concurrent.futures.ProcessPoolExecutor, scenario: Scenario,
-            mcap: str | None) -> concurrent.futures.Future[Result]:
-    """Submit ``scenario``. A pool's worker starts at its first submit, here, with SIGINT
-    ignored from its first instruction (an ignored signal stays ignored across exec, and
-    Python then installs no KeyboardInterrupt handler), so a Ctrl-C during its start-up
-    does not reach it."""
-    hold = threading.current_thread() is threading.main_thread()
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if hold else None
+def _submit(pool: concurrent.futures.ProcessPoolExecutor, work: Callable[..., _T],
+            *args: Any) -> concurrent.futures.Future[_T]:
+    """``pool.submit(work, *args)``. A pool's worker starts at its first submit, here, with
+    SIGINT blocked in this thread: the mask is inherited across fork and exec, so a Ctrl-C
+    during the worker's start-up waits in it until its initializer ignores it. Blocked, not
+    ignored: ignoring is process-wide, so a Ctrl-C that came while a worker started was
+    lost to the campaign itself, which ran on. Here it waits, and is taken when this
+    returns."""
+    if not hasattr(signal, "pthread_sigmask"):  # no process groups to signal (Windows)
+        return pool.submit(work, *args)
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
     try:
-        return pool.submit(run_scenario, scenario, mcap)
+        return pool.submit(work, *args)
     finally:
-        if hold:
-            signal.signal(signal.SIGINT, previous)
+        signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
@@ -122,8 +131,8 @@ def _stop(pool: concurrent.futures.ProcessPoolExecutor) -> None:
     pool.shutdown(wait=False, cancel_futures=True)
 
 
-def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], jobs: int
-                  ) -> Iterator[Result]:
+def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], jobs: int,
+                  began: float) -> Iterator[Result]:
     """``jobs`` one-worker pools, each given the next scenario as it finishes one: a worker
     that dies (killed, out of memory) costs exactly the scenario it was running, and only
     its own pool is started again; the others run on."""
@@ -137,7 +146,8 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
     def start(slot: int) -> None:
         if pending:
             scenario = pending.popleft()
-            running[_submit(pools[slot], scenario, paths[scenario.index])] = (slot, scenario)
+            future = _submit(pools[slot], run_scenario, scenario, paths[scenario.index])
+            running[future] = (slot, scenario)
 
     try:
         for slot in range(jobs):
@@ -151,7 +161,8 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
                     result = future.result()
                 except concurrent.futures.process.BrokenProcessPool:
                     result = _lost(scenario, paths[scenario.index],
-                                   "its worker process died (killed, or out of memory)")
+                                   "its worker process died (killed, or out of memory)",
+                                   began)
                     pools[slot].shutdown(wait=False)
                     pools[slot] = _pool(1, context)
                 start(slot)
@@ -164,19 +175,26 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
         raise
 
 
-def _lost(scenario: Scenario, mcap: str | None, why: str) -> Result:
+def _lost(scenario: Scenario, mcap: str | None, why: str, began: float) -> Result:
     """A scenario whose worker never returned: failed, and its recording, if it asked for
     one, said unfinished (the file, where this machine sees it, holds what was written up to
     the death, readable without its summary; on a cluster it is on the worker's machine)."""
     if mcap is None:
         return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid)
     return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid,
-                  mcap=mcap if os.path.exists(mcap) else None,
+                  mcap=mcap if _written_since(mcap, began) else None,
                   mcap_error=f"not finished: {why}")
 
 
+def _written_since(path: str, began: float) -> bool:
+    try:
+        return os.path.getmtime(path) >= began
+    except OSError:
+        return False
+
+
 def _on_dask(scenarios: Sequence[Scenario], paths: dict[int, str | None], address: str,
-             jobs: int | None) -> Iterator[Result]:
+             jobs: int | None, began: float) -> Iterator[Result]:
     try:
         # dask.distributed is untyped: held as Any.
         distributed: Any = importlib.import_module("dask.distributed")
@@ -204,7 +222,8 @@ def _on_dask(scenarios: Sequence[Scenario], paths: dict[int, str | None], addres
                 yield outcome
             else:  # the worker died or the scheduler gave up on the task
                 yield _lost(scenario, paths[scenario.index],
-                            f"dask: {type(outcome).__name__}: {outcome}".splitlines()[0])
+                            f"dask: {type(outcome).__name__}: {outcome}".splitlines()[0],
+                            began)
     finally:
         client.close()
         if cluster is not None:

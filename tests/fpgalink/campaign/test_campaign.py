@@ -369,7 +369,59 @@ def _long_campaign(tmp_path: Path, *, seeds: int, jobs: int, extra: tuple[str, .
                     encoding="utf-8")
     return subprocess.Popen([*CLI, "campaign", str(spec), "--jobs", str(jobs), *extra], cwd=ROOT,
                             env=cli_env(), stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, start_new_session=True)
+                            text=True, start_new_session=True, preexec_fn=_as_foreground)
+
+
+def _as_foreground() -> None:
+    """Ctrl-C as a terminal's foreground job has it: a suite started as a shell's background
+    job (``make test &``) passes SIGINT on ignored, and Python then leaves it ignored."""
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+def test_a_ctrl_c_while_a_worker_starts_reaches_the_campaign() -> None:
+    # The group's Ctrl-C came while the pool started its worker: it was ignored process-wide
+    # then, so the campaign lost it and ran on (a test's campaign ran a minute past it).
+    import os
+    import signal
+
+    from fpgalink.campaign.runner import _submit
+
+    class StartingPool:
+        def submit(self, work: Any, *args: Any) -> Any:
+            os.kill(os.getpid(), signal.SIGINT)  # as the worker appears
+            return None
+
+    # As in a terminal's foreground job (a shell's background job inherits SIGINT ignored).
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            _submit(StartingPool(), print)  # type: ignore[arg-type]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_a_campaign_worker_ignores_ctrl_c_and_does_not_block_it() -> None:
+    # The parent stops a worker itself; the worker must not die of the group's Ctrl-C on its
+    # own, nor keep it blocked as the parent held it while starting the worker.
+    import multiprocessing
+    import os
+    import signal
+
+    from fpgalink.campaign.runner import _pool, _submit
+
+    pool = _pool(1, multiprocessing.get_context("spawn"))
+    try:
+        pid = _submit(pool, os.getpid).result(timeout=60)
+        status = dict(line.split(":\t", 1) for line in
+                      Path(f"/proc/{pid}/status").read_text().splitlines() if ":\t" in line)
+        bit = 1 << (signal.SIGINT - 1)
+        assert int(status["SigIgn"], 16) & bit
+        assert not int(status["SigBlk"], 16) & bit
+    finally:
+        pool.shutdown()
+    assert not signal.pthread_sigmask(signal.SIG_BLOCK, set()) & {signal.SIGINT}
 
 
 @pytest.mark.parametrize(("signal_name", "group", "code", "says"), [
@@ -433,16 +485,19 @@ def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> No
     import signal
     import time
 
-    from mcap.reader import NonSeekingReader
+    from tests.support.recordings import readable_topics
 
     out = tmp_path / "out"
     path = out / "0-scenario_1.mcap"
+
     proc = _long_campaign(tmp_path, seeds=1, jobs=1, extra=("--mcap", "--out", str(out)))
     try:
+        # Stopped once the file holds a second of telemetry (its size says nothing: room is
+        # kept allocated past the data), however long the machine takes to get there.
         deadline = time.monotonic() + 120
-        while not (path.exists() and path.stat().st_size > 200_000):
+        while not (path.exists() and readable_topics(path).count("/board/L/telemetry") > 1000):
             assert time.monotonic() < deadline and proc.poll() is None, "no recording"
-            time.sleep(0.05)
+            time.sleep(0.2)
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=60)
     finally:
@@ -450,12 +505,8 @@ def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> No
             proc.kill()
     assert proc.returncode == 143, err
     assert "Traceback" not in err
-    with path.open("rb") as stream:
-        topics = []
-        with contextlib.suppress(Exception):  # the end: no summary, no footer
-            for _, channel, _ in NonSeekingReader(stream).iter_messages(log_time_order=False):
-                topics.append(channel.topic)
-    assert topics.count("/board/L/telemetry") > 1000 and "/robot/truth" in topics
+    left = readable_topics(path)
+    assert left.count("/board/L/telemetry") > 1000 and "/robot/truth" in left
 
 
 def test_a_worker_that_dies_costs_only_its_scenario(tmp_path: Path) -> None:
@@ -776,3 +827,24 @@ def test_a_disk_that_fills_leaves_a_complete_recording_and_the_figures(tmp_path:
         assert sum(1 for _ in reader.iter_messages()) > 1000
     assert "cannot write" in second["mcap_error"] and second["mcap"] is None
     assert not (out / "1-turn.mcap").exists()
+
+
+def test_a_lost_scenario_names_only_a_recording_begun_in_this_run(tmp_path: Path) -> None:
+    # A worker that died before opening its file leaves there, at most, an earlier run's
+    # recording: complete, and not this scenario's unfinished one.
+    import os
+    import time
+
+    from fpgalink.campaign.runner import _lost
+
+    scenario = _two_short().scenarios[0]
+    path = tmp_path / "0-x.mcap"
+    path.write_bytes(b"an earlier run's")
+    an_hour_ago = time.time() - 3600
+    os.utime(path, (an_hour_ago, an_hour_ago))
+    began = time.time()
+    earlier = _lost(scenario, str(path), "its worker process died", began)
+    assert earlier.mcap is None and earlier.mcap_error == "not finished: its worker process died"
+    path.write_bytes(b"begun now")
+    assert _lost(scenario, str(path), "its worker process died", began - 1).mcap == str(path)
+    assert _lost(scenario, str(tmp_path / "none.mcap"), "died", began).mcap is None
