@@ -1138,7 +1138,8 @@ class Connection:
             if outcome is Outcome.FAIL_LINK:
                 # The board went silent (or its port): paused, not given up. It goes on
                 # when the board is heard going on (restarted again meanwhile, it starts
-                # over).
+                # over), with its rounds afresh: a silence is not an unanswered board.
+                self._resync_rounds = 0
                 self._requeue(setting)
             elif outcome is Outcome.FAIL_TIMEOUT and self._resync_rounds < _RESYNC_ROUNDS:
                 # Unanswered is not refused: asked again at once, so an answer that comes

@@ -422,6 +422,8 @@ class Link:
                 if rounds <= 0 or not self.board_alive:
                     raise
                 rounds -= 1
+                # Closed or lost meanwhile: say so, never ask a link that cannot answer.
+                self._ensure_connected()
 
     async def read_params(self, *, hold: bool = False) -> dict[tuple[int, int], int | float]:
         """Every parameter address's value, ``{(param id, channel): value}``, in table order;

@@ -62,6 +62,10 @@ START_TIMEOUT_S = 5.0
 #: again at once this many more times (Link.unanswered_rounds): on a loaded machine an
 #: answer comes later than the tries, and a robot must not give up at start for it.
 UNANSWERED_ROUNDS = 4
+#: How long :meth:`Robot.start` waits for a board found streaming to confirm it stopped:
+#: its echo comes after the telemetry waiting in the port (serve keeps 1 s of line time, a
+#: host reading at a quarter of the line drains that in 4 s).
+QUIET_TIMEOUT_S = 10.0
 #: A restarted board's read-back it did not answer is asked again this often (s) while it
 #: is heard: a late answer (a loaded machine) or a silence must not leave it blocked.
 _READ_BACK_RETRY_S = 0.1
@@ -183,6 +187,7 @@ class Robot:
             await asyncio.sleep(0.01)
 
     async def _configure(self, name: str, link: Link) -> None:
+        self._streaming_before[name] = await self._quiet(name, link)
         settings = self.description.settings_for(name)
         for param, channel, value in settings:
             try:
@@ -202,8 +207,31 @@ class Robot:
                 await link.get_param("TorqueCoef", wheel.channel))
         # The link then knows the period its telemetry must keep (TelemetryStale).
         await link.get_param("TsTimerPeriod")
-        self._streaming_before[name] = await link.get_param("GetDataPeriodical")
         await link.set_param("GetDataPeriodical", 1)
+
+    async def _quiet(self, name: str, link: Link) -> int | float:
+        """A board found streaming is turned quiet before it is set up; returns whether it
+        streamed (``GetDataPeriodical``, set again at close).
+
+        A host slower than the stream (a loaded machine, a board left sending a TM every
+        1 ms by a host before) finds every answer behind the telemetry waiting in its port,
+        later than a request's patience (a ROS node gave up at start: "get TorqueCoefB: no
+        answer after 8 tries"). The board takes the ``0`` at once, whatever the host is
+        behind on; its echo comes once what waits is read, so it is asked again for as
+        long as the board is heard, up to :data:`QUIET_TIMEOUT_S`."""
+        if not link.stats.telemetry_received:
+            return await link.get_param("GetDataPeriodical")
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + QUIET_TIMEOUT_S
+        while True:
+            try:
+                await link.set_param("GetDataPeriodical", 0)
+                return 1
+            except (RequestTimeout, BoardLost) as exc:
+                if isinstance(exc, BoardLost) or loop.time() > deadline \
+                        or not link.board_alive:
+                    raise RobotError(f"board {name} not answering: turning its telemetry "
+                                     f"off to set it up: {exc}") from exc
 
     async def close(self) -> None:
         """Disable every board, restore their telemetry setting, close the links."""
@@ -383,8 +411,12 @@ class Robot:
             self._restarted(name, event.detail, now)
         elif kind is LinkEventKind.BOARD_RESYNCED:
             assert isinstance(event.cause, BoardResynced)
-            self._tasks.append(asyncio.ensure_future(self._reconfigured(name, link,
-                                                                        event.cause)))
+            # The restart this resync answers is the one counted now: another restart may
+            # be counted before the task first runs.
+            task = asyncio.ensure_future(self._reconfigured(
+                name, link, event.cause, self._restarts.get(name, 0)))
+            self._tasks.append(task)
+            task.add_done_callback(self._forget_task)
         elif kind is LinkEventKind.WATCHDOG_LAPSED:
             lapse = event.cause
             assert isinstance(lapse, WatchdogLapsed)
@@ -427,13 +459,19 @@ class Robot:
         self._carry_out(self.supervisor.board_fault(
             name, Fault.RESTARTED, now, f"restarted: reconfiguring ({detail})"))
 
-    async def _reconfigured(self, name: str, link: Link, resynced: BoardResynced) -> None:
+    def _forget_task(self, task: asyncio.Task[None]) -> None:
+        """A finished reconfiguring task: not kept (a board left unanswered makes one per
+        resync for as long as it is heard and does not answer)."""
+        if task in self._tasks:
+            self._tasks.remove(task)
+
+    async def _reconfigured(self, name: str, link: Link, resynced: BoardResynced,
+                            restart: int) -> None:
         """The link set again what it holds: read back what odometry and joint states use,
         then the board is ready (or says why not). What the board left unanswered (silent
         meanwhile, or answering late) is asked again once it is heard: a resync that failed
         only for that, and the read-back."""
         with self._guarded(f"reconfiguring board {name}"):
-            restart = self._restarts.get(name, 0)
             failure = None if resynced.ok else resynced.describe()
             if failure is not None and all(isinstance(error, RequestTimeout | BoardLost)
                                            for _, error in resynced.failed):

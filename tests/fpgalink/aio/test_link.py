@@ -20,9 +20,11 @@ from fpgalink import (
     ValueMismatch,
 )
 from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
+from fpgalink.events import RequestFailed
 from fpgalink.protocol import Disable, Enable, ParamAck, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
+from tests.support.interpose import LateReads, interpose
 from tests.support.waiting import wait_until
 
 pytestmark = pytest.mark.timeout(30)
@@ -285,33 +287,18 @@ async def test_commands_before_open_say_so() -> None:
         link.enable()
 
 
-class _LateReads(asyncio.Protocol):
-    """Everything the board sends reaches the link ``delay`` late."""
-
-    def __init__(self, inner: asyncio.Protocol, delay: float) -> None:
-        self.inner, self.delay = inner, delay
-        self.loop = asyncio.get_running_loop()
-
-    def data_received(self, data: bytes) -> None:
-        self.loop.call_later(self.delay, self.inner.data_received, data)
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self.inner, name)
-
-
 @pytest.mark.parametrize("rounds", [0, 4])
 async def test_unanswered_rounds_let_a_late_answer_confirm_the_request_asked_again(
         rounds: int) -> None:
     # A board that streams (it is heard) but whose every answer comes 0.45 s late: after a
     # request's 8 tries of 50 ms. With rounds the request is asked again at once and the
     # late answer confirms it; without, it fails as before. A board not heard at all is
-    # never asked more than its tries.
-    async with open_link("emu://", unanswered_rounds=rounds) as link:
+    # never asked more than its tries. (Liveness 5 s, not 0.7: a loaded machine's stall on
+    # top of the 0.45 s would lose the board, which is not what is tested here.)
+    async with open_link("emu://", unanswered_rounds=rounds, liveness_timeout=5.0) as link:
         await link.set_param("GetDataPeriodical", 1)
         await wait_until(lambda: link.board_alive, 5.0, "the board heard")
-        transport = link._transport
-        assert transport is not None
-        transport._protocol = _LateReads(transport._protocol, 0.45)  # type: ignore[attr-defined]
+        interpose(link, lambda port: LateReads(port, 0.45))
         if rounds:
             assert await link.set_param("Kp_Wheel_PidA", 400.0) == 400.0
             assert await link.get_param("Kp_Wheel_PidA") == 400.0
@@ -319,3 +306,24 @@ async def test_unanswered_rounds_let_a_late_answer_confirm_the_request_asked_aga
         else:
             with pytest.raises(RequestTimeout):
                 await link.set_param("Kp_Wheel_PidA", 400.0)
+
+
+async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> None:
+    # Its tries spent with the board heard, the request would be asked again: the link was
+    # closed meanwhile, so it fails at once (LinkClosed), never left waiting on a link that
+    # can no longer answer or time it out.
+    async with open_link("emu://", unanswered_rounds=4, liveness_timeout=5.0) as link:
+        await link.set_param("GetDataPeriodical", 1)
+        await wait_until(lambda: link.board_alive, 5.0, "the board heard")
+        interpose(link, lambda port: LateReads(port, 0.45))
+        closing: list[asyncio.Future[None]] = []
+
+        def close_on_failure(event: object) -> None:
+            if isinstance(event, RequestFailed) and not closing:
+                closing.append(asyncio.ensure_future(link.close()))
+
+        link.add_listener(close_on_failure)
+        with pytest.raises(LinkClosed):
+            await asyncio.wait_for(link.get_param("Kp_Wheel_PidA"), 10.0)
+        assert link.board_alive  # what the request's retry went by
+        await closing[0]

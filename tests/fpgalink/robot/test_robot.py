@@ -9,7 +9,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -21,23 +21,50 @@ from fpgaemu.robot import EmulatedRobot
 from fpgaemu.serve import FAR_END_LAG_EXTRA
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
-from fpgalink.aio.link import LinkEvent, LinkEventKind
-from fpgalink.protocol.robot import SEED_ROBOT_TOML, parse_robot, seed_robot
-from fpgalink.robot import GoalTimeout, Robot, RobotStopped
+from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
+from fpgalink.protocol import float32
+from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
+from fpgalink.robot import GoalTimeout, Robot, RobotError, RobotStopped
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
+from tests.support.interpose import HeldReads, LateReads, SlowReader, interpose
 from tests.support.served import PATIENCE
 from tests.support.waiting import wait_until
 
 pytestmark = pytest.mark.timeout(60)
 
 
+def _ports(description: RobotDescription, query: str) -> dict[str, str]:
+    return {b: f"emu://robot/{b}?{query}" for b in description.boards}
+
+
 @asynccontextmanager
 async def emulated(query: str = "surface=gravel", **options: Any) -> AsyncIterator[Robot]:
     description = options.pop("description", seed_robot())
-    ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
-    async with Robot.open(description, ports, **options) as robot:
+    async with Robot.open(description, _ports(description, query), **options) as robot:
         yield robot
+
+
+def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object]) -> Robot:
+    """A robot (not started) on emulated boards whose start finds ``boards`` sending a TM
+    every 1 ms (a host before left them on): once heard, they are made to stream, then
+    ``then(link)`` for each, before the robot sets them up."""
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    wait_for_boards = robot._wait_for_boards
+
+    async def streaming() -> None:
+        await wait_for_boards()
+        links = [robot.links[name] for name in boards]
+        for link in links:
+            await link.set_param("GetDataPeriodical", 1)
+        await wait_until(lambda: all(link.stats.telemetry_received > 20 for link in links),
+                         PATIENCE, "TM")
+        for link in links:
+            then(link)
+
+    robot._wait_for_boards = streaming  # type: ignore[method-assign]
+    return robot
 
 
 def board(robot: Robot, name: str) -> Board:
@@ -314,28 +341,80 @@ async def test_a_loop_blocked_past_the_deadman_is_not_a_caller_that_stopped_rene
         assert event.reason is StopReason.DEADMAN, event
 
 
-class _HeldReads(asyncio.Protocol):
-    """Stands between a port and its link: while ``held``, what the board sends waits, as in
-    a host that stopped reading that port (or a starved emulator's pty); released, it all
-    arrives at once, late."""
+async def test_a_resync_reported_with_a_new_restart_behind_it_does_not_make_the_board_ready(
+        ) -> None:
+    # In one batch of events the link reports restart 1's resync done, then restart 2. The
+    # task that reads back after restart 1's resync belongs to restart 1: it must not take
+    # restart 2 for its own (whose resync has not been reported) and say the board ready.
+    from fpgalink.events import BoardResynced
 
-    def __init__(self, inner: asyncio.Protocol) -> None:
-        self.inner, self.held, self.waiting = inner, False, bytearray()
+    async with emulated("surface=ideal") as robot:
+        link = robot.links["L"]
+        loop = asyncio.get_running_loop()
 
-    def data_received(self, data: bytes) -> None:
-        if self.held:
-            self.waiting += data
-        else:
-            self.inner.data_received(data)
+        def event(kind: LinkEventKind, cause: Any = None) -> LinkEvent:
+            return LinkEvent(kind, loop.time(), "synthetic", cause)
 
-    def release(self) -> None:
-        self.held = False
-        data, self.waiting = bytes(self.waiting), bytearray()
-        if data:
-            self.inner.data_received(data)
+        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
+                                              BoardResynced(3, ())))
+        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        # Restart 1's read-back is answered (the board is there) and ends.
+        await wait_until(lambda: not any(not t.done() for t in robot._tasks[2:]), PATIENCE,
+                         "the read-back after restart 1's resync")
+        await asyncio.sleep(0.2)
+        assert len(robot._tasks) == 2  # the boards' telemetry; a finished task is not kept
+        assert "L" in robot._reconfiguring
+        assert robot.supervisor.blocked.get("L", "").startswith("restarted"), \
+            robot.supervisor.blocked
+        with pytest.raises(RobotStopped):
+            robot.enable()
 
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
+
+async def test_boards_left_streaming_are_set_up_by_a_host_slower_than_their_stream(
+        ) -> None:
+    # Both boards still send a TM every 1 ms (a host before this one left them on, or was
+    # killed), and this host reads 10 kB/s of their 42 kB/s, its port keeping 100 kB as
+    # serve's does: an answer waits behind more than a request's patience (5 rounds of
+    # 8 × 50 ms; a ROS node started on a loaded machine gave up: "get TorqueCoefB: no
+    # answer after 8 tries"). The stream is quieted first (the board takes that at once;
+    # its echo comes when what waits is read), the set-up is answered, the stream turned
+    # on again; close leaves it on, as it was found.
+    readers: list[SlowReader] = []
+    robot = found_streaming(("L", "R"), lambda link: readers.append(
+        interpose(link, lambda port: SlowReader(port, 10_000, backlog=100_000))))
+    try:
+        async with robot:
+            # Behind by more than 2 s of reading at some point: past a request's patience.
+            assert len(readers) == 2
+            assert max(reader.most_waiting for reader in readers) > 2.0 * 10_000
+            for name in ("L", "R"):
+                assert firmware(robot, name).value("GetDataPeriodical") == 1
+                assert firmware(robot, name).value("IncSenzRes", "A") == 500
+            assert robot._streaming_before == {"L": 1, "R": 1}
+            assert set(robot.torque_coef.values()) == {float32(0.2)}
+            found = [firmware(robot, name) for name in ("L", "R")]
+    finally:
+        for reader in readers:
+            reader.stop()
+    # Left on, as found.
+    assert [each.value("GetDataPeriodical") for each in found] == [1, 1]
+
+
+async def test_a_board_found_streaming_that_then_falls_silent_fails_the_start_saying_so(
+        ) -> None:
+    # L streams, then nothing it sends reaches this host: its quiet is never confirmed, and
+    # the start fails naming the board and the step (the CLI's exit 4), not a hang.
+    def silent(link: Link) -> None:
+        interpose(link, HeldReads).held = True
+
+    robot = found_streaming(("L",), silent)
+    try:
+        with pytest.raises(RobotError, match="board L not answering: turning its telemetry "
+                                             "off to set it up: board silent for"):
+            await robot.start()
+    finally:
+        await robot.close()
 
 
 @pytest.mark.parametrize("held_from", [LinkEventKind.BOARD_RESTARTED,
@@ -349,10 +428,7 @@ async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigur
     # answer made the board "back" and the link had dropped the rest of its resync.)
     async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
         link = robot.links["L"]
-        transport = link._transport  # the port's far end is here
-        assert transport is not None
-        held = _HeldReads(transport._protocol)  # type: ignore[attr-defined]
-        transport._protocol = held  # type: ignore[attr-defined]
+        held = interpose(link, HeldReads)
         seen: list[LinkEventKind] = []
         loop = asyncio.get_running_loop()
 
@@ -377,21 +453,6 @@ async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigur
         robot.disable()
 
 
-class _LateReads(asyncio.Protocol):
-    """Stands between a port and its link: everything the board sends arrives ``delay``
-    late, as from a starved emulator's or node's process, or a slow line."""
-
-    def __init__(self, inner: asyncio.Protocol, delay: float) -> None:
-        self.inner, self.delay = inner, delay
-        self.loop = asyncio.get_running_loop()
-
-    def data_received(self, data: bytes) -> None:
-        self.loop.call_later(self.delay, self.inner.data_received, data)
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
 async def test_a_restarted_board_answering_later_than_a_requests_tries_is_reconfigured(
         ) -> None:
     # From L's restart on, its every answer comes 0.45 s late: after a request's 8 tries of
@@ -400,15 +461,12 @@ async def test_a_restarted_board_answering_later_than_a_requests_tries_is_reconf
     # confirms the request asked again). The robot drives again.
     async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
         link = robot.links["L"]
-        transport = link._transport  # the port's far end is here
-        assert transport is not None
         seen: list[LinkEvent] = []
 
         def on_event(event: LinkEvent) -> None:
             seen.append(event)
             if event.kind is LinkEventKind.BOARD_RESTARTED:
-                transport._protocol = _LateReads(  # type: ignore[attr-defined]
-                    transport._protocol, 0.45)  # type: ignore[attr-defined]
+                interpose(link, lambda port: LateReads(port, 0.45))
 
         link.on_event(on_event)
         x = robot.pose.x
