@@ -4,6 +4,9 @@ PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed-stamp
 DEMO_STAMP := $(VENV)/.demo-stamp
 PYTEST_ARGS ?=
+# The suite's worker processes (pytest-xdist; 0: one process). Three on two cores take it
+# from about 19 min to 7-10 (docs/architecture.md says what that asks of a test).
+PYTEST_WORKERS ?= 3
 
 .PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
 
@@ -73,8 +76,11 @@ firmware: $(STAMP) cc
 setup: $(STAMP)
 
 # pytest exits 5 when it collected nothing: say so plainly instead of passing it off as a failure of some test.
+# --dist loadfile: a file's tests in one worker, so a module's fixture (the ROS 2 scenarios)
+# starts once.
 test: $(STAMP) iverilog cc tf2-msgs
-	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest $(PYTEST_ARGS); rc=$$?; \
+	@FPGALINK_REQUIRE_HDL=1 FPGALINK_REQUIRE_ROS2=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest \
+	  -n $(PYTEST_WORKERS) --dist loadfile $(PYTEST_ARGS); rc=$$?; \
 	if [ $$rc -eq 5 ]; then echo "make test: pytest collected no tests"; fi; exit $$rc
 
 # The main job on the built-in emulator, no hardware: connect, enable, show the parameters,

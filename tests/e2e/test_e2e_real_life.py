@@ -176,6 +176,10 @@ async def test_one_boards_telemetry_stopping_stops_the_robot_until_it_comes_agai
                     truth.board("L")["now_s"] >= 3.0 for e in link_events), "L's stale")
                 stale = next(e for e in reversed(link_events)
                              if e.kind is LinkEventKind.TELEMETRY_STALE)
+                # The subscription's task may not have had its turn yet (a loaded machine).
+                await wait_until(lambda: any(
+                    e.reason is StopReason.TELEMETRY_STALE and e.board == "L"
+                    for e in events), PATIENCE, "the robot's stop for L's telemetry")
                 stop = first(events, StopReason.TELEMETRY_STALE, "L")
                 assert stop.at <= stale.at or any(
                     e.at == stale.at for e in events if e.reason is StopReason.TELEMETRY_STALE)

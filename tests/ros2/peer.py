@@ -57,7 +57,9 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 
+from fpgalink.boardclock import MAX_SLEW
 from fpgalink.protocol.robot import SEED_ROBOT_TOML
+from fpgalink.ros2.node import IMU_RATE_HZ
 
 PATIENCE = 30.0
 #: A truth line's tick is found among the published stamps within this of where the
@@ -146,6 +148,7 @@ class Peer(Node):
             depth=1000, durability=DurabilityPolicy.TRANSIENT_LOCAL,
             reliability=ReliabilityPolicy.RELIABLE))
         self.enable = self.create_publisher(Bool, "enable", 10)
+        self.enable_sent_at = 0.0
         self.cmd = self.create_publisher(Twist, "cmd_vel", 10)
         self.goal = self.create_publisher(PoseStamped, "goal_pose", 10)
         self.set_client = self.create_client(SetParameters, f"{NODE}/set_parameters")
@@ -185,6 +188,9 @@ class Peer(Node):
             rclpy.spin_once(self, timeout_sec=0.01)
 
     def hold_enable(self) -> None:
+        # Taken before the publish: the node cannot have the message sooner, so a wait
+        # measured from here is never shorter than the node's, however late this peer runs.
+        self.enable_sent_at = time.monotonic()
         self.enable.publish(Bool(data=True))
 
     def drive(self, v: float, omega: float) -> None:
@@ -272,7 +278,18 @@ def main_scenario(peer: Peer) -> None:
         peer.spin_for(1.0, lambda: peer.drive(0.0, 0.0))
         peer.spin_until(lambda: abs(truth.latest["v"]) < 1e-3, "the body at rest",
                         lambda: peer.drive(0.0, 0.0))
-        peer.spin_for(0.3, lambda: peer.drive(0.0, 0.0))
+
+        def odometry_at_rest() -> bool:
+            # A loaded node publishes odometry late (its telemetry waits its turn): compared
+            # once it has caught up with the stop, its last messages still, after moving.
+            recent = peer.odom[-5:]
+            return (len(recent) == 5
+                    and all(abs(m.twist.twist.linear.x) < 1e-3
+                            and abs(m.twist.twist.angular.z) < 1e-3 for m in recent)
+                    and math.hypot(recent[-1].pose.pose.position.x,
+                                   recent[-1].pose.pose.position.y) > 0.1)
+
+        peer.spin_until(odometry_at_rest, "the odometry at rest", lambda: peer.drive(0.0, 0.0))
         true, odom = truth.latest, peer.odom[-1].pose.pose
         theta = 2 * math.atan2(odom.orientation.z, odom.orientation.w)
         report("cmd_vel", truth_x=true["x"], truth_y=true["y"], truth_theta=true["theta"],
@@ -339,11 +356,10 @@ def main_scenario(peer: Peer) -> None:
             peer.spin_for(1.0, lambda: peer.drive(0.15, 0.0))
             driven = {n: {"pwm": [b["pwm_a"], b["pwm_b"]], "enabled": b["enabled"],
                           "now_s": b["now_s"]} for n, b in truth.latest["boards"].items()}
-            last_enable = time.monotonic()
             peer.spin_until(lambda: not any(b["enabled"] or b["pwm_a"] or b["pwm_b"]
                                             for b in truth.latest["boards"].values()),
                             "both boards disabled, PWM 0, after the enable stopped")
-            host_wait = time.monotonic() - last_enable
+            host_wait = time.monotonic() - peer.enable_sent_at
             peer.spin_until(lambda: "stopped" in _status(peer, "supervision")[1],
                             "the stop in diagnostics")
             reason = _status(peer, "supervision")[1]
@@ -371,42 +387,93 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
     for stamp, velocity, _ in peer.joints:
         by_speeds.setdefault(tuple(velocity[:2]), []).append(stamp)
     # The node maps board time onto ROS time through an offset it estimates continuously
-    # (fpgalink.boardclock): it moves down by fractions of a millisecond while smaller
-    # delays are found, less than the 1 ms between ticks. Candidate offsets from every
-    # speed match, voted in 0.1 ms bins, give where to start; from that line on, forwards
-    # and backwards, each line's message is the one stamped nearest its tick at the offset
-    # followed so far (within 0.45 ms), and its speeds are compared.
-    votes: dict[int, list[tuple[int, int]]] = {}  # bin: (offset, line index)
+    # (fpgalink.boardclock): locked, it moves by microseconds; when a smaller delay is
+    # found (often on a loaded machine) it falls, by at most MAX_SLEW of the board time
+    # passed; it steps up at once only when its estimate is refitted. Every speed match
+    # gives a candidate offset (0.1 ms bins keep one per bin). From a candidate's line on,
+    # forwards and backwards, each line's message is looked for where the offset followed so far
+    # puts its tick (within 0.45 ms), widened by what the offset may have fallen since the
+    # last line matched (earlier, going backwards); one there holding that tick's speeds is
+    # its message, and the offset follows it. A stamp later than that window (arrival
+    # time, say) is never taken. A line whose window holds only other speeds is a mismatch
+    # when the offset provably stayed put around it: the lines matched on either side agree
+    # on it within 0.1 ms, and the message at its tick is a whole number of ticks from its
+    # neighbours (no step up there, and none fallen back), so that message is its own. The
+    # start is the candidate the most lines agree with: a bin's votes alone are no guide,
+    # since a speed held for several ticks also votes for offsets a multiple of 20 ms (a
+    # truth line) away.
+    bins: dict[int, list[tuple[int, int]]] = {}  # bin: (offset, line index)
     for index, line in enumerate(lines):
         for stamp in by_speeds.get(tuple(expected(line, "L")), []):
             offset = stamp - line["boards"]["L"]["t_us"] * 1000
-            votes.setdefault(round(offset / 100_000), []).append((offset, index))
-    chosen: list[tuple[int, int]] = max(votes.values(), key=len) if votes else [(0, 0)]
-    best = sorted(chosen)
-    start_offset, start = best[len(best) // 2]
+            bins.setdefault(round(offset / 100_000), []).append((offset, index))
     published = sorted((stamp, velocity) for stamp, velocity, _ in peer.joints)
     published_stamps = [stamp for stamp, _ in published]
-    at_stamp = equal_left = equal_right = 0
-    for indices in (range(start, len(lines)), range(start - 1, -1, -1)):
-        offset = start_offset
-        for index in indices:
-            line = lines[index]
-            wanted = offset + line["boards"]["L"]["t_us"] * 1000
-            i = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
-            if i == len(published) or published_stamps[i] > wanted + STAMP_TOLERANCE_NS:
-                continue
-            stamp, velocity = published[i]
-            at_stamp += 1
-            if velocity[:2] == expected(line, "L"):
+
+    def locked(k: int) -> bool:
+        """Message ``k`` is a whole number of ticks from its neighbours (within 0.1 ms): the
+        offset did not step there (it steps up at once when its estimate is refitted)."""
+        for a, b in ((k - 1, k), (k, k + 1)):
+            if a >= 0 and b < len(published_stamps):
+                gap = published_stamps[b] - published_stamps[a]
+                if abs(gap - round(gap / 1_000_000) * 1_000_000) > 100_000:
+                    return False
+        return True
+
+    def follow(start_offset: int, start: int
+               ) -> tuple[int, int, int, int, list[dict[str, Any]]]:
+        """(lines decided: matched, or provably not; of which equal on L, equal on R, equal
+        on L while it turned; the mismatches decided)"""
+        equal_left = equal_right = equal_moving = 0
+        found: list[dict[str, Any]] = []
+        for indices, later in ((range(start, len(lines)), True),
+                               (range(start - 1, -1, -1), False)):
+            offset = start_offset
+            matched_us = lines[start]["boards"]["L"]["t_us"]
+            matched_offset: int | None = None
+            unmatched: list[dict[str, Any]] = []  # since the last match: a message at the tick
+            for index in indices:
+                line = lines[index]
+                t_us = line["boards"]["L"]["t_us"]
+                wanted = offset + t_us * 1000
+                slew = round(MAX_SLEW * abs(t_us - matched_us) * 1000)
+                low, high = (wanted - slew, wanted) if later else (wanted, wanted + slew)
+                i = bisect.bisect_left(published_stamps, low - STAMP_TOLERANCE_NS)
+                j = bisect.bisect_right(published_stamps, high + STAMP_TOLERANCE_NS)
+                wanted_left = expected(line, "L")
+                equal = [k for k in range(i, j) if published[k][1][:2] == wanted_left]
+                if not equal:
+                    near = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
+                    if near < len(published) and locked(near) \
+                            and published_stamps[near] <= wanted + STAMP_TOLERANCE_NS:
+                        unmatched.append({"line_t_us": t_us, "wanted_ns": wanted,
+                                          "stamp_ns": published_stamps[near],
+                                          "speeds": wanted_left,
+                                          "published": published[near][1][:2]})
+                    continue
+                k = min(equal, key=lambda k: abs(published_stamps[k] - wanted))
+                stamp, velocity = published[k]
+                offset, matched_us = stamp - t_us * 1000, t_us
+                if matched_offset is not None and abs(offset - matched_offset) < 100_000:
+                    found += unmatched
+                unmatched, matched_offset = [], offset
                 equal_left += 1
-                offset = stamp - line["boards"]["L"]["t_us"] * 1000
-            equal_right += velocity[2:] == expected(line, "R")
+                equal_moving += any(velocity[:2])
+                equal_right += velocity[2:] == expected(line, "R")
+        return equal_left + len(found), equal_left, equal_right, equal_moving, found
+
+    followed = {key: follow(*sorted(chosen)[len(chosen) // 2]) for key, chosen in bins.items()}
+    best = max(followed, key=lambda key: (followed[key][1], -followed[key][0]), default=None)
+    at_stamp, equal_left, equal_right, equal_moving, mismatches = (0, 0, 0, 0, []) \
+        if best is None else followed[best]
     stamps = [stamp for stamp, _, _ in peer.joints]
     gaps_ms = [(b - a) / 1e6 for a, b in itertools.pairwise(stamps)]
     moving = sum(1 for line in lines if any(expected(line, "L")))
     return {"truth_lines": len(lines), "moving_lines": moving,
-            "offset_votes": len(best), "at_stamp": at_stamp,
-            "equal_left": equal_left, "equal_right": equal_right,
+            "candidates": len(bins), "offset_votes": 0 if best is None else len(bins[best]),
+            "at_stamp": at_stamp,
+            "equal_left": equal_left, "equal_right": equal_right, "equal_moving": equal_moving,
+            "mismatches": mismatches,
             "messages": len(stamps), "distinct_stamps": len(set(stamps)),
             "increasing": all(g > 0 for g in gaps_ms), "min_gap_ms": min(gaps_ms, default=0),
             "names": peer.joint_names}
@@ -571,7 +638,10 @@ def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
     restart_ns = round(_epoch_of(truth.lines, run.at) * 1e9)
     # Driving on (enable held all along): the node must refuse until L is reconfigured,
     # then the enable drives again.
-    peer.spin_until(lambda: _first_error(peer, "L", restart_ns, "restarted") is not None,
+    # "restarted: …" is the status once the restart is known; a silence longer than the
+    # liveness timeout (a stalled node) comes first as "heard again: checking whether it
+    # restarted".
+    peer.spin_until(lambda: _first_error(peer, "L", restart_ns, "restarted:") is not None,
                     "board L's restart in diagnostics", drive)
     peer.spin_until(lambda: _status(peer, "board L")[0] in (0, 1)
                     and _status(peer, "supervision") == (0, "enabled"),
@@ -586,7 +656,7 @@ def _restart_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
     first = _first_error(peer, "L", restart_ns)
     assert first is not None
     first_ns, at_first = first
-    restarted = _first_error(peer, "L", restart_ns, "restarted")
+    restarted = _first_error(peer, "L", restart_ns, "restarted:")
     assert restarted is not None
     lines = list(truth.lines)
     # R's enable fell after the restart: by the node's RD (or its own watchdog).
@@ -968,13 +1038,12 @@ def imu_scenario(peer: Peer) -> None:
     peer.create_subscription(Odometry, "truth", truth.append, 10)
     node = start_node({})  # no port: the emulated robot in the node's process
     try:
-        peer.spin_until(lambda: len(imu) >= 50, "imu/data")
-        first = time.monotonic()
-        count = len(imu)
-        peer.spin_for(2.0)
-        rate = (len(imu) - count) / (time.monotonic() - first)
+        peer.spin_until(lambda: len(imu) >= 100, "imu/data")
         rest = imu[-50:]
-        report("imu_rest", rate_hz=rate, frame_id=rest[-1].header.frame_id,
+        span_s = (_stamp_ns(rest[-1].header) - _stamp_ns(rest[0].header)) / 1e9
+        report("imu_rest", rate_hz=IMU_RATE_HZ,
+               stamp_rate_hz=(len(rest) - 1) / span_s if span_s > 0 else math.inf,
+               frame_id=rest[-1].header.frame_id,
                orientation_covariance=rest[-1].orientation_covariance[0],
                gyro_variance=rest[-1].angular_velocity_covariance[0],
                accel_variance=rest[-1].linear_acceleration_covariance[0],
@@ -984,7 +1053,9 @@ def imu_scenario(peer: Peer) -> None:
         peer.spin_for(3.0, lambda: peer.drive(0.0, 0.3))  # turning on the spot
         imu.clear()
         truth.clear()
-        peer.spin_for(2.0, lambda: peer.drive(0.0, 0.3))
+        # 25 readings (half a second at 50 Hz; longer on a loaded machine) turning steadily.
+        peer.spin_until(lambda: len(imu) >= 25 and len(truth) >= 5, "imu/data turning",
+                        lambda: peer.drive(0.0, 0.3))
         report("imu_turning", gz=sum(m.angular_velocity.z for m in imu) / max(1, len(imu)),
                truth_omega=sum(t.twist.twist.angular.z for t in truth) / max(1, len(truth)),
                samples=len(imu))
