@@ -17,7 +17,6 @@ Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the tes
 
 from __future__ import annotations
 
-import bisect
 import contextlib
 import itertools
 import json
@@ -57,14 +56,10 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 from tf2_msgs.msg import TFMessage
 
-from fpgalink.boardclock import MAX_SLEW
 from fpgalink.protocol.robot import SEED_ROBOT_TOML
 from fpgalink.ros2.node import IMU_RATE_HZ
 
 PATIENCE = 30.0
-#: A truth line's tick is found among the published stamps within this of where the
-#: offset followed so far puts it (a tick is 1 ms).
-STAMP_TOLERANCE_NS = 450_000
 NODE = "fpgalink"
 
 
@@ -127,6 +122,8 @@ class Peer(Node):
     def __init__(self, namespace: str = "") -> None:
         super().__init__("peer", namespace=namespace)
         self.joints: list[tuple[int, list[float], float]] = []  # stamp ns, velocity, arrival
+        #: stamp ns, velocity, position: the messages since joint_states_match began
+        self.joint_messages: list[tuple[int, list[float], list[float]]] = []
         self.joint_names: list[str] = []
         self.odom: list[Odometry] = []
         self.diagnostics: list[DiagnosticArray] = []
@@ -168,6 +165,7 @@ class Peer(Node):
     def _on_joints(self, message: JointState) -> None:
         stamp = message.header.stamp.sec * 1_000_000_000 + message.header.stamp.nanosec
         self.joints.append((stamp, list(message.velocity), time.monotonic()))
+        self.joint_messages.append((stamp, list(message.velocity), list(message.position)))
         self.joint_names = list(message.name)
 
     def spin_for(self, seconds: float, each: Any = None) -> None:
@@ -296,10 +294,12 @@ def main_scenario(peer: Peer) -> None:
                distance=true["distance"], odom_x=odom.position.x, odom_y=odom.position.y,
                odom_theta=theta)
 
-        # joint_states: each JointState's wheel speeds are one TM's speeds, in rad/s, stamped
-        # with that TM's board time plus one fixed offset. The truth stream gives (board time,
-        # speeds) of the boards' latest tick 50 times a second.
+        # joint_states: each JointState's wheel angles and speeds are one TM's, in rad and
+        # rad/s, stamped with that TM's board time mapped onto ROS time. The truth stream gives
+        # the board time, encoder counts and speeds of the boards' latest tick 50 times a
+        # second.
         peer.joints.clear()
+        peer.joint_messages.clear()
         first_truth = len(truth.lines)
         peer.spin_for(2.0, lambda: peer.drive(0.1, math.radians(-15)))
         report("joint_states", **_match_joint_states(peer, truth.lines[first_truth:]))
@@ -352,10 +352,19 @@ def main_scenario(peer: Peer) -> None:
         # each board's PWM reached 0, in board time, against its last RE. A stop for another
         # reason meanwhile (a loaded machine's stalled node: its own watchdog report) is not
         # the deadman's: then the experiment is run again, up to three times.
+        # Driven first, as long as that takes: a loaded node may still be recovering from a
+        # stop of its own (or the truth stream may be read late), so a fixed second of
+        # driving is no proof either way.
+        def driven_now() -> dict[str, dict[str, Any]]:
+            return {n: {"pwm": [b["pwm_a"], b["pwm_b"]], "enabled": b["enabled"],
+                        "now_s": b["now_s"]} for n, b in truth.latest["boards"].items()}
+
         for _ in range(3):
-            peer.spin_for(1.0, lambda: peer.drive(0.15, 0.0))
-            driven = {n: {"pwm": [b["pwm_a"], b["pwm_b"]], "enabled": b["enabled"],
-                          "now_s": b["now_s"]} for n, b in truth.latest["boards"].items()}
+            peer.spin_for(0.5, lambda: peer.drive(0.15, 0.0))
+            peer.spin_until(lambda: all(b["enabled"] and any(b["pwm"])
+                                        for b in driven_now().values()),
+                            "both boards enabled and driven", lambda: peer.drive(0.15, 0.0))
+            driven = driven_now()
             peer.spin_until(lambda: not any(b["enabled"] or b["pwm_a"] or b["pwm_b"]
                                             for b in truth.latest["boards"].values()),
                             "both boards disabled, PWM 0, after the enable stopped")
@@ -378,102 +387,75 @@ def main_scenario(peer: Peer) -> None:
 
 
 def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, Any]:
+    """Each truth line's tick found among the published joint_states, and its speeds
+    compared.
+
+    The key is the left wheels' angles: the encoder counts the tick's TM carried (the
+    truth line's ``position_a``/``_b``), as the node turns them into radians (SPEC §5:
+    10 counts per encoder pulse). A key shared by several messages (wheels at rest) names
+    none and is left out. A slow wheel keeps its count for a few ticks, so a key may still
+    name a neighbouring tick whose own message the node skipped (a loaded node publishes a
+    fraction of the sets): that message is a whole tick off the board-clock offset, which
+    is constant to the nanosecond once locked. So a line's message is the one holding its
+    angles *and* stamped within 0.1 ms of the offset most lines hold. Stamps alone are no
+    key: a wheel at a steady speed reads the same M/T value on neighbouring ticks, and the
+    stamp-following match this replaces locked onto an offset a whole tick off (its
+    "mismatches" were each the node's message for the tick before, found 2026-11-25 by
+    logging the node's own t_us beside each stamp: the node was right). The stamps are
+    checked apart, on the angles alone: mapped from the board's clock, ``stamp − t_us``
+    holds still from line to line, where an arrival time would not."""
+
+    def angles(line: dict[str, Any], board: str) -> tuple[float, float]:
+        sample, params = line["boards"][board], line["boards"][board]["params"]
+        return (math.tau * sample["position_a"] / (10 * params["IncSenzResA"]),
+                math.tau * sample["position_b"] / (10 * params["IncSenzResB"]))
+
     def expected(line: dict[str, Any], board: str) -> list[float]:
         sample = line["boards"][board]
         return [math.radians(float32(sample["speed_a"])),
                 math.radians(float32(sample["speed_b"]))]
 
-    by_speeds: dict[tuple[float, ...], list[int]] = {}
-    for stamp, velocity, _ in peer.joints:
-        by_speeds.setdefault(tuple(velocity[:2]), []).append(stamp)
-    # The node maps board time onto ROS time through an offset it estimates continuously
-    # (fpgalink.boardclock): locked, it moves by microseconds; when a smaller delay is
-    # found (often on a loaded machine) it falls, by at most MAX_SLEW of the board time
-    # passed; it steps up at once only when its estimate is refitted. Every speed match
-    # gives a candidate offset (0.1 ms bins keep one per bin). From a candidate's line on,
-    # forwards and backwards, each line's message is looked for where the offset followed so far
-    # puts its tick (within 0.45 ms), widened by what the offset may have fallen since the
-    # last line matched (earlier, going backwards); one there holding that tick's speeds is
-    # its message, and the offset follows it. A stamp later than that window (arrival
-    # time, say) is never taken. A line whose window holds only other speeds is a mismatch
-    # when the offset provably stayed put around it: the lines matched on either side agree
-    # on it within 0.1 ms, and the message at its tick is a whole number of ticks from its
-    # neighbours (no step up there, and none fallen back), so that message is its own. The
-    # start is the candidate the most lines agree with: a bin's votes alone are no guide,
-    # since a speed held for several ticks also votes for offsets a multiple of 20 ms (a
-    # truth line) away.
-    bins: dict[int, list[tuple[int, int]]] = {}  # bin: (offset, line index)
-    for index, line in enumerate(lines):
-        for stamp in by_speeds.get(tuple(expected(line, "L")), []):
-            offset = stamp - line["boards"]["L"]["t_us"] * 1000
-            bins.setdefault(round(offset / 100_000), []).append((offset, index))
-    published = sorted((stamp, velocity) for stamp, velocity, _ in peer.joints)
-    published_stamps = [stamp for stamp, _ in published]
-
-    def locked(k: int) -> bool:
-        """Message ``k`` is a whole number of ticks from its neighbours (within 0.1 ms): the
-        offset did not step there (it steps up at once when its estimate is refitted)."""
-        for a, b in ((k - 1, k), (k, k + 1)):
-            if a >= 0 and b < len(published_stamps):
-                gap = published_stamps[b] - published_stamps[a]
-                if abs(gap - round(gap / 1_000_000) * 1_000_000) > 100_000:
-                    return False
-        return True
-
-    def follow(start_offset: int, start: int
-               ) -> tuple[int, int, int, int, list[dict[str, Any]]]:
-        """(lines decided: matched, or provably not; of which equal on L, equal on R, equal
-        on L while it turned; the mismatches decided)"""
-        equal_left = equal_right = equal_moving = 0
-        found: list[dict[str, Any]] = []
-        for indices, later in ((range(start, len(lines)), True),
-                               (range(start - 1, -1, -1), False)):
-            offset = start_offset
-            matched_us = lines[start]["boards"]["L"]["t_us"]
-            matched_offset: int | None = None
-            unmatched: list[dict[str, Any]] = []  # since the last match: a message at the tick
-            for index in indices:
-                line = lines[index]
-                t_us = line["boards"]["L"]["t_us"]
-                wanted = offset + t_us * 1000
-                slew = round(MAX_SLEW * abs(t_us - matched_us) * 1000)
-                low, high = (wanted - slew, wanted) if later else (wanted, wanted + slew)
-                i = bisect.bisect_left(published_stamps, low - STAMP_TOLERANCE_NS)
-                j = bisect.bisect_right(published_stamps, high + STAMP_TOLERANCE_NS)
-                wanted_left = expected(line, "L")
-                equal = [k for k in range(i, j) if published[k][1][:2] == wanted_left]
-                if not equal:
-                    near = bisect.bisect_left(published_stamps, wanted - STAMP_TOLERANCE_NS)
-                    if near < len(published) and locked(near) \
-                            and published_stamps[near] <= wanted + STAMP_TOLERANCE_NS:
-                        unmatched.append({"line_t_us": t_us, "wanted_ns": wanted,
-                                          "stamp_ns": published_stamps[near],
-                                          "speeds": wanted_left,
-                                          "published": published[near][1][:2]})
-                    continue
-                k = min(equal, key=lambda k: abs(published_stamps[k] - wanted))
-                stamp, velocity = published[k]
-                offset, matched_us = stamp - t_us * 1000, t_us
-                if matched_offset is not None and abs(offset - matched_offset) < 100_000:
-                    found += unmatched
-                unmatched, matched_offset = [], offset
-                equal_left += 1
-                equal_moving += any(velocity[:2])
-                equal_right += velocity[2:] == expected(line, "R")
-        return equal_left + len(found), equal_left, equal_right, equal_moving, found
-
-    followed = {key: follow(*sorted(chosen)[len(chosen) // 2]) for key, chosen in bins.items()}
-    best = max(followed, key=lambda key: (followed[key][1], -followed[key][0]), default=None)
-    at_stamp, equal_left, equal_right, equal_moving, mismatches = (0, 0, 0, 0, []) \
-        if best is None else followed[best]
+    by_angles: dict[tuple[float, ...], list[tuple[int, list[float]]]] = {}
+    for stamp, velocity, position in peer.joint_messages:
+        by_angles.setdefault(tuple(position[:2]), []).append((stamp, velocity))
+    ambiguous = 0
+    keyed: list[tuple[dict[str, Any], int, list[float]]] = []  # line, stamp, velocity
+    for line in lines:
+        messages = by_angles.get(angles(line, "L"), [])
+        if len(messages) != 1:
+            ambiguous += len(messages) > 1
+            continue
+        keyed.append((line, *messages[0]))
+    offsets = [stamp - line["boards"]["L"]["t_us"] * 1000 for line, stamp, _ in keyed]
+    steps_ns = sorted(abs(b - a) for a, b in itertools.pairwise(offsets))
+    bins: dict[int, list[int]] = {}
+    for offset in offsets:
+        bins.setdefault(round(offset / 100_000), []).append(offset)
+    held = sorted(bins[max(bins, key=lambda key: len(bins[key]))]) if bins else [0]
+    locked_offset = held[len(held) // 2]
+    found = equal_left = equal_right = equal_moving = 0
+    mismatches: list[dict[str, Any]] = []
+    for (line, stamp, velocity), offset in zip(keyed, offsets, strict=True):
+        if abs(offset - locked_offset) > 100_000:
+            continue
+        found += 1
+        if velocity[:2] == expected(line, "L"):
+            equal_left += 1
+            equal_moving += any(velocity[:2])
+        else:
+            mismatches.append({"line_t_us": line["boards"]["L"]["t_us"], "stamp_ns": stamp,
+                               "speeds": expected(line, "L"), "published": velocity[:2]})
+        # The right board's sample is its latest when the left's completed the set.
+        equal_right += velocity[2:] == expected(line, "R")
     stamps = [stamp for stamp, _, _ in peer.joints]
     gaps_ms = [(b - a) / 1e6 for a, b in itertools.pairwise(stamps)]
     moving = sum(1 for line in lines if any(expected(line, "L")))
-    return {"truth_lines": len(lines), "moving_lines": moving,
-            "candidates": len(bins), "offset_votes": 0 if best is None else len(bins[best]),
-            "at_stamp": at_stamp,
+    return {"truth_lines": len(lines), "moving_lines": moving, "keyed": len(keyed),
+            "found": found, "ambiguous": ambiguous,
             "equal_left": equal_left, "equal_right": equal_right, "equal_moving": equal_moving,
             "mismatches": mismatches,
+            "offset_step_median_ns": steps_ns[len(steps_ns) // 2] if steps_ns else None,
+            "offset_step_max_ns": steps_ns[-1] if steps_ns else None,
             "messages": len(stamps), "distinct_stamps": len(set(stamps)),
             "increasing": all(g > 0 for g in gaps_ms), "min_gap_ms": min(gaps_ms, default=0),
             "names": peer.joint_names}
