@@ -303,6 +303,20 @@ def main_scenario(peer: Peer) -> None:
         first_truth = len(truth.lines)
         peer.spin_for(2.0, lambda: peer.drive(0.1, math.radians(-15)))
         report("joint_states", **_match_joint_states(peer, truth.lines[first_truth:]))
+        # Diagnostics say how far the published sets lag: a board's "latest sample age" is
+        # the diagnostics' own stamp less a joint_states stamp the node published (0.1 ms).
+        heard = len(peer.diagnostics)
+        peer.spin_until(lambda: len(peer.diagnostics) > heard, "diagnostics",
+                        lambda: peer.drive(0.1, math.radians(-15)))
+        array = peer.diagnostics[-1]
+        age = next(dict((v.key, v.value) for v in status.values)["latest sample age"]
+                   for status in array.status if status.name == f"{NODE}: board L")
+        set_ns = _stamp_ns(array.header) - round(float(age.removesuffix(" ms")) * 1e6)
+        # Topics have no order between them: that set's joint_states may come after.
+        peer.spin_until(lambda: any(stamp >= set_ns - 60_000 for stamp, _, _ in peer.joints),
+                        "the set the age is of", lambda: peer.drive(0.1, math.radians(-15)))
+        report("sample_age", age=age, nearest_stamp_ns=min(
+            (abs(stamp - set_ns) for stamp, _, _ in peer.joints), default=None))
         peer.spin_for(1.0, lambda: peer.drive(0.0, 0.0))
 
         # goal_pose: the robot drives there.

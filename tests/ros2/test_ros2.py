@@ -182,6 +182,16 @@ def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
     assert facts["min_gap_ms"] >= (1.0 - MAX_SLEW) - 1e-6
 
 
+def test_diagnostics_say_how_far_the_published_samples_lag(
+        scenarios: dict[str, Scenario]) -> None:
+    facts = scenarios["main"].check("sample_age")
+    # The age is of a sample the node published: the diagnostics' stamp less the age is a
+    # joint_states stamp, to the 0.1 ms the age is given in; how large it is depends on load.
+    assert facts["age"].endswith(" ms") and math.isfinite(float(facts["age"].split()[0]))
+    assert facts["nearest_stamp_ns"] is not None, facts
+    assert facts["nearest_stamp_ns"] <= 50_000 + 1, facts  # half of 0.1 ms, and a float's
+
+
 def test_cmd_vel_moves_the_body_and_odom_follows_it(scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["main"].check("cmd_vel")
     assert facts["distance"] > 0.2  # 2 s at 0.2 m/s asked: it moved

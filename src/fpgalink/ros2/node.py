@@ -1207,10 +1207,24 @@ class RosBridge:
 
     def diagnostics(self, now: float) -> DiagnosticArray:
         array = DiagnosticArray()
-        array.header.stamp = self.node.get_clock().now().to_msg()
-        array.status = [diagnostic_status(status, self.node.get_name())
+        ros_now = self.node.get_clock().now()
+        array.header.stamp = ros_now.to_msg()
+        array.status = [diagnostic_status(self._with_sample_age(status, ros_now.nanoseconds),
+                                          self.node.get_name())
                         for status in self.robot.health(now)]
         return array
+
+    def _with_sample_age(self, status: Status, now_ns: int) -> Status:
+        """A board's status with how old, on the ROS clock, the board time of its sample in
+        the last published set is: what joint_states and odom lag the boards by. A loaded
+        node falls behind the telemetry long before the telemetry counts as stopped (50
+        periods without a sample), and this says so; empty before the first set."""
+        board = status.name.removeprefix("board ")
+        if not status.name.startswith("board ") or board not in self._clocks:
+            return status
+        stamp = self._set_stamps.get(board)
+        age = "" if stamp is None else f"{(now_ns - stamp) / 1e6:.1f} ms"
+        return dataclasses.replace(status, values=(*status.values, ("latest sample age", age)))
 
 
 class _RecordedPublisher:
