@@ -5,7 +5,7 @@ STAMP  := $(VENV)/.installed-stamp
 DEMO_STAMP := $(VENV)/.demo-stamp
 PYTEST_ARGS ?=
 # The suite's worker processes (pytest-xdist; 0: one process). Three on two cores take it
-# from about 19 min to 7-10 (docs/architecture.md says what that asks of a test).
+# from about 19 min to 4-10 (docs/architecture.md says what that asks of a test).
 PYTEST_WORKERS ?= 3
 
 .PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
