@@ -329,11 +329,11 @@ class McapSink:
                 sequence=self._sequence)
             self.messages += 1
             # The writer writes to the file only when a chunk is full, whole: once on disk,
-            # the file is complete there, and an abandoned file is cut back no further.
-            written = self._file.tell()
-            if written != self._space.good:
-                self._file.flush()
-                self._space.good = written
+            # the file is complete there, an abandoned file is cut back no further, and the
+            # room for the summary is reserved again past it (a fast writer fills more
+            # than the reserve between timed flushes).
+            if self._file.tell() != self._space.good:
+                self._space.mark_good()
             if time.monotonic() - self._flushed >= FLUSH_S:
                 self._flush()
         except OSError:

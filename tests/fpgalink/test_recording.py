@@ -28,3 +28,24 @@ def test_an_abandoned_recording_keeps_every_complete_chunk(
     readable = len(readable_topics(path))
     # Every message but those of the chunk still open (at most a chunk's worth).
     assert written - per_chunk - 10 <= readable < written
+
+
+def test_the_summarys_room_stays_reserved_ahead_of_a_fast_writer(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Room for the summary is reserved past every chunk that lands, not only at the timed
+    flushes: a fast writer fills more than the reserve between two of them, and a disk that
+    fills then must still take the summary."""
+    monkeypatch.setattr(recording, "FLUSH_S", float("inf"))
+    path = tmp_path / "r.mcap"
+    sink = McapSink(path, ["L"], {}, library="test")
+    record = {"kind": "x", "detail": "y" * 900, "timestamp": 0.0}
+    for i in range(3 * recording.RESERVE_BYTES // 1000):  # three reserves' worth
+        sink.add("/board/L/params", record, float(i))
+    stat = path.stat()
+    allocated_past_end = stat.st_blocks * 512 - stat.st_size
+    sink.close()
+    if recording._fallocate() is None:
+        pytest.skip("no fallocate here: the reserve is the writes' to find")
+    # Reserved from the last chunk's end: the reserve, less what of its last block the
+    # file's end already used.
+    assert allocated_past_end >= recording.RESERVE_BYTES - 4096, allocated_past_end
