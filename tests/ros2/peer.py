@@ -305,18 +305,12 @@ def main_scenario(peer: Peer) -> None:
         report("joint_states", **_match_joint_states(peer, truth.lines[first_truth:]))
         # Diagnostics say how far the published sets lag: a board's "latest sample age" is
         # the diagnostics' own stamp less a joint_states stamp the node published (0.1 ms).
-        heard = len(peer.diagnostics)
-        peer.spin_until(lambda: len(peer.diagnostics) > heard, "diagnostics",
-                        lambda: peer.drive(0.1, math.radians(-15)))
-        array = peer.diagnostics[-1]
-        age = next(dict((v.key, v.value) for v in status.values)["latest sample age"]
-                   for status in array.status if status.name == f"{NODE}: board L")
-        set_ns = _stamp_ns(array.header) - round(float(age.removesuffix(" ms")) * 1e6)
-        # Topics have no order between them: that set's joint_states may come after.
-        peer.spin_until(lambda: any(stamp >= set_ns - 60_000 for stamp, _, _ in peer.joints),
-                        "the set the age is of", lambda: peer.drive(0.1, math.radians(-15)))
-        report("sample_age", age=age, nearest_stamp_ns=min(
-            (abs(stamp - set_ns) for stamp, _, _ in peer.joints), default=None))
+        # This peer may miss that one message (a busy peer's subscriptions drop, the
+        # sensor-data one by design): the next diagnostics are tried, up to ten.
+        ages = [_sample_age(peer)]
+        while len(ages) < 10 and (ages[-1][1] is None or ages[-1][1] > 50_001):
+            ages.append(_sample_age(peer))
+        report("sample_age", age=ages[-1][0], nearest_stamp_ns=ages[-1][1], tries=len(ages))
         peer.spin_for(1.0, lambda: peer.drive(0.0, 0.0))
 
         # goal_pose: the robot drives there.
@@ -398,6 +392,23 @@ def main_scenario(peer: Peer) -> None:
         report("node_exit", code=node.stop())
         report("serve_exit", code=serve.stop())
         truth.close()
+
+
+def _sample_age(peer: Peer) -> tuple[str, int | None]:
+    """The next diagnostics' "latest sample age" of board L, and how far (ns) the stamp it
+    implies is from the nearest joint_states stamp this peer received."""
+    heard = len(peer.diagnostics)
+    peer.spin_until(lambda: len(peer.diagnostics) > heard, "diagnostics",
+                    lambda: peer.drive(0.1, math.radians(-15)))
+    array = peer.diagnostics[-1]
+    age: str = next(dict((v.key, v.value) for v in status.values)["latest sample age"]
+                    for status in array.status if status.name == f"{NODE}: board L")
+    set_ns = _stamp_ns(array.header) - round(float(age.removesuffix(" ms")) * 1e6)
+    # Topics have no order between them: that set's joint_states may come after.
+    peer.spin_until(lambda: any(stamp >= set_ns - 60_000 for stamp, _, _ in peer.joints),
+                    "the set the age is of", lambda: peer.drive(0.1, math.radians(-15)))
+    received = [stamp for stamp, _, _ in peer.joints] + peer.reliable_joints
+    return age, min((abs(stamp - set_ns) for stamp in received), default=None)
 
 
 def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, Any]:
