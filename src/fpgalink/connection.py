@@ -368,6 +368,9 @@ class Connection:
         #: every parameter this side set and the board confirmed, in the order first set:
         #: the configuration it holds, set again after the board restarts
         self.held: dict[tuple[int, int], tuple[Param, int, int | float]] = {}
+        #: values sent in a set the board has not confirmed since (unanswered, or still
+        #: under way): it may hold any of them, so a probe reading one is no lost setting
+        self._unconfirmed: dict[tuple[int, int], set[int | float]] = {}
         self._last_heartbeat_at: float | None = None  #: when the last RE was queued
         self._enable_seen = False  #: the board's telemetry showed it enabled by this link
         self._saw_disabled = False  #: since enable(), a sample showed the board disabled
@@ -847,6 +850,7 @@ class Connection:
             detail += f"; {self._verify}"
             self._verify = None
         self._events.append(BoardRestarted(evidence, detail))
+        self._unconfirmed.clear()  # its power-up values now, whatever was sent before
         self.counter_tracker.reset()
         self._last_duplicate = None
         if self.enabled:
@@ -1069,6 +1073,9 @@ class Connection:
         request = _Request(request_id, param, channel, value, now + self.request_timeout, 1,
                            message)
         self._requests[request_id] = request
+        if value is not None:
+            self._unconfirmed.setdefault((param.id, channel), set()).add(
+                float32(float(value)) if param.type is ParamType.FLOAT else value)
         self._queue(message, now)
         return request_id
 
@@ -1164,11 +1171,18 @@ class Connection:
         if request.value is not None:
             # Keys keep their first place: the order the configuration was built in.
             self.held[(param.id, channel)] = (param, channel, value)
+            self._unconfirmed.pop((param.id, channel), None)
         self._confirmed(param, channel, value, now)
         if request.request_id == self._probe:
             self._probe = None
             held = self.held.get((param.id, channel))
-            if held is not None and held[2] != value:
+            # A set of this parameter left unconfirmed (asked again meanwhile, say, or
+            # still waiting behind the telemetry in a slow host's port) may have been
+            # applied: reading its value is no lost configuration. (A robot quieting a
+            # board found streaming was taken for a restarted board, and the resync set
+            # the telemetry on again.)
+            if held is not None and held[2] != value \
+                    and value not in self._unconfirmed.get((param.id, channel), ()):
                 self._restarted(RestartEvidence.CONFIG_LOST,
                                 f"{param.full_name(channel)} reads {value} on the board; "
                                 f"this host set {held[2]}", now)

@@ -414,6 +414,37 @@ def test_a_stale_board_whose_telemetry_is_off_restarted_and_is_set_up_again() ->
     assert board.values[(2, 0)] == 1  # telemetry on again, last
 
 
+def test_a_stale_board_holding_a_value_this_host_sent_unconfirmed_did_not_restart() -> None:
+    # Telemetry turned off by a set whose answers wait behind the telemetry in a slow
+    # host's port: the board takes it at once and the stream stops, so the host asks what
+    # the board has; the set runs out of tries and is asked again. The first answer to
+    # come, the set's own echo (0), is taken by the earlier question: the board reads 0.
+    # That is the unconfirmed set, not a lost setting; taken for a restart, the resync set
+    # the telemetry on again (a robot quieting a board found streaming, on a slow host).
+    host, board, _ = configured()
+    first = host.set_param(lookup("GetDataPeriodical"), 0, 0, 0.021)
+    waiting = board.answer(host.data_to_send())  # applied; nothing read back yet
+    events: list[Event] = []
+    now = 0.021
+    while not any(isinstance(e, RequestFailed) and e.request_id == first for e in events):
+        timer = host.get_timer()
+        assert timer is not None
+        now = timer
+        host.handle_timer(now)
+        waiting += board.answer(host.data_to_send())
+        events += host.events()
+    assert any(isinstance(e, TelemetryStale) for e in events)
+    host.set_param(lookup("GetDataPeriodical"), 0, 0, now)  # asked again
+    waiting += board.answer(host.data_to_send())
+    host.receive_data(waiting, now + 0.001)  # read at last, in order
+    events = list(host.events())
+    assert not any(isinstance(e, BoardRestarted) for e in events), events
+    assert host.stats.restarts == 0 and not host.resyncing
+    assert host.held[(2, 0)][2] == 0
+    assert board.values[(2, 0)] == 0
+    assert board.answer(host.data_to_send()) == b""  # nothing sets it on again
+
+
 def test_telemetry_off_as_confirmed_is_not_expected() -> None:
     host, board, _ = configured()
     host.set_param(lookup("GetDataPeriodical"), 0, 0, 0.03)

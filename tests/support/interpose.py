@@ -50,7 +50,7 @@ class HeldReads(asyncio.Protocol):
 
 
 class SlowReader(asyncio.Protocol):
-    """A host that reads ``rate`` bytes a second (every 10 ms, in a chunk), slower than the
+    """A host that reads ``rate`` bytes a second (every 10 ms or so, in a chunk), slower than the
     board sends: what waits beyond ``backlog`` bytes is lost, the oldest first, as serve's
     pty loses what nobody read in time (a loaded node against a 1 kHz stream)."""
 
@@ -60,6 +60,8 @@ class SlowReader(asyncio.Protocol):
         self.dropped = 0
         self.most_waiting = 0  #: the most bytes that waited at once
         self.loop = asyncio.get_running_loop()
+        self._last_read = self.loop.time()
+        self._owed = 0.0  #: bytes the rate allows that a whole byte has not yet used
         self._reading = self.loop.call_later(0.01, self._read)
 
     def data_received(self, data: bytes) -> None:
@@ -71,7 +73,16 @@ class SlowReader(asyncio.Protocol):
             self.dropped += excess
 
     def _read(self) -> None:
-        chunk = bytes(self.waiting[:round(self.rate * 0.01)])
+        # By the time that passed, not per call: a loaded loop calls late, and the host
+        # still reads at its rate (the boards' time is kept the same way).
+        now = self.loop.time()
+        self._owed += self.rate * (now - self._last_read)
+        self._last_read = now
+        allowed = int(self._owed)
+        self._owed -= allowed
+        chunk = bytes(self.waiting[:allowed])
+        if len(chunk) < allowed:
+            self._owed = 0.0  # a host with nothing to read saves up no reading
         del self.waiting[:len(chunk)]
         if chunk:
             self.inner.data_received(chunk)

@@ -160,6 +160,16 @@ class Robot:
         try:
             await asyncio.gather(*(link.open() for link in self.links.values()))
             await self._wait_for_boards()
+            # Every board found streaming is quieted before any is set up, all at once: one
+            # set up first would leave the others' telemetry piling up in their ports.
+            found = await asyncio.gather(*(self._quiet(name, link)
+                                           for name, link in self.links.items()),
+                                         return_exceptions=True)
+            for outcome in found:
+                if isinstance(outcome, BaseException):
+                    raise outcome
+            self._streaming_before = {name: outcome for name, outcome in zip(
+                self.links, found, strict=True) if not isinstance(outcome, BaseException)}
             for name, link in self.links.items():
                 await self._configure(name, link)
         except BaseException:
@@ -187,7 +197,6 @@ class Robot:
             await asyncio.sleep(0.01)
 
     async def _configure(self, name: str, link: Link) -> None:
-        self._streaming_before[name] = await self._quiet(name, link)
         settings = self.description.settings_for(name)
         for param, channel, value in settings:
             try:
@@ -218,7 +227,9 @@ class Robot:
         later than a request's patience (a ROS node gave up at start: "get TorqueCoefB: no
         answer after 8 tries"). The board takes the ``0`` at once, whatever the host is
         behind on; its echo comes once what waits is read, so it is asked again for as
-        long as the board is heard, up to :data:`QUIET_TIMEOUT_S`."""
+        long as the board is heard, up to :data:`QUIET_TIMEOUT_S` (and the request then
+        under way, its tries). A board found sending telemetry counts as streaming: a
+        start that fails after this leaves it quiet."""
         if not link.stats.telemetry_received:
             return await link.get_param("GetDataPeriodical")
         loop = asyncio.get_running_loop()

@@ -45,10 +45,11 @@ async def emulated(query: str = "surface=gravel", **options: Any) -> AsyncIterat
         yield robot
 
 
-def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object]) -> Robot:
+def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object],
+                    until: Callable[[], bool] = lambda: True) -> Robot:
     """A robot (not started) on emulated boards whose start finds ``boards`` sending a TM
     every 1 ms (a host before left them on): once heard, they are made to stream, then
-    ``then(link)`` for each, before the robot sets them up."""
+    ``then(link)`` for each, and once ``until()`` holds the robot sets them up."""
     description = seed_robot()
     robot = Robot.open(description, _ports(description, "surface=ideal"))
     wait_for_boards = robot._wait_for_boards
@@ -62,6 +63,7 @@ def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object]) -> 
                          PATIENCE, "TM")
         for link in links:
             then(link)
+        await wait_until(until, PATIENCE, "the boards found as asked")
 
     robot._wait_for_boards = streaming  # type: ignore[method-assign]
     return robot
@@ -381,13 +383,14 @@ async def test_boards_left_streaming_are_set_up_by_a_host_slower_than_their_stre
     # its echo comes when what waits is read), the set-up is answered, the stream turned
     # on again; close leaves it on, as it was found.
     readers: list[SlowReader] = []
+    # Each port holds 3 s of reading when the set-up begins: more than a request's
+    # patience (5 rounds of 8 tries 50 ms apart), for every board at once.
     robot = found_streaming(("L", "R"), lambda link: readers.append(
-        interpose(link, lambda port: SlowReader(port, 10_000, backlog=100_000))))
+        interpose(link, lambda port: SlowReader(port, 10_000, backlog=100_000))),
+        until=lambda: all(len(reader.waiting) > 3 * 10_000 for reader in readers))
     try:
         async with robot:
-            # Behind by more than 2 s of reading at some point: past a request's patience.
             assert len(readers) == 2
-            assert max(reader.most_waiting for reader in readers) > 2.0 * 10_000
             for name in ("L", "R"):
                 assert firmware(robot, name).value("GetDataPeriodical") == 1
                 assert firmware(robot, name).value("IncSenzRes", "A") == 500
