@@ -438,9 +438,10 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
         if truth_endpoint is not None:
             await truth_endpoint.close()
         for _, endpoint in endpoints:
-            await endpoint.close()
             if isinstance(endpoint, PtyEndpoint):
+                # Before the pty goes: its freed number may be given to another at once.
                 endpoint.remove_own_link()
+            await endpoint.close()
         if served:  # a serve that could not start says only why (one line)
             _report_all(endpoints, truth_endpoint, final=True)
     return 0
