@@ -10,20 +10,27 @@ from fpgalink import recording
 from fpgalink.recording import McapSink
 from tests.support.recordings import readable_topics
 
+#: One message of about 1 kB: a chunk holds CHUNK_BYTES // 1000 of them.
+RECORD = {"kind": "x", "detail": "y" * 900, "timestamp": 0.0}
+
+
+def fast_writer(path: Path, monkeypatch: pytest.MonkeyPatch) -> McapSink:
+    """A recording written faster than its timed flushes: none comes."""
+    monkeypatch.setattr(recording, "FLUSH_S", float("inf"))
+    return McapSink(path, ["L"], {}, library="test")
+
 
 def test_an_abandoned_recording_keeps_every_complete_chunk(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     """A writer abandoned between its timed flushes (a signal's exception, which may break
     into a write) is cut back to its last complete chunk, not to its last flush: a fast
     writer fills many chunks in one flush period."""
-    monkeypatch.setattr(recording, "FLUSH_S", float("inf"))
     path = tmp_path / "r.mcap"
-    sink = McapSink(path, ["L"], {}, library="test")
-    record = {"kind": "x", "detail": "y" * 900, "timestamp": 0.0}
+    sink = fast_writer(path, monkeypatch)
     per_chunk = recording.CHUNK_BYTES // 1000
     written = 6 * per_chunk
     for i in range(written):
-        sink.add("/board/L/params", record, float(i))
+        sink.add("/board/L/params", RECORD, float(i))
     sink.abandon()
     readable = len(readable_topics(path))
     # Every message but those of the chunk still open (at most a chunk's worth).
@@ -35,12 +42,10 @@ def test_the_summarys_room_stays_reserved_ahead_of_a_fast_writer(
     """Room for the summary is reserved past every chunk that lands, not only at the timed
     flushes: a fast writer fills more than the reserve between two of them, and a disk that
     fills then must still take the summary."""
-    monkeypatch.setattr(recording, "FLUSH_S", float("inf"))
     path = tmp_path / "r.mcap"
-    sink = McapSink(path, ["L"], {}, library="test")
-    record = {"kind": "x", "detail": "y" * 900, "timestamp": 0.0}
+    sink = fast_writer(path, monkeypatch)
     for i in range(3 * recording.RESERVE_BYTES // 1000):  # three reserves' worth
-        sink.add("/board/L/params", record, float(i))
+        sink.add("/board/L/params", RECORD, float(i))
     stat = path.stat()
     allocated_past_end = stat.st_blocks * 512 - stat.st_size
     sink.close()

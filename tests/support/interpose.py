@@ -57,8 +57,6 @@ class SlowReader(asyncio.Protocol):
     def __init__(self, inner: asyncio.Protocol, rate: float, backlog: int = 4096) -> None:
         self.inner, self.rate, self.backlog = inner, rate, backlog
         self.waiting = bytearray()
-        self.dropped = 0
-        self.most_waiting = 0  #: the most bytes that waited at once
         self.loop = asyncio.get_running_loop()
         self._last_read = self.loop.time()
         self._owed = 0.0  #: bytes the rate allows that a whole byte has not yet used
@@ -66,11 +64,7 @@ class SlowReader(asyncio.Protocol):
 
     def data_received(self, data: bytes) -> None:
         self.waiting += data
-        self.most_waiting = max(self.most_waiting, len(self.waiting))
-        excess = len(self.waiting) - self.backlog
-        if excess > 0:
-            del self.waiting[:excess]
-            self.dropped += excess
+        del self.waiting[:len(self.waiting) - self.backlog]  # the oldest beyond the backlog
 
     def _read(self) -> None:
         # By the time that passed, not per call: a loaded loop calls late, and the host

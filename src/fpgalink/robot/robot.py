@@ -165,11 +165,10 @@ class Robot:
             found = await asyncio.gather(*(self._quiet(name, link)
                                            for name, link in self.links.items()),
                                          return_exceptions=True)
-            for outcome in found:
+            for name, outcome in zip(self.links, found, strict=True):
                 if isinstance(outcome, BaseException):
                     raise outcome
-            self._streaming_before = {name: outcome for name, outcome in zip(
-                self.links, found, strict=True) if not isinstance(outcome, BaseException)}
+                self._streaming_before[name] = outcome
             for name, link in self.links.items():
                 await self._configure(name, link)
         except BaseException:
