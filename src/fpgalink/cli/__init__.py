@@ -57,8 +57,19 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
 }
 
 
+class ReaderGone(Exception):
+    """stdout's reader went away (``| head -1``). Not an OSError, so click does not turn it
+    into a silent exit 1 on its way out: the entry point ends quietly with 0."""
+
+
 class LazyGroup(click.Group):
     """Imports a command's module only when that command runs (or asks for its help)."""
+
+    def invoke(self, ctx: click.Context) -> Any:
+        try:
+            return super().invoke(ctx)
+        except BrokenPipeError:
+            raise ReaderGone from None
 
     def list_commands(self, ctx: click.Context) -> list[str]:
         return list(COMMANDS)
@@ -141,7 +152,7 @@ def main(argv: list[str] | None = None) -> None:
     except (click.Abort, KeyboardInterrupt):
         click.echo("fpgalink-cli: interrupted", err=True)
         sys.exit(ExitCode.INTERRUPTED)
-    except BrokenPipeError:
+    except (BrokenPipeError, ReaderGone):
         quiet_stdout()
         sys.exit(ExitCode.OK)
     except OSError as exc:  # click's own output (help, version) into a full disk

@@ -112,7 +112,14 @@ def console_width() -> int:
 def _console() -> Console:
     from rich.console import Console
 
-    return Console(width=console_width(), soft_wrap=False, highlight=False)
+    class PipeConsole(Console):
+        """rich's console ends the program with exit 1 when its reader goes away (``|
+        head -1``); here that is the entry point's quiet exit 0, as for every other write."""
+
+        def on_broken_pipe(self) -> None:
+            raise BrokenPipeError
+
+    return PipeConsole(width=console_width(), soft_wrap=False, highlight=False)
 
 
 def print_renderable(renderable: Any) -> None:

@@ -1,0 +1,34 @@
+"""Issue 41, the first hour of a new user: each item through the console scripts."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+
+import pytest
+
+from tests.support.scripts import start_script
+
+
+def _into_a_closed_pipe(*args: str) -> subprocess.CompletedProcess[str]:
+    """``fpgalink-cli ARGS | head -0``: stdout is a pipe whose reader has already gone, so
+    every write fails at once (``| head -1`` is the same, later)."""
+    read, write = os.pipe()
+    os.close(read)
+    try:
+        proc = start_script("fpgalink-cli", *args, stdout=write)
+    finally:
+        os.close(write)
+    _, err = proc.communicate(timeout=60)
+    return subprocess.CompletedProcess(proc.args, proc.returncode, "", err)
+
+
+@pytest.mark.parametrize("args", [["budget"], ["budget", "--crc"], ["param", "list"],
+                                  ["config"]])
+def test_a_table_into_a_pipe_that_closed_ends_quietly_with_0(args: list[str]) -> None:
+    """41.3: ``budget | head -1`` exited 1 silently (rich's console turned the broken pipe
+    into exit 1)."""
+    done = _into_a_closed_pipe(*args)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+    assert "error" not in done.stderr
