@@ -10,6 +10,8 @@ starts from it, and ``docs/emulator.md`` explains each choice.
 
 from __future__ import annotations
 
+import difflib
+
 import math
 import numbers
 import struct
@@ -228,8 +230,35 @@ def _find(name: str | int) -> tuple[Param, int | None]:
         candidate = _BY_NAME[key[:-1]]
         if candidate.scope is Scope.CHANNEL:
             return candidate, CHANNEL_A if key[-1] == "a" else CHANNEL_B
-    known = ", ".join(p.name for p in PARAMETERS)
-    raise UnknownParameter(f"unknown parameter {name!r}; known: {known}")
+    known = ", ".join(p.name + ("A/B" if p.scope is Scope.CHANNEL else "")
+                      for p in PARAMETERS)
+    guesses = suggest(str(name))
+    guess = f"; did you mean {' or '.join(guesses)}?" if guesses else ""
+    raise UnknownParameter(f"unknown parameter {name!r}{guess} (known: {known})")
+
+
+def _spelling(name: str) -> str:
+    """A name as people misspell it the least: no case, no underscores or dashes."""
+    return "".join(c for c in name.lower() if c.isalnum())
+
+
+def suggest(name: str, limit: int = 2) -> list[str]:
+    """The parameter names (channel parameters with their A/B suffix) closest to ``name``:
+    ``KpWheelPidA`` → ``Kp_Wheel_PidA``. Case, underscores and dashes do not count."""
+    names = [p.name for p in PARAMETERS]
+    names += [p.name + c for p in PARAMETERS if p.scope is Scope.CHANNEL for c in "AB"]
+    by_spelling: dict[str, str] = {}
+    for full in names:
+        by_spelling.setdefault(_spelling(full), full)
+    wanted = _spelling(name)
+    if wanted in by_spelling:
+        return [by_spelling[wanted]]
+    close = difflib.get_close_matches(wanted, list(by_spelling), n=3 * limit, cutoff=0.75)
+    found: dict[str, str] = {}  # one guess per parameter, the closest spelling of it
+    for spelling in close:
+        full = by_spelling[spelling]
+        found.setdefault(_find(full)[0].name, full)
+    return list(found.values())[:limit]
 
 
 def resolve(name: str | int, channel: int | str | None = None) -> tuple[Param, int]:

@@ -7,7 +7,7 @@ import subprocess
 
 import pytest
 
-from tests.support.scripts import start_script
+from tests.support.scripts import script, start_script
 
 
 def _into_a_closed_pipe(*args: str) -> subprocess.CompletedProcess[str]:
@@ -32,3 +32,23 @@ def test_a_table_into_a_pipe_that_closed_ends_quietly_with_0(args: list[str]) ->
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
     assert "error" not in done.stderr
+
+
+@pytest.mark.parametrize(("typed", "meant"), [
+    ("KpWheelPidA", "Kp_Wheel_PidA"), ("kp-wheel-pid-b", "Kp_Wheel_PidB"),
+    ("TsTimerPeriode", "TsTimerPeriod"), ("ActiveControler", "ActiveController"),
+])
+def test_an_unknown_parameter_name_gets_a_suggestion(typed: str, meant: str) -> None:
+    """41.11: ``param set KpWheelPidA 5`` listed the bare names without the A/B suffix."""
+    done = script("fpgalink-cli", "param", "set", typed, "5")
+    assert done.returncode == 2
+    assert f"did you mean {meant}?" in done.stderr, done.stderr
+    assert "Kp_Wheel_PidA/B" in done.stderr  # the known names say where a suffix goes
+    assert len(done.stderr.strip().splitlines()) <= 2  # the emulator's note, then one line
+
+
+def test_a_name_like_none_gets_no_guess() -> None:
+    done = script("fpgalink-cli", "param", "get", "xyz")
+    assert done.returncode == 2
+    assert "did you mean" not in done.stderr
+    assert "unknown parameter 'xyz'" in done.stderr
