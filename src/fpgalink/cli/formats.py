@@ -41,6 +41,7 @@ __all__ = [
     "format_option",
     "json_value",
     "print_renderable",
+    "table_width",
     "write_out",
 ]
 
@@ -135,7 +136,7 @@ def print_renderable(renderable: Any) -> None:
                        ) from None
 
 
-def _table_width(widths: Sequence[int]) -> int:
+def table_width(widths: Sequence[int]) -> int:
     """What a rich table with the default box and padding takes: each column its text, a
     space either side and a rule; one more rule at the end."""
     return sum(w + 3 for w in widths) + 1
@@ -155,7 +156,7 @@ def fit_table(columns: Sequence[Column], rows: Sequence[Sequence[str]], width: i
                        key=lambda i: (-columns[i].drop, -i))
     left_out: list[str] = []
     for index in droppable:
-        if _table_width([natural[i] for i in keep]) <= width:
+        if table_width([natural[i] for i in keep]) <= width:
             break
         keep.remove(index)
         left_out.append(columns[index].header)

@@ -149,6 +149,14 @@ class ConnectionOptions:
                        f"({names}, from {where}): pick one with --board NAME",
                        ExitCode.BAD_INPUT)
 
+    @property
+    def selected(self) -> tuple[Endpoint, ...]:
+        """The boards a command that can show several talks to: the one ``--board`` names
+        (or the only one), else every board configured."""
+        if self.settings.board is not None or len(self.endpoints) == 1:
+            return (self.single,)
+        return self.endpoints
+
     def link(self, endpoint: Endpoint, *, reconnect: bool = False,
              liveness_timeout: float | None = None) -> Link:
         """A link to ``endpoint`` (not open yet). By default a silent board must surface as

@@ -13,8 +13,18 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option, write_out
-from fpgalink.cli.options import ConnectionOptions, connection_options
+from fpgalink.cli.formats import (
+    Column,
+    console_width,
+    emit_document,
+    emit_rows,
+    fit_table,
+    format_option,
+    print_renderable,
+    table_width,
+    write_out,
+)
+from fpgalink.cli.options import ConnectionOptions, Endpoint, connection_options
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
@@ -26,11 +36,11 @@ from fpgalink.cli.output import (
     note,
     number,
 )
-from fpgalink.cli.session import run
-from fpgalink.errors import ParameterError
+from fpgalink.cli.session import gather_all, run
+from fpgalink.errors import FpgalinkError, ParameterError
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
 from fpgalink.protocol.paramfile import Setting, parse_parameter_file, render_parameter_file
-from fpgalink.protocol.params import BOARD
+from fpgalink.protocol.params import BOARD, iter_addresses
 from fpgalink.protocol.tomlfile import TomlFileError, read_bounded
 
 if TYPE_CHECKING:
@@ -176,10 +186,35 @@ LIST_LIMIT_COLUMNS = (
 
 @param.command("list", epilog=EXIT_CODES_HELP)
 @format_option
-@connection_options()
+@connection_options(multi=True)
 def list_(fmt: str, conn: ConnectionOptions) -> int:
-    """Table of every parameter: id, name, scope, type, range and the board's values."""
-    values = run(_read(conn), conn.single.url)
+    """Table of every parameter: id, name, scope, type, range and the board's values.
+
+    With several boards configured and no --board, every board's values: a column per
+    board (one table per board when they do not fit side by side); JSON and CSV rows then
+    name their board (board_name).
+    """
+    endpoints = conn.selected
+    if len(endpoints) == 1:
+        values = run(_read(conn, endpoints[0]), endpoints[0].url)
+        _list_one(fmt, values, f"Parameters on {endpoints[0].url}")
+        return ExitCode.OK
+    by_board = run(_read_all(conn, endpoints))
+    if fmt != "table":
+        rows = [{"board_name": e.name, **row} for e in endpoints
+                for row in _rows(by_board[e.name])]
+        columns = (Column("board_name", "board_name"), *LIST_COLUMNS, *LIST_LIMIT_COLUMNS)
+        emit_rows(fmt, columns, rows)
+        return ExitCode.OK
+    if not _list_side_by_side(endpoints, by_board):
+        for endpoint in endpoints:
+            _list_one(fmt, by_board[endpoint.name],
+                      f"Parameters on {endpoint.name} ({endpoint.url})")
+    return ExitCode.OK
+
+
+def _rows(values: dict[tuple[int, int], int | float]) -> list[dict[str, Any]]:
+    """One row per parameter as JSON has it, with its values on one board."""
     rows = []
     for p in PARAMETERS:
         row: dict[str, Any] = {"id": p.id, "name": p.name, "scope": p.scope.name.lower(),
@@ -193,13 +228,39 @@ def list_(fmt: str, conn: ConnectionOptions) -> int:
         else:
             row["A"], row["B"] = (number(values[(p.id, c)], p.type) for c in (1, 2))
         rows.append(row)
+    return rows
+
+
+def _list_one(fmt: str, values: dict[tuple[int, int], int | float], title: str) -> None:
+    rows = _rows(values)
     if fmt == "table":
         kinds = {p.name: p.type for p in PARAMETERS}
         rows = [{**row, **{k: "" if row[k] is None else format_value(row[k], kinds[row["name"]])
                            for k in ("board", "A", "B")}} for row in rows]
     columns = LIST_COLUMNS if fmt == "table" else (*LIST_COLUMNS, *LIST_LIMIT_COLUMNS)
-    emit_rows(fmt, columns, rows, title=f"Parameters on {conn.single.url}")
-    return ExitCode.OK
+    emit_rows(fmt, columns, rows, title=title)
+
+
+def _list_side_by_side(endpoints: tuple[Endpoint, ...],
+                       by_board: dict[str, dict[tuple[int, int], int | float]]) -> bool:
+    """Every board's values in one table, a row per parameter and channel
+    (``Kp_Wheel_PidA``) and a column per board, if that fits the terminal with at most the
+    descriptive columns left out; ``False`` (nothing printed) when it does not."""
+    columns = [c for c in LIST_COLUMNS if c.key not in ("board", "A", "B")]
+    columns += [Column(e.name, e.name, justify="right") for e in endpoints]
+    rows = []
+    for p, code in iter_addresses():
+        rows.append([str(p.id), p.full_name(code), p.scope.name.lower(), p.type.name.lower(),
+                     p.range_text, p.unit or "",
+                     *(format_value(by_board[e.name][(p.id, code)], p.type)
+                       for e in endpoints)])
+    needed = [max([len(c.header), *(len(r[i]) for r in rows)])
+              for i, c in enumerate(columns) if not c.drop]
+    if table_width(needed) > console_width():
+        return False
+    boards = ", ".join(f"{e.name} ({e.url})" for e in endpoints)
+    print_renderable(fit_table(columns, rows, console_width(), f"Parameters on {boards}"))
+    return True
 
 
 def _limit(value: float, kind: ParamType) -> int | float | None:
@@ -208,9 +269,24 @@ def _limit(value: float, kind: ParamType) -> int | float | None:
     return int(value) if kind is ParamType.INT else number(value, kind)
 
 
-async def _read(conn: ConnectionOptions) -> dict[tuple[int, int], int | float]:
-    async with conn.link(conn.single) as link:
+async def _read(conn: ConnectionOptions, endpoint: Endpoint | None = None
+                ) -> dict[tuple[int, int], int | float]:
+    async with conn.link(endpoint or conn.single) as link:
         return await link.read_params()
+
+
+async def _read_all(conn: ConnectionOptions, endpoints: tuple[Endpoint, ...]
+                    ) -> dict[str, dict[tuple[int, int], int | float]]:
+    """Every board's values, read at once; a board's failure names its port."""
+
+    async def one(endpoint: Endpoint) -> dict[tuple[int, int], int | float]:
+        try:
+            return await _read(conn, endpoint)
+        except FpgalinkError as exc:
+            raise classify(exc, f"{endpoint.name} ({endpoint.url})") from None
+
+    found = await gather_all(*(one(e) for e in endpoints))
+    return {e.name: values for e, values in zip(endpoints, found, strict=True)}
 
 
 # --- files ------------------------------------------------------------------------------------
