@@ -13,8 +13,14 @@ import click
 
 from fpgalink.cli.formats import format_option
 from fpgalink.cli.options import ConnectionOptions
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, SignedNumbers
-from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
+from fpgalink.cli.output import EXIT_CODES_HELP, FiniteRange, SignedNumbers
+from fpgalink.cli.robotsession import (
+    RobotRun,
+    live,
+    output_options,
+    robot_options,
+    stopped_error,
+)
 from fpgalink.cli.session import run, stop_exit_code, wait_or_stop
 
 __all__ = ["drive"]
@@ -40,10 +46,13 @@ def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
     Exit 7 when supervision stopped it (a board went silent).
     """
     session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
-    code = run(_drive(session, speed, math.radians(omega), duration))
-    session.print_summary(fmt, {"command": {"v_mps": speed, "omega_dps": omega,
-                                            "for_s": duration}})
-    session.finish(f"drive v={speed:g} m/s, ω={omega:g} deg/s")
+    try:
+        code = run(_drive(session, speed, math.radians(omega), duration))
+    finally:  # a fault stop too: where it stopped is what the user asks first
+        if session.robot is not None:
+            session.print_summary(fmt, {"command": {"v_mps": speed, "omega_dps": omega,
+                                                    "for_s": duration}})
+            session.finish(f"drive v={speed:g} m/s, ω={omega:g} deg/s")
     return code
 
 
@@ -79,9 +88,9 @@ async def _drive(session: RobotRun, v: float, omega: float, duration: float | No
                             robot.control_period, max(0.0, end - time.monotonic()))
                         await wait_or_stop(session.stop, wait)
         except RobotStopped as exc:
-            raise CliError(str(exc), ExitCode.STOPPED) from None
+            raise stopped_error(exc.event, str(exc)) from None
         stop = robot.last_stop
         if stop is not None and stop.reason is not None and stop.reason.name != "REQUESTED":
-            raise CliError(f"the robot was {stop.describe()}", ExitCode.STOPPED)
+            raise stopped_error(stop, f"the robot was {stop.describe()}")
         await asyncio.sleep(0)
     return stop_exit_code(session.stop)

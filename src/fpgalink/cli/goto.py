@@ -19,7 +19,13 @@ from fpgalink.cli.output import (
     SignedNumbers,
     echo_out,
 )
-from fpgalink.cli.robotsession import RobotRun, live, output_options, robot_options
+from fpgalink.cli.robotsession import (
+    RobotRun,
+    live,
+    output_options,
+    robot_options,
+    stopped_error,
+)
 from fpgalink.cli.session import run, stop_exit_code
 
 __all__ = ["goto"]
@@ -103,7 +109,7 @@ async def _goto(session: RobotRun, x: float, y: float, theta: float | None,
                 except GoalTimeout as exc:
                     raise CliError(str(exc), ExitCode.TIMEOUT) from None
                 except RobotStopped as exc:
-                    raise CliError(str(exc), ExitCode.STOPPED) from None
+                    raise stopped_error(exc.event, str(exc)) from None
         arrived.append(pose)
         if fmt == "table":
             echo_out(f"arrived at {target}: x {pose.x:.3f} m, y {pose.y:.3f} m, θ "

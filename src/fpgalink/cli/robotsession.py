@@ -29,6 +29,7 @@ if TYPE_CHECKING:
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot.joints import SampleSets
     from fpgalink.robot.robot import Robot
+    from fpgalink.robot.supervision import SupervisionEvent
 
 __all__ = ["PathLog", "RobotRun", "description_options", "output_options", "robot_options",
            "rosbag_option"]
@@ -135,6 +136,22 @@ def robot_ports(conn: ConnectionOptions, description: RobotDescription,
     return {b: given[b] for b in description.boards}
 
 
+def stopped_error(stop: SupervisionEvent | None, fallback: str) -> CliError:
+    """A fault stop as the command's last line (exit 7): what stopped the robot, said once.
+    A restart's detail is the board's status, which repeats the reason's "restarted"."""
+    if stop is None or stop.reason is None:
+        return CliError(fallback, ExitCode.STOPPED)
+    from fpgalink.robot.supervision import StopReason
+
+    detail = stop.detail
+    if stop.reason is StopReason.BOARD_RESTARTED:
+        detail = detail.removeprefix("restarted: ")
+    which = f" (board {stop.board})" if stop.board else ""
+    tail = f": {detail}" if detail else ""
+    return CliError(f"the robot was stopped: {stop.reason.value}{which}{tail}",
+                    ExitCode.STOPPED)
+
+
 @dataclass
 class PathLog:
     """The path as it was driven: odometry, and truth when known."""
@@ -174,6 +191,8 @@ class PathLog:
 #: The fields a truth line must hold as finite numbers to be used (the path, the live
 #: view and the summary read them).
 TRUTH_FIELDS = ("x", "y", "theta", "v", "omega")
+#: How long the start waits for a served robot's first truth pose (it streams at 100 Hz).
+TRUTH_FIRST_S = 2.0
 #: The longest truth line read (a served robot's is about 1.5 KiB); a longer one is skipped.
 TRUTH_LINE_LIMIT = 1 << 16
 
@@ -197,6 +216,32 @@ def truth_pose(record: object) -> dict[str, Any] | None:
     return {**record, **pose}
 
 
+class TruthFrame:
+    """Truth in the frame odometry counts in: the pose at this command's start. A served
+    robot's body may have moved before (an earlier ``drive``), so its truth, in the frame
+    where serve started it, is turned into this one (``world`` keeps it as it came)."""
+
+    def __init__(self) -> None:
+        self.origin: tuple[float, float, float] | None = None
+
+    def anchor(self, record: dict[str, Any]) -> None:
+        """The start pose: odometry's zero."""
+        self.origin = (record["x"], record["y"], record["theta"])
+
+    def relative(self, record: dict[str, Any]) -> dict[str, Any]:
+        from fpgalink.protocol.robot import wrap_angle
+
+        if self.origin is None:  # no pose before the start: the first one is the start
+            self.anchor(record)
+        assert self.origin is not None
+        x0, y0, theta0 = self.origin
+        dx, dy = record["x"] - x0, record["y"] - y0
+        cos, sin = math.cos(theta0), math.sin(theta0)
+        return {**record, "x": cos * dx + sin * dy, "y": cos * dy - sin * dx,
+                "theta": wrap_angle(record["theta"] - theta0),
+                "world": {"x": record["x"], "y": record["y"], "theta": record["theta"]}}
+
+
 class _TruthReader:
     """The latest line of a served robot's truth endpoint (JSON lines over TCP). A line
     that is not a pose (not JSON, nesting too deep, a field missing or not a finite number,
@@ -208,6 +253,7 @@ class _TruthReader:
         self.latest: dict[str, Any] | None = None
         self.skipped = 0  #: lines that were not a usable pose
         self.refusal: str | None = None  #: what the endpoint said when it turned us away
+        self.first = asyncio.Event()  #: set with the first pose (or when the stream ends)
         self._task: asyncio.Task[None] | None = None
 
     async def start(self) -> None:
@@ -243,6 +289,7 @@ class _TruthReader:
         except (OSError, asyncio.IncompleteReadError):
             return  # the endpoint went away: the run goes on without truth
         finally:
+            self.first.set()
             writer.close()
 
     def _take(self, line: bytes) -> None:
@@ -260,6 +307,7 @@ class _TruthReader:
             self.skipped += 1
         else:
             self.latest = pose
+            self.first.set()
 
     async def close(self) -> None:
         if self._task is not None:
@@ -299,6 +347,7 @@ class RobotRun:
         self._bag_log_ns = 0  #: the latest log time written to the bag
         self.robot: Robot | None = None
         self.last_truth: dict[str, Any] | None = None
+        self.truth_frame = TruthFrame()
 
     @contextlib.asynccontextmanager
     async def opened(self) -> AsyncIterator[Robot]:
@@ -322,6 +371,11 @@ class RobotRun:
         try:
             if self._truth_reader is not None:
                 await self._truth_reader.start()
+                with contextlib.suppress(TimeoutError):
+                    await asyncio.wait_for(self._truth_reader.first.wait(), TRUTH_FIRST_S)
+            start = self._world_truth()
+            if start is not None:
+                self.truth_frame.anchor(start)
             if self.record_path is not None:
                 self._open_sink()
             tasks = []
@@ -367,10 +421,15 @@ class RobotRun:
         if reader.latest is None:
             note(f"--truth {reader.url}: no pose received; the path has no truth")
 
-    def truth(self) -> dict[str, Any] | None:
+    def _world_truth(self) -> dict[str, Any] | None:
         if self._truth_reader is not None:
             return self._truth_reader.latest
         return self.robot.truth() if self.robot is not None else None
+
+    def truth(self) -> dict[str, Any] | None:
+        """The emulated body's pose in odometry's frame (the command's start), or None."""
+        record = self._world_truth()
+        return None if record is None else self.truth_frame.relative(record)
 
     def _open_sink(self) -> None:
         from fpgalink.cli.sinks import McapSink

@@ -467,7 +467,8 @@ class Robot:
                     self._count_offset[key] = self._count_offset.get(key, 0) + data.position
         self.odometry.restart(name)
         self._carry_out(self.supervisor.board_fault(
-            name, Fault.RESTARTED, now, f"restarted: reconfiguring ({detail})"))
+            name, Fault.RESTARTED, now,
+            f"restarted: reconfiguring ({detail.removeprefix('restarted: ')})"))
 
     def _forget_task(self, task: asyncio.Task[None]) -> None:
         """A finished reconfiguring task: not kept (a board left unanswered makes one per

@@ -5,9 +5,12 @@ from __future__ import annotations
 import json
 import os
 import subprocess
+from collections.abc import Iterator
+from pathlib import Path
 
 import pytest
 
+from tests.support.cli import stalled
 from tests.support.scripts import script, script_env, start_script
 
 
@@ -93,3 +96,64 @@ def test_param_list_with_board_picks_one() -> None:
                   "--format", "json")
     assert done.returncode == 0, done.stderr
     assert "board_name" not in json.loads(done.stdout)[0]
+
+
+def _driving(*args: str, tries: int = 3) -> subprocess.CompletedProcess[str]:
+    """A robot command through the console script, run again when a loaded machine's own
+    stall stopped it (tests/support/cli.py, ``stalled``)."""
+    done = script("fpgalink-cli", *args, timeout=120)
+    for _ in range(tries - 1):
+        if not stalled(done):
+            break
+        done = script("fpgalink-cli", *args, timeout=120)
+    return done
+
+
+@pytest.fixture
+def served_robot(tmp_path: Path) -> Iterator[tuple[list[str], str]]:
+    """``fpgaemu serve --robot`` on two ptys behind links: the ports and the truth URL."""
+    proc = start_script("fpgaemu", "serve", "--robot", "--body", "kinematic", "--pty",
+                        "--link", f"L={tmp_path / 'L'}", "--link", f"R={tmp_path / 'R'}")
+    assert proc.stdout is not None
+    ready: dict[str, str] = {}
+    while len(ready) < 3:
+        line = proc.stdout.readline()
+        assert line, proc.communicate(timeout=5)
+        if line.startswith("ready "):
+            ready[line.split()[1]] = line.split()[2]
+    try:
+        yield (["--port", f"L={ready['L']}", "--port", f"R={ready['R']}"], ready["truth"])
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+def test_truth_beside_a_served_robot_that_moved_before_is_from_the_start_pose(
+        served_robot: tuple[list[str], str]) -> None:
+    """41.2: against a served robot whose body had already moved, truth was compared in
+    another frame ("odometry off by 134.0 cm")."""
+    ports, truth = served_robot
+    moved = _driving("drive", "--v", "0.3", "--omega", "30", "--for", "1.5", *ports)
+    assert moved.returncode == 0, moved.stderr
+    done = _driving("goto", "0.4", "0", *ports, "--truth", truth, "--format", "json")
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["truth"] is not None
+    # The kinematic body moves as odometry counts: the same pose, within a centimetre.
+    assert summary["truth"]["odometry_error_m"] < 0.01, summary
+    assert abs(summary["truth"]["x_m"] - summary["odometry"]["x_m"]) < 0.01
+    assert abs(summary["truth"]["theta_deg"]) < 1.0
+
+
+def test_a_fault_stop_prints_the_final_pose_and_says_the_fault_once() -> None:
+    """41.13: a fault stop printed no final pose (Ctrl-C did), and its message stuttered:
+    "a board restarted (board L): restarted: reconfiguring (restarted: …)"."""
+    fault = "fault=L:restart=1"
+    done = _driving("drive", "--v", "0.2", "--for", "4", "--port", f"L=emu://robot/L?{fault}",
+                    "--port", f"R=emu://robot/R?{fault}")
+    assert done.returncode == 7, done.stderr
+    assert done.stdout.startswith("odometry: x "), done.stdout
+    assert "truth:" in done.stdout
+    error = next(line for line in done.stderr.splitlines() if "error:" in line)
+    assert error.count("restarted") <= 1, error
+    assert "reconfiguring (restarted" not in done.stderr
