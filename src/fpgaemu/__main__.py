@@ -1,9 +1,10 @@
 """``fpgaemu serve``: emulated boards as devices (pty or TCP), paced to the wall clock.
 
-Every failure is one line on stderr, ``fpgaemu: error: …``, and an exit code: 2 for bad
-input (usage, a parameter or fault spec, a config file), 5 when a board cannot be served
-(an address in use or not valid here, a link path taken). Options go before or after
-``serve``.
+Every failure is one line on stderr, ``fpgaemu: error: …``, and an exit code of the one
+table every console script shares (:class:`fpgalink.protocol.exitcodes.ExitCode`): 2 for
+bad input (usage, a parameter or fault spec, a config file), 5 when a board cannot be
+served (an address in use or not valid here, a link path taken), 8 when a part it needs is
+not installed (cffi for --firmware c). Options go before or after ``serve``.
 """
 
 from __future__ import annotations
@@ -38,6 +39,7 @@ from fpgaemu.serve import (
     serve_loop,
 )
 from fpgalink.protocol import ParameterError
+from fpgalink.protocol.exitcodes import ExitCode, NotInstalled, exit_codes_help
 from fpgalink.protocol.paramfile import parse_parameter_table
 from fpgalink.protocol.robot import DescriptionError, RobotDescription, load_robot, seed_robot
 from fpgalink.protocol.tomlfile import TomlFileError, load_toml
@@ -50,8 +52,8 @@ __version__ = "0.2.0"
 #: The robot has two boards, one per side; the seed calls them L and R.
 BOARD_NAMES = ("L", "R")
 
-EXIT_BAD_INPUT = 2
-EXIT_CANNOT_SERVE = 5
+EXIT_BAD_INPUT = ExitCode.BAD_INPUT
+EXIT_CANNOT_SERVE = ExitCode.PORT
 
 
 class ServeError(click.ClickException):
@@ -237,7 +239,10 @@ def cli(ctx: click.Context, /, **given: Any) -> None:
 
 
 #: The fault table kept as a table (``\b``: click does not rewrap the paragraph).
-SERVE_EPILOG = "\b\nFault SPECs (--fault [BOARD:]SPEC):\n" + FAULT_HELP.rstrip("\n")
+SERVE_EPILOG = ("\b\nFault SPECs (--fault [BOARD:]SPEC):\n" + FAULT_HELP.rstrip("\n")
+                + "\n\n" + exit_codes_help((
+                    ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.PORT,
+                    ExitCode.NOT_INSTALLED, ExitCode.INTERRUPTED)))
 
 
 @cli.command(epilog=SERVE_EPILOG)
@@ -285,7 +290,8 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
                               uart_rx=value["uart_rx"], tx_gap=value["tx_gap"],
                               surface=value["surface"])
     except ValueError as exc:
-        raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
+        raise ServeError(str(exc).splitlines()[0], ExitCode.NOT_INSTALLED if isinstance(
+            exc, NotInstalled) else EXIT_BAD_INPUT) from None
     with asyncio.Runner(loop_factory=serve_loop) as runner:
         code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout))
     sys.exit(code)
@@ -498,7 +504,7 @@ def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
         print(f"{name}: {note}", file=sys.stderr, flush=True)
 
 
-EXIT_FAILURE = 1
+EXIT_FAILURE = ExitCode.FAILURE
 
 
 def _from_clicks_echo(exc: BaseException) -> bool:
@@ -563,8 +569,8 @@ def main(argv: list[str] | None = None) -> NoReturn:
             click.echo(f"fpgaemu: error: {' '.join(exc.format_message().split())}", err=True)
         sys.exit(exc.exit_code)
     except click.Abort:
-        sys.exit(130)
-    sys.exit(0)
+        sys.exit(ExitCode.INTERRUPTED)
+    sys.exit(ExitCode.OK)
 
 
 if __name__ == "__main__":

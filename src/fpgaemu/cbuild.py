@@ -24,6 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fpgalink.protocol.exitcodes import NotInstalled
+
 __all__ = ["CBuildError", "CompilerMissing", "SharedLibrary", "build_shared", "cache_dir",
            "find_compiler", "load"]
 
@@ -38,8 +40,12 @@ class CBuildError(ValueError):
     """The C could not be built (a compiler error, a missing compiler, a missing cffi)."""
 
 
-class CompilerMissing(CBuildError):
+class CompilerMissing(CBuildError, NotInstalled):
     """No C compiler: ``$CC``, ``cc``, ``gcc`` and ``clang`` were all not found."""
+
+
+class CffiMissing(CBuildError, NotInstalled):
+    """cffi, which loads the built library, is not installed (the ``cosim`` extra)."""
 
 
 def find_compiler() -> str | None:
@@ -143,7 +149,7 @@ def load(shared: SharedLibrary) -> tuple[Any, Any]:
     try:
         import cffi
     except ImportError:
-        raise CBuildError("the C co-simulation needs cffi: pip install 'fpgalink[cosim]'"
+        raise CffiMissing("the C co-simulation needs cffi: pip install 'fpgalink[cosim]'"
                           ) from None
     ffi = cffi.FFI()
     ffi.cdef(shared.cdef)

@@ -46,6 +46,7 @@ from fpgaemu.timing import TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgaemu.uartsend import TxDone
 from fpgalink.protocol import PARAMETERS, NackReason, Param, ParamType, Scope, resolve
+from fpgalink.protocol.exitcodes import NotInstalled
 from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
 
 __all__ = ["CFirmware", "CFirmwareUnavailable", "attach_c_firmware", "firmware_sources",
@@ -59,6 +60,10 @@ _U32 = struct.Struct("<I")
 
 class CFirmwareUnavailable(CBuildError):
     """The C firmware cannot run here (no C compiler, no cffi, or its sources are missing)."""
+
+
+class CFirmwareNotInstalled(CFirmwareUnavailable, NotInstalled):
+    """The C firmware cannot run here for want of a part: a C compiler, or cffi."""
 
 
 def firmware_sources() -> Path:
@@ -127,7 +132,8 @@ def load_firmware() -> tuple[Any, Any]:
     except CFirmwareUnavailable:
         raise
     except CBuildError as exc:
-        raise CFirmwareUnavailable(f"the C firmware cannot run here: {exc}") from None
+        kind = CFirmwareNotInstalled if isinstance(exc, NotInstalled) else CFirmwareUnavailable
+        raise kind(f"the C firmware cannot run here: {exc}") from None
 
 
 # --- views of the C state, shaped as the Python firmware's ------------------------------------

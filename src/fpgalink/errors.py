@@ -9,6 +9,7 @@ from fpgalink.protocol.errors import (
     ParameterError,
     UnknownParameter,
 )
+from fpgalink.protocol.exitcodes import ExitCode, NotInstalled
 
 __all__ = [
     "BoardLost",
@@ -21,6 +22,7 @@ __all__ = [
     "RequestTimeout",
     "UnknownParameter",
     "ValueMismatch",
+    "exit_code",
 ]
 
 
@@ -79,3 +81,24 @@ class BoardLost(FpgalinkError, ConnectionError):
 
 class PortError(FpgalinkError, OSError):
     """The serial port or socket could not be opened or failed."""
+
+
+def exit_code(exc: BaseException) -> ExitCode:
+    """The exit code of every console script for a library error (the CLI, the ROS 2 node):
+    the one table of :mod:`fpgalink.protocol.exitcodes`."""
+    if isinstance(exc, ParameterError | LocalProtocolError):
+        return ExitCode.BAD_INPUT
+    if isinstance(exc, ParameterRefused | ValueMismatch):
+        return ExitCode.REFUSED
+    if isinstance(exc, RequestTimeout | BoardLost):
+        return ExitCode.NO_ANSWER
+    if isinstance(exc, PortError):
+        # What the opener said: a part it needs is not installed (cffi for
+        # emu://?firmware=c), or the URL's content is not its scheme's (emu://bogus: the
+        # opener's ValueError); otherwise the port itself is missing, busy or failed.
+        if isinstance(exc.__cause__, NotInstalled):
+            return ExitCode.NOT_INSTALLED
+        if isinstance(exc.__cause__, ValueError | TypeError):
+            return ExitCode.BAD_INPUT
+        return ExitCode.PORT
+    return ExitCode.FAILURE

@@ -36,7 +36,7 @@ def check_plot_path(path: Path, option: str = "--plot") -> None:
         import matplotlib  # noqa: F401
     except ImportError:
         raise CliError(f"{option} needs matplotlib: pip install 'fpgalink[plot]'",
-                       ExitCode.BAD_INPUT) from None
+                       ExitCode.NOT_INSTALLED) from None
 
 
 def new_figure(size: tuple[float, float]) -> Figure:

@@ -8,10 +8,11 @@ import os
 import re
 import sys
 from dataclasses import fields
-from enum import IntEnum
 from typing import TYPE_CHECKING, Any
 
 import click
+
+from fpgalink.protocol.exitcodes import ExitCode, exit_codes_help
 
 if TYPE_CHECKING:  # the library and rich load with the first command that needs them
     from rich.console import Console
@@ -43,28 +44,8 @@ __all__ = [
 _NUMBER = re.compile(r"^-(\d|\.\d|inf|nan)", re.IGNORECASE)
 
 
-class ExitCode(IntEnum):
-    OK = 0
-    FAILURE = 1  #: anything not covered below
-    BAD_INPUT = 2  #: usage, unknown parameter, value out of range or of the wrong type
-    REFUSED = 3  #: the board answered PN (or another value than the one sent)
-    NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
-    PORT = 5  #: the port is missing, busy or failed
-    TIMEOUT = 6  #: a goal was not reached in time (goto); the robot was stopped
-    #: a fault stopped the robot or the step: a board went silent, restarted, disabled itself
-    #: (its watchdog: this host stalled) or its telemetry stopped; or the deadman lapsed
-    STOPPED = 7
-    INTERRUPTED = 130  #: Ctrl-C (128 + SIGINT), after a clean stop
-
-
-EXIT_CODES_HELP = (
-    "Exit codes: 0 ok; 1 other failure; 2 bad input (usage, unknown parameter, value out of "
-    "range or of the wrong type; nothing sent); 3 board refused (PN) or confirmed another "
-    "value; 4 board not answering; 5 port missing or busy; 6 goal not reached in time; 7 "
-    "stopped by a fault (a board silent, restarted, disabled by its watchdog, its telemetry "
-    "stopped; the deadman); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), each "
-    "after a clean stop."
-)
+#: Every console script's exit codes, declared once (fpgalink.protocol.exitcodes).
+EXIT_CODES_HELP = exit_codes_help()
 
 
 class FiniteRange(click.FloatRange):
@@ -100,27 +81,16 @@ class CliError(click.ClickException):
 
 
 def classify(exc: FpgalinkError, where: str = "") -> CliError:
-    """Library error → the CLI's message and exit code."""
-    from fpgalink.errors import (
-        BoardLost,
-        LocalProtocolError,
-        ParameterError,
-        ParameterRefused,
-        PortError,
-        RequestTimeout,
-        ValueMismatch,
-    )
+    """Library error → the CLI's message and exit code (:func:`fpgalink.errors.exit_code`)."""
+    from fpgalink.errors import exit_code
 
+    code = exit_code(exc)
     prefix = f"{where}: " if where else ""
-    if isinstance(exc, ParameterError | LocalProtocolError):
-        return CliError(str(exc), ExitCode.BAD_INPUT)
-    if isinstance(exc, ParameterRefused | ValueMismatch):
-        return CliError(f"{prefix}{exc}", ExitCode.REFUSED)
-    if isinstance(exc, RequestTimeout | BoardLost):
-        return CliError(f"{prefix}board not answering: {exc}", ExitCode.NO_ANSWER)
-    if isinstance(exc, PortError):
-        return CliError(str(exc), ExitCode.PORT)
-    return CliError(f"{prefix}{exc}", ExitCode.FAILURE)
+    if code is ExitCode.NO_ANSWER:
+        return CliError(f"{prefix}board not answering: {exc}", code)
+    if code in (ExitCode.REFUSED, ExitCode.FAILURE):
+        return CliError(f"{prefix}{exc}", code)
+    return CliError(str(exc), code)
 
 
 def format_value(value: int | float, kind: ParamType | None = None) -> str:

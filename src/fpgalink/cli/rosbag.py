@@ -56,7 +56,7 @@ class RosbagWriter:
             from rosbags.rosbag2 import StoragePlugin, Writer
             from rosbags.typesys import Stores, get_typestore
         except ImportError:
-            raise CliError(ROSBAGS_HINT, ExitCode.BAD_INPUT) from None
+            raise CliError(ROSBAGS_HINT, ExitCode.NOT_INSTALLED) from None
         if path.exists():
             raise CliError(f"--rosbag2 {path}: already exists (a bag is a new directory)",
                            ExitCode.BAD_INPUT)

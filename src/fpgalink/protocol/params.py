@@ -11,7 +11,6 @@ starts from it, and ``docs/emulator.md`` explains each choice.
 from __future__ import annotations
 
 import difflib
-
 import math
 import numbers
 import struct

@@ -20,29 +20,28 @@ import contextlib
 import os
 import signal
 import sys
+import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 from urllib.parse import quote
 
+from fpgalink.protocol.exitcodes import ExitCode, exit_codes_help
 from fpgalink.ros2 import ROS2_INSTALL_HINT, available
 
 PROG = "fpgalink-ros2"
 
 
-def _fail(message: str, code: int = 2) -> None:
+def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> None:
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
     sys.exit(code)
 
 
-#: The exit codes, as the CLI's table gives its own (docs/ros2.md).
-EXIT_CODES_TABLE = """\
-exit codes:
-  0    stopped by SIGINT or SIGTERM, the robot stopped and the boards disabled
-  1    stdout could not be written (--help or --version into a full disk)
-  2    bad input: usage, a robot description, a --port
-  3    ROS 2 is not installed (the message says how to install it)
-  4    the boards could not be reached, or a link failed while running"""
+#: The exit codes it can end with, from the one table every console script shares (0: stopped
+#: by SIGINT or SIGTERM, the robot stopped and the boards disabled; docs/ros2.md).
+EXIT_CODES_TABLE = exit_codes_help((
+    ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.NO_ANSWER, ExitCode.PORT,
+    ExitCode.NOT_INSTALLED))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -53,7 +52,8 @@ def _parser() -> argparse.ArgumentParser:
         "diagnostics, cmd_vel, wheel_refs, goal_pose, enable, and the boards' parameters.",
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="ROS arguments go after --ros-args (-r __ns:=/robot, -p joint_state_rate:=200,\n"
-        "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.\n\n" + EXIT_CODES_TABLE)
+        "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.\n\n"
+        + textwrap.fill(EXIT_CODES_TABLE, 79))
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
     parser.add_argument("--robot", metavar="FILE", help="robot description (TOML); default: "
                         "the config file's robot, else the seed's robot")
@@ -79,7 +79,7 @@ def _parser() -> argparse.ArgumentParser:
 
 #: Exit codes: 0 stopped by a signal, 1 stdout failed, 2 usage, 3 ROS 2 not installed, 4
 #: boards not reached.
-EXIT_STDOUT = 1
+EXIT_STDOUT = ExitCode.FAILURE
 
 
 @dataclass
@@ -154,10 +154,8 @@ def resolve(options: argparse.Namespace) -> Startup:
     return Startup(robot, {e.name: e.url for e in endpoints}, baud, sources)
 
 
-#: Exit codes: 0 stopped by a signal, 2 usage, 3 ROS 2 not installed, 4 boards not reached.
-EXIT_USAGE = 2
-EXIT_NO_ROS2 = 3
-EXIT_BOARDS = 4
+EXIT_USAGE = ExitCode.BAD_INPUT
+EXIT_NO_ROS2 = ExitCode.NOT_INSTALLED
 
 
 def _say(text: str) -> None:
@@ -246,7 +244,7 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
-    from fpgalink.errors import FpgalinkError
+    from fpgalink.errors import FpgalinkError, exit_code
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot import Robot, RobotError
     from fpgalink.ros2.node import NODE_NAME, BadOverride, RosBridge, spin_in_thread
@@ -265,7 +263,7 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
         await robot.start()
     except (RobotError, FpgalinkError) as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
-        return EXIT_BOARDS
+        return _start_failed(exc)
     node = Node(NODE_NAME, start_parameter_services=False)
     try:
         try:
@@ -292,12 +290,23 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
         thread.join(timeout=2.0)
     except FpgalinkError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
-        return EXIT_BOARDS
+        return exit_code(exc)
     finally:
         await robot.close()
         with contextlib.suppress(Exception):
             node.destroy_node()
     return 0
+
+
+def _start_failed(exc: Exception) -> ExitCode:
+    """The boards could not be started: a port missing or busy (5), not answering (4), …
+    as the CLI says it."""
+    from fpgalink.errors import exit_code
+
+    code = exit_code(exc)
+    if code is ExitCode.FAILURE and "not answering" in str(exc):
+        return ExitCode.NO_ANSWER
+    return code
 
 
 def _parameter_error(exc: Exception) -> str:

@@ -109,6 +109,6 @@ def test_the_node_opens_the_config_files_ports(nowhere: Path) -> None:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]))
     done = subprocess.run([str(NETNS), sys.executable, "-m", "fpgalink.ros2"], cwd=nowhere,
                           env=env, capture_output=True, text=True, timeout=120, check=False)
-    # Those ports, not the emulated robot: they do not exist, so exit 4 (boards not reached).
-    assert done.returncode == 4, done
+    # Those ports, not the emulated robot: they do not exist, so exit 5 (port missing).
+    assert done.returncode == 5, done
     assert "/dev/fpgalink-test-no-such-L" in done.stderr, done.stderr
