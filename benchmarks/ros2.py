@@ -28,6 +28,7 @@ import statistics
 import struct
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -248,9 +249,10 @@ def main() -> None:
         env = dict(os.environ, ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST",
                    PYTHONPATH=os.pathsep.join(filter(None, [str(ROOT),
                                                             os.environ.get("PYTHONPATH")])))
-        env.setdefault("ROS_LOG_DIR", str(Path(os.environ.get("TMPDIR", "/tmp")) / "fpgalink-ros"))
-        done = subprocess.run([str(NETNS), sys.executable, "-m", "benchmarks.ros2",
-                               *sys.argv[1:]], cwd=ROOT, env=env, check=False)
+        with tempfile.TemporaryDirectory(prefix="fpgalink-ros-logs-") as logs:
+            env.setdefault("ROS_LOG_DIR", logs)  # rcl's log files, gone with the run
+            done = subprocess.run([str(NETNS), sys.executable, "-m", "benchmarks.ros2",
+                                   *sys.argv[1:]], cwd=ROOT, env=env, check=False)
         sys.exit(done.returncode)
     seconds = args.seconds or (QUICK_SECONDS if args.quick else DEFAULT_SECONDS)
     report = report_header(NAME, ["ros-jazzy-rclpy", "rosbags"])

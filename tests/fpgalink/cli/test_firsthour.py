@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import stalled
+from tests.support.cli import ROOT, stalled
 from tests.support.scripts import script, script_env, start_script
 
 
@@ -157,3 +157,26 @@ def test_a_fault_stop_prints_the_final_pose_and_says_the_fault_once() -> None:
     error = next(line for line in done.stderr.splitlines() if "error:" in line)
     assert error.count("restarted") <= 1, error
     assert "reconfiguring (restarted" not in done.stderr
+
+
+#: What README's "Try it" and docs/cli.md's examples leave in the working directory.
+TRY_IT_OUTPUTS = ("step.png", "run.mcap", "run.png", "drive.png", "path.png", "out/",
+                  "seed36/", "bag1/", "bag2/")
+
+
+def test_what_try_it_writes_is_ignored_by_git() -> None:
+    """41.14: .gitignore had step.png but not what "Try it" writes."""
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    for name in ("run.mcap", "run.png"):
+        assert name in readme  # still what the README's session writes
+    done = subprocess.run(["git", "check-ignore", "--no-index", *TRY_IT_OUTPUTS], cwd=ROOT,
+                          capture_output=True, text=True, check=False)
+    assert sorted(done.stdout.split()) == sorted(TRY_IT_OUTPUTS), done.stderr
+
+
+def test_the_suites_ros_logs_go_to_a_directory_of_its_own() -> None:
+    """41.14: the suite left ROS logs in a fixed /tmp/fpgalink-ros."""
+    logs = os.environ["ROS_LOG_DIR"]
+    assert "fpgalink-tests-ros-logs-" in logs and Path(logs).is_dir()
+    bench = (ROOT / "benchmarks" / "ros2.py").read_text(encoding="utf-8")
+    assert '"fpgalink-ros"' not in bench
