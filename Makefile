@@ -12,14 +12,18 @@ PYTEST_WORKERS ?= 3
 
 # The demo's set-up: the package and matplotlib for step.png, nothing else (README,
 # "Installing", gives the size).
-# Bytecode is written as modules are first imported, not for every module at install
-# (--no-compile: 45 MB less); setuptools, which venv adds on Python 3.11 and nothing here
-# imports, is taken out (9 MB; builds bring their own).
+# Not every module is byte-compiled at install (--no-compile: 45 MB less), but the package
+# and what a command imports are (tools/precompile.py, a few MB): where
+# PYTHONDONTWRITEBYTECODE=1 is set nothing is written at run time, and each command compiled
+# them again. setuptools, which venv adds on Python 3.11 and nothing here imports, is taken
+# out (9 MB; builds bring their own).
+BYTECODE_PACKAGES := fpgalink fpgaemu click rich serial serial_asyncio construct mcap numpy
 $(DEMO_STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --no-compile --upgrade pip
 	$(PY) -m pip install --quiet --no-compile -e '.[plot]'
 	$(PY) -m pip uninstall --quiet --yes setuptools 2>/dev/null || true
+	$(PY) tools/precompile.py $(BYTECODE_PACKAGES)
 	touch $(DEMO_STAMP)
 
 # The test set-up is every extra: the ros2 extra (ROS 2 Jazzy's PyPI wheels and rosbags;
