@@ -25,6 +25,7 @@ import click
 from fpgaemu.build import UART_RX_MODES, build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
 from fpgaemu.physics import SURFACES
+from fpgaemu.physics import SURFACES as PHYSICS_SURFACES
 from fpgaemu.physics import why_unavailable as physics_missing
 from fpgaemu.robot import BODIES, EmulatedRobot, check_body, default_body
 from fpgaemu.serve import (
@@ -315,11 +316,13 @@ def _body(value: dict[str, Any], description: RobotDescription) -> str:
     body = value["body"]
     surface = value["surface"] or description.surface
     if body is None:
-        body = default_body(surface)
-        if body == "kinematic" and physics_missing() is not None:
+        if physics_missing() is not None and surface in PHYSICS_SURFACES:
+            body = "kinematic"  # said here, once (default_body would say it again)
             print("fpgaemu: MuJoCo is not installed: the robot's body is the kinematic one "
                   "(pip install 'fpgalink[physics]' for the physics body)", file=sys.stderr,
                   flush=True)
+        else:
+            body = default_body(surface)
     try:
         check_body(body, surface, description)
     except ValueError as exc:

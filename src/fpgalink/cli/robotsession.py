@@ -114,6 +114,16 @@ def load_description(conn: ConnectionOptions, robot_file: Path | None,
     return description
 
 
+def _physics_installed() -> bool:
+    """Whether the emulated robot can have its physics body (the ``physics`` extra); the
+    emulator, in this process, imports MuJoCo next when it can."""
+    try:
+        import mujoco  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
 def robot_ports(conn: ConnectionOptions, description: RobotDescription,
                 robot_file: Path | None) -> dict[str, str]:
     """Board name → URL: the configured ports, or the in-process emulated robot."""
@@ -123,8 +133,13 @@ def robot_ports(conn: ConnectionOptions, description: RobotDescription,
         path = robot_file or settings.robot
         if path:
             query += f"&robot={quote(str(path))}"
+        body = ""
+        if not _physics_installed():  # said here, in the one line
+            query += "&body=kinematic"
+            body = (", the kinematic body: MuJoCo is not installed, pip install "
+                    "'fpgalink[physics]' for the physics body")
         note(f"no --port given: using the built-in emulated robot (emu://robot/…, surface "
-             f"{description.surface}); it lives only for this command")
+             f"{description.surface}{body}); it lives only for this command")
         return {b: f"emu://robot/{b}?{query}" for b in description.boards}
     given = {e.name: e.url for e in settings.endpoints}
     missing = [b for b in description.boards if b not in given]
