@@ -8,6 +8,7 @@ import asyncio
 import math
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import click
 
@@ -23,6 +24,9 @@ from fpgalink.cli.robotsession import (
 )
 from fpgalink.cli.session import run, stop_exit_code, wait_or_stop
 
+if TYPE_CHECKING:
+    from fpgalink.live import LiveAddress
+
 __all__ = ["drive"]
 
 
@@ -37,7 +41,8 @@ __all__ = ["drive"]
 @format_option
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
-          record: Path | None, rosbag: Path | None, fmt: str, robot_file: Path | None,
+          record: Path | None, rosbag: Path | None, foxglove: LiveAddress | None, fmt: str,
+          robot_file: Path | None,
           surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
     """Drive the robot at --v and --omega, holding the deadman, with a live view.
 
@@ -45,7 +50,8 @@ def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
     down keeping its curvature. Ends after --for seconds or on Ctrl-C, stopped and disabled.
     Exit 7 when supervision stopped it (a board went silent).
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag, foxglove,
+                       "fpgalink-cli drive")
     try:
         code = run(_drive(session, speed, math.radians(omega), duration))
     finally:  # a fault stop too: where it stopped is what the user asks first

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -28,6 +28,9 @@ from fpgalink.cli.robotsession import (
 )
 from fpgalink.cli.session import run, stop_exit_code
 
+if TYPE_CHECKING:
+    from fpgalink.live import LiveAddress
+
 __all__ = ["goto"]
 
 
@@ -45,7 +48,8 @@ __all__ = ["goto"]
 @format_option
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
-         plot: Path | None, record: Path | None, rosbag: Path | None, fmt: str,
+         plot: Path | None, record: Path | None, rosbag: Path | None,
+         foxglove: LiveAddress | None, fmt: str,
          robot_file: Path | None, surface: str | None, truth_url: str | None,
          conn: ConnectionOptions) -> int:
     """Drive the robot to X Y (m, in the odometry frame of the start) and stop there.
@@ -54,7 +58,8 @@ def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: 
     stops within --tolerance (then turns to --theta if given). Exit 0 on arrival, 6 when not
     there within --time-limit, 7 when supervision stopped the robot, 130 on Ctrl-C.
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag, foxglove,
+                       "fpgalink-cli goto")
     target = f"({x:g}, {y:g})" + ("" if theta is None else f", θ {theta:g}°")
     arrived: list[Any] = []
     try:

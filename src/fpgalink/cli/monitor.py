@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import click
 
 from fpgalink.aio.link import Subscription
+from fpgalink.cli.liveview import add_live_boards, foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, quiet_stdout
 from fpgalink.cli.session import (
@@ -38,6 +39,8 @@ from fpgalink.protocol import Telemetry
 
 if TYPE_CHECKING:  # rich loads when the table is drawn
     from rich.console import Group
+
+    from fpgalink.live import LiveAddress
 
 __all__ = ["monitor"]
 
@@ -91,21 +94,22 @@ def render(sessions: list[BoardSession], started: float, duration: float | None)
                    "Default: table on a terminal, csv when piped.")
 @click.option("--passive", is_flag=True,
               help="Only listen: do not turn GetDataPeriodical on (and back off).")
+@foxglove_option
 @connection_options(multi=True)
 def monitor(duration: float | None, fmt: str | None, passive: bool,
-            conn: ConnectionOptions) -> int:
+            foxglove: LiveAddress | None, conn: ConnectionOptions) -> int:
     """Watch telemetry of both channels and the link's health, live.
 
     Turns telemetry on (GetDataPeriodical = 1) while it runs and restores the previous value
     when it stops. Link events (board lost/found, port lost) go to stderr in stream formats.
     """
     fmt = fmt or ("table" if sys.stdout.isatty() else "csv")
-    code = run(_monitor(conn, duration, fmt, passive))
+    code = run(_monitor(conn, duration, fmt, passive, foxglove))
     return code
 
 
 async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
-                   passive: bool) -> int:
+                   passive: bool, foxglove: LiveAddress | None = None) -> int:
     stop = asyncio.Event()
     install_stop_signals(stop)
     failure: list[BaseException] = []
@@ -113,6 +117,8 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
     started = time.time()
     async with contextlib.AsyncExitStack() as stack:
         sessions = await open_sessions(stack, conn)
+        view = await stack.enter_async_context(opened_live(foxglove, "fpgalink-cli monitor"))
+        add_live_boards(view, {s.endpoint.name: s.link for s in sessions})
         subs = [s.link.telemetry(maxsize=65536) for s in sessions]
         tasks: list[asyncio.Task[None]] = []
         for session in sessions:

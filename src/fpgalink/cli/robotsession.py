@@ -20,12 +20,14 @@ import click
 
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.liveview import foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import CliError, ExitCode, echo_out, note
 from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA
 
 if TYPE_CHECKING:
     from fpgalink.cli.rosbag import RosbagWriter
+    from fpgalink.live import LiveAddress
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot.joints import SampleSets
     from fpgalink.robot.robot import Robot
@@ -50,9 +52,9 @@ def robot_options(func: Callable[..., T]) -> Callable[..., T]:
 
 
 def output_options(func: Callable[..., T]) -> Callable[..., T]:
-    """``--plot FILE``, ``--record FILE`` and ``--rosbag2 DIR``: what a robot command leaves
-    behind."""
-    func = rosbag_option(func)
+    """``--plot FILE``, ``--record FILE``, ``--rosbag2 DIR`` and ``--foxglove
+    [HOST:]PORT``: what a robot command leaves behind, and its live view."""
+    func = foxglove_option(rosbag_option(func))
     for option in (  # innermost first: --help lists --plot, --record, --rosbag2
         click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
                      callback=_a_file, help="Save the path (odometry, and truth when "
@@ -335,7 +337,8 @@ class RobotRun:
 
     def __init__(self, conn: ConnectionOptions, robot_file: Path | None, surface: str | None,
                  truth_url: str | None, plot: Path | None, record: Path | None,
-                 rosbag: Path | None = None) -> None:
+                 rosbag: Path | None = None, foxglove: LiveAddress | None = None,
+                 name: str = "fpgalink-cli") -> None:
         if plot is not None:
             check_plot_path(plot)
         if record is not None and (record.is_dir() or not record.parent.is_dir()):
@@ -363,6 +366,8 @@ class RobotRun:
         self.robot: Robot | None = None
         self.last_truth: dict[str, Any] | None = None
         self.truth_frame = TruthFrame()
+        self.foxglove = foxglove
+        self.name = name
 
     @contextlib.asynccontextmanager
     async def opened(self) -> AsyncIterator[Robot]:
@@ -404,7 +409,10 @@ class RobotRun:
             self._started = time.monotonic()
             tasks.append(asyncio.ensure_future(self._sample()))
             try:
-                yield robot
+                async with opened_live(self.foxglove, self.name) as view:
+                    if view is not None:
+                        view.add_robot(robot, self.truth)
+                    yield robot
             finally:
                 for task in tasks:
                     task.cancel()

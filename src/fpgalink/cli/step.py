@@ -9,7 +9,7 @@ import signal
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 
@@ -17,6 +17,7 @@ from fpgalink.aio.link import LinkEvent
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
+from fpgalink.cli.liveview import add_live_boards, foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
@@ -32,6 +33,9 @@ from fpgalink.cli.output import (
 from fpgalink.cli.session import FAULT_KINDS, Streaming, install_stop_signals, run, wait_or_stop
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 from fpgalink.robot.response import SETTLING_BAND, StepMetrics, step_metrics
+
+if TYPE_CHECKING:
+    from fpgalink.live import LiveAddress
 
 __all__ = ["StepMetrics", "StepResponse", "step", "step_metrics"]
 
@@ -166,9 +170,11 @@ def check_reach(target: float, start: float, conn: ConnectionOptions) -> None:
               help="Save reference, speed and pwm against time to a .png, .svg or .pdf "
                    "(needs matplotlib; the path is checked before the step runs).")
 @format_option
+@foxglove_option
 @connection_options()
 def step(channel: str, target: float, start: float, hold: float, pre: float,
-         plot: Path | None, fmt: str, conn: ConnectionOptions) -> int:
+         plot: Path | None, fmt: str, foxglove: LiveAddress | None,
+         conn: ConnectionOptions) -> int:
     """Step the speed reference of one channel and measure the response.
 
     Enables the board, turns telemetry on, holds --from for --pre seconds, steps to --to and
@@ -186,7 +192,7 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
     if plot is not None:
         check_plot_path(plot)
     check_reach(target, start, conn)
-    outcome = run(_step(conn, channel, start, target, pre, hold), conn.single.url)
+    outcome = run(_step(conn, channel, start, target, pre, hold, foxglove), conn.single.url)
     if outcome.signal is not None:
         name = signal.Signals(outcome.signal).name
         note(f"interrupted by {name}: the board was disabled")
@@ -270,13 +276,15 @@ async def _read_setup(link: Any, channel: str) -> StepSetup:
 
 
 async def _step(conn: ConnectionOptions, channel: str, start: float, target: float,
-                pre: float, hold: float) -> StepOutcome:
+                pre: float, hold: float, foxglove: LiveAddress | None = None) -> StepOutcome:
     def refs(value: float) -> tuple[float, float]:
         return (value, 0.0) if channel == "A" else (0.0, value)
 
     stop = asyncio.Event()
     install_stop_signals(stop)  # SIGTERM as Ctrl-C: the board is disabled on the way out
-    async with conn.link(conn.single) as link:
+    async with conn.link(conn.single) as link, \
+            opened_live(foxglove, "fpgalink-cli step") as view:
+        add_live_boards(view, {conn.single.name: link})
         streaming = Streaming(link)
         await streaming.start()
         setup = await _read_setup(link, channel)
