@@ -11,10 +11,14 @@ import pytest
 SRC = Path(__file__).resolve().parents[1] / "src"
 
 
-def imports_of(path: Path) -> set[str]:
-    """Every module ``path`` imports, at any depth (lazy imports inside functions too)."""
+def imports_of(path: Path, lazy: bool = True) -> set[str]:
+    """Every module ``path`` imports, at any depth (lazy imports inside functions too; with
+    ``lazy=False`` only those at import time: the module's top level, outside functions)."""
     found: set[str] = set()
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    nodes = ast.walk(tree) if lazy else (n for top in tree.body if not isinstance(
+        top, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef) for n in ast.walk(top))
+    for node in nodes:
         if isinstance(node, ast.Import):
             found.update(alias.name for alias in node.names)
         elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
@@ -78,7 +82,8 @@ def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.robot"))
 def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path) -> None:
     names = imports_of(path)
-    above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2")}
+    above = {n for n in first_party(names)
+             if within(n, "fpgalink.cli", "fpgalink.ros2", "fpgalink.live")}
     assert not above, f"{where} imports {sorted(above)}"
     if not where.endswith("robot/robot.py"):  # the sans-I/O parts: no I/O, no clock
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
@@ -91,6 +96,17 @@ def test_campaigns_stand_on_the_robot_and_below(where: str, path: Path) -> None:
     above = {n for n in first_party(imports_of(path))
              if within(n, "fpgalink.cli", "fpgalink.ros2")}
     assert not above, f"{where} imports {sorted(above)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.live"))
+def test_the_live_view_stands_on_the_robot_beside_the_cli(where: str, path: Path) -> None:
+    # The CLI and the ROS 2 node both open it; it may import neither, nor any ROS package;
+    # foxglove-sdk only when a view starts (the extra), never at import.
+    names = imports_of(path, lazy=False)
+    assert not {n for n in first_party(imports_of(path))
+                if within(n, "fpgalink.cli", "fpgalink.ros2", "fpgaemu")}, where
+    assert not {n for n in imports_of(path) if within(n, "rclpy")}, where
+    assert not {n for n in names if within(n, "foxglove")}, where
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.config"))

@@ -10,6 +10,8 @@ not installed (cffi for --firmware c). Options go before or after ``serve``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import functools
 import ipaddress
 import math
 import os
@@ -24,6 +26,7 @@ import click
 
 from fpgaemu.build import UART_RX_MODES, build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
+from fpgaemu.liveview import INSTALL_HINT, EmulatorLiveView
 from fpgaemu.physics import SURFACES
 from fpgaemu.physics import SURFACES as PHYSICS_SURFACES
 from fpgaemu.physics import why_unavailable as physics_missing
@@ -204,6 +207,10 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
     click.option("--truth", "truth", metavar="HOST:PORT",
                  help="With --robot: where the true pose streams as JSON lines, to up to "
                       f"{MAX_TRUTH_READERS} readers  [default: 127.0.0.1:0]"),
+    click.option("--foxglove", "foxglove", metavar="[HOST:]PORT",
+                 help="With --robot: a live view of the true body for Foxglove, a WebSocket "
+                      "server on PORT (loopback unless HOST is given); needs the foxglove "
+                      "extra (fpgaemu/liveview.py)"),
     click.option("--firmware", "firmware", type=click.Choice(["python", "c"]),
                  help="The MicroBlaze software: the Python model, or the C core of firmware/ "
                       "(built on first use with the system C compiler; docs/firmware.md)  "
@@ -218,7 +225,7 @@ DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 
                             "assignments": (), "links": (), "faults": (), "robot": False,
                             "robot_file": None, "surface": None, "truth": None,
                             "firmware": "python", "idle_timeout": None,
-                            "body": None, "uart_rx": "edge", "tx_gap": 0}
+                            "body": None, "uart_rx": "edge", "tx_gap": 0, "foxglove": None}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -262,9 +269,9 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     host, port = parse_tcp(tcp) if tcp is not None else ("127.0.0.1", 0)
     robot = _robot(value) if value["robot"] else None
     if robot is None and any(value[k] is not None
-                             for k in ("robot_file", "surface", "truth", "body")):
-        raise ServeError("--robot-file, --surface, --body and --truth go with --robot",
-                         EXIT_BAD_INPUT)
+                             for k in ("robot_file", "surface", "truth", "body", "foxglove")):
+        raise ServeError("--robot-file, --surface, --body, --truth and --foxglove go with "
+                         "--robot", EXIT_BAD_INPUT)
     if value["uart_rx"] not in UART_RX_MODES:
         raise ServeError(f"--uart-rx {value['uart_rx']!r}: choose "
                          f"{' or '.join(UART_RX_MODES)}", EXIT_BAD_INPUT)
@@ -276,6 +283,7 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     settings = parse_settings(value["config_path"], value["assignments"])
     faults = _board_faults(list(value["faults"]), names)
     truth = parse_tcp(value["truth"] or "127.0.0.1:0") if robot else None
+    live = _live_view(value["foxglove"], robot)
     idle_timeout = value["idle_timeout"]
     if idle_timeout is None:
         idle_timeout = IDLE_TIMEOUT_S
@@ -294,7 +302,8 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         raise ServeError(str(exc).splitlines()[0], ExitCode.NOT_INSTALLED if isinstance(
             exc, NotInstalled) else EXIT_BAD_INPUT) from None
     with asyncio.Runner(loop_factory=serve_loop) as runner:
-        code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout))
+        code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout,
+                                 live))
     sys.exit(code)
 
 
@@ -389,7 +398,9 @@ def _make_link(path: Path, target: str) -> None:
 
 async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoard],
                  links: dict[str, Path], truth: tuple[str, int] | None,
-                 idle_timeout: float = IDLE_TIMEOUT_S) -> int:
+                 idle_timeout: float = IDLE_TIMEOUT_S,
+                 live: Callable[[Callable[[], dict[str, Any]]], EmulatorLiveView] | None = None
+                 ) -> int:
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
@@ -402,6 +413,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
     # must not reach a board that is about to go because a later one could not be served.
     ready: list[str] = []
     served = False
+    stack = contextlib.AsyncExitStack()
     try:
         for index, (name, board) in enumerate(paced.items()):
             if use_pty:
@@ -435,6 +447,15 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
             ready += [f"ready truth {url}" for url in truth_endpoint.urls]
+            if live is not None:
+                view = live(sides[0].robot.truth_record)
+                try:
+                    view.start()
+                except OSError as exc:
+                    raise ServeError(f"--foxglove: cannot listen: {exc}",
+                                     EXIT_CANNOT_SERVE) from None
+                stack.push_async_callback(view.close)
+                ready.append(f"ready foxglove {view.url}")
         try:
             print("\n".join(ready), flush=True)
         except BrokenPipeError:
@@ -444,6 +465,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
         served = True
         await stop.wait()
     finally:
+        await stack.aclose()
         if truth_endpoint is not None:
             await truth_endpoint.close()
         for _, endpoint in endpoints:
@@ -454,6 +476,20 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
         if served:  # a serve that could not start says only why (one line)
             _report_all(endpoints, truth_endpoint, final=True)
     return 0
+
+
+def _live_view(text: str | None, robot: RobotDescription | None
+               ) -> Callable[[Callable[[], dict[str, Any]]], EmulatorLiveView] | None:
+    """``--foxglove [HOST:]PORT``, checked before anything is served: what makes the live
+    view once the robot's truth is there."""
+    if text is None or robot is None:
+        return None
+    host, port = parse_tcp(text if ":" in text else f"127.0.0.1:{text}")
+    try:
+        import foxglove  # noqa: F401
+    except ImportError:
+        raise ServeError(INSTALL_HINT, ExitCode.NOT_INSTALLED) from None
+    return functools.partial(EmulatorLiveView, host or "0.0.0.0", port, robot)
 
 
 def _report_all(endpoints: list[tuple[str, PtyEndpoint | TcpEndpoint]],

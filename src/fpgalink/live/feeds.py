@@ -16,7 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 from fpgalink.boardclock import BoardClock
 from fpgalink.events import Event
-from fpgalink.live.schemas import (
+from fpgalink.live.server import LiveServer
+from fpgalink.protocol import ParamAck, ParamNack
+from fpgalink.protocol.viewschemas import (
     FRAME_TRANSFORMS_SCHEMA,
     PARAMETERS_SCHEMA,
     POSE_IN_FRAME_SCHEMA,
@@ -26,8 +28,6 @@ from fpgalink.live.schemas import (
     pose,
     stamp,
 )
-from fpgalink.live.server import LiveServer
-from fpgalink.protocol import ParamAck, ParamNack
 from fpgalink.recording import (
     COMMAND_SCHEMA,
     EVENT_SCHEMA,

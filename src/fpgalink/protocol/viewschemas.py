@@ -1,9 +1,12 @@
-"""The live view's JSON Schemas beside the recordings' (:mod:`fpgalink.recording`): Foxglove's
+"""The live views' JSON Schemas beside the recordings' (:mod:`fpgalink.recording`): Foxglove's
 well-known types its 3D panel draws (from foxglove/foxglove-sdk's schemas/jsonschema, the
-fields used here), the URDF as ROS's ``std_msgs/String``, and a board's parameter table."""
+fields used here), the URDF as ROS's ``std_msgs/String``, and a board's parameter table.
+Data only, here so both the host's live view (:mod:`fpgalink.live`) and the emulator's
+(``fpgaemu serve --robot --foxglove``) use them."""
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 __all__ = ["FRAME_TRANSFORMS_SCHEMA", "PARAMETERS_SCHEMA", "POSES_IN_FRAME_SCHEMA",
@@ -68,7 +71,6 @@ def stamp(at: float) -> dict[str, int]:
 
 def pose(x: float, y: float, theta: float, z: float = 0.0) -> dict[str, Any]:
     """A planar pose as foxglove.Pose (a rotation about z by ``theta``)."""
-    import math
 
     return {"position": {"x": x, "y": y, "z": z},
             "orientation": {"x": 0.0, "y": 0.0, "z": math.sin(theta / 2),
