@@ -65,6 +65,7 @@ class EmulatorLiveView:
         self.truth = truth
         self.port = 0
         self._server: Any = None
+        self._context: Any = None
         self._channels: dict[str, Any] = {}
         self._task: asyncio.Task[None] | None = None
         self._path: list[tuple[float, float, float]] = []
@@ -78,7 +79,8 @@ class EmulatorLiveView:
             import foxglove
         except ImportError:
             raise NotInstalled(INSTALL_HINT) from None
-        context = foxglove.Context()
+        # Kept: the server holds its context weakly, and without it advertises nothing.
+        self._context = context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
                 name="fpgaemu serve --robot", host=self.host, port=self.requested_port,

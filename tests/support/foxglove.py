@@ -13,9 +13,10 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import websockets
+from websockets.typing import Subprotocol
 
 #: The protocol's names for its subprotocol; a server picks the one it speaks.
-SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+SUBPROTOCOLS = [Subprotocol("foxglove.sdk.v1"), Subprotocol("foxglove.websocket.v1")]
 OP_MESSAGE_DATA = 0x01
 
 
@@ -25,6 +26,7 @@ class Received:
     channels: dict[int, dict[str, Any]] = field(default_factory=dict)  #: id → advertisement
     messages: dict[str, list[tuple[int, Any]]] = field(default_factory=lambda: defaultdict(list))
     statuses: list[dict[str, Any]] = field(default_factory=list)
+    closed: bool = False  #: the server closed the connection before the time was up
 
     def topics(self) -> set[str]:
         return {c["topic"] for c in self.channels.values()}
@@ -37,8 +39,7 @@ async def watch(url: str, seconds: float, wanted: set[str] | None = None) -> Rec
     """Connect, subscribe to every channel advertised (or those in ``wanted``) and decode
     what comes for ``seconds``."""
     got = Received()
-    async with websockets.connect(url, subprotocols=SUBPROTOCOLS,  # type: ignore[list-item]
-                                  max_size=None) as ws:
+    async with websockets.connect(url, subprotocols=SUBPROTOCOLS, max_size=None) as ws:
         loop = asyncio.get_running_loop()
         end = loop.time() + seconds
         by_subscription: dict[int, str] = {}
@@ -46,6 +47,9 @@ async def watch(url: str, seconds: float, wanted: set[str] | None = None) -> Rec
             try:
                 frame = await asyncio.wait_for(ws.recv(), left)
             except TimeoutError:
+                break
+            except websockets.ConnectionClosed:  # the server's program ended: what came
+                got.closed = True
                 break
             if isinstance(frame, bytes):
                 if frame[0] == OP_MESSAGE_DATA:

@@ -97,6 +97,7 @@ class LiveServer:
         require_sdk()
         import foxglove
 
+        # Kept: the server holds its context weakly, and without it advertises nothing.
         self._context = foxglove.Context()
         try:
             self._server = foxglove.start_server(
