@@ -92,7 +92,9 @@ def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., A
                      help="Per-try request timeout, s  [default: 0.05]"),
         click.option("--retries", type=click.IntRange(1, 1000),
                      help="Tries per request, resends included  [default: 8]"),
-        click.option("-v", "--verbose", count=True, help="More detail (wire bytes)."),
+        click.option("-v", "--verbose", count=True,
+                     help="Each message a board sends, as it arrives, with its bytes, on "
+                          "stderr; -vv telemetry too."),
         click.option("--config", metavar="FILE",
                      help="Config file (env FPGALINK_CONFIG; default fpgalink.toml here, "
                           "then ~/.config/fpgalink/fpgalink.toml)."),
@@ -163,14 +165,17 @@ class ConnectionOptions:
         "no answer after N tries", not as the shorter liveness timeout failing the request
         first, so liveness waits for every try."""
         from fpgalink.aio.link import open_link
+        from fpgalink.cli.wirelog import log_wire
 
         if liveness_timeout is None:
             liveness_timeout = max(0.7, self.timeout * self.retries + 0.2)
-        return open_link(
+        link = open_link(
             endpoint.url, self.baud, name=endpoint.name, request_timeout=self.timeout,
             request_tries=self.retries, liveness_timeout=liveness_timeout,
             reconnect=reconnect,
         )
+        log_wire(endpoint.name, link, self.verbose)
+        return link
 
     def note_ephemeral(self) -> None:
         """Say that an in-process board (emu://) forgets what this command changes."""

@@ -378,10 +378,13 @@ class RobotRun:
         import rich.live  # noqa: F401
 
         from fpgalink.cli.session import install_stop_signals
+        from fpgalink.cli.wirelog import log_wire
         from fpgalink.robot.robot import Robot, RobotError
 
         install_stop_signals(self.stop)
         robot = Robot.open(self.description, self.ports, baud=self.conn.baud)
+        for name, link in robot.links.items():
+            log_wire(name, link, self.conn.verbose)
         try:
             await robot.start()
         except RobotError as exc:

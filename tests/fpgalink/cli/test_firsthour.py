@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -219,3 +220,36 @@ def test_serve_robot_without_mujoco_says_it_once(tmp_path: Path) -> None:
     lines = [line for line in err.splitlines() if "MuJoCo" in line or "kinematic" in line]
     assert len(lines) == 1, err
     assert lines[0].startswith("fpgaemu: ")
+
+
+WIRE_LINE = re.compile(r"^fpgalink-cli: (\w+) < ([A-Z]{1,2})\b.*\[([0-9a-f]{2}( [0-9a-f]{2})*)\]$")
+
+
+def _wire_lines(stderr: str) -> list[re.Match[str]]:
+    return [m for line in stderr.splitlines() if (m := WIRE_LINE.match(line))]
+
+
+@pytest.mark.parametrize("args", [
+    ["param", "get", "TsTimerPeriod"], ["param", "list"],
+    ["monitor", "--duration", "0.3", "--format", "csv"],
+    ["step", "--channel", "A", "--to", "10", "--pre", "0.1", "--hold", "0.2"],
+    ["drive", "--v", "0.1", "--for", "0.3"], ["goto", "0.05", "0"],
+])
+def test_v_shows_each_message_a_board_sends_for_every_command(args: list[str]) -> None:
+    """41.6: -v did nothing for most commands although every help says so."""
+    quiet = _driving(*args)
+    assert quiet.returncode == 0, quiet.stderr
+    assert not _wire_lines(quiet.stderr)
+    done = _driving("-v", *args)
+    assert done.returncode == 0, done.stderr
+    lines = _wire_lines(done.stderr)
+    assert any(m.group(2) == "PA" for m in lines), done.stderr[-500:]
+    assert not any(m.group(2) == "TM" for m in lines)  # telemetry only at -vv
+    for m in lines:  # the bytes are the message's content: its ID first
+        assert bytes.fromhex(m.group(3)).startswith(m.group(2).encode())
+
+
+def test_vv_adds_the_telemetry() -> None:
+    done = script("fpgalink-cli", "-vv", "monitor", "--duration", "0.3", "--format", "csv")
+    assert done.returncode == 0, done.stderr
+    assert sum(m.group(2) == "TM" for m in _wire_lines(done.stderr)) > 100
