@@ -61,13 +61,15 @@ ifeq ($(CMAKE_FOUND),)
 endif
 
 # tf2_msgs (/tf, /tf_static) has no Jazzy wheel on PyPI: generated from the rosidl wheels that
-# are, its type hash checked against Jazzy's, installed into the venv (ros2/build_tf2_msgs.py).
-# Part of the tests' set-up only: the node runs without /tf where it is absent.
+# are, its type hash checked against Jazzy's, installed into the venv (fpgalink.ros2.tf2build,
+# which a pip user runs as `fpgalink-ros2 --install-tf2`). Part of the tests' set-up only: the
+# node runs without /tf where it is absent.
+TF2_SOURCE := src/fpgalink/ros2/tf2_msgs_source
 TF2_STAMP := $(VENV)/.tf2-msgs-stamp
-$(TF2_STAMP): $(STAMP) ros2/build-requirements.txt ros2/build_tf2_msgs.py \
-		ros2/tf2_msgs/CMakeLists.txt ros2/tf2_msgs/package.xml ros2/tf2_msgs/msg/TFMessage.msg
-	$(PY) -m pip install --quiet -r ros2/build-requirements.txt -c ros2-constraints.txt
-	$(PY) ros2/build_tf2_msgs.py
+$(TF2_STAMP): $(STAMP) src/fpgalink/ros2/tf2build.py $(TF2_SOURCE)/requirements.txt \
+		$(TF2_SOURCE)/CMakeLists.txt $(TF2_SOURCE)/package.xml $(TF2_SOURCE)/msg/TFMessage.msg
+	$(PY) -m pip install --quiet -r $(TF2_SOURCE)/requirements.txt -c ros2-constraints.txt
+	$(PY) -m fpgalink.ros2.tf2build --no-requirements
 	touch $(TF2_STAMP)
 
 tf2-msgs: cmake cc

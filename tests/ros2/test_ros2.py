@@ -36,7 +36,7 @@ def _why_unavailable() -> str | None:
     if importlib.util.find_spec("rclpy") is None:
         return "rclpy is not installed (pip install -e '.[ros2]' -c ros2-constraints.txt)"
     if importlib.util.find_spec("tf2_msgs") is None:
-        return "tf2_msgs is not generated (make tf2-msgs)"
+        return "tf2_msgs is not generated (fpgalink-ros2 --install-tf2, or make tf2-msgs)"
     probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
     if probe.returncode != 0:
         return f"no private network namespace here: {probe.stderr.strip()}"
@@ -390,7 +390,7 @@ def test_without_tf2_msgs_the_node_says_so_once_and_runs(
         scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["ddc"].check("stamped")  # that node could not import tf2_msgs
     assert len(facts["no_tf_lines"]) == 1, facts
-    assert "make tf2-msgs" in facts["no_tf_lines"][0]
+    assert "fpgalink-ros2 --install-tf2" in facts["no_tf_lines"][0]
     assert facts["tf_messages"] == 0 and facts["driven_m"] > 0.1
 
 

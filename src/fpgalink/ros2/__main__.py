@@ -55,6 +55,10 @@ def _parser() -> argparse.ArgumentParser:
         "-p L.Kp_Wheel_Pid.A:=400.0). See docs/ros2.md.\n\n"
         + textwrap.fill(EXIT_CODES_TABLE, 79))
     parser.add_argument("--version", action="version", version=f"{PROG} {__version__}")
+    parser.add_argument("--install-tf2", action="store_true",
+                        help="build tf2_msgs (for /tf and /tf_static: Jazzy has no wheel of "
+                             "it) into this environment with cmake and a C compiler, then "
+                             "exit; see docs/ros2.md")
     parser.add_argument("--robot", metavar="FILE", help="robot description (TOML); default: "
                         "the config file's robot, else the seed's robot")
     parser.add_argument("--surface", metavar="NAME", help="the surface the robot is on "
@@ -180,6 +184,12 @@ def main(argv: list[str] | None = None) -> None:
     before_ros = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
     if "-h" in before_ros or "--help" in before_ros:
         _say(f"{_parser().format_help()}\nROS 2: {ROS2_INSTALL_HINT}.\n")
+    if "--install-tf2" in before_ros:  # a pip user's /tf, without a checkout
+        from fpgalink.ros2.tf2build import main as build_tf2
+
+        if not available():
+            _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
+        sys.exit(build_tf2([]))
     if "--version" in before_ros:  # answers without ROS 2, as --help does
         from fpgalink import __version__
 

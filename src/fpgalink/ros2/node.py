@@ -303,7 +303,7 @@ class RosBridge:
             self.tf_type, "/tf", QoSProfile(depth=100, reliability=ReliabilityPolicy.RELIABLE))
         if self.tf_type is None and self._value("publish_odom_tf"):
             self.log.warning("publish_odom_tf: tf2_msgs is not installed (Jazzy has no wheel "
-                             "of it; `make tf2-msgs` generates it): running without /tf "
+                             "of it; `fpgalink-ros2 --install-tf2` builds it): running without /tf "
                              "and /tf_static")
         self.description_pub = self._publisher(String, "robot_description", LATCHED)
         self.tf_static_pub = None
@@ -1250,7 +1250,7 @@ _FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
 
 def _tf_message_type() -> Any:
     """tf2_msgs/msg/TFMessage, or ``None`` where tf2_msgs is not installed (ROS 2 Jazzy has
-    no PyPI wheel of it: ``make tf2-msgs`` generates it from the rosidl wheels)."""
+    no PyPI wheel of it: ``fpgalink-ros2 --install-tf2`` builds it from the rosidl wheels)."""
     try:
         from tf2_msgs.msg import TFMessage
     except ImportError:
