@@ -28,7 +28,7 @@ def content_bytes(message: Parsed) -> bytes:
     if isinstance(message, DirectCommand | Malformed):
         return bytes(message.content)
     assert isinstance(message, CountedMessage) or hasattr(message, "counter")
-    return encode_message(message, message.counter or 0)  # type: ignore[arg-type]
+    return encode_message(message, message.counter or 0)
 
 
 def log_wire(name: str, link: Link, verbose: int) -> None:

@@ -72,6 +72,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--bag", metavar="DIR", type=Path,
                         help="record the node's inputs and outputs into a new rosbag2 DIR "
                         "(MCAP, CDR; with the rosbags library)")
+    parser.add_argument("--foxglove", metavar="[HOST:]PORT",
+                        help="also a live view for Foxglove without ROS (foxglove-sdk's "
+                        "WebSocket server, loopback unless HOST is given; the foxglove "
+                        "extra): the boards' telemetry, parameters, events, the robot's "
+                        "pose, path, truth, URDF and supervision; docs/live.md")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -226,6 +231,20 @@ def main(argv: list[str] | None = None) -> None:
         _fail(f"the robot's boards are {', '.join(description.boards)}; give a port for "
               f"each, --port NAME=URL or [ports] NAME = URL (got "
               f"{', '.join(sorted(ports))} from {startup.sources['port']})")
+    live = None
+    if options.foxglove is not None:
+        from fpgalink.live import parse_address, require_sdk
+        from fpgalink.protocol.exitcodes import NotInstalled
+
+        if options.lifecycle:
+            _fail("--foxglove does not go with --lifecycle yet")
+        try:
+            live = parse_address(options.foxglove)
+            require_sdk()
+        except ValueError as exc:
+            _fail(f"--foxglove {exc}")
+        except NotInstalled as exc:
+            _fail(str(exc), ExitCode.NOT_INSTALLED)
     bag = None
     if options.bag is not None:
         from fpgalink.ros2.bag import BagError, NodeBag
@@ -238,7 +257,7 @@ def main(argv: list[str] | None = None) -> None:
     rclpy.init(args=argv)
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle))
+                                bag, options.lifecycle, live))
     finally:
         if bag is not None:
             bag.close()
@@ -250,7 +269,7 @@ def main(argv: list[str] | None = None) -> None:
 
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
-               bag: Any = None, lifecycle: bool = False) -> int:
+               bag: Any = None, lifecycle: bool = False, live: Any = None) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -290,6 +309,7 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
             f"up: boards {', '.join(f'{b}={u}' for b, u in ports.items())}"
             + (" (emulated robot)" if robot.truth() is not None else "")
             + (f" (ports from {source})" if source not in ("command line", "default") else ""))
+        view = await _live_view(live, robot)
         running = asyncio.ensure_future(bridge.run())
         waiting = asyncio.ensure_future(stop.wait())
         await asyncio.wait({running, waiting}, return_when=asyncio.FIRST_COMPLETED)
@@ -298,6 +318,8 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
         await asyncio.gather(running, waiting, return_exceptions=True)
         executor.shutdown(timeout_sec=1.0)
         thread.join(timeout=2.0)
+        if view is not None:
+            await view.close()
     except FpgalinkError as exc:
         print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
         return exit_code(exc)
@@ -306,6 +328,24 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
         with contextlib.suppress(Exception):
             node.destroy_node()
     return 0
+
+
+async def _live_view(address: Any, robot: Any) -> Any:
+    """The ROS-less route: the robot on a Foxglove live view beside the ROS topics."""
+    if address is None:
+        return None
+    from fpgalink.live import LiveView
+
+    view = LiveView(address, PROG, say=lambda text: print(f"{PROG}: {text}",
+                                                           file=sys.stderr, flush=True))
+    try:
+        view.start()
+    except OSError as exc:
+        print(f"{PROG}: error: --foxglove: cannot listen: {exc}", file=sys.stderr, flush=True)
+        raise SystemExit(ExitCode.PORT) from None
+    view.add_robot(robot, robot.truth)
+    print(f"{PROG}: live view for Foxglove on {view.url}", file=sys.stderr, flush=True)
+    return view
 
 
 def _start_failed(exc: Exception) -> ExitCode:

@@ -1,0 +1,58 @@
+"""The ROS-less route to Foxglove: ``fpgalink-ros2 --foxglove PORT`` serves the live view
+beside its ROS topics (inside a loopback-only network namespace, as every DDS participant
+in the suite runs; the client speaks Foxglove's protocol from the same namespace)."""
+
+from __future__ import annotations
+
+import importlib.util
+import json
+import os
+import subprocess
+import sys
+
+import pytest
+
+from tests.support.cli import ROOT
+from tests.support.scripts import BIN
+
+NETNS = ROOT / "tests" / "ros2" / "netns.sh"
+
+INSIDE = """
+import asyncio, json, re, select, subprocess, sys, time
+from tests.support.foxglove import watch
+node = subprocess.Popen([sys.argv[1], "--foxglove", "0"], stderr=subprocess.PIPE, text=True)
+url, deadline = None, time.monotonic() + 60
+while url is None and time.monotonic() < deadline:
+    if select.select([node.stderr], [], [], 0.5)[0]:
+        line = node.stderr.readline()
+        found = re.search(r"live view for Foxglove on (ws://\\S+)", line)
+        url = found.group(1) if found else url
+got = asyncio.run(watch(url, 4.0)) if url else None
+node.terminate()
+node.communicate(timeout=30)
+print(json.dumps(None if got is None else {
+    "topics": sorted(got.topics()),
+    "counts": {t: len(m) for t, m in got.messages.items()},
+    "returncode": node.returncode}))
+"""
+
+
+def test_the_node_serves_the_live_view_without_ros() -> None:
+    if importlib.util.find_spec("rclpy") is None:
+        pytest.skip("rclpy is not installed")
+    probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
+    if probe.returncode != 0:
+        pytest.skip(f"no network namespace: {probe.stderr.strip()}")
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    done = subprocess.run([str(NETNS), sys.executable, "-c", INSIDE,
+                           str(BIN / "fpgalink-ros2")], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=150, check=False)
+    assert done.returncode == 0, done.stderr[-2000:]
+    facts = json.loads(done.stdout.strip().splitlines()[-1])
+    assert facts is not None, done.stderr[-2000:]
+    assert {"/board/L/telemetry", "/robot/pose", "/tf", "/robot_description"} <= set(
+        facts["topics"])
+    assert facts["counts"]["/board/L/telemetry"] > 100
+    assert facts["counts"]["/robot/pose"] > 10
+    assert facts["returncode"] == 0  # SIGTERM: a clean stop
