@@ -77,13 +77,20 @@ async def _one(robot: Any, case: str, seconds: float) -> dict[str, Any]:
         async for received, _ in robot.links[name].stamped_telemetry(maxsize=1 << 16):
             arrivals[name].append(received)
 
+    from fpgalink.robot.robot import RobotStopped
+
     tasks = [asyncio.ensure_future(listen(name)) for name in robot.links]
     cpu0, wall0 = time.process_time(), time.monotonic()
-    async with robot.enabled():
-        end = time.monotonic() + seconds
-        while time.monotonic() < end:
-            robot.drive(0.2, 0.1)
-            await asyncio.sleep(robot.control_period)
+    stopped = None  # a fault stop is a finding of the case (a loaded machine's stall, or
+    try:            # this host too late for the boards): said, counted, not hidden
+        async with robot.enabled():
+            end = time.monotonic() + seconds
+            while time.monotonic() < end:
+                robot.drive(0.2, 0.1)
+                await asyncio.sleep(robot.control_period)
+    except RobotStopped as exc:
+        stopped = str(exc)
+        print(f"{case}: {stopped}", file=sys.stderr)
     cpu, wall = time.process_time() - cpu0, time.monotonic() - wall0
     for task in tasks:
         task.cancel()
@@ -100,7 +107,7 @@ async def _one(robot: Any, case: str, seconds: float) -> dict[str, Any]:
             "lost": sum(link.stats.lost - lost0[n] for n, link in robot.links.items()),
             "gap_p50_ms": percentile(gaps, 50) * 1e3, "gap_p99_ms": percentile(gaps, 99) * 1e3,
             "gap_max_ms": max(gaps) * 1e3, "cpu_pct": 100 * cpu / wall,
-            "published": published, "decoded": decoded}
+            "published": published, "decoded": decoded, "stopped": stopped}
 
 
 async def run(seconds: float, repeat: int) -> list[dict[str, Any]]:
@@ -114,6 +121,7 @@ async def run(seconds: float, repeat: int) -> list[dict[str, Any]]:
             for _ in range(repeat):
                 for case in CASES:
                     results.append(await _one(robot, case, seconds))
+                    await asyncio.sleep(0.5)  # a stopped robot is ready again
     finally:
         serve.send_signal(2)
         await serve.wait()
@@ -145,10 +153,11 @@ def main() -> None:
                      f"{median('gap_p50_ms'):.3f}", f"{median('gap_p99_ms'):.3f}",
                      f"{median('gap_max_ms'):.1f}", f"{median('cpu_pct'):.1f}",
                      f"{median('published'):,.0f}",
-                     f"{statistics.median(decoded):,.0f}" if decoded else "-"])
+                     f"{statistics.median(decoded):,.0f}" if decoded else "-",
+                     str(sum(r["stopped"] is not None for r in mine))])
     print(f"median of {repeat}, {seconds:g} s each, cases interleaved")
     print_table(["case", "TM", "TM lost", "gap p50 ms", "gap p99 ms", "gap max ms",
-                 "CPU %", "sent", "decoded"], rows)
+                 "CPU %", "sent", "decoded", "stops"], rows)
     print(f"results: {write_results(NAME, report, args.output)}")
 
 
