@@ -10,8 +10,8 @@ PYTEST_WORKERS ?= 3
 
 .PHONY: setup test lint demo bench clean iverilog cc cmake firmware tf2-msgs
 
-# The demo's set-up: the package and matplotlib for step.png, nothing else (README,
-# "Installing", gives the size).
+# The demo's set-up: the package and matplotlib for step.png, nothing else (docs/install.md
+# gives the size).
 # Not every module is byte-compiled at install (--no-compile: 45 MB less), but the package
 # and what a command imports are (tools/precompile.py, a few MB): where
 # PYTHONDONTWRITEBYTECODE=1 is set nothing is written at run time, and each command compiled

@@ -1,6 +1,8 @@
-"""README.md tells the truth: every Python example in it is a complete program that runs as
-written (against emu://), and every output it shows for a deterministic program or command
-is what that program or command prints."""
+"""README.md tells the truth: every Python example in it (and in docs/library.md, where its
+other examples went) is a complete program that runs as written (against emu://), and every
+output it shows for a deterministic program or command is what that program or command
+prints. It stays short: a README says what it is, how to install, one example, and links
+(issue 41.15)."""
 
 from __future__ import annotations
 
@@ -13,22 +15,28 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 README = (ROOT / "README.md").read_text(encoding="utf-8")
+LIBRARY = (ROOT / "docs" / "library.md").read_text(encoding="utf-8")
+#: The most lines the README may have (amaranth's, aioquic's and h11's are 3.5–7 KB).
+README_LINES = 150
 #: A fenced block and the plain fenced block that directly follows it ("It prints:").
 BLOCK = re.compile(r"```(\w*)\n(.*?)```", re.DOTALL)
 
 pytestmark = pytest.mark.timeout(120)
 
 
-def python_examples() -> list[tuple[str, str | None]]:
-    """(program, the output shown after it if the next block is a plain one)."""
-    blocks = [(m.group(1), m.group(2), m.end()) for m in BLOCK.finditer(README)]
+def python_examples(text: str | None = None) -> list[tuple[str, str | None]]:
+    """(program, the output shown after it if the next block is a plain one), of the README
+    and docs/library.md (or of ``text``)."""
+    if text is None:
+        return python_examples(README) + python_examples(LIBRARY)
+    blocks = [(m.group(1), m.group(2), m.end()) for m in BLOCK.finditer(text)]
     examples = []
     for i, (lang, code, end) in enumerate(blocks):
         if lang != "python":
             continue
         shown = None
         if i + 1 < len(blocks) and blocks[i + 1][0] == "":
-            between = README[end:README.index("```", end)]
+            between = text[end:text.index("```", end)]
             if between.strip() == "It prints:":
                 shown = blocks[i + 1][1]
         examples.append((code, shown))
@@ -36,7 +44,19 @@ def python_examples() -> list[tuple[str, str | None]]:
 
 
 def test_the_readme_has_examples() -> None:
-    assert len(python_examples()) >= 3
+    assert len(python_examples(README)) >= 1
+    assert len(python_examples()) >= 4
+
+
+def test_the_readme_is_short_and_links_what_moved() -> None:
+    assert len(README.splitlines()) <= README_LINES
+    for moved in ("docs/install.md", "docs/performance.md", "docs/library.md",
+                  "docs/live.md"):
+        assert moved in README and (ROOT / moved).exists(), moved
+    install = (ROOT / "docs" / "install.md").read_text(encoding="utf-8")
+    for extra in ("plot", "physics", "foxglove", "ros2", "cosim", "dev"):
+        assert f"| `{extra}` |" in install, extra
+    assert "--install-tf2" in install
 
 
 @pytest.mark.parametrize(("code", "shown"), python_examples(),
