@@ -14,7 +14,7 @@ import fpgaemu.__main__ as fpgaemu_main
 import fpgalink.cli.output as cli_output
 import fpgalink.ros2.__main__ as ros2_main
 from fpgalink.protocol.exitcodes import ExitCode, exit_codes_help
-from tests.support.scripts import script, script_env
+from tests.support.scripts import script, without
 
 
 def _codes(module: ModuleType) -> dict[str, object]:
@@ -47,19 +47,9 @@ def test_each_programs_help_gives_the_shared_table(program: str) -> None:
     assert "5 port missing, busy or failed" in text
 
 
-def _no_cffi(tmp_path: Path) -> dict[str, str]:
-    """An environment whose ``import cffi`` fails, as where the cosim extra is missing."""
-    (tmp_path / "cffi").mkdir()
-    (tmp_path / "cffi" / "__init__.py").write_text(
-        'raise ImportError("No module named cffi (hidden by the test)")\n', encoding="utf-8")
-    env = script_env()
-    env["PYTHONPATH"] = f"{tmp_path}:{env['PYTHONPATH']}"
-    return env
-
-
 def test_a_missing_cffi_is_not_installed_for_the_cli_and_serve(tmp_path: Path) -> None:
     """emu://?firmware=c without cffi said "port missing or busy" (5)."""
-    env = _no_cffi(tmp_path)
+    env = without(tmp_path, "cffi")
     done = script("fpgalink-cli", "param", "get", "TsTimerPeriod", "--port",
                   "emu://?firmware=c", env=env)
     assert done.returncode == ExitCode.NOT_INSTALLED, done.stderr
@@ -84,13 +74,7 @@ def test_a_missing_port_is_still_a_port_error() -> None:
 
 def test_the_node_without_ros2_is_not_installed(tmp_path: Path) -> None:
     """fpgalink-ros2 said 3 ("board refused" in the CLI) for ROS 2 not installed."""
-    for name in ("rclpy", "diagnostic_msgs"):
-        (tmp_path / name).mkdir()
-        (tmp_path / name / "__init__.py").write_text(
-            f'raise ImportError("No module named {name} (hidden by the test)")\n',
-            encoding="utf-8")
-    env = script_env()
-    env["PYTHONPATH"] = f"{tmp_path}:{env['PYTHONPATH']}"
+    env = without(tmp_path, "rclpy", "diagnostic_msgs")
     done = script("fpgalink-ros2", env=env)
     assert done.returncode == ExitCode.NOT_INSTALLED, done.stderr
     assert "pip install 'fpgalink[ros2]'" in done.stderr

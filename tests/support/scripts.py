@@ -11,7 +11,7 @@ from typing import Any
 
 from tests.support.cli import CALL_TIMEOUT, ROOT, cli_env
 
-__all__ = ["BIN", "script", "script_env", "start_script"]
+__all__ = ["BIN", "script", "script_env", "start_script", "without"]
 
 #: Where the environment's console scripts are (the interpreter's own ``bin``).
 BIN = Path(sys.executable).parent
@@ -41,3 +41,17 @@ def start_script(name: str, *args: str, env: dict[str, str] | None = None,
     options.setdefault("stderr", subprocess.PIPE)
     return subprocess.Popen([str(BIN / name), *args], text=True,
                             cwd=options.pop("cwd", ROOT), env=env or script_env(), **options)
+
+
+def without(tmp_path: Path, *modules: str) -> dict[str, str]:
+    """:func:`script_env` in which each of ``modules`` fails to import, as where the extra
+    that brings it is not installed (a package of that name raising ImportError, first on
+    the path)."""
+    for name in modules:
+        (tmp_path / name).mkdir(exist_ok=True)
+        (tmp_path / name / "__init__.py").write_text(
+            f"raise ImportError('No module named {name} (hidden by the test)')\n",
+            encoding="utf-8")
+    env = script_env()
+    env["PYTHONPATH"] = f"{tmp_path}{os.pathsep}{env['PYTHONPATH']}"
+    return env

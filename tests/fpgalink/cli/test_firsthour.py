@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 
 from tests.support.cli import ROOT, stalled
-from tests.support.scripts import script, script_env, start_script
+from tests.support.scripts import script, script_env, start_script, without
 
 
 def _into_a_closed_pipe(*args: str) -> subprocess.CompletedProcess[str]:
@@ -183,21 +183,11 @@ def test_the_suites_ros_logs_go_to_a_directory_of_its_own() -> None:
     assert '"fpgalink-ros"' not in bench
 
 
-def _without_mujoco(tmp_path: Path) -> dict[str, str]:
-    """An environment whose ``import mujoco`` fails, as after ``make demo``."""
-    (tmp_path / "mujoco").mkdir()
-    (tmp_path / "mujoco" / "__init__.py").write_text(
-        'raise ImportError("No module named mujoco (hidden by the test)")\n', encoding="utf-8")
-    env = script_env()
-    env["PYTHONPATH"] = f"{tmp_path}:{env['PYTHONPATH']}"
-    return env
-
-
 def test_a_robot_command_without_mujoco_says_the_body_once_in_its_own_line(
         tmp_path: Path) -> None:
     """41.7: every robot command printed an unprefixed MuJoCo-missing line besides its own."""
     done = script("fpgalink-cli", "drive", "--v", "0.1", "--for", "0.3",
-                  env=_without_mujoco(tmp_path), timeout=60)
+                  env=without(tmp_path, "mujoco"), timeout=60)
     assert done.returncode in (0, 7), done.stderr
     lines = [line for line in done.stderr.splitlines() if "MuJoCo" in line]
     assert len(lines) == 1, done.stderr
@@ -208,7 +198,7 @@ def test_a_robot_command_without_mujoco_says_the_body_once_in_its_own_line(
 
 def test_serve_robot_without_mujoco_says_it_once(tmp_path: Path) -> None:
     """41.7: ``fpgaemu serve --robot`` printed the notice twice, in two wordings."""
-    proc = start_script("fpgaemu", "serve", "--robot", "--pty", env=_without_mujoco(tmp_path))
+    proc = start_script("fpgaemu", "serve", "--robot", "--pty", env=without(tmp_path, "mujoco"))
     assert proc.stdout is not None
     ready = 0
     while ready < 3:

@@ -25,7 +25,7 @@ from fpgalink.live.clients import Connection, StallJudge, parse_proc_net_tcp
 from fpgalink.protocol.exitcodes import ExitCode
 from tests.support.cli import stalled
 from tests.support.foxglove import Received, watch
-from tests.support.scripts import script, script_env, start_script
+from tests.support.scripts import script, start_script, without
 
 pytest.importorskip("foxglove")
 
@@ -272,11 +272,7 @@ def test_the_address_is_loopback_unless_given_and_checked() -> None:
 
 
 def test_without_foxglove_sdk_it_says_how_to_install(tmp_path: Path) -> None:
-    (tmp_path / "foxglove").mkdir()
-    (tmp_path / "foxglove" / "__init__.py").write_text(
-        'raise ImportError("No module named foxglove (hidden by the test)")\n')
-    env = script_env()
-    env["PYTHONPATH"] = f"{tmp_path}:{env['PYTHONPATH']}"
+    env = without(tmp_path, "foxglove")
     for args in (["fpgalink-cli", "drive", "--foxglove", "0"],
                  ["fpgalink-cli", "monitor", "--foxglove", "0"],
                  ["fpgaemu", "serve", "--robot", "--pty", "--foxglove", "0"]):
