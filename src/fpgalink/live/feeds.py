@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 from fpgalink.boardclock import BoardClock
 from fpgalink.events import Event
 from fpgalink.live.server import LiveServer
-from fpgalink.protocol import ParamAck, ParamNack
+from fpgalink.protocol import ParamAck, ParamNack, Telemetry
 from fpgalink.protocol.viewschemas import (
     FRAME_TRANSFORMS_SCHEMA,
     PARAMETERS_SCHEMA,
@@ -48,7 +48,7 @@ if TYPE_CHECKING:
     from fpgalink.robot.robot import Robot
     from fpgalink.robot.supervision import SupervisionEvent
 
-__all__ = ["BoardFeed", "RobotFeed"]
+__all__ = ["BoardFeed", "RobotFeed", "telemetry_json"]
 
 #: How often the slow topics go out: statistics, the parameter table, health, the URDF (a
 #: client that subscribes later has it within this).
@@ -117,9 +117,14 @@ class BoardFeed:
             if not self.server.wanted(topic):
                 continue
             received += to_epoch
-            row = json_safe({k: compact(v) for k, v in telemetry_row(sample, 0.0).items()})
-            row["timestamp"] = round(clock.seconds(sample.t_us, received), 6)
-            self.server.publish(topic, row, received)
+            stamp_s = clock.seconds(sample.t_us, received)
+            data = telemetry_json(sample, stamp_s)
+            if data is None:  # a value that is not finite: null, through the full path
+                row = json_safe({k: compact(v) for k, v in telemetry_row(sample, 0.0).items()})
+                row["timestamp"] = round(stamp_s, 6)
+                self.server.publish(topic, row, received)
+            else:
+                self.server.publish_json(topic, data, received)
 
     async def _slow(self) -> None:
         last, counted = time.monotonic(), 0
@@ -140,6 +145,24 @@ class BoardFeed:
         for task in self._tasks:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+
+
+def telemetry_json(sample: Telemetry, timestamp: float) -> bytes | None:
+    """A sample as ``/board/NAME/telemetry`` has it (the recording's row: 7 significant
+    digits of each float), formatted in one step — 2,000 a second on a two-board robot, in
+    the control path's loop, where building a dict and encoding it cost about five times as
+    much. ``None`` when a value is not finite (JSON has no NaN: the row's path writes null)."""
+    a, b = sample.a, sample.b
+    if not (math.isfinite(a.speed) and math.isfinite(a.current) and math.isfinite(a.reference)
+            and math.isfinite(b.speed) and math.isfinite(b.current)
+            and math.isfinite(b.reference)):
+        return None
+    counter = "null" if sample.counter is None else sample.counter
+    return (f'{{"timestamp":{timestamp:.6f},"t_us":{sample.t_us},"counter":{counter},'
+            f'"a_position":{a.position},"a_speed":{a.speed:.7g},"a_current":{a.current:.7g},'
+            f'"a_pwm":{a.pwm},"a_ref":{a.reference:.7g},"a_flags":{a.flags},'
+            f'"b_position":{b.position},"b_speed":{b.speed:.7g},"b_current":{b.current:.7g},'
+            f'"b_pwm":{b.pwm},"b_ref":{b.reference:.7g},"b_flags":{b.flags}}}').encode()
 
 
 class _Path:
