@@ -304,16 +304,18 @@ def test_serve_robot_streams_the_true_body(tmp_path: Path) -> None:
             line = serve.stdout.readline()
             assert line, serve.communicate(timeout=10)
             ready[line.split()[1]] = line.split()[2]
-        drive = start_script("fpgalink-cli", "drive", "--v", "0.3", "--for", "5", "--port",
-                             f"L={ready['L']}", "--port", f"R={ready['R']}")
-        got = asyncio.run(watch(ready["foxglove"], 4.0))
-        drive.communicate(timeout=60)
+        # A host drives the body 0.3 m/s for 2 s; the emulator's view shows where it went.
+        drive = script("fpgalink-cli", "drive", "--v", "0.3", "--for", "2", "--port",
+                       f"L={ready['L']}", "--port", f"R={ready['R']}", timeout=120)
+        got = asyncio.run(watch(ready["foxglove"], 3.0))
     finally:
         serve.terminate()
         serve.communicate(timeout=10)
     assert {"/emulator/truth", "/emulator/pose", "/emulator/path", "/tf",
             "/robot_description"} <= got.topics()
-    xs = [m["x"] for _, m in got.messages["/emulator/truth"]]
-    assert xs[-1] > xs[0]  # the body moved, as the emulator sees it
+    assert drive.returncode in (0, 7), drive.stderr  # 7: a loaded machine's own stall
+    moved = got.latest("/emulator/truth")
+    assert moved["x"] > 0.05, moved  # the body moved, as the emulator sees it
+    assert len(got.latest("/emulator/path")["poses"]) > 5
     assert got.latest("/emulator/pose")["frame_id"] == "world"
     assert set(got.latest("/emulator/truth")["boards"]) == {"L", "R"}
