@@ -1,0 +1,162 @@
+"""Odometry against a reference: the skid-steer's effective track (χ) from a turn in place
+and the wheel radius from a straight run.
+
+Odometry turns the wheels' motion into the body's by the robot file's model
+(:mod:`fpgalink.protocol.robot`): a side's way is ``r·φ`` (wheel radius r, wheel angle φ)
+and the body turns by ``(s_R − s_L)/(χ·B)``. So for the same wheel motion
+
+* the angle odometry says is proportional to ``1/χ``: with χ₀ in use, odometry's angle
+  α₀ and the reference's α, the χ that makes them agree is ``χ₀·α₀/α``;
+* the way it says is proportional to ``r``: ``r = r₀·d/d₀``.
+
+The reference is the user's own measurement (an angle read off marks on the floor, a
+distance taped out), an IMU's yaw rate integrated (:class:`GyroHeading`, its bias measured
+while the robot stands still first), or an emulated robot's truth. χ belongs to the surface
+(docs/robot.md): calibrate on each one the robot drives on. Sans-I/O.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+__all__ = [
+    "MIN_DISTANCE",
+    "MIN_TURN",
+    "CalibrationError",
+    "GyroHeading",
+    "Result",
+    "chi_from_turn",
+    "radius_from_run",
+    "unwrapped_change",
+]
+
+#: The shortest turn (rad) and way (m) a calibration is taken from: shorter, the
+#: reference's own error (a degree of reading, a centimetre of tape) is too large a share.
+MIN_TURN = math.radians(90.0)
+MIN_DISTANCE = 0.5
+#: The robot file's bounds (fpgalink.protocol.robot).
+CHI_RANGE = (1.0, 10.0)
+RADIUS_RANGE = (0.01, 10.0)
+
+
+class CalibrationError(ValueError):
+    """The run cannot calibrate (too short, the reference and odometry disagree in sign, a
+    result outside what a robot file accepts); the message says why."""
+
+
+@dataclass(frozen=True, slots=True)
+class Result:
+    """One calibrated quantity: before and after, and what they came from."""
+
+    name: str  #: "chi" or "wheel_radius"
+    before: float
+    after: float
+    odometry: float  #: rad or m, as odometry measured it with ``before``
+    reference: float  #: rad or m, the reference's
+
+    @property
+    def error_before(self) -> float:
+        """Odometry's error with ``before``, as a share of the reference."""
+        return (self.odometry - self.reference) / self.reference
+
+
+def _checked(name: str, value: float, bounds: tuple[float, float], why: str) -> float:
+    low, high = bounds
+    if not (math.isfinite(value) and low <= value <= high):
+        raise CalibrationError(f"{name} would be {value:.4g}, outside {low:g}..{high:g} "
+                               f"{why}")
+    return value
+
+
+def chi_from_turn(chi: float, odometry_turn: float, reference_turn: float) -> Result:
+    """χ from a turn in place: odometry said ``odometry_turn`` rad with ``chi``, the
+    reference ``reference_turn`` rad (both signed, counter-clockwise positive)."""
+    for name, value in (("odometry's turn", odometry_turn), ("the reference's turn",
+                                                              reference_turn)):
+        if not math.isfinite(value):
+            raise CalibrationError(f"{name} is not a number")
+    if abs(reference_turn) < MIN_TURN:
+        raise CalibrationError(f"the reference turned {math.degrees(reference_turn):.1f}°: at "
+                               f"least {math.degrees(MIN_TURN):.0f}° is needed")
+    if odometry_turn * reference_turn <= 0:
+        raise CalibrationError(f"odometry turned {math.degrees(odometry_turn):.1f}° and the "
+                               f"reference {math.degrees(reference_turn):.1f}°: opposite ways "
+                               "(a wheel's forward sign or the reference's axis is wrong)")
+    after = _checked("χ", chi * odometry_turn / reference_turn, CHI_RANGE,
+                     "(odometry and the reference are too far apart: a wheel slipping on a "
+                     "stop, the wrong surface, a reference of another run?)")
+    return Result("chi", chi, after, odometry_turn, reference_turn)
+
+
+def radius_from_run(radius: float, odometry_distance: float, reference_distance: float
+                    ) -> Result:
+    """The wheel radius from a straight run: odometry said ``odometry_distance`` m with
+    ``radius``, the reference ``reference_distance`` m (signed: backwards negative)."""
+    for name, value in (("odometry's distance", odometry_distance),
+                        ("the reference's distance", reference_distance)):
+        if not math.isfinite(value):
+            raise CalibrationError(f"{name} is not a number")
+    if abs(reference_distance) < MIN_DISTANCE:
+        raise CalibrationError(f"the reference says {reference_distance:.3f} m: at least "
+                               f"{MIN_DISTANCE:g} m is needed")
+    if odometry_distance * reference_distance <= 0:
+        raise CalibrationError(f"odometry went {odometry_distance:.3f} m and the reference "
+                               f"{reference_distance:.3f} m: opposite ways")
+    after = _checked("the wheel radius", radius * reference_distance / odometry_distance,
+                     RADIUS_RANGE, "m")
+    return Result("wheel_radius", radius, after, odometry_distance, reference_distance)
+
+
+def unwrapped_change(angles: Iterable[float]) -> float:
+    """The total signed change of a sequence of headings (rad, wrapped to ±π), following
+    every turn through ±π: sampled at least every half turn."""
+    total = 0.0
+    last: float | None = None
+    for angle in angles:
+        if not math.isfinite(angle):
+            continue
+        if last is not None:
+            total += math.remainder(angle - last, math.tau)
+        last = angle
+    return total
+
+
+class GyroHeading:
+    """A heading from a gyro's yaw rate: the bias is the mean rate while the robot stands
+    still (:meth:`still`), then (rate − bias) is integrated over time (trapezoids) while it
+    turns (:meth:`turning`). Samples are (time s, yaw rate rad/s)."""
+
+    def __init__(self) -> None:
+        self._still: list[float] = []
+        self._last: tuple[float, float] | None = None
+        self.heading = 0.0  #: rad turned since the first turning sample
+        self.samples = 0
+
+    @property
+    def bias(self) -> float:
+        return sum(self._still) / len(self._still) if self._still else 0.0
+
+    def still(self, rate: float) -> None:
+        if math.isfinite(rate):
+            self._still.append(rate)
+
+    def turning(self, t: float, rate: float) -> None:
+        if not (math.isfinite(t) and math.isfinite(rate)):
+            return
+        rate -= self.bias
+        if self._last is not None and t > self._last[0]:
+            self.heading += 0.5 * (rate + self._last[1]) * (t - self._last[0])
+        self._last = (t, rate)
+        self.samples += 1
+
+    @classmethod
+    def from_samples(cls, still: Sequence[float], turning: Sequence[tuple[float, float]]
+                     ) -> GyroHeading:
+        gyro = cls()
+        for rate in still:
+            gyro.still(rate)
+        for t, rate in turning:
+            gyro.turning(t, rate)
+        return gyro
