@@ -265,7 +265,7 @@ def _filtered(x: Array, f: Sequence[float] | Array) -> Array:
 
 
 def _regression(y: Array, u: Array, ones: Array, nb: int, nf: int, nk: int,
-                offset: bool, rows: Array) -> tuple[Array, Array]:
+                offset: bool, rows: Array, u_known: Array) -> tuple[Array, Array]:
     lag = max(nf, nk + nb - 1)
     ks = np.arange(lag, len(y))
     columns = [-y[ks - i] for i in range(1, nf + 1)]
@@ -275,6 +275,8 @@ def _regression(y: Array, u: Array, ones: Array, nb: int, nf: int, nk: int,
     phi = np.column_stack(columns)
     target = y[ks]
     keep = rows[ks] & np.all(np.isfinite(phi), axis=1) & np.isfinite(target)
+    for j in range(nb):  # a duty held over a lost sample may be wrong: not a regressor
+        keep &= u_known[ks - nk - j]
     return phi[keep], target[keep]
 
 
@@ -328,7 +330,8 @@ def fit_plant(u: Sequence[float] | Array, y: Sequence[float] | Array, ts: float,
     if np.ptp(u[:split][finite]) == 0.0:
         raise FitError("the duty never changed: nothing excites the plant")
     ones = np.ones(n)
-    theta, iterations = _steiglitz_mcbride(y, u, ones, nb, nf, nk, offset, estimation)
+    theta, iterations = _steiglitz_mcbride(y, u, ones, nb, nf, nk, offset, estimation,
+                                           present)
     f = tuple(float(v) for v in theta[:nf])
     b = tuple(float(v) for v in theta[nf:nf + nb])
     d = float(theta[nf + nb]) if offset else 0.0
@@ -347,30 +350,52 @@ def fit_plant(u: Sequence[float] | Array, y: Sequence[float] | Array, ts: float,
 
 
 def _steiglitz_mcbride(y: Array, u: Array, ones: Array, nb: int, nf: int, nk: int,
-                       offset: bool, rows: Array) -> tuple[Array, int]:
+                       offset: bool, rows: Array, u_known: Array) -> tuple[Array, int]:
     """ARX, then least squares on the data prefiltered by 1/F of the last estimate until
-    the coefficients stop moving: the output-error estimate."""
-    yf = np.where(np.isfinite(y), y, np.nan)
-    phi, target = _regression(yf, u, ones, nb, nf, nk, offset, rows)
+    the coefficients stop moving: the output-error estimate. Of the estimates met on the
+    way, the one whose simulated output is closest to the data (over the estimation rows)
+    is kept, so a run that strays — lost samples whose duty was held wrongly spread through
+    the filter — never returns worse than where it started."""
+    missing = ~np.isfinite(y)
+    phi, target = _regression(np.where(missing, np.nan, y), u, ones, nb, nf, nk, offset,
+                              rows, u_known)
     if len(target) < 2 * phi.shape[1]:
         raise FitError("too few complete samples for the model")
     theta = _solve(phi, target)
+    scored = rows & ~missing
+    start = float(y[~missing][0])
+
+    def model_of(coefficients: Array) -> DiscreteModel:
+        f = tuple(float(v) for v in coefficients[:nf])
+        d = float(coefficients[nf + nb]) if offset else 0.0
+        return DiscreteModel(1.0, tuple(float(v) for v in coefficients[nf:nf + nb]), f, nk,
+                             d / (1.0 + sum(f)))
+
+    def error(coefficients: Array) -> float:
+        simulated = model_of(coefficients).simulate(u, initial_output=start)
+        value = float(np.sum((simulated[scored] - y[scored]) ** 2))
+        return value if math.isfinite(value) else math.inf
+
+    best, best_error = theta, error(theta)
     iterations = 0
     while iterations < MAX_ITERATIONS:
         iterations += 1
         f = _stable(theta[:nf])
-        # a missing y is bridged by the model's own filtered value: filtered with 0 there
-        # and its rows left out
-        y_filled = np.where(np.isfinite(y), y, 0.0)
+        # a missing y is bridged by the last estimate's own output there (so the filter
+        # carries on through the gap), and its rows are left out
+        y_filled = np.where(missing, model_of(theta).simulate(u, initial_output=start), y) \
+            if missing.any() else y
         phi, target = _regression(_filtered(y_filled, f), _filtered(u, f),
                                   _filtered(ones, f), nb, nf, nk, offset,
-                                  rows & np.isfinite(y))
+                                  rows & ~missing, u_known)
         new = _solve(phi, target)
         moved = np.max(np.abs(new - theta) / np.maximum(np.abs(theta), 1e-12))
         theta = new
+        if (candidate := error(theta)) < best_error:
+            best, best_error = theta, candidate
         if moved < TOLERANCE:
             break
-    return theta, iterations
+    return best, iterations
 
 
 def _solve(phi: Array, target: Array) -> Array:
