@@ -26,8 +26,11 @@ __all__ = [
     "MIN_TURN",
     "CalibrationError",
     "GyroHeading",
+    "Motion",
     "Result",
+    "Sample",
     "chi_from_turn",
+    "motion_of",
     "radius_from_run",
     "unwrapped_change",
 ]
@@ -160,3 +163,64 @@ class GyroHeading:
         for t, rate in turning:
             gyro.turning(t, rate)
         return gyro
+
+
+@dataclass(frozen=True, slots=True)
+class Sample:
+    """The robot at one moment of a calibration run."""
+
+    t: float  #: s, host time
+    phase: str  #: "still", "moving" or "settling", with the motion's name: "turn-moving"
+    odometry: tuple[float, float, float]  #: x m, y m, θ rad
+    truth: tuple[float, float, float] | None = None  #: an emulated robot's true pose
+    gyro: tuple[float, float] | None = None  #: (time s, yaw rate rad/s) of an IMU reading
+
+
+@dataclass(frozen=True, slots=True)
+class Motion:
+    """What odometry and each reference measured over one motion (from rest to rest)."""
+
+    name: str  #: "turn" or "straight"
+    odometry_turn: float  #: rad
+    odometry_distance: float  #: m, along the starting heading (signed)
+    truth_turn: float | None
+    truth_distance: float | None
+    gyro_turn: float | None  #: rad, the gyro's rate less its bias while still, integrated
+    seconds: float
+
+
+def _along(poses: list[tuple[float, float, float]]) -> float:
+    (x0, y0, heading), (x1, y1, _) = poses[0], poses[-1]
+    return (x1 - x0) * math.cos(heading) + (y1 - y0) * math.sin(heading)
+
+
+def motion_of(samples: Sequence[Sample], name: str) -> Motion:
+    """The ``name`` motion of a run: from its last still sample to its last settling one
+    (both at rest)."""
+    still = [s for s in samples if s.phase == f"{name}-still"]
+    moving = [s for s in samples if s.phase in (f"{name}-moving", f"{name}-settling")]
+    if not still or not moving:
+        raise CalibrationError(f"the run has no {name}")
+    span = [still[-1], *moving]
+    odometry = [s.odometry for s in span]
+    truths = [s.truth for s in span]
+    truth_turn = truth_distance = None
+    if all(t is not None for t in truths):
+        poses = [t for t in truths if t is not None]
+        truth_turn = unwrapped_change(p[2] for p in poses)
+        truth_distance = _along(poses)
+    gyro_turn = None
+    readings = [s.gyro for s in samples if s.gyro is not None]
+    if readings and any(s.gyro is not None for s in moving):
+        heading = GyroHeading()
+        for s in still:
+            if s.gyro is not None:
+                heading.still(s.gyro[1])
+        seen: set[float] = set()
+        for s in span:
+            if s.gyro is not None and s.gyro[0] not in seen:
+                seen.add(s.gyro[0])
+                heading.turning(*s.gyro)
+        gyro_turn = heading.heading
+    return Motion(name, unwrapped_change(p[2] for p in odometry), _along(odometry),
+                  truth_turn, truth_distance, gyro_turn, span[-1].t - span[0].t)

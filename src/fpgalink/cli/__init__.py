@@ -59,6 +59,9 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "autotune": ("fpgalink.cli.autotune", "autotune",
                  "Tune the wheels' speed PIDs from their identified plants, every board and "
                  "channel."),
+    "calibrate": ("fpgalink.cli.calibrate", "calibrate",
+                  "Calibrate odometry: χ of the surface from a turn in place, the wheel radius "
+                  "from a straight run, against a reference."),
 }
 
 
