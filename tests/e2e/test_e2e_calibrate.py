@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import json
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -37,7 +38,7 @@ async def truth_url(server: Serve) -> str:
     return line[2]
 
 
-async def calibrate_on_a_fresh_robot(surface: str, *options: str) -> dict[str, object]:
+async def calibrate_on_a_fresh_robot(surface: str, *options: str) -> dict[str, Any]:
     """A fresh served robot, calibrated; a run stopped by a stall of this loaded machine's
     own making (tests/support/cli.py's ``stalled``) is made again on another fresh one."""
     for _ in range(4):
@@ -54,7 +55,7 @@ async def calibrate_on_a_fresh_robot(surface: str, *options: str) -> dict[str, o
         if not stalled(done):
             break
     assert done.returncode == 0, done.stdout + done.stderr
-    document: dict[str, object] = json.loads(done.stdout)
+    document: dict[str, Any] = json.loads(done.stdout)
     return document
 
 
@@ -65,13 +66,13 @@ async def test_after_calibrating_odometry_turns_within_a_percent(surface: str,
     record = tmp_path / "turn.mcap"
     first = await calibrate_on_a_fresh_robot(surface, "--save", str(robot_file),
                                              "--record", str(record))
-    (chi,) = first["results"]  # type: ignore[misc]
+    (chi,) = first["results"]
     assert chi["name"] == "chi" and abs(chi["error_before_percent"]) > 2.0  # not vacuous
     assert load_robot(str(robot_file)).surfaces[surface] == pytest.approx(chi["after"],
                                                                           rel=1e-6)
     # the same turn on a fresh robot, odometry with the calibrated χ
     again = await calibrate_on_a_fresh_robot(surface, "--robot", str(robot_file))
-    (check,) = again["results"]  # type: ignore[misc]
+    (check,) = again["results"]
     assert check["before"] == pytest.approx(chi["after"], rel=1e-6)
     assert abs(check["error_before_percent"]) <= 1.0, check
     assert check["reference_deg"] == pytest.approx(200, abs=20)

@@ -13,6 +13,7 @@ Emulated time only (no wall clock): the boards are driven through their UARTs
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import pytest
 
@@ -44,3 +45,44 @@ def test_an_unpowered_robot_comes_to_rest_and_stays(scenario: str) -> None:
     lapse (a frozen host); board L restarting while driving, R stopped by the robot's
     supervision 80 ms later."""
     assert_comes_to_rest(run_scenario(*SCENARIOS[scenario]), scenario)
+
+
+async def test_the_robots_deadman_stop_leaves_the_body_at_rest() -> None:
+    """Through the library's robot, supervision as it runs: renewed while the body speeds up
+    to 0.2 m/s, then not (a caller gone): the deadman lapses and every board gets RD. The
+    body, read from the emulator's truth in emulated time, is below 1 cm/s within 1 s of the
+    boards' disable and then does not move."""
+    import asyncio
+
+    from fpgalink.protocol.robot import seed_robot
+    from fpgalink.robot import Robot
+
+    query = "surface=gravel&body=mujoco"
+    robot = Robot.open(seed_robot(), {b: f"emu://robot/{b}?{query}" for b in ("L", "R")})
+    records: list[dict[str, Any]] = []
+    async with robot:
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 60.0
+        started: float | None = None
+        while loop.time() < deadline:
+            truth = robot.truth()
+            assert truth is not None
+            records.append(truth)
+            started = float(truth["t"]) if started is None else started
+            if float(truth["t"]) < started + 2.5:  # renewed for 2.5 s of emulated time
+                robot.enable()
+                robot.drive(0.2, 0.0)
+            fell = [b["disabled_s"] for b in truth["boards"].values()
+                    if b["disabled_by"] == "RD"]
+            if len(fell) == 2 and float(truth["t"]) > max(fell) + 3.0:
+                break
+            await asyncio.sleep(0.01)
+    last_stop = robot.last_stop
+    assert last_stop is not None and last_stop.reason is not None
+    assert last_stop.reason.name == "DEADMAN", last_stop.describe()
+    disabled = max(float(b["disabled_s"]) for b in records[-1]["boards"].values())
+    assert max(abs(float(r["v"])) for r in records if r["t"] < disabled) > 0.15  # driving
+    late = [r for r in records if float(r["t"]) >= disabled + 1.0]
+    assert late and all(abs(float(r["v"])) + abs(float(r["omega"])) * 0.44 < 0.01
+                        for r in late)
+    assert (late[0]["x"], late[0]["y"]) == (late[-1]["x"], late[-1]["y"])
