@@ -12,6 +12,7 @@ own pose in emulated time, so the figures do not depend on this machine's load."
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 from pathlib import Path
 from typing import Any
@@ -42,7 +43,7 @@ async def calibrate_on_a_fresh_robot(surface: str, *options: str) -> dict[str, A
     """A fresh served robot, calibrated; a run stopped by a stall of this loaded machine's
     own making (tests/support/cli.py's ``stalled``) is made again on another fresh one."""
     for _ in range(4):
-        for option, value in zip(options, options[1:], strict=False):
+        for option, value in itertools.pairwise(options):
             if option == "--record":
                 Path(value).unlink(missing_ok=True)
         async with serve("--robot", "--pty", "--body", "mujoco", "--surface", surface,
