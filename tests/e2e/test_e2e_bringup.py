@@ -11,7 +11,6 @@ time — nothing here depends on how fast this machine kept up."""
 from __future__ import annotations
 
 import json
-import subprocess
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -20,7 +19,7 @@ import pytest
 from fpgaemu.motor import continuous_model
 from fpgalink.protocol import float32
 from fpgalink.protocol.paramfile import parse_parameter_file
-from tests.support.cli import run_cli, run_driving, serve_pty
+from tests.support.cli import run_cli, run_driving, served_pty
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -32,14 +31,8 @@ SEED_STEP = {"high": (45.0, 0.71, 2.9), "low": (20.0, 0.86, 2.5)}
 
 @pytest.fixture(params=["high", "low"])
 def board(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
-    proc, path = serve_pty("--gear", request.param)
-    yield request.param, path
-    proc.terminate()
-    try:
-        proc.wait(timeout=5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    with served_pty("--gear", request.param) as path:
+        yield request.param, path
 
 
 def dominant_pole(gear: str) -> float:
@@ -101,18 +94,13 @@ def test_apply_is_refused_when_the_board_does_not_confirm(tmp_path: Path) -> Non
     """A design from the high gear's model, stepped on a board in low gear: the wheel is a
     third as strong, the step far slower than predicted — not applied, exit 1, the board
     keeps its gains."""
-    high, high_port = serve_pty("--gear", "high")
-    try:
+    with served_pty("--gear", "high") as high_port:
         model = tmp_path / "high.toml"
         fitted = run_driving("identify", "--channel", "A", "--wheels", "air", "--max-duty",
                              "100", "--duration", "10", "--save-model", str(model),
                              "--port", high_port)
         assert fitted.returncode == 0, fitted.stderr
-    finally:
-        high.terminate()
-        high.wait(timeout=5)
-    low, low_port = serve_pty("--gear", "low")
-    try:
+    with served_pty("--gear", "low") as low_port:
         done = run_driving("autotune", "--channel", "A", "--wheels", "air", "--max-duty",
                            "100", "--model", str(model), "--step", "20", "--apply",
                            "--save", str(tmp_path / "gains.toml"), "--port", low_port)
@@ -121,9 +109,6 @@ def test_apply_is_refused_when_the_board_does_not_confirm(tmp_path: Path) -> Non
         assert not (tmp_path / "gains.toml").exists()
         got = run_cli("param", "get", "Kp_Wheel_PidA", "--port", low_port)
         assert got.returncode == 0 and float(got.stdout) == 520.0
-    finally:
-        low.terminate()
-        low.wait(timeout=5)
 
 
 def test_a_run_that_would_drive_without_a_limit_is_refused() -> None:

@@ -7,7 +7,6 @@ protocol, identity unknown" and keeps working."""
 from __future__ import annotations
 
 import json
-import subprocess
 from collections.abc import Iterator
 
 import pytest
@@ -16,7 +15,7 @@ from fpgaemu.firmware import FIRMWARE_VERSION, emulated_serial
 from fpgalink.aio.identity import read_identity
 from fpgalink.aio.link import open_link
 from fpgalink.protocol.identity import BoardIdentity, declarations_hash
-from tests.support.cli import run_cli, serve_pty
+from tests.support.cli import run_cli, served_pty
 from tests.support.firmwares import require_c_firmware
 
 pytestmark = pytest.mark.timeout(120)
@@ -26,14 +25,8 @@ pytestmark = pytest.mark.timeout(120)
 def board(request: pytest.FixtureRequest) -> Iterator[str]:
     if request.param == "c":
         require_c_firmware()
-    proc, path = serve_pty("--firmware", request.param, "--seed", "3")
-    yield path
-    proc.terminate()
-    try:
-        proc.wait(timeout=5)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
+    with served_pty("--firmware", request.param, "--seed", "3") as path:
+        yield path
 
 
 def test_the_served_board_answers_iq_with_this_hosts_hash(board: str) -> None:
@@ -58,8 +51,7 @@ async def test_read_identity_over_the_pty(board: str) -> None:
 
 
 async def test_a_board_without_iq_is_seed_protocol_and_still_works() -> None:
-    proc, path = serve_pty("--fault", "drop-frames=IQ:1000")
-    try:
+    with served_pty("--fault", "drop-frames=IQ:1000") as path:
         unanswered = run_cli("send", "IQ", "--hex", "01000000", "--reply", "IA", "--wait",
                              "0.5", "--port", path)
         assert unanswered.returncode == 4 and "no reply to IQ" in unanswered.stderr
@@ -68,6 +60,3 @@ async def test_a_board_without_iq_is_seed_protocol_and_still_works() -> None:
         async with open_link(path) as link:
             assert await read_identity(link) is None  # SEED_PROTOCOL
             assert await link.set_param("TsTimerPeriod", 2) == 2
-    finally:
-        proc.terminate()
-        proc.wait(timeout=5)

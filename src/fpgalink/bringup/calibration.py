@@ -73,13 +73,17 @@ def _checked(name: str, value: float, bounds: tuple[float, float], why: str) -> 
     return value
 
 
+def _finite(what: str, odometry: float, reference: float) -> None:
+    for name, value in ((f"odometry's {what}", odometry), (f"the reference's {what}",
+                                                             reference)):
+        if not math.isfinite(value):
+            raise CalibrationError(f"{name} is not a number")
+
+
 def chi_from_turn(chi: float, odometry_turn: float, reference_turn: float) -> Result:
     """χ from a turn in place: odometry said ``odometry_turn`` rad with ``chi``, the
     reference ``reference_turn`` rad (both signed, counter-clockwise positive)."""
-    for name, value in (("odometry's turn", odometry_turn), ("the reference's turn",
-                                                              reference_turn)):
-        if not math.isfinite(value):
-            raise CalibrationError(f"{name} is not a number")
+    _finite("turn", odometry_turn, reference_turn)
     if abs(reference_turn) < MIN_TURN:
         raise CalibrationError(f"the reference turned {math.degrees(reference_turn):.1f}°: at "
                                f"least {math.degrees(MIN_TURN):.0f}° is needed")
@@ -97,10 +101,7 @@ def radius_from_run(radius: float, odometry_distance: float, reference_distance:
                     ) -> Result:
     """The wheel radius from a straight run: odometry said ``odometry_distance`` m with
     ``radius``, the reference ``reference_distance`` m (signed: backwards negative)."""
-    for name, value in (("odometry's distance", odometry_distance),
-                        ("the reference's distance", reference_distance)):
-        if not math.isfinite(value):
-            raise CalibrationError(f"{name} is not a number")
+    _finite("distance", odometry_distance, reference_distance)
     if abs(reference_distance) < MIN_DISTANCE:
         raise CalibrationError(f"the reference says {reference_distance:.3f} m: at least "
                                f"{MIN_DISTANCE:g} m is needed")

@@ -250,18 +250,7 @@ class PlantFit:
 
 def _filtered(x: Array, f: Sequence[float] | Array) -> Array:
     """x filtered by 1/F(q), started in the steady state of x[0]."""
-    out = np.empty(len(x))
-    n = len(f)
-    start = x[0] / (1.0 + float(np.sum(f)))
-    past = [start] * n
-    for k, value in enumerate(x):
-        v = value
-        for i in range(n):
-            v -= f[i] * past[i]
-        past.insert(0, v)
-        past.pop()
-        out[k] = v
-    return out
+    return DiscreteModel(1.0, (1.0,), tuple(float(v) for v in f), nk=0).simulate(x)
 
 
 def _regression(y: Array, u: Array, ones: Array, nb: int, nf: int, nk: int,

@@ -19,7 +19,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
-from collections.abc import Callable, Iterator
+from collections.abc import AsyncIterator, Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -165,6 +165,21 @@ async def _collect(link: Link, channel: str, record: ChannelRecord,
             on_sample(sample)
 
 
+@contextlib.asynccontextmanager
+async def _collecting(link: Link, channel: str, record: ChannelRecord,
+                      on_sample: Callable[[Telemetry], None] | None) -> AsyncIterator[None]:
+    """``record`` fills from the link's telemetry while the block runs; the board is
+    disabled when it ends, however it ends."""
+    collector = asyncio.ensure_future(_collect(link, channel, record, on_sample))
+    try:
+        yield
+    finally:
+        with contextlib.suppress(FpgalinkError):
+            link.disable()
+        collector.cancel()
+        await asyncio.gather(collector, return_exceptions=True)
+
+
 async def _enabled(link: Link, record: ChannelRecord, watch: _Watch) -> None:
     """Enable the board and wait until its telemetry shows it enabled."""
     link.enable()
@@ -220,8 +235,7 @@ async def identify_channel(link: Link, channel: str, excitation: Excitation, *,
                                 (f"Kp_Wheel_Pid{channel}", kp), (f"Ti_Wheel_Pid{channel}", ti),
                                 (f"Td_Wheel_Pid{channel}", td)):
                 await params.set(name, value)
-            collector = asyncio.ensure_future(_collect(link, channel, record, on_sample))
-            try:
+            async with _collecting(link, channel, record, on_sample):
                 await link.set_param("GetDataPeriodical", 1)
                 link.set_references(0.0, 0.0)
                 await _enabled(link, record, watch)
@@ -234,11 +248,6 @@ async def identify_channel(link: Link, channel: str, excitation: Excitation, *,
                     link.set_references(*_references(channel, float(duty)))
                 # the last change is the duty back to 0: let the wheel slow down on record
                 await _pace(0.5, watch, record, started)
-            finally:
-                with contextlib.suppress(FpgalinkError):
-                    link.disable()
-                collector.cancel()
-                await asyncio.gather(collector, return_exceptions=True)
         finally:
             await params.restore()
     return record
@@ -275,8 +284,7 @@ async def step_channel(link: Link, channel: str, gains: Gains, target: float, *,
             await params.set(f"Ti_Wheel_Pid{channel}", gains.ti)
             await params.set(f"Td_Wheel_Pid{channel}", gains.td)
             await params.set("GetDataPeriodical", 1)
-            collector = asyncio.ensure_future(_collect(link, channel, record, on_sample))
-            try:
+            async with _collecting(link, channel, record, on_sample):
                 link.set_references(0.0, 0.0)
                 await _enabled(link, record, watch)
                 started = len(record.enabled)
@@ -284,11 +292,6 @@ async def step_channel(link: Link, channel: str, gains: Gains, target: float, *,
                     link.set_references(*_references(channel, target))
                     await _pace(hold, watch, record, started)
                 link.set_references(0.0, 0.0)
-            finally:
-                with contextlib.suppress(FpgalinkError):
-                    link.disable()
-                collector.cancel()
-                await asyncio.gather(collector, return_exceptions=True)
         finally:
             await params.restore()
     times = record.times()
