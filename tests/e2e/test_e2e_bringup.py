@@ -44,14 +44,16 @@ def test_identify_recovers_the_emulated_plant(board: tuple[str, str], tmp_path: 
     record = tmp_path / "identify.mcap"
     done = run_driving("identify", "--channel", "A", "--wheels", "air", "--max-duty", "100",
                        "--duration", "12", "--record", str(record), "--format", "json",
-                       "--save-model", str(tmp_path / "model.toml"), "--port", port)
+                       "--save-model", str(tmp_path / "model.toml"), "--port", port,
+                       timeout=120)
     assert done.returncode == 0, done.stderr
     fit = json.loads(done.stdout)
     assert fit["full_duty_speed_dps"] == pytest.approx(FULL_SPEED[gear], rel=0.05)
     assert fit["dominant_pole_rad_s"] == pytest.approx(dominant_pole(gear), rel=0.05)
     assert fit["fit_percent"] > 95 and fit["nk"] == 1 and len(fit["f"]) == 3
     # what was recorded fits to the same model
-    again = run_cli("identify", "--channel", "A", "--from", str(record), "--format", "json")
+    again = run_cli("identify", "--channel", "A", "--from", str(record), "--format", "json",
+                    timeout=60)
     assert again.returncode == 0, again.stderr
     refit = json.loads(again.stdout)
     assert refit["samples"] == fit["samples"]
@@ -72,7 +74,7 @@ def test_autotune_applies_gains_that_settle_as_well_as_the_seeds(board: tuple[st
     saved = tmp_path / "gains.toml"
     done = run_driving("autotune", "--channel", "A", "--wheels", "air", "--max-duty", "100",
                        "--duration", "12", "--step", str(target), "--apply", "--save",
-                       str(saved), "--format", "json", "--port", port)
+                       str(saved), "--format", "json", "--port", port, timeout=120)
     assert done.returncode == 0, done.stdout + done.stderr
     (tuned,) = json.loads(done.stdout)
     assert tuned["confirmed"] and tuned["applied"], tuned["why"]
@@ -98,12 +100,13 @@ def test_apply_is_refused_when_the_board_does_not_confirm(tmp_path: Path) -> Non
         model = tmp_path / "high.toml"
         fitted = run_driving("identify", "--channel", "A", "--wheels", "air", "--max-duty",
                              "100", "--duration", "10", "--save-model", str(model),
-                             "--port", high_port)
+                             "--port", high_port, timeout=120)
         assert fitted.returncode == 0, fitted.stderr
     with served_pty("--gear", "low") as low_port:
         done = run_driving("autotune", "--channel", "A", "--wheels", "air", "--max-duty",
                            "100", "--model", str(model), "--step", "20", "--apply",
-                           "--save", str(tmp_path / "gains.toml"), "--port", low_port)
+                           "--save", str(tmp_path / "gains.toml"), "--port", low_port,
+                           timeout=120)
         assert done.returncode == 1, done.stdout + done.stderr
         assert "NOT confirmed" in done.stdout and "not applied" in done.stderr
         assert not (tmp_path / "gains.toml").exists()
@@ -116,3 +119,24 @@ def test_a_run_that_would_drive_without_a_limit_is_refused() -> None:
                     ["autotune", "--max-duty", "50"]):
         done = run_cli(*command, "--port", "emu://")
         assert done.returncode == 2 and "nothing was sent" in done.stderr, done.stderr
+
+
+def test_autotune_tunes_every_board_of_a_robot_into_its_robot_file(tmp_path: Path) -> None:
+    """Two boards in one command (in process, short identifications): each board's channel
+    tuned, confirmed, saved into a robot file's [board_parameters.NAME.A] that loads."""
+    from fpgalink.protocol.robot import load_robot
+
+    saved = tmp_path / "robot.toml"
+    done = run_driving("--port", "L=emu://", "--port", "R=emu://?gear=low", "autotune",
+                       "--channel", "A", "--wheels", "air", "--max-duty", "100",
+                       "--duration", "8", "--save", str(saved), "--format", "json", timeout=180)
+    assert done.returncode == 0, done.stdout + done.stderr
+    tuned = {t["board"]: t for t in json.loads(done.stdout)}
+    assert set(tuned) == {"L", "R"} and all(t["confirmed"] for t in tuned.values())
+    assert not any(t["applied"] for t in tuned.values())  # no --apply: set back
+    # each board its own plant: the low gear a third as strong, its gain about three times
+    assert tuned["R"]["gains"]["kp"] > 1.5 * tuned["L"]["gains"]["kp"]
+    robot = load_robot(str(saved))
+    for board in ("L", "R"):
+        values = {p.name: v for p, c, v in robot.settings_for(board) if c == 1}
+        assert values["Kp_Wheel_Pid"] == pytest.approx(tuned[board]["gains"]["kp"], rel=1e-6)
