@@ -140,3 +140,17 @@ def test_autotune_tunes_every_board_of_a_robot_into_its_robot_file(tmp_path: Pat
     for board in ("L", "R"):
         values = {p.name: v for p, c, v in robot.settings_for(board) if c == 1}
         assert values["Kp_Wheel_Pid"] == pytest.approx(tuned[board]["gains"]["kp"], rel=1e-6)
+
+
+def test_a_board_that_does_not_enable_is_refused_and_left_as_found() -> None:
+    """Every RE lost on the way (the board's enable never rises): no excitation, exit 7,
+    saying so; every parameter the run set is set back."""
+    with served_pty("--fault", "drop-frames=RE:1000000") as port:
+        done = run_cli("identify", "--channel", "B", "--wheels", "air", "--max-duty", "50",
+                       "--port", port, timeout=60)
+        assert done.returncode == 7, done.stderr
+        assert "did not enable within 1 s of RE" in done.stderr and not done.stdout
+        for name, value in (("Kp_Wheel_PidB", 520), ("MaxControlSignalB", 32760),
+                            ("TsTimerPeriod", 1), ("GetDataPeriodical", 0)):
+            got = run_cli("param", "get", name, "--port", port)
+            assert got.returncode == 0 and float(got.stdout) == value, name

@@ -221,7 +221,7 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
                                   on_sample=None if recorder is None
                                   else recorder.on_sample(board))
     except ExperimentError as exc:
-        raise CliError(f"board {board}: confirmation step {exc}", ExitCode.STOPPED) from None
+        raise CliError(f"board {board}: confirmation step: {exc}", ExitCode.STOPPED) from None
     measured = step_metrics(list(step.t), list(step.speed), 0.0, step_to)
     confirmed, why = confirms(design.prediction, measured)
     tuned = Tuned(board, channel, fit, model, design, before, before_prediction, step,

@@ -177,7 +177,7 @@ async def identify_on(link: Link, board: str, channel: str, options: Identificat
             link, channel, excitation, period_ms=options.period_ms, limit=options.limit,
             stop=stop, on_sample=None if recorder is None else recorder.on_sample(board))
     except ExperimentError as exc:
-        raise CliError(f"board {board}: identification {exc}", ExitCode.STOPPED) from None
+        raise CliError(f"board {board}: identification: {exc}", ExitCode.STOPPED) from None
 
 
 def fit_record(record: ChannelRecord, options: Identification, where: str) -> PlantFit:

@@ -80,7 +80,8 @@ class Run:
                    "or your measurement  [default: truth where there is one, else measured]")
 @click.option("--measured-angle", type=FiniteRange(-36000, 36000), metavar="DEG",
               help="The angle the robot really turned (with --from: in that recording's "
-                   "turn); without it a measured reference is asked for after the turn.")
+                   "turn); without it a measured reference is asked for once the motions "
+                   "are done.")
 @click.option("--measured-distance", type=FiniteRange(-1000, 1000), metavar="M",
               help="The way the robot really went in the straight run.")
 @click.option("--from", "from_file", type=click.Path(exists=True, dir_okay=False,
@@ -286,8 +287,10 @@ async def _calibrate(session: RobotRun, description: RobotDescription, distance:
                 first = Run(description.surface, model.chi, model.wheel_radius,
                             list(sampler.samples))
                 if finished and check:
-                    results, _ = _results(first, reference, measured_angle,
-                                          measured_distance, ask=True)
+                    # a measured value is asked on the terminal: off the loop, which keeps
+                    # the links served meanwhile
+                    results, _ = await asyncio.to_thread(_results, first, reference,
+                                                         measured_angle, measured_distance)
                     values = {r.name: r.after for r in results}
                     robot.set_kinematics(chi=values.get("chi"),
                                          wheel_radius=values.get("wheel_radius"))
@@ -389,8 +392,7 @@ def _reference_turn(motion: Motion, reference: str, measured: float | None) -> f
 
 
 def _results(calibration: Run, reference: str, measured_angle: float | None,
-             measured_distance: float | None, *, ask: bool = True
-             ) -> tuple[list[Result], dict[str, float]]:
+             measured_distance: float | None) -> tuple[list[Result], dict[str, float]]:
     """Each value the run calibrates, and the references used (deg, m)."""
     from fpgalink.bringup.calibration import (
         CalibrationError,
@@ -408,7 +410,7 @@ def _results(calibration: Run, reference: str, measured_angle: float | None,
             straight = motion_of(calibration.samples, "straight")
             distance = (straight.truth_distance if reference == "truth" else measured_distance
                         if reference == "measured" else None)
-            if distance is None and reference == "measured" and ask:
+            if distance is None and reference == "measured":
                 distance = _ask("the distance the robot really went, m",
                                 straight.odometry_distance)
             if distance is None:
@@ -421,7 +423,7 @@ def _results(calibration: Run, reference: str, measured_angle: float | None,
         if "turn" in phases:
             turn = motion_of(calibration.samples, "turn")
             angle = _reference_turn(turn, reference, measured_angle)
-            if angle is None and reference == "measured" and ask:
+            if angle is None and reference == "measured":
                 angle = math.radians(_ask("the angle the robot really turned, deg",
                                           math.degrees(turn.odometry_turn)))
             if angle is None:
