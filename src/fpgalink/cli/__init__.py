@@ -60,8 +60,8 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
                  "Tune the wheels' speed PIDs from their identified plants, every board and "
                  "channel."),
     "calibrate": ("fpgalink.cli.calibrate", "calibrate",
-                  "Calibrate odometry: χ of the surface from a turn in place, the wheel radius "
-                  "from a straight run, against a reference."),
+                  "Calibrate odometry: χ from a turn in place, the wheel radius from a straight "
+                  "run."),
 }
 
 

@@ -102,8 +102,7 @@ def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
               measured_distance: float | None, from_file: Path | None, record: Path | None,
               check: bool, save: Path | None, fmt: str, robot_file: Path | None,
               surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
-    """Calibrate odometry: χ of the surface from a turn in place, the wheel radius from a
-    straight run, against a reference.
+    """Calibrate odometry: χ from a turn in place, the wheel radius from a straight run.
 
     Drives on the ground, so keep a hand on the stop: --distance m straight first (if given),
     then --turn degrees in place, each measured by odometry with the robot file's values and
