@@ -58,6 +58,7 @@ fw_config fw_default_config(void)
     config.sw_current_kp = 0.5 / amps_per_count;
     config.hw_current_kp = 2.0 / amps_per_count;
     config.electrical_tau = 1e-3 / 1.0;
+    config.serial = 0u;  /* the port reads the device DNA and sets it before fw_init */
     return config;
 }
 
@@ -378,6 +379,19 @@ static void handle_references(fw_state *fw, const fl_rv_t *rv)
             write_hardware_reference(fw, c);
 }
 
+static void answer_identity(fw_state *fw, const fl_iq_t *iq)
+{
+    fl_ia_t ia;
+    ia.nonce = iq->nonce;
+    ia.declarations = FL_DECLARATIONS_HASH;
+    ia.firmware_major = FW_VERSION_MAJOR;
+    ia.firmware_minor = FW_VERSION_MINOR;
+    ia.firmware_patch = FW_VERSION_PATCH;
+    ia.build = FW_BUILD;
+    ia.serial = fw->config.serial;
+    send_counted(fw, fl_encode_ia(fw->out, take_counter(fw), &ia), false, 0u);
+}
+
 static void observe_host_counter(fw_state *fw, uint32_t counter)
 {
     if (fw->host_seen && counter == fw->host_next)
@@ -416,6 +430,9 @@ void fw_on_rx(fw_state *fw, uint16_t start_address, uint16_t length)
     case FL_MSG_PG:
         fw->stats.param_gets++;
         handle_get(fw, &message.body.pg);
+        break;
+    case FL_MSG_IQ:
+        answer_identity(fw, &message.body.iq);
         break;
     case FL_MSG_MALFORMED:
         fw->stats.malformed++;

@@ -5,7 +5,9 @@
  *
  *  - RX interrupt: take the frame out of the RX block RAM, acknowledge the half, check the
  *    wire CRC when it is on, parse; PS (validate, apply, recompute, PA or PN), PG (PA or
- *    PN), RV (references; a non-finite one is refused whole); the rest is counted.
+ *    PN), RV (references; a non-finite one is refused whole), IQ (IA: the declaration hash
+ *    this core was generated from, its version and build, the board's serial); the rest
+ *    is counted.
  *  - Timer interrupt every TsTimerPeriod ms: sample, run the controllers, write the PWM,
  *    send TM while GetDataPeriodical = 1.
  *  - E every 300 ms, enabled or not.
@@ -26,6 +28,17 @@
 #include "fpgalink_protocol.h"
 #include "hal.h"
 
+/* The firmware's version and build, as IA reports them (the emulator's model of this core
+ * says the same: fpgaemu.firmware.FIRMWARE_VERSION). 1.0 was the seed's, without IQ. A
+ * port's build sets FW_BUILD to its commit's first 8 hex digits (-DFW_BUILD=0x1a2b3c4d);
+ * 0 is "not set". */
+#define FW_VERSION_MAJOR 1u
+#define FW_VERSION_MINOR 1u
+#define FW_VERSION_PATCH 0u
+#ifndef FW_BUILD
+#define FW_BUILD 0u
+#endif
+
 #define FW_TX_DEPTH 8
 #define FW_CHANNELS 2
 /* ActiveController values */
@@ -38,6 +51,7 @@ typedef struct {
     double sw_current_kp;   /* PWM counts per A: a loop gain of 0.5 per tick */
     double hw_current_kp;   /* PWM counts per A: a loop gain of 2 at the module's 10 kHz */
     double electrical_tau;  /* L/R, s: the current loops' integral time */
+    uint64_t serial;        /* the board's serial for IA: the FPGA's device DNA (DNA_PORT) */
 } fw_config;
 
 typedef struct {

@@ -90,6 +90,20 @@ def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path)
         assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
 
 
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.bringup"))
+def test_bring_up_stands_beside_the_robot(where: str, path: Path) -> None:
+    # identify/autotune/calibrate's library: fitting, design and calibration sans-I/O on the
+    # protocol and the robot's sans-I/O parts; only its session runs experiments on links.
+    names = imports_of(path)
+    above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2",
+                                                      "fpgalink.campaign")}
+    assert not above, f"{where} imports {sorted(above)}"
+    if not where.endswith("bringup/session.py"):
+        assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
+        assert not {n for n in first_party(names)
+                    if within(n, "fpgalink.aio", "fpgalink.robot.robot")}, where
+
+
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.campaign"))
 def test_campaigns_stand_on_the_robot_and_below(where: str, path: Path) -> None:
     # Beside the CLI and the node: the CLI's campaign and tune commands stand on it.

@@ -37,6 +37,7 @@ from fpgaemu.firmware import (
     HW_CURRENT_KP,
     SW_CURRENT_KP,
     FirmwareStats,
+    emulated_serial,
 )
 from fpgaemu.hwcontrol import Coefficients, HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
@@ -411,6 +412,7 @@ class CFirmware:
         config.sw_current_kp = SW_CURRENT_KP
         config.hw_current_kp = HW_CURRENT_KP
         config.electrical_tau = _MOTOR.inductance_h / _MOTOR.resistance_ohm
+        config.serial = emulated_serial(board.config.seed)
         lib.fw_init(state, self._hal, self._ffi.NULL, config)
         self._check()
         for code in (CHANNEL_A, CHANNEL_B):

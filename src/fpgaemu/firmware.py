@@ -12,6 +12,11 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
   switches it on, the ``PA`` already carrying it; frames failing the check are counted in
   :attr:`FirmwareStats.crc_failures` and dropped. ``Firmware(wire_crc=False)`` is a board
   from before the extension: it answers ``PN`` 1 for the parameter.
+* Board identity (:mod:`fpgalink.protocol.identity`): ``IQ`` is answered with ``IA``: the
+  query's nonce, the hash of the declaration this firmware runs (this package's), the
+  firmware's version (:data:`FIRMWARE_VERSION`, the C core's ``FW_VERSION_*``) and build,
+  and the board's serial (:func:`emulated_serial` of the board's seed). ``Firmware(
+  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered.
 
 Controller modes (parameter 4, per channel):
 
@@ -73,10 +78,24 @@ from fpgalink.protocol import (
     parse_content,
     resolve,
 )
+from fpgalink.protocol.catalogue import IdentityAnswer, IdentityQuery
 from fpgalink.protocol.crc import HANDSHAKE_WITH_CRC, BoardWireCrc, append_crc
+from fpgalink.protocol.identity import declarations_hash
 from fpgalink.protocol.params import BOARD, CHANNEL_A, CHANNEL_B
 
-__all__ = ["Firmware", "FirmwareStats", "attach_firmware"]
+__all__ = ["FIRMWARE_BUILD", "FIRMWARE_VERSION", "Firmware", "FirmwareStats", "attach_firmware",
+           "emulated_serial"]
+
+#: The firmware's version, as ``IA`` reports it: 1.0 was the seed's (no ``IQ``); 1.1 answers
+#: it. The C core says the same (``FW_VERSION_*`` in firmware/firmware.h; a test holds the
+#: two to it).
+FIRMWARE_VERSION = (1, 1, 0)
+#: The build ``IA`` reports: 0, not set (a real board's build sets ``FW_BUILD`` to its
+#: commit).
+FIRMWARE_BUILD = 0
+#: An emulated board's serial: this, plus its seed (a real board's is the FPGA's 57-bit
+#: device DNA).
+_EMULATED_SERIAL_BASE = 0x00E5_EED0_0000_0000
 
 ALIVE_PERIOD_CYCLES = ms(300)
 SPEED_SW, SPEED_HW, CURRENT_SW, CURRENT_HW = 0, 1, 2, 3  #: ActiveController values
@@ -126,9 +145,16 @@ class FirmwareStats:
     crc_failures: int = 0  #: frames dropped for a bad wire CRC
 
 
+def emulated_serial(seed: int) -> int:
+    """The serial an emulated board built with ``seed`` reports in ``IA``."""
+    return _EMULATED_SERIAL_BASE | (seed & 0xFFFF_FFFF)
+
+
 class Firmware:
-    def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True
-                 ) -> None:
+    def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True,
+                 identity: bool = True) -> None:
+        #: answers ``IQ`` (False: a seed board, which does not know the message)
+        self.identity = identity
         #: the parameters this firmware knows (without WireCrc: a board older than the CRC)
         self.parameters = {p.id: p for p in PARAMETERS
                            if wire_crc or p.id != WIRE_CRC_PARAM}
@@ -170,7 +196,7 @@ class Firmware:
     def power_cycled(self) -> Firmware:
         """The software after a power cycle: started afresh with the same power-up
         settings (what was flashed), nothing of this run's state."""
-        firmware = Firmware(self._pending_settings)
+        firmware = Firmware(self._pending_settings, identity=self.identity)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
         return firmware
 
@@ -291,6 +317,10 @@ class Firmware:
         elif isinstance(message, ParamGet):
             self.stats.param_gets += 1
             self._handle_get(message)
+        elif isinstance(message, IdentityQuery) and self.identity:
+            self._send(IdentityAnswer(message.nonce, declarations_hash(), *FIRMWARE_VERSION,
+                                      FIRMWARE_BUILD, emulated_serial(self.board.config.seed)),
+                       "IA")
         elif isinstance(message, Malformed):
             self.stats.malformed += 1
         else:
@@ -531,7 +561,7 @@ def _stored(param: Param, value: int | float) -> int | float:
 
 
 def attach_firmware(board: Board, settings: dict[str, Any] | None = None, *,
-                    wire_crc: bool = True) -> Firmware:
-    firmware = Firmware(settings, wire_crc=wire_crc)
+                    wire_crc: bool = True, identity: bool = True) -> Firmware:
+    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity)
     board.add_peripheral("firmware", firmware)
     return firmware

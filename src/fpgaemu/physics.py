@@ -24,8 +24,13 @@ coefficient under each wheel varies smoothly over the ground, re-read every
 **Stepping**: the physics step is :data:`STEP_CYCLES` (2 ms, two board periods); each step
 the drives' torques over it are applied, then the boards run through it with the wheels'
 angles interpolated (:meth:`PhysicsBody.advance`). An unpowered wheel slower than
-:data:`HOLD_BAND_DPS` is held (the worm gear self-locks); with every wheel held and the body
-still, the physics sleeps until a wheel is driven again, so a robot at rest costs nothing.
+:data:`HOLD_BAND_DPS` is held by its worm gear, which self-locks: the worm wheel cannot turn
+the worm. The lock is at the mesh, on the wheel's axle, so it is friction on the wheel's
+joint against the chassis (up to :data:`HOLD_SHARE` of the stall torque), not on the rotor:
+the gearbox's compliance sits between the rotor and the worm, and a wheel held only through
+it rang on it (a robot disabled at 0.2 m/s rocked ±2 cm/s for 1.5 s). With every wheel held
+and the body still, the physics sleeps until a wheel is driven again, so a robot at rest
+costs nothing.
 
 **IMU** at the seed's ``ImuALink``: MuJoCo's gyro and accelerometer, averaged over the time
 since the last reading (an IMU's output filter), plus seeded noise and bias (:class:`Imu`).
@@ -64,9 +69,12 @@ STEP_CYCLES = ms(2)
 #: The gravel's friction field is re-read under the wheels this often (20 ms: a wheel at full
 #: speed moves 6 mm).
 FIELD_PERIOD_STEPS = 10
-#: An unpowered wheel turning slower than this is held by its worm gear (deg/s).
+#: An unpowered wheel turning slower than this is held by its worm gear (deg/s): above it the
+#: rotor's own momentum still drives the worm forward, which a worm gear passes.
 HOLD_BAND_DPS = 10.0
-#: The holding torque of an unpowered worm gear, as a share of the motor's stall torque.
+#: The holding torque of an unpowered worm gear at the wheel's axle (friction on the wheel's
+#: joint), as a share of the motor's stall torque: far above any load the ground puts on a
+#: wheel of this robot (20 N·m each on the 45° slope), so the tyres slide before it yields.
 HOLD_SHARE = 0.5
 #: Below this (rad/s, m/s) on every degree of freedom, with every wheel held, the body is
 #: still and the physics sleeps.
@@ -163,11 +171,11 @@ def mjcf(description: RobotDescription, surface: Surface, train: DriveTrain,
         wheels.append(
             f'<body name="{w.name}_rotor" pos="{_v((w.x, w.y, 0.0))}">'
             f'<joint name="{w.name}_rotor" axis="{axis}" armature="{_f(train.rotor_inertia)}" '
-            f'damping="{_f(train.rotor_friction)}" frictionloss="{_f(hold)}"/>'
+            f'damping="{_f(train.rotor_friction)}"/>'
             f'<inertial pos="0 0 0" mass="{_f(ROTOR_MASS)}" diaginertia="1e-4 1e-4 1e-4"/>'
             '</body>'
             f'<body name="{w.name}_link" pos="{_v((w.x, w.y, 0.0))}">'
-            f'<joint name="{w.name}" axis="{axis}" '
+            f'<joint name="{w.name}" axis="{axis}" frictionloss="{_f(hold)}" '
             f'armature="{_f(max(train.wheel_inertia - wheel_inertia, 0.0))}"/>'
             f'<inertial pos="0 0 0" mass="{_f(body.wheel_mass)}" '
             f'diaginertia="{_v((lateral, wheel_inertia, lateral))}"/>'
@@ -456,7 +464,7 @@ class PhysicsBody:
             hold = not duty and -HOLD_BAND_DPS < drive.wheel_speed_dps < HOLD_BAND_DPS
             if hold != held[i] and not stalled[i]:
                 held[i] = hold
-                model.dof_frictionloss[self._rotor_dof[i]] = self._hold if hold else 0.0
+                model.dof_frictionloss[self._wheel_dof[i]] = self._hold if hold else 0.0
             steady = (supply * duty / MAX_DUTY - k * drive.rotor_speed) / resistance
             torques.append(k * (steady + (drive.current - steady) * share))
         data.ctrl[:] = torques

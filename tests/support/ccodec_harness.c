@@ -19,6 +19,8 @@ static uint8_t round_trip(const fl_message *m, const uint8_t *content, size_t le
     case FL_MSG_PG: n = fl_encode_pg(again, m->counter, &m->body.pg); break;
     case FL_MSG_PN: n = fl_encode_pn(again, m->counter, &m->body.pn); break;
     case FL_MSG_TM: n = fl_encode_tm(again, m->counter, &m->body.tm); break;
+    case FL_MSG_IQ: n = fl_encode_iq(again, m->counter, &m->body.iq); break;
+    case FL_MSG_IA: n = fl_encode_ia(again, m->counter, &m->body.ia); break;
     case FL_MSG_RV:
         n = fl_encode_rv(again, m->counter, &m->body.rv);
         if (n == 0u)

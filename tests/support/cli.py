@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 import atexit
+import contextlib
 import dataclasses
 import itertools
 import os
@@ -20,7 +21,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -72,6 +73,22 @@ class Board:
     #: the board outlives one CLI command (emu:// boots a fresh board in each process)
     persistent: bool = True
     cleanup: list[Callable[[], None]] = field(default_factory=list)
+
+
+@contextlib.contextmanager
+def served_pty(*options: str) -> Iterator[str]:
+    """``fpgaemu serve --pty OPTIONS`` while the block runs: its pty's path; stopped (and
+    reaped) afterwards."""
+    proc, path = serve_pty(*options)
+    try:
+        yield path
+    finally:
+        proc.terminate()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
 
 
 def serve_pty(*options: str) -> tuple[subprocess.Popen[str], str]:

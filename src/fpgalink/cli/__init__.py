@@ -54,6 +54,14 @@ COMMANDS: dict[str, tuple[str, str, str]] = {
     "codegen": ("fpgalink.cli.codegen", "codegen",
                 "Generate the board's protocol code (C: header, codec, self-test, Makefile) "
                 "into OUTDIR."),
+    "identify": ("fpgalink.cli.identify", "identify",
+                 "Identify one wheel's plant: duty in, speed out, fitted in the seed's form."),
+    "autotune": ("fpgalink.cli.autotune", "autotune",
+                 "Tune the wheels' speed PIDs from their identified plants, every board and "
+                 "channel."),
+    "calibrate": ("fpgalink.cli.calibrate", "calibrate",
+                  "Calibrate odometry: χ from a turn in place, the wheel radius from a straight "
+                  "run."),
 }
 
 

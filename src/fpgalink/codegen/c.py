@@ -10,7 +10,6 @@ Python codec by the tests (``tests/fpgalink/codegen/``).
 
 from __future__ import annotations
 
-import hashlib
 import math
 import re
 from dataclasses import dataclass
@@ -39,8 +38,9 @@ from fpgalink.protocol import (
     encode_message,
     float32,
 )
-from fpgalink.protocol.catalogue import BODIES, Layout
+from fpgalink.protocol.catalogue import BODIES, IdentityAnswer, IdentityQuery, Layout
 from fpgalink.protocol.crc import CRC16, CRC_BYTES, WIRE_CRC_PARAM, append_crc
+from fpgalink.protocol.identity import declarations_digest
 from fpgalink.protocol.messages import LEN_RESERVED, SECTION_CLOSE, SECTION_OPEN
 
 __all__ = ["GeneratedFile", "declarations_digest", "generate_c", "write_c"]
@@ -55,7 +55,9 @@ _C_TYPES = {
     "B": ("uint8_t", 1, "fl_put_u8", "fl_get_u8"),
     "h": ("int16_t", 2, "fl_put_i16", "fl_get_i16"),
     "i": ("int32_t", 4, "fl_put_i32", "fl_get_i32"),
+    "H": ("uint16_t", 2, "fl_put_u16", "fl_get_u16"),
     "I": ("uint32_t", 4, "fl_put_u32", "fl_get_u32"),
+    "Q": ("uint64_t", 8, "fl_put_u64", "fl_get_u64"),
     "f": ("float", 4, "fl_put_f32", "fl_get_f32"),
     "4s": ("fl_value", 4, "fl_put_value", "fl_get_value"),
 }
@@ -83,20 +85,6 @@ def _hex_float(value: float) -> str:
 
 def _comment(text: str) -> str:
     return "/* " + text.replace("*/", "* /") + " */"
-
-
-def declarations_digest() -> str:
-    """A digest of every declaration the C is generated from: equal digests, equal wire."""
-    parts = [
-        repr(sorted((bytes(k), v) for k, v in BODIES.items())),
-        repr([(p.id, p.name, int(p.scope), int(p.type), p.minimum, p.maximum,
-               p.min_exclusive, p.allowed, p.default, p.unit) for p in PARAMETERS]),
-        repr([(m.name, bytes(m), m.sender.value) for m in MessageId]),
-        repr(DEFAULT_FRAMING), repr(CRC16), repr(COUNTER_MODULUS),
-        repr([r.name for r in MalformedReason]), repr([(r.name, int(r)) for r in NackReason]),
-        repr([(f.name, int(f)) for f in TelemetryFlags]), repr(WIRE_CRC_PARAM),
-    ]
-    return hashlib.sha256("\n".join(parts).encode()).hexdigest()[:16]
 
 
 # --- layouts ------------------------------------------------------------------------------
@@ -492,6 +480,13 @@ def _golden() -> list[tuple[str, bytes, str]]:
          "m.tm.a.pwm = 20000; m.tm.a.reference = 45.0f; m.tm.a.flags = 5u; "
          "m.tm.b.position = 7; m.tm.b.speed = -12.5f; m.tm.b.current = -0.25f; "
          "m.tm.b.pwm = -32760; m.tm.b.reference = -30.0f; m.tm.b.flags = 2u;"),
+        ("IQ", encode_message(IdentityQuery(0x7B5C5350), 31),
+         "m.iq.nonce = 0x7B5C5350u;"),
+        ("IA", encode_message(IdentityAnswer(0x7B5C5350, 0xFEDCBA9876543210, 1, 65535, 7,
+                                             0xDEADBEEF, (1 << 57) - 1), 65432),
+         "m.ia.nonce = 0x7B5C5350u; m.ia.declarations = UINT64_C(0xFEDCBA9876543210); "
+         "m.ia.firmware_major = 1u; m.ia.firmware_minor = 65535u; m.ia.firmware_patch = 7u; "
+         "m.ia.build = 0xDEADBEEFu; m.ia.serial = UINT64_C(0x1FFFFFFFFFFFFFF);"),
     ]
     return cases
 
@@ -500,7 +495,7 @@ def _selftest() -> str:
     template = resources.files("fpgalink.codegen").joinpath("templates/selftest.c").read_text(
         encoding="utf-8")
     vectors = []
-    kinds = {"PS": "ps", "PG": "pg", "PA": "pa", "PN": "pn", "RV": "rv", "TM": "tm"}
+    kinds = {m.name: _lower(m) for m in BODIES}
     for what, content, build in _golden():
         key = what.split()[0]
         name = kinds[key]

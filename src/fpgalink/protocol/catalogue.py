@@ -1,4 +1,5 @@
-"""The typed message catalogue of SPEC §4: ``PS PG PA PN RV TM``.
+"""The typed message catalogue of SPEC §4: ``PS PG PA PN RV TM``, and the optional board
+identity pair ``IQ IA`` (docs/protocol.md).
 
 Each body layout is declared once, as data, in :data:`BODIES`. The hot path (1 kHz
 telemetry from every board) uses :mod:`struct` formats derived from it at import;
@@ -42,6 +43,8 @@ from fpgalink.protocol.params import ParamType
 __all__ = [
     "BODIES",
     "ChannelTelemetry",
+    "IdentityAnswer",
+    "IdentityQuery",
     "Message",
     "NackReason",
     "ParamAck",
@@ -115,6 +118,17 @@ BODIES: dict[MessageId, Layout] = {
                    ("error", "B", "a NackReason code")),
     MessageId.RV: (("ref_a", "f", "channel A reference"), ("ref_b", "f", "channel B reference")),
     MessageId.TM: (("t_us", "I", "board time, µs, wraps"), ("a", _CHANNEL_TM), ("b", _CHANNEL_TM)),
+    MessageId.IQ: (("nonce", "I", "echoed in the answer: which question it answers"),),
+    MessageId.IA: (
+        ("nonce", "I", "the query's nonce"),
+        ("declarations", "Q", "the hash of the protocol declaration the firmware was built "
+                              "from: every message and parameter layout"),
+        ("firmware_major", "H", "firmware version, major"),
+        ("firmware_minor", "H", "firmware version, minor"),
+        ("firmware_patch", "H", "firmware version, patch"),
+        ("build", "I", "the firmware's build (its commit's first 8 hex digits; 0 not set)"),
+        ("serial", "Q", "the board's serial (the FPGA's 57-bit device DNA)"),
+    ),
 }
 
 
@@ -136,8 +150,8 @@ def layout(msg_id: MessageId) -> Any:
     need it)."""
     import construct as cs
 
-    types = {"B": cs.Int8ul, "h": cs.Int16sl, "i": cs.Int32sl, "I": cs.Int32ul,
-             "f": cs.Float32l, "4s": cs.Bytes(4)}
+    types = {"B": cs.Int8ul, "h": cs.Int16sl, "H": cs.Int16ul, "i": cs.Int32sl,
+             "I": cs.Int32ul, "Q": cs.Int64ul, "f": cs.Float32l, "4s": cs.Bytes(4)}
 
     def build(fields: Layout) -> Any:
         return cs.Struct(*(
@@ -299,7 +313,41 @@ class Telemetry(_Catalogued):
         return (self.t_us, *self.a, *self.b)
 
 
-Message = ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry
+@dataclass(frozen=True, slots=True)
+class IdentityQuery(_Catalogued):
+    """``IQ`` host → board: which protocol declaration, firmware and board are you? A board
+    that knows it answers :class:`IdentityAnswer` with the same ``nonce``; a seed board
+    counts it as an unknown message and answers nothing (:mod:`.identity`)."""
+
+    msg_id: ClassVar[MessageId] = MessageId.IQ
+    nonce: int
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.nonce,)
+
+
+@dataclass(frozen=True, slots=True)
+class IdentityAnswer(_Catalogued):
+    """``IA`` board → host: the answer to :class:`IdentityQuery`."""
+
+    msg_id: ClassVar[MessageId] = MessageId.IA
+    nonce: int
+    declarations: int  #: the declaration hash (:func:`.identity.declarations_hash`)
+    firmware_major: int
+    firmware_minor: int
+    firmware_patch: int
+    build: int  #: 0: not set
+    serial: int
+    counter: int | None = None
+
+    def _body_values(self) -> tuple[Any, ...]:
+        return (self.nonce, self.declarations, self.firmware_major, self.firmware_minor,
+                self.firmware_patch, self.build, self.serial)
+
+
+Message = (ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry | IdentityQuery
+           | IdentityAnswer)
 
 
 # --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
@@ -365,6 +413,9 @@ _BUILDERS: dict[bytes, _Entry] = {
     MessageId.PG: _entry(MessageId.PG, lambda v: ParamGet(v[2], v[3], int(v[0]))),
     MessageId.PN: _entry(MessageId.PN, lambda v: ParamNack(v[2], v[3], v[4], int(v[0]))),
     MessageId.RV: _entry(MessageId.RV, _build_rv),
+    MessageId.IQ: _entry(MessageId.IQ, lambda v: IdentityQuery(v[2], int(v[0]))),
+    MessageId.IA: _entry(MessageId.IA, lambda v: IdentityAnswer(
+        v[2], v[3], v[4], v[5], v[6], v[7], v[8], int(v[0]))),
 }
 _CLOSE = b"}"
 
@@ -497,7 +548,8 @@ def _whole(msg_id: MessageId) -> struct.Struct:
 _ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
     cls: (_whole(cls.msg_id), bytes(cls.msg_id),
           bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
-    for cls in (ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry)
+    for cls in (ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry,
+                IdentityQuery, IdentityAnswer)
 }
 
 

@@ -62,6 +62,11 @@ class MessageId(bytes, Enum):
     PN = b"PN"  #: board → host: a parameter request refused, with a reason
     RV = b"RV"  #: host → board: controller references
     TM = b"TM"  #: board → host: telemetry, one per timer period
+    #: host → board: which protocol, firmware and board are you? (optional: a seed board
+    #: does not know it and answers nothing; :mod:`fpgalink.protocol.identity`)
+    IQ = b"IQ"
+    #: board → host: the answer to ``IQ``: the declaration hash, firmware version, serial
+    IA = b"IA"
 
     @property
     def sender(self) -> Role:
@@ -83,9 +88,9 @@ class MessageId(bytes, Enum):
 
 _SENDERS = {
     MessageId.RE: Role.HOST, MessageId.RD: Role.HOST, MessageId.PS: Role.HOST,
-    MessageId.PG: Role.HOST, MessageId.RV: Role.HOST,
+    MessageId.PG: Role.HOST, MessageId.RV: Role.HOST, MessageId.IQ: Role.HOST,
     MessageId.E: Role.BOARD, MessageId.PA: Role.BOARD, MessageId.PN: Role.BOARD,
-    MessageId.TM: Role.BOARD,
+    MessageId.TM: Role.BOARD, MessageId.IA: Role.BOARD,
 }
 
 

@@ -48,7 +48,7 @@ from fpgalink.protocol import (
     float32,
     parse_content,
 )
-from fpgalink.protocol.catalogue import BODIES, Message, Parsed
+from fpgalink.protocol.catalogue import BODIES, IdentityAnswer, IdentityQuery, Message, Parsed
 from fpgalink.protocol.crc import WIRE_CRC_PARAM, BoardWireCrc, append_crc
 from fpgalink.protocol.messages import Binary, Text, encode_body, encode_counted
 from tests.support.ccodec import c_codec, why_unavailable
@@ -62,7 +62,9 @@ pytestmark = [pytest.mark.skipif(_missing is not None, reason=f"C codec: {_missi
 STREAMS = 100_000
 _KIND_NAMES = ["MALFORMED", "COUNTED", "RE", "RD", "E", *(m.name for m in BODIES)]
 _TYPED = {ParamSet: "PS", ParamAck: "PA", ParamGet: "PG", ParamNack: "PN",
-          References: "RV", Telemetry: "TM"}
+          References: "RV", Telemetry: "TM", IdentityQuery: "IQ", IdentityAnswer: "IA"}
+_IA_FIELDS = ("nonce", "declarations", "firmware_major", "firmware_minor", "firmware_patch",
+              "build", "serial")
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +95,7 @@ def test_generate_then_make_builds_freestanding_and_passes_its_golden_vectors(
     assert "-nostdlib -Wl,--no-undefined" in built.stdout
     assert (out / "libfpgalink_protocol.so").exists()
     assert f"passed: 0 failure(s), declarations {declarations_digest()}" in built.stdout
-    assert built.stdout.count("ok   ") == 1 + 7  # the CRC check value and seven vectors
+    assert built.stdout.count("ok   ") == 1 + 9  # the CRC check value and nine vectors
 
 
 def test_the_cli_writes_the_same_files(tmp_path: Path) -> None:
@@ -129,7 +131,9 @@ def test_the_header_declares_the_catalogue(codec: tuple[Any, Any]) -> None:
 u8 = st.integers(0, 255)
 i16 = st.integers(-(2**15), 2**15 - 1)
 i32 = st.integers(-(2**31), 2**31 - 1)
+u16 = st.integers(0, 2**16 - 1)
 u32 = st.integers(0, 2**32 - 1)
+u64 = st.integers(0, 2**64 - 1)
 counters = st.integers(0, 2**32 - 1)
 f32 = st.floats(width=32, allow_nan=False)
 channel_tm = st.builds(ChannelTelemetry, i32, f32, f32, i16, f32, u8)
@@ -141,7 +145,9 @@ messages = st.one_of(
     st.builds(lambda p, c, tv: ParamAck(p, c, tv[0], tv[1]), u8, u8, param_values),
     st.builds(ParamGet, u8, u8), st.builds(ParamNack, u8, u8, u8),
     st.builds(References, st.floats(width=32), st.floats(width=32)),
-    st.builds(Telemetry, u32, channel_tm, channel_tm))
+    st.builds(Telemetry, u32, channel_tm, channel_tm),
+    st.builds(IdentityQuery, u32),
+    st.builds(IdentityAnswer, u32, u64, u16, u16, u16, u32, u64))
 
 
 def _fill(ffi: Any, message: Message) -> Any:
@@ -163,6 +169,11 @@ def _fill(ffi: Any, message: Message) -> Any:
             message.error
     elif isinstance(message, References):
         body.ref_a, body.ref_b = message.ref_a, message.ref_b
+    elif isinstance(message, IdentityQuery):
+        body.nonce = message.nonce
+    elif isinstance(message, IdentityAnswer):
+        for field in _IA_FIELDS:
+            setattr(body, field, getattr(message, field))
     else:
         assert isinstance(message, Telemetry)
         body.t_us = message.t_us
@@ -198,6 +209,10 @@ def _c_fields(ffi: Any, parsed: Any, kind: str) -> tuple[Any, ...]:
         return (body.param_id, body.channel, body.error)
     if kind == "RV":
         return _bits(body.ref_a, body.ref_b)
+    if kind == "IQ":
+        return (body.nonce,)
+    if kind == "IA":
+        return tuple(getattr(body, field) for field in _IA_FIELDS)
     return (body.t_us, *(v for side in (body.a, body.b) for v in (
         side.position, *_bits(side.speed, side.current), side.pwm, *_bits(side.reference),
         side.flags)))
@@ -221,6 +236,10 @@ def _python_fields(message: Parsed) -> tuple[Any, ...]:
         return (message.param_id, message.channel, message.error)
     if isinstance(message, References):
         return _bits(message.ref_a, message.ref_b)
+    if isinstance(message, IdentityQuery):
+        return (message.nonce,)
+    if isinstance(message, IdentityAnswer):
+        return tuple(getattr(message, field) for field in _IA_FIELDS)
     assert isinstance(message, Telemetry)
     return (message.t_us, *(v for side in (message.a, message.b) for v in (
         side.position, *_bits(side.speed, side.current), side.pwm, *_bits(side.reference),
@@ -243,7 +262,7 @@ def _compare_parse(content: bytes) -> None:
         assert _KIND_NAMES[kind] == expected.msg_id.name
     else:
         assert isinstance(expected, ParamSet | ParamAck | ParamGet | ParamNack | References
-                          | Telemetry)
+                          | Telemetry | IdentityQuery | IdentityAnswer)
         name = _TYPED[type(expected)]
         assert (_KIND_NAMES[kind], parsed.counter) == (name, expected.counter), content
         fields = _c_fields(ffi, parsed, name)
@@ -269,8 +288,8 @@ contents = st.one_of(
     st.binary(max_size=60),
     st.lists(special_bytes, max_size=40).map(bytes),
     st.builds(lambda msg_id, counter, items: encode_counted(msg_id, counter, encode_body(items)),
-              st.sampled_from([b"PS", b"PG", b"PA", b"PN", b"RV", b"TM", b"ZZ", b"A9", b"E1",
-                               b"RE", b"a!"]),
+              st.sampled_from([b"PS", b"PG", b"PA", b"PN", b"RV", b"TM", b"IQ", b"IA", b"ZZ",
+                               b"A9", b"E1", b"RE", b"a!"]),
               counters,
               st.lists(st.one_of(
                   st.builds(Binary, st.binary(max_size=45)),
@@ -348,7 +367,7 @@ def _python_records(stream: bytes) -> bytes:
                 kind = kind_code(message.msg_id.name)
             else:
                 assert isinstance(message, ParamSet | ParamAck | ParamGet | ParamNack
-                                  | References | Telemetry)
+                                  | References | Telemetry | IdentityQuery | IdentityAnswer)
                 kind = kind_code(_TYPED[type(message)])
                 counter = message.counter or 0
                 refused = isinstance(message, References) and not (
@@ -405,7 +424,7 @@ def _pieces(rng: random.Random) -> list[bytes]:
 
     for _ in range(1500):
         counter = rng.randrange(100_000)
-        kind = rng.randrange(7)
+        kind = rng.randrange(9)
         message: Message
         if kind == 0:
             message = ParamSet(rng.randrange(256), rng.randrange(4), rng.choice([1, 2, 7]),
@@ -418,6 +437,13 @@ def _pieces(rng: random.Random) -> list[bytes]:
             message = ParamNack(rng.randrange(256), rng.randrange(256), rng.randrange(5))
         elif kind == 4:
             message = References(rng.uniform(-90, 90), rng.choice([0.0, 83.5, -1e-3]))
+        elif kind == 5:
+            message = IdentityQuery(rng.randrange(2**32))
+        elif kind == 6:
+            message = IdentityAnswer(rng.randrange(2**32), rng.randrange(2**64),
+                                     rng.randrange(2**16), rng.randrange(2**16),
+                                     rng.randrange(2**16), rng.randrange(2**32),
+                                     rng.randrange(2**64))
         else:
             message = Telemetry(rng.randrange(2**32), tm_channel(), tm_channel())
         content = encode_message(message, counter)

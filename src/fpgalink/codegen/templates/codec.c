@@ -22,6 +22,12 @@ static void fl_put_u32(uint8_t *at, uint32_t value)
     at[3] = (uint8_t)(value >> 24);
 }
 
+static void fl_put_u64(uint8_t *at, uint64_t value)
+{
+    fl_put_u32(at, (uint32_t)(value & 0xFFFFFFFFu));
+    fl_put_u32(at + 4, (uint32_t)(value >> 32));
+}
+
 static void fl_put_i16(uint8_t *at, int16_t value) { fl_put_u16(at, (uint16_t)value); }
 static void fl_put_i32(uint8_t *at, int32_t value) { fl_put_u32(at, (uint32_t)value); }
 static void fl_put_value(uint8_t *at, fl_value value) { fl_put_u32(at, value.raw); }
@@ -44,6 +50,11 @@ static uint32_t fl_get_u32(const uint8_t *at)
 {
     return (uint32_t)at[0] | ((uint32_t)at[1] << 8) | ((uint32_t)at[2] << 16)
            | ((uint32_t)at[3] << 24);
+}
+
+static uint64_t fl_get_u64(const uint8_t *at)
+{
+    return (uint64_t)fl_get_u32(at) | ((uint64_t)fl_get_u32(at + 4) << 32);
 }
 
 /* Two's complement without relying on an implementation-defined conversion. */

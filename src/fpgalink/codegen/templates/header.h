@@ -16,6 +16,8 @@
 #include <stdint.h>
 
 #define FL_DECLARATIONS_DIGEST "/*@DIGEST@*/"
+/* The same as the 64-bit number a board answers IQ with (IA's declarations field). */
+#define FL_DECLARATIONS_HASH UINT64_C(0x/*@DIGEST@*/)
 
 /* --- framing (SPEC §3) --- */
 /*@FRAMING@*/

@@ -1,0 +1,42 @@
+"""``await read_identity(link)``: which protocol declaration, firmware and board a link's
+board is (its ``IA`` answer), or ``None`` for a seed board that does not know ``IQ``
+(:data:`~fpgalink.protocol.identity.SEED_PROTOCOL`). The decision is
+:class:`~fpgalink.protocol.identity.IdentityProbe`'s: each ``IQ`` is followed by a ``PG`` of
+``TsTimerPeriod`` (every board answers it, in order), so a board that did not answer is
+told from a lost answer by what arrives, not by a timeout — only a board that answers
+nothing at all fails, as any request to it would."""
+
+from __future__ import annotations
+
+import random
+
+from fpgalink.aio.link import Link
+from fpgalink.protocol.event import Event
+from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
+
+__all__ = ["FENCE_PARAMETER", "read_identity"]
+
+#: The request that follows each ``IQ``: a board-wide parameter every board has.
+FENCE_PARAMETER = "TsTimerPeriod"
+
+
+async def read_identity(link: Link, *, rounds: int = 3) -> BoardIdentity | None:
+    """The board's identity, or ``None`` when ``rounds`` queries in a row went unanswered
+    while the board answered the request after each (a seed board). The link's request
+    errors (:class:`~fpgalink.errors.RequestTimeout`, :class:`~fpgalink.errors.BoardLost`,
+    :class:`~fpgalink.errors.LinkClosed`) come through: a board answering nothing is not a
+    seed board."""
+    probe = IdentityProbe(random.getrandbits(32), rounds)
+
+    def observe(event: Event) -> None:
+        probe.observe(event)
+
+    remove = link.add_listener(observe)
+    try:
+        while True:
+            link.send(probe.query_message())
+            await link.get_param(FENCE_PARAMETER)
+            if probe.fence_answered():
+                return probe.identity
+    finally:
+        remove()

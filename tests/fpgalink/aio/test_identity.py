@@ -1,0 +1,124 @@
+"""``read_identity(link)`` and the identity checks: the emulated board's identity (both
+firmwares: the C core answers in co-simulation with the hash its generated header carries),
+a board built from another declaration refused with one line naming both hashes, a seed
+board (no ``IQ``) shown as "seed protocol, identity unknown" and still working, a silent
+board failing as any request would, answers to another asker's nonce ignored."""
+
+from __future__ import annotations
+
+import pytest
+
+from fpgaemu.firmware import FIRMWARE_BUILD, FIRMWARE_VERSION, emulated_serial
+from fpgalink import Connection, RequestTimeout
+from fpgalink.aio.identity import read_identity
+from fpgalink.aio.link import Link, open_link
+from fpgalink.protocol import CountedMessage, Event, encode_message
+from fpgalink.protocol.catalogue import IdentityAnswer, IdentityQuery
+from fpgalink.protocol.identity import (
+    SEED_PROTOCOL,
+    BoardIdentity,
+    IdentityMatch,
+    IdentityMismatch,
+    IdentityProbe,
+    compare_identity,
+    declarations_digest,
+    declarations_hash,
+    require_identity,
+)
+from fpgalink.protocol.messages import parse_body
+from tests.support.fakeboard import ScriptedBoard, memory_pair
+from tests.support.firmwares import require_c_firmware
+
+pytestmark = pytest.mark.timeout(30)
+
+OTHER = declarations_hash() ^ 0x0123_4567_89AB_CDEF
+
+
+class IdentifiedBoard(ScriptedBoard):
+    """A scripted board that answers ``IQ`` with an ``IA`` of its own making."""
+
+    def __init__(self, declarations: int, nonce_offset: int = 0) -> None:
+        super().__init__()
+        self.declarations = declarations
+        self.nonce_offset = nonce_offset
+
+    def _answer(self, event: Event, now: float) -> None:
+        if isinstance(event, IdentityQuery):
+            answer = IdentityAnswer((event.nonce + self.nonce_offset) % 2**32,
+                                    self.declarations, 2, 0, 1, 0x1A2B3C4D, 42)
+            items = parse_body(encode_message(answer, 0))
+            assert isinstance(items, tuple)
+            self.conn.send(CountedMessage("IA", items), now)
+            return
+        super()._answer(event, now)
+
+
+def scripted(board: ScriptedBoard) -> Link:
+    return Link(Connection(request_timeout=0.05, request_tries=3), memory_pair(board))
+
+
+@pytest.mark.parametrize("firmware", ["python", "c"])
+async def test_the_emulated_board_says_who_it_is(firmware: str) -> None:
+    if firmware == "c":
+        require_c_firmware()
+    async with open_link(f"emu://?seed=5&firmware={firmware}") as link:
+        identity = await read_identity(link)
+    assert identity == BoardIdentity(declarations_hash(), FIRMWARE_VERSION, FIRMWARE_BUILD,
+                                     emulated_serial(5))
+    assert identity.digest == declarations_digest()
+    assert require_identity(identity) is IdentityMatch.MATCH
+    assert identity.describe() == (f"protocol {declarations_digest()}, firmware 1.1.0 "
+                                   f"(build not set), serial 0x{emulated_serial(5):x}")
+
+
+async def test_a_board_built_from_another_declaration_is_refused_naming_both() -> None:
+    async with scripted(IdentifiedBoard(OTHER)) as link:
+        identity = await read_identity(link)
+    assert identity is not None and identity.declarations == OTHER
+    assert identity.version == "2.0.1" and identity.build == 0x1A2B3C4D
+    assert compare_identity(identity) is IdentityMatch.MISMATCH
+    with pytest.raises(IdentityMismatch) as caught:
+        require_identity(identity, "board L")
+    message = str(caught.value)
+    assert "\n" not in message and message.startswith("board L: ")
+    assert f"{OTHER:016x}" in message and declarations_digest() in message
+    assert (caught.value.board, caught.value.host) == (OTHER, declarations_hash())
+
+
+async def test_a_seed_board_is_seed_protocol_and_keeps_working() -> None:
+    # The emulated board with every IQ lost on the way: it answers as a seed board does
+    # (nothing), while PG and PS are answered.
+    async with open_link("emu://?fault=drop-frames=IQ:1000") as link:
+        identity = await read_identity(link)
+        assert identity is None and compare_identity(identity) is IdentityMatch.UNKNOWN
+        assert require_identity(identity) is IdentityMatch.UNKNOWN  # not refused
+        assert await link.set_param("TsTimerPeriod", 5) == 5
+    assert SEED_PROTOCOL == "seed protocol, identity unknown"
+    board = ScriptedBoard()  # the scripted board does not know IQ either
+    async with scripted(board) as link:
+        assert await read_identity(link, rounds=2) is None
+    asked = [e for e in board.received if isinstance(e, IdentityQuery)]
+    assert len(asked) == 2 and asked[0].nonce != asked[1].nonce
+
+
+async def test_an_answer_to_another_nonce_is_not_this_boards_answer() -> None:
+    async with scripted(IdentifiedBoard(declarations_hash(), nonce_offset=7)) as link:
+        assert await read_identity(link, rounds=2) is None
+
+
+async def test_a_silent_board_fails_as_any_request_to_it() -> None:
+    async with scripted(ScriptedBoard(mute=True)) as link:
+        with pytest.raises(RequestTimeout):
+            await read_identity(link)
+
+
+def test_the_probe_takes_a_late_answer_to_an_earlier_round() -> None:
+    probe = IdentityProbe(first_nonce=2**32 - 1, rounds=3)
+    first, second = probe.query(), probe.query()
+    assert (first.nonce, second.nonce) == (2**32 - 1, 0)  # wraps as the u32 it is
+    assert not probe.fence_answered()
+    assert not probe.observe(IdentityAnswer(5, 1, 1, 1, 0, 0, 0))  # never asked
+    assert probe.observe(IdentityAnswer(first.nonce, 1, 1, 1, 0, 0, 9))
+    assert probe.fence_answered() and probe.identity == BoardIdentity(1, (1, 1, 0), 0, 9)
+    with pytest.raises(ValueError):
+        IdentityProbe(rounds=0)
