@@ -135,3 +135,90 @@ async def test_a_write_to_a_vanished_serial_port_closes_the_link_without_a_trace
         loop.set_exception_handler(None)
     assert exc is not None, "the protocol must learn that the port failed"
     assert handled == []
+
+
+def _drain(master: int, until: int) -> bytes:
+    """Everything a pty's master side can read until ``until`` bytes came (blocking)."""
+    import os
+    import select
+
+    got = bytearray()
+    while len(got) < until:
+        ready, _, _ = select.select([master], [], [], 10)
+        assert ready, f"only {len(got)} of {until} bytes came"
+        got += os.read(master, 65536)
+    return bytes(got)
+
+
+async def test_a_serial_port_queues_a_hundred_thousand_frames_each_once() -> None:
+    """Issue 37: pyserial-asyncio's transport summed its whole write buffer on every write,
+    so n frames queued cost O(n²) (100,000 frames: minutes, the loop deaf meanwhile). Ours
+    keeps a running count: written to a pty nobody reads, every frame is queued, counted
+    exactly, and reaches the other side whole and in order once it is read. (Before, this
+    test ran into its timeout.)"""
+    import os
+    import pty
+    import tty
+
+    from fpgalink.protocol import DEFAULT_FRAMING, encode_frame
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    loop = asyncio.get_running_loop()
+    lost: asyncio.Future[Exception | None] = loop.create_future()
+
+    class Recorder(asyncio.Protocol):
+        def connection_lost(self, exc: Exception | None) -> None:
+            lost.set_result(exc)
+
+    frames = [encode_frame(b"PG%05d{\x02\x01\x00}" % (i % 100000), DEFAULT_FRAMING)
+              for i in range(100_000)]
+    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    os.close(slave)
+    try:
+        assert isinstance(transport, asyncio.WriteTransport)
+        for frame in frames:
+            transport.write(frame)
+        total = sum(map(len, frames))
+        waiting = transport.get_write_buffer_size()
+        # The kernel took what fits in the pty (16 KiB or so); the rest waits, counted.
+        assert 0 < total - waiting <= 65536 and waiting > total // 2
+        expected = b"".join(frames)
+        read = asyncio.ensure_future(asyncio.to_thread(_drain, master, len(expected)))
+        got = await asyncio.wait_for(read, 60)
+        assert got == expected
+        assert transport.get_write_buffer_size() == 0
+        transport.close()
+        assert await asyncio.wait_for(lost, 5) is None
+    finally:
+        transport.close()
+        os.close(master)
+
+
+async def test_a_closing_serial_port_nobody_reads_does_not_hang() -> None:
+    """Closing goes on writing what is queued (the RD a link wrote last must go out), the
+    port's driver taking it; abort drops what is left and lets the port go at once."""
+    import os
+    import pty
+
+    master, slave = pty.openpty()
+    loop = asyncio.get_running_loop()
+    lost: asyncio.Future[Exception | None] = loop.create_future()
+
+    class Recorder(asyncio.Protocol):
+        def connection_lost(self, exc: Exception | None) -> None:
+            lost.set_result(exc)
+
+    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    os.close(slave)
+    try:
+        assert isinstance(transport, asyncio.WriteTransport)
+        transport.write(b"x" * 100_000)
+        transport.close()
+        await asyncio.sleep(0.05)
+        assert not lost.done()  # still writing out what it took
+        transport.abort()
+        assert await asyncio.wait_for(lost, 5) is None
+    finally:
+        os.close(master)
+
