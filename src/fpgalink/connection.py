@@ -256,6 +256,8 @@ class LinkStats:
     telemetry_stalls: int = 0  #: telemetry configured on stopped coming
     #: references replaced by a newer one before the line had room to send them
     references_superseded: int = 0
+    #: requests refused by the asyncio link, the line backed up (``LineBusy``)
+    line_busy: int = 0
     events_dropped: int = 0
     subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
     port_losses: int = 0

@@ -13,6 +13,7 @@ from fpgalink.protocol.errors import (
 __all__ = [
     "BoardLost",
     "FpgalinkError",
+    "LineBusy",
     "LinkClosed",
     "LocalProtocolError",
     "ParameterError",
@@ -67,6 +68,11 @@ class ValueMismatch(FpgalinkError):
             f"{what}: the board answered with another value after {tries} tries: "
             f"{wanted}the board reports {answered!r} ({kind})"
         )
+
+
+class LineBusy(FpgalinkError):
+    """Not sent: the line to the board is backed up (more is waiting to be written than it
+    carries in a few hundred milliseconds). Nothing was queued; try again when it drains."""
 
 
 class LinkClosed(FpgalinkError, ConnectionError):

@@ -222,3 +222,42 @@ async def test_a_closing_serial_port_nobody_reads_does_not_hang() -> None:
     finally:
         os.close(master)
 
+
+async def test_a_link_refuses_requests_while_the_line_is_backed_up() -> None:
+    """Issue 37: what a writer queues toward a board is bounded by line time. A link whose
+    board does not read (a pty nobody reads) takes requests until a quarter second of line
+    time waits unwritten, then refuses them with LineBusy, counted; an RD still goes, last.
+    (Before: every request was queued, without end.)"""
+    import os
+    import pty
+    import tty
+
+    from fpgalink.aio.link import MAX_LINE_BACKLOG_S
+    from fpgalink.errors import LineBusy
+    from fpgalink.protocol import ParamGet
+
+    master, slave = pty.openpty()
+    tty.setraw(slave)
+    path = os.ttyname(slave)
+    os.close(slave)
+    try:
+        async with open_link(path, reconnect=False) as link:
+            sent = bytearray()
+            with pytest.raises(LineBusy, match="ms of line time already waits") as caught:
+                for _ in range(20_000):
+                    sent += link.send(ParamGet(1, 0))
+            assert "\n" not in str(caught.value)
+            assert link.stats.line_busy == 1
+            with pytest.raises(LineBusy):
+                await link.set_param("TsTimerPeriod", 2)
+            assert link.stats.line_busy == 2
+            link.disable()
+            written = await asyncio.wait_for(
+                asyncio.to_thread(_drain, master, len(sent) + 4), 30)
+        assert written == bytes(sent) + b"SRDP"
+        # Refused once a quarter second of line time (25,000 bytes at 1 MBd) waited beside
+        # what the kernel took (16 KiB or so on a pty).
+        bound = MAX_LINE_BACKLOG_S * 100_000
+        assert bound < len(sent) <= bound + 65536
+    finally:
+        os.close(master)
