@@ -77,6 +77,7 @@ from fpgalink.protocol import (
     Malformed,
     Message,
     MessageId,
+    NackReason,
     NoiseDropped,
     Observation,
     Param,
@@ -634,6 +635,12 @@ class Connection:
                 stats.malformed += 1
                 key = msg.reason.name
                 stats.malformed_by_reason[key] = stats.malformed_by_reason.get(key, 0) + 1
+                append(msg)
+                continue
+            if type(msg) is ParamNack and msg.error == NackReason.NOT_CONTROLLER:
+                # The router's answer, not the board's: no part of the board's counter
+                # sequence, and no sign that the board is there.
+                self._answer(msg, now)
                 append(msg)
                 continue
             if not found:

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from fpgalink.protocol.catalogue import NackReason
 from fpgalink.protocol.errors import (
     FpgalinkError,
     LocalProtocolError,
@@ -38,6 +39,10 @@ class ParameterRefused(FpgalinkError):
         self.reason = reason
         self.code = code
         where = "" if channel == 0 else f" on channel {_channel_label(channel)}"
+        if code == NackReason.NOT_CONTROLLER:  # fpgalink-cli router's, not the board's
+            super().__init__(f"{name}{where} refused by the router: {reason} (PN error "
+                             f"{code})")
+            return
         super().__init__(f"board refused {name}{where}: {reason} (PN error {code})")
 
 

@@ -110,12 +110,16 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
         RequestTimeout,
         ValueMismatch,
     )
+    from fpgalink.protocol import NackReason
 
     prefix = f"{where}: " if where else ""
     if isinstance(exc, ParameterError | LocalProtocolError):
         return CliError(str(exc), ExitCode.BAD_INPUT)
     if isinstance(exc, ParameterRefused | ValueMismatch):
-        return CliError(f"{prefix}{exc}", ExitCode.REFUSED)
+        hint = ("; run it after that client, or watch with --passive"
+                if isinstance(exc, ParameterRefused) and exc.code == NackReason.NOT_CONTROLLER
+                else "")
+        return CliError(f"{prefix}{exc}{hint}", ExitCode.REFUSED)
     if isinstance(exc, RequestTimeout | BoardLost):
         return CliError(f"{prefix}board not answering: {exc}", ExitCode.NO_ANSWER)
     if isinstance(exc, PortError):
