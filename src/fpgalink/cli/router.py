@@ -41,6 +41,7 @@ import select
 import socket
 import time
 from collections import Counter, deque
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -119,6 +120,10 @@ class LineQueue(Generic[T]):
     def backlog(self, now: float) -> float:
         """Line time of everything not yet on the wire, handed out or waiting, s."""
         return self.in_flight(now) + self._waiting_bytes * self.byte_time
+
+    def room(self, now: float) -> int:
+        """Wire bytes that may still be pushed now."""
+        return max(0, int((self.bound - self.backlog(now)) / self.byte_time + 1e-6))
 
     def full(self, size: int, now: float) -> bool:
         """Whether a frame of ``size`` wire bytes would take the backlog past the bound."""
@@ -247,9 +252,8 @@ class _Client(asyncio.BufferedProtocol):
         return memoryview(self._buffer)
 
     def buffer_updated(self, nbytes: int) -> None:
-        for item in self.decoder.feed(bytes(self._buffer[:nbytes])):
-            if isinstance(item, bytes):
-                self.route.from_client(self, item)
+        items = self.decoder.feed(bytes(self._buffer[:nbytes]))
+        self.route.from_client(self, [item for item in items if type(item) is bytes])
         self.stats.noise_bytes = self.decoder.stats.dropped_bytes
 
     def connection_lost(self, exc: Exception | None) -> None:
@@ -317,9 +321,8 @@ class _PtyClient:
         except OSError:  # EIO: the last process with the slave open closed it
             self._hang_up()
             return
-        for item in self.decoder.feed(data):
-            if isinstance(item, bytes):
-                self.route.from_client(self, item)
+        items = self.decoder.feed(data)
+        self.route.from_client(self, [item for item in items if type(item) is bytes])
         self.stats.noise_bytes = self.decoder.stats.dropped_bytes
 
     def _hang_up(self) -> None:
@@ -556,26 +559,35 @@ class BoardRoute:
             return board
         return None
 
-    def to_board(self, stats: ClientStats, content: bytes) -> None:
-        """A controller's frame toward the board: queued for the line (paced by line time),
-        refused when the line is full, unsent while the port is gone; an ``RD`` goes at
-        once, ahead of everything waiting."""
+    def to_board(self, stats: ClientStats, contents: Sequence[bytes]) -> None:
+        """A controller's frames toward the board, in order: queued for the line (paced by
+        line time), refused when the line is full, unsent while the port is gone; an ``RD``
+        goes at once, ahead of everything waiting."""
         if self._writable() is None:
-            stats.unsent_frames += 1
+            stats.unsent_frames += len(contents)
             return
-        message_id = _message_id(content)
-        if message_id == "RD":
-            self.disable_now(stats)
-            return
+        line, framing = self.line, self.framing
         now = asyncio.get_running_loop().time()
-        # Refused before it is encoded when even unescaped it would not fit: a flood's
-        # excess costs as little as it can.
-        wire = b"" if self.line.full(len(content) + 2, now) else \
-            encode_frame(content, self.framing)
-        if not wire or not self.line.push((stats, message_id, wire), len(wire), now):
-            stats.line_full_frames += 1
+        room = line.room(now)
+        refused = 0
+        for content in contents:
+            if content == b"RD":
+                self.disable_now(stats)
+                room = line.room(now)
+                continue
+            # Refused before it is encoded when even unescaped it would not fit: a flood's
+            # excess costs as little as it can.
+            if len(content) + 2 > room:
+                refused += 1
+                continue
+            wire = encode_frame(content, framing)
+            if not line.push((stats, _message_id(content), wire), len(wire), now):
+                refused += 1
+                continue
+            room -= len(wire)
+        if refused:
+            stats.line_full_frames += refused
             self._say_full(stats, now)
-            return
         if self._pump_timer is None:  # else the line is busy: the timer hands it on
             self._pump()
 
@@ -648,7 +660,10 @@ class BoardRoute:
         self.joined_at[client.stats.client] = asyncio.get_running_loop().time()
         note(f"board {self.name}: client #{client.stats.client} connected ({peer})")
 
-    def from_client(self, client: _Client | _PtyClient, content: bytes) -> None:
+    def from_client(self, client: _Client | _PtyClient, contents: Sequence[bytes]) -> None:
+        """The frames one read of a client brought, in order."""
+        if not contents:
+            return
         stats = client.stats
         if self.controller is None:
             self.controller = client
@@ -656,16 +671,21 @@ class BoardRoute:
             note(f"board {self.name}: client #{stats.client} ({stats.peer}) is the "
                  "controller")
         if client is self.controller:
-            self.to_board(stats, content)
+            self.to_board(stats, contents)
             return
+        for content in contents:
+            self._refuse(client, self.controller.stats.client, content)
+
+    def _refuse(self, client: _Client | _PtyClient, controller: int, content: bytes) -> None:
+        stats = client.stats
         message_id = _message_id(content)
         told = self._tell_refused(client, content)
         if stats.refused_frames == 0:
             answer = "; it is answered PN 5 (another client controls the board)" \
                 if told else ""
             note(f"board {self.name}: client #{stats.client} is an observer: its {message_id} "
-                 f"was refused (client #{self.controller.stats.client} controls the "
-                 f"board){answer}; run it with --passive, or after the controller")
+                 f"was refused (client #{controller} controls the board){answer}; run it "
+                 "with --passive, or after the controller")
         stats.refused_frames += 1
         stats.refused_by_id[message_id] += 1
 

@@ -483,19 +483,19 @@ async def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
     second: Any = Client()
     route.joined(first, "first")
     route.joined(second, "second")
-    route.from_client(first, b"RE")
+    route.from_client(first, [b"RE"])
     assert wire.written == [encode_frame(b"RE")]
     route.port_lost(None)
     route.left(first)
     assert route.disable_pending and route.disables_sent == 0
-    route.from_client(second, b"RE")  # the port is gone: unsent
+    route.from_client(second, [b"RE"])  # the port is gone: unsent
     assert second.stats.unsent_frames == 1
     assert route.controller is second
     route.board = wire.transport
     route.port_back(1)
     assert wire.written[1:] == [DISABLE]
     assert route.disables_sent == 1 and not route.disable_pending
-    route.from_client(second, b"RE")
+    route.from_client(second, [b"RE"])
     assert wire.written[2:] == [encode_frame(b"RE")]
     assert "RD sent for the controller that left while the port was gone" in (
         capsys.readouterr().err)
@@ -706,36 +706,69 @@ def test_a_flooding_controller_that_leaves_is_overtaken_by_the_rd(tmp_path: Path
     assert got == 4 * passed + 4  # its frames the router passed, then the RD: no more
     assert summary["boards"][0]["disables_sent"] == 1
 
-def test_a_refused_parameter_set_says_the_router_refused_it(robot_router: Router) -> None:
-    """Issue 41.4: while ``drive`` controls through the router, another client's ``param
-    set`` was "board not answering … no answer after 8 tries", exit 4, the reason only on
-    the router's stderr. The router answers a non-controller's PS with PN 5: exit 3, one
-    line saying the router refused it and why, and the board untouched."""
-    router = robot_router
-    drive = subprocess.Popen([*SCRIPT, "drive", "--v", "0.05", "--for", "120",
-                              *router.ports()], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
+def test_a_refused_parameter_set_says_the_router_refused_it(tmp_path: Path) -> None:
+    """Issue 41.4: while another client controls the board through the router, a client's
+    ``param set`` was "board not answering … no answer after 8 tries", exit 4, the reason
+    only on the router's stderr. The router answers a non-controller's PS with PN 5: exit
+    3, one line saying the router refused it and why, and the board untouched. (The
+    controller here is a plain socket that sent one RD: a driving command would do, but a
+    loaded machine can stop one before the refusal is tried.)"""
+    import socket
+
+    router = Router(tmp_path, "--port", "L=emu://")
     try:
-        wait_until_sync(lambda: router.stderr().count("client #1 (") == 2
-                        or drive.poll() is not None, 60, "drive the controller of both")
-        assert drive.poll() is None, drive.communicate()
-        refused = subprocess.run([*SCRIPT, "param", "set", "Kp_Wheel_PidA", "500", "--port",
-                                  router.urls["L"]], capture_output=True, text=True,
-                                 cwd=ROOT, env=cli_env(), timeout=60)
+        host, port = router.urls["L"].removeprefix("socket://").rsplit(":", 1)
+        with socket.create_connection((host, int(port))) as controller:
+            controller.sendall(b"SRDP")
+            wait_until_sync(lambda: "client #1 (" in router.stderr(), 30, "the controller")
+            refused = subprocess.run([*SCRIPT, "param", "set", "Kp_Wheel_PidA", "500",
+                                      "--port", router.urls["L"]], capture_output=True,
+                                     text=True, cwd=ROOT, env=cli_env(), timeout=60)
+            answer = _answer_to_a_crc_request(host, int(port))
+        wait_until_sync(lambda: "client #1 (controller) left" in router.stderr(), 30, "it")
+        untouched = subprocess.run([*SCRIPT, "param", "get", "Kp_Wheel_PidA", "--port",
+                                    router.urls["L"]], capture_output=True, text=True,
+                                   cwd=ROOT, env=cli_env(), timeout=60)
+        summary = router.stop()
     finally:
-        drive.send_signal(signal.SIGINT)
-        drive.communicate(timeout=30)
+        router.kill()
     assert refused.returncode == 3, refused.stderr
     assert_one_line_error(refused.stderr, "Kp_Wheel_PidA on channel A refused by the "
                           "router: another client controls the board", "--passive")
-    untouched = subprocess.run([*SCRIPT, "param", "get", "Kp_Wheel_PidA", "--port",
-                                router.urls["L"]], capture_output=True, text=True,
-                               cwd=ROOT, env=cli_env(), timeout=60)
     assert untouched.returncode == 0 and float(untouched.stdout.split()[-1]) != 500, (
         untouched.stdout, untouched.stderr)
-    summary = router.stop()
-    (asked,) = [c for c in summary["clients"] if c["board"] == "L" and c["client"] == 2]
-    assert asked["role"] == "observer" and asked["refused_by_id"] == {"PS": 1}
+    clients = {c["client"]: c for c in summary["clients"]}
+    assert clients[2]["role"] == "observer" and clients[2]["refused_by_id"] == {"PS": 1}
+    # A client with the wire CRC on is answered with it (docs/protocol.md §7), else its
+    # link would drop the answer as a CRC failure.
+    from fpgalink.protocol import NackReason, ParamNack, parse_content
+    from fpgalink.protocol.crc import strip_crc
+
+    body = strip_crc(answer)
+    assert body is not None, answer
+    assert parse_content(body) == ParamNack(1, 0, NackReason.NOT_CONTROLLER, 0)
+    assert clients[3]["refused_by_id"] == {"PG": 1}
+
+
+def _answer_to_a_crc_request(host: str, port: int) -> bytes:
+    """A raw client's ``PG TsTimerPeriod`` with the wire CRC, and the content of the first
+    ``PN`` it gets back."""
+    import socket
+
+    from fpgalink.protocol import DEFAULT_FRAMING, FrameDecoder, ParamGet, encode_frame
+    from fpgalink.protocol import encode_message as encode
+    from fpgalink.protocol.crc import append_crc
+
+    with socket.create_connection((host, port)) as client:
+        client.sendall(encode_frame(append_crc(encode(ParamGet(1, 0), 0)), DEFAULT_FRAMING))
+        client.settimeout(30)
+        decoder = FrameDecoder()
+        while True:
+            data = client.recv(65536)
+            assert data, "closed before an answer"
+            for item in decoder.feed(data):
+                if isinstance(item, bytes) and item[:2] == b"PN":
+                    return item
 
 
 async def test_the_line_queue_paces_bounds_and_is_overtaken_by_a_disable() -> None:
