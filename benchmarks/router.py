@@ -104,12 +104,26 @@ async def _start_router(port: str) -> tuple[asyncio.subprocess.Process, str]:
         sys.executable, "-m", "fpgalink", "router", "--format", "json", "--port", port,
         stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
         stderr=asyncio.subprocess.PIPE)
+    return proc, await _ready(proc, "the router")
+
+
+async def _end(router: asyncio.subprocess.Process | None,
+               serve: asyncio.subprocess.Process) -> None:
+    """After a row: a router not stopped cleanly is killed; the board's server stopped."""
+    if router is not None:
+        router.kill()
+        await router.wait()
+    await stop_emulator(serve)
+
+
+async def _ready(proc: asyncio.subprocess.Process, what: str) -> str:
+    """The URL of the first ``ready`` line ``proc`` prints."""
     assert proc.stdout is not None
     line = (await asyncio.wait_for(proc.stdout.readline(), EMULATOR_READY_TIMEOUT_S)).decode()
     if not line.startswith("ready "):
         proc.kill()
-        raise RuntimeError(f"the router did not start: {line!r}")
-    return proc, line.split()[2]
+        raise RuntimeError(f"{what} did not start: {line!r}")
+    return line.split()[2]
 
 
 async def _stop_router(proc: asyncio.subprocess.Process) -> dict[str, Any]:
@@ -135,7 +149,8 @@ async def _row(observers: int | None, duration: float) -> dict[str, Any]:
         for _ in range(observers or 0):
             _, observer = await loop.create_connection(Observer, host, int(port))
             watching.append(observer)
-        async with open_link(url) as link:
+        # As patient as the robot: a loaded machine answers late (docs/robot.md, Faults).
+        async with open_link(url, unanswered_rounds=4) as link:
             await link.set_param("GetDataPeriodical", 1)
             samples = link.telemetry(maxsize=1 << 16)
             await samples.__anext__()  # streaming
@@ -170,10 +185,7 @@ async def _row(observers: int | None, duration: float) -> dict[str, Any]:
         summary = await _stop_router(router) if router is not None else None
         router = None
     finally:
-        if router is not None:
-            router.kill()
-            await router.wait()
-        await stop_emulator(serve)
+        await _end(router, serve)
     row: dict[str, Any] = {
         "observers": observers, "tm_in_window": len(driven), "requests": len(rtts),
         "rtt_ms": {**summarize(rtts), "p99": percentile(rtts, 99)},
@@ -301,12 +313,7 @@ async def _serve_tcp() -> tuple[asyncio.subprocess.Process, str]:
         sys.executable, "-m", "fpgaemu", "serve", "--tcp", "127.0.0.1:0", "--set",
         "GetDataPeriodical=1", stdin=asyncio.subprocess.DEVNULL,
         stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
-    assert proc.stdout is not None
-    line = (await asyncio.wait_for(proc.stdout.readline(), EMULATOR_READY_TIMEOUT_S)).decode()
-    if not line.startswith("ready "):
-        proc.kill()
-        raise RuntimeError(f"fpgaemu serve did not start: {line!r}")
-    return proc, line.split()[2]
+    return proc, await _ready(proc, "fpgaemu serve")
 
 
 class Watcher(asyncio.Protocol):
@@ -384,10 +391,7 @@ async def rd_after_flood(frames: int, runs: int) -> dict[str, Any]:
         summary = await _stop_router(router)
         router = None
     finally:
-        if router is not None:
-            router.kill()
-            await router.wait()
-        await stop_emulator(serve)
+        await _end(router, serve)
     floods = [c for c in summary["clients"] if c["role"] == "controller"]
     after_close = [b[0] for b in both]
     after_let_go = [b[1] for b in both]

@@ -106,6 +106,19 @@ async def test_tcp_to_a_scripted_board() -> None:
         await board.stop()
 
 
+async def _open_recorded(path: str
+                         ) -> tuple[asyncio.BaseTransport, asyncio.Future[Exception | None]]:
+    """A serial port's transport, and a future its protocol's connection_lost resolves."""
+    lost: asyncio.Future[Exception | None] = asyncio.get_running_loop().create_future()
+
+    class Recorder(asyncio.Protocol):
+        def connection_lost(self, exc: Exception | None) -> None:
+            lost.set_result(exc)
+
+    transport, _ = await open_transport(path, 1_000_000, Recorder)
+    return transport, lost
+
+
 async def test_a_write_to_a_vanished_serial_port_closes_the_link_without_a_traceback() -> None:
     """A pty whose other end is gone (a killed ``fpgaemu serve``, an unplugged adapter)
     fails the next write. pyserial-asyncio hands that to the loop's exception handler,
@@ -117,13 +130,7 @@ async def test_a_write_to_a_vanished_serial_port_closes_the_link_without_a_trace
     handled: list[dict[str, object]] = []
     loop.set_exception_handler(lambda _loop, context: handled.append(context))
     master, slave = pty.openpty()
-    lost: asyncio.Future[Exception | None] = loop.create_future()
-
-    class Recorder(asyncio.Protocol):
-        def connection_lost(self, exc: Exception | None) -> None:
-            lost.set_result(exc)
-
-    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    transport, lost = await _open_recorded(os.ttyname(slave))
     os.close(slave)
     os.close(master)
     try:
@@ -164,16 +171,9 @@ async def test_a_serial_port_queues_a_hundred_thousand_frames_each_once() -> Non
 
     master, slave = pty.openpty()
     tty.setraw(slave)
-    loop = asyncio.get_running_loop()
-    lost: asyncio.Future[Exception | None] = loop.create_future()
-
-    class Recorder(asyncio.Protocol):
-        def connection_lost(self, exc: Exception | None) -> None:
-            lost.set_result(exc)
-
     frames = [encode_frame(b"PG%05d{\x02\x01\x00}" % (i % 100000), DEFAULT_FRAMING)
               for i in range(100_000)]
-    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    transport, lost = await _open_recorded(os.ttyname(slave))
     os.close(slave)
     try:
         assert isinstance(transport, asyncio.WriteTransport)
@@ -202,14 +202,7 @@ async def test_a_closing_serial_port_nobody_reads_does_not_hang() -> None:
     import pty
 
     master, slave = pty.openpty()
-    loop = asyncio.get_running_loop()
-    lost: asyncio.Future[Exception | None] = loop.create_future()
-
-    class Recorder(asyncio.Protocol):
-        def connection_lost(self, exc: Exception | None) -> None:
-            lost.set_result(exc)
-
-    transport, _ = await open_transport(os.ttyname(slave), 1_000_000, Recorder)
+    transport, lost = await _open_recorded(os.ttyname(slave))
     os.close(slave)
     try:
         assert isinstance(transport, asyncio.WriteTransport)

@@ -566,6 +566,17 @@ def _serve(kind: str, err: Path) -> tuple[subprocess.Popen[str], str]:
     return proc, line.split()[2]
 
 
+def _stop(observer: subprocess.Popen[str] | None, router: Router | None,
+          serve: subprocess.Popen[str], serve_err: Path) -> int:
+    """Stop what a flood test started; what the board's line received from the host."""
+    if observer is not None:
+        observer.kill()
+        observer.communicate(timeout=30)
+    if router is not None:
+        router.kill()
+    return _host_bytes_the_board_got(serve, serve_err)
+
+
 def _host_bytes_the_board_got(serve: subprocess.Popen[str], err: Path) -> int:
     """Stop serve; what its board's line received from the host (its own count)."""
     import re
@@ -627,12 +638,7 @@ def test_one_burst_does_not_freeze_the_router(tmp_path: Path) -> None:
         assert router.proc.returncode == 0, router.stderr()
         summary = json.loads(out)
     finally:
-        if observer is not None:
-            observer.kill()
-            observer.communicate(timeout=30)
-        if router is not None:
-            router.kill()
-        got = _host_bytes_the_board_got(serve, serve_err)
+        got = _stop(observer, router, serve, serve_err)
     clients = {c["client"]: c for c in summary["clients"]}
     burst = clients[2]
     assert burst["role"] == "controller" and burst["to_board_by_id"].keys() <= {"RE"}
@@ -684,12 +690,7 @@ def test_a_flooding_controller_that_leaves_is_overtaken_by_the_rd(tmp_path: Path
         wait_until_sync(settled, 60, "the board disabled for good")
         summary = router.stop()
     finally:
-        if observer is not None:
-            observer.kill()
-            observer.communicate(timeout=30)
-        if router is not None:
-            router.kill()
-        got = _host_bytes_the_board_got(serve, serve_err)
+        got = _stop(observer, router, serve, serve_err)
     samples = _samples(observed)
     enabled = [s["a_flags"] & 1 for s in samples]
     on = enabled.index(1)
