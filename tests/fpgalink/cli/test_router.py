@@ -790,3 +790,42 @@ async def test_the_line_queue_paces_bounds_and_is_overtaken_by_a_disable() -> No
     assert line.overtake(4, 0.001) == [3, 4, 5, 6, 7, 8, 9, 10]
     assert len(line) == 0 and line.wake_at() is None
     assert line.in_flight(0.001) == pytest.approx(0.002 + 4e-5)
+
+
+def test_the_routers_refusal_is_no_part_of_the_boards_counter_sequence() -> None:
+    """The router's PN 5 carries its own counter toward the client (from 00000). The link
+    settles the request with it but does not count it in the board's sequence: before, a
+    00000 amid the board's counters was judged the board restarting (and the link set
+    everything again), any other value a duplicate or a gap."""
+    from fpgalink import Connection, ParameterRefused
+    from fpgalink.events import BoardRestarted, RequestFailed
+    from fpgalink.protocol import (
+        DEFAULT_FRAMING,
+        Alive,
+        CountedMessage,
+        NackReason,
+        ParamNack,
+        encode_frame,
+        encode_message,
+        lookup,
+    )
+
+    def frame(message: CountedMessage | ParamNack, counter: int) -> bytes:
+        return encode_frame(encode_message(message, counter), DEFAULT_FRAMING)
+
+    connection = Connection()
+    connection.start(0.0)
+    chatter = CountedMessage("ZZ", (), None)
+    connection.receive_data(b"".join(frame(chatter, c) for c in range(500, 510)), 0.01)
+    param = lookup("Kp_Wheel_Pid")
+    request = connection.set_param(param, 1, 500.0, 0.02)
+    connection.receive_data(frame(ParamNack(param.id, 1, NackReason.NOT_CONTROLLER), 0),
+                            0.03)
+    connection.receive_data(frame(chatter, 510) + encode_frame(Alive().content), 0.04)
+    events = list(connection.events())
+    (failed,) = [e for e in events if isinstance(e, RequestFailed)]
+    assert failed.request_id == request and isinstance(failed.error, ParameterRefused)
+    assert "refused by the router" in str(failed.error)
+    assert not any(isinstance(e, BoardRestarted) for e in events)
+    stats = connection.stats
+    assert stats.duplicates == stats.lost == stats.restarts == 0
