@@ -619,7 +619,10 @@ class Link:
         baud = self.connection.baud
         if not baud or not isinstance(transport, asyncio.WriteTransport):
             return
-        waiting_s = transport.get_write_buffer_size() * 10 / baud
+        try:
+            waiting_s = transport.get_write_buffer_size() * 10 / baud
+        except NotImplementedError:  # a transport that does not say: nothing to bound
+            return
         if waiting_s > MAX_LINE_BACKLOG_S:
             self.connection.stats.line_busy += 1
             raise LineBusy(f"{self.name}: {what} not sent: {waiting_s * 1000:.0f} ms of line "
