@@ -77,6 +77,7 @@ from fpgalink.protocol import (
     Malformed,
     Message,
     MessageId,
+    NackReason,
     NoiseDropped,
     Observation,
     Param,
@@ -256,6 +257,8 @@ class LinkStats:
     telemetry_stalls: int = 0  #: telemetry configured on stopped coming
     #: references replaced by a newer one before the line had room to send them
     references_superseded: int = 0
+    #: requests refused by the asyncio link, the line backed up (``LineBusy``)
+    line_busy: int = 0
     events_dropped: int = 0
     subscriber_drops: int = 0  #: telemetry samples a slow subscriber lost (asyncio layer)
     port_losses: int = 0
@@ -632,6 +635,12 @@ class Connection:
                 stats.malformed += 1
                 key = msg.reason.name
                 stats.malformed_by_reason[key] = stats.malformed_by_reason.get(key, 0) + 1
+                append(msg)
+                continue
+            if type(msg) is ParamNack and msg.error == NackReason.NOT_CONTROLLER:
+                # The router's answer, not the board's: no part of the board's counter
+                # sequence, and no sign that the board is there.
+                self._answer(msg, now)
                 append(msg)
                 continue
             if not found:

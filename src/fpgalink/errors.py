@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+from fpgalink.protocol.catalogue import NackReason
 from fpgalink.protocol.errors import (
     FpgalinkError,
     LocalProtocolError,
@@ -14,6 +15,7 @@ from fpgalink.protocol.exitcodes import ExitCode, NotInstalled
 __all__ = [
     "BoardLost",
     "FpgalinkError",
+    "LineBusy",
     "LinkClosed",
     "LocalProtocolError",
     "ParameterError",
@@ -39,6 +41,10 @@ class ParameterRefused(FpgalinkError):
         self.reason = reason
         self.code = code
         where = "" if channel == 0 else f" on channel {_channel_label(channel)}"
+        if code == NackReason.NOT_CONTROLLER:  # fpgalink-cli router's, not the board's
+            super().__init__(f"{name}{where} refused by the router: {reason} (PN error "
+                             f"{code})")
+            return
         super().__init__(f"board refused {name}{where}: {reason} (PN error {code})")
 
 
@@ -69,6 +75,11 @@ class ValueMismatch(FpgalinkError):
             f"{what}: the board answered with another value after {tries} tries: "
             f"{wanted}the board reports {answered!r} ({kind})"
         )
+
+
+class LineBusy(FpgalinkError):
+    """Not sent: the line to the board is backed up (more is waiting to be written than it
+    carries in a few hundred milliseconds). Nothing was queued; try again when it drains."""
 
 
 class LinkClosed(FpgalinkError, ConnectionError):

@@ -27,7 +27,14 @@ from fpgalink.aio.transport import (
     open_transport,
 )
 from fpgalink.connection import Connection, LinkStats, Liveness
-from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError, RequestTimeout
+from fpgalink.errors import (
+    BoardLost,
+    FpgalinkError,
+    LineBusy,
+    LinkClosed,
+    PortError,
+    RequestTimeout,
+)
 from fpgalink.events import (
     BoardBack,
     BoardFault,
@@ -56,6 +63,7 @@ from fpgalink.protocol import (
 from fpgalink.protocol.params import iter_addresses
 
 __all__ = [
+    "MAX_LINE_BACKLOG_S",
     "Link",
     "LinkEvent",
     "LinkEventKind",
@@ -74,6 +82,12 @@ T = TypeVar("T")
 _MIN_REARM_S = 0.0005
 #: While the far end trails, a timer is looked at again within this, its lag measured anew.
 _LAGGING_RECHECK_S = 0.002
+
+#: A counted message or parameter request is refused (:class:`~fpgalink.errors.LineBusy`)
+#: while more than this much line time (at the connection's baud) waits in the transport
+#: unwritten: what a caller can queue toward a board stays bounded, whatever it does. ``RE``,
+#: ``RD`` and references are never refused (references are superseded instead).
+MAX_LINE_BACKLOG_S = 0.25
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
@@ -385,8 +399,12 @@ class Link:
 
     def send(self, message: Message | CountedMessage | DirectCommand) -> bytes:
         """Send any message; returns the exact wire bytes written (empty when a reference
-        waits for line room)."""
+        waits for line room). A counted message other than ``RV`` raises
+        :class:`~fpgalink.errors.LineBusy` while the line is backed up (see
+        :data:`MAX_LINE_BACKLOG_S`)."""
         self._ensure_connected()
+        if not isinstance(message, DirectCommand | References):
+            self._check_line(type(message).__name__)
         self.connection.send(message, self._now())
         wire = self.connection.data_to_send()
         self._write(wire)
@@ -405,12 +423,14 @@ class Link:
         param, code = resolve(name, channel)
         coerced = param.coerce(value)
         self._ensure_connected()
+        self._check_line(f"setting {param.full_name(code)}")
         return await self._patiently(
             lambda: self.connection.set_param(param, code, coerced, self._now()))
 
     async def get_param(self, name: str | int, channel: int | str | None = None) -> int | float:
         param, code = resolve(name, channel)
         self._ensure_connected()
+        self._check_line(f"reading {param.full_name(code)}")
         return await self._patiently(lambda: self.connection.get_param(param, code, self._now()))
 
     async def _patiently(self, ask: Callable[[], int]) -> int | float:
@@ -457,6 +477,7 @@ class Link:
             label = param.full_name(code)
             try:
                 self._ensure_connected()
+                self._check_line(f"setting {label}")
                 confirmed = await self._request(
                     self.connection.set_param(param, code, coerced, self._now())
                 )
@@ -590,6 +611,23 @@ class Link:
         self._ensure_open()
         if self.state is not LinkState.CONNECTED or self._transport is None:
             raise BoardLost(f"{self.name}: port is disconnected ({self.state.value})")
+
+    def _check_line(self, what: str) -> None:
+        """:class:`LineBusy` (counted in ``stats.line_busy``) while more than
+        :data:`MAX_LINE_BACKLOG_S` of line time waits in the transport."""
+        transport = self._transport
+        baud = self.connection.baud
+        if not baud or not isinstance(transport, asyncio.WriteTransport):
+            return
+        try:
+            waiting_s = transport.get_write_buffer_size() * 10 / baud
+        except NotImplementedError:  # a transport that does not say: nothing to bound
+            return
+        if waiting_s > MAX_LINE_BACKLOG_S:
+            self.connection.stats.line_busy += 1
+            raise LineBusy(f"{self.name}: {what} not sent: {waiting_s * 1000:.0f} ms of line "
+                           f"time already waits to be written (at most "
+                           f"{MAX_LINE_BACKLOG_S * 1000:.0f} ms)")
 
     def _write(self, data: bytes) -> None:
         if data and self._transport is not None and self.state is not LinkState.RECONNECTING:

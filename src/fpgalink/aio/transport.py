@@ -4,10 +4,12 @@ which one it got.
 
 Built in:
 
-* a device path (``/dev/ttyUSB0``, ``/dev/serial/by-id/…``, a pty) → pyserial-asyncio;
+* a device path (``/dev/ttyUSB0``, ``/dev/serial/by-id/…``, a pty) → pyserial opens and
+  configures it, :class:`~fpgalink.aio.serialport.SerialTransport` reads and writes it
+  (O(1) a write, whatever is queued);
 * ``socket://host:port`` → asyncio's own TCP. pyserial's ``socket://`` backend returns empty
-  reads on a closed socket, which pyserial-asyncio ignores, so a vanished peer would never
-  be noticed; asyncio's TCP reports it as ``connection_lost``.
+  reads on a closed socket, so a vanished peer would never be noticed; asyncio's TCP
+  reports it as ``connection_lost``.
 
 Other schemes come from packages: an opener registered with :func:`register_scheme`, or
 advertised under the ``fpgalink.transports`` entry-point group (the emulator registers
@@ -17,6 +19,7 @@ advertised under the ``fpgalink.transports`` entry-point group (the emulator reg
 from __future__ import annotations
 
 import asyncio
+import errno
 import functools
 import os
 from collections.abc import Awaitable, Callable
@@ -24,12 +27,14 @@ from importlib.metadata import entry_points
 from typing import Any
 from urllib.parse import urlsplit
 
+from fpgalink.aio.serialport import READ_CHUNK, SerialTransport
 from fpgalink.errors import PortError
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
 __all__ = [
     "ENTRY_POINT_GROUP",
     "FAR_END_LAG_EXTRA",
+    "READ_CHUNK",
     "Opener",
     "ProtocolFactory",
     "describe_url",
@@ -135,39 +140,39 @@ async def _open_serial(
     loop = asyncio.get_running_loop()
     try:
         port = _loop_serial_class()(url, baudrate=baud, exclusive=True)
-    except (serial.SerialException, ValueError) as exc:
+    except serial.SerialException as exc:
+        raise PortError(f"cannot open serial port {url}: {_why_not(exc)}") from exc
+    except ValueError as exc:
         raise PortError(f"cannot open serial port {url}: {exc}") from exc
-    # serial_asyncio.connection_for_serial, with the transport below.
     protocol = protocol_factory()
-    transport = _serial_transport_class()(loop, protocol, port)
-    return transport, protocol
+    return SerialTransport(loop, protocol, port), protocol
 
 
-@functools.cache
-def _serial_transport_class() -> Any:
-    """pyserial-asyncio's transport, closing on a failed write as it does on a failed read.
-    Its write path hands the error to the loop's exception handler first, which prints a
-    traceback for what is only a port that went away (a board unplugged, a pty whose server
-    was killed); the protocol learns it from ``connection_lost(exc)`` either way."""
-    import serial_asyncio
-
-    class QuietSerialTransport(serial_asyncio.SerialTransport):  # type: ignore[misc]
-        def _fatal_error(self, exc: Exception, message: str = "") -> None:
-            self._abort(exc)
-
-    return QuietSerialTransport
-
-
-#: Bytes one read may take from a serial port (a pty holds up to 64 KiB).
-READ_CHUNK = 65536
+def _why_not(exc: OSError) -> str:
+    """Why a serial port did not open, said once: pyserial's message repeats the path and
+    the errno (``[Errno 11] Could not exclusively lock port P: [Errno 11] Resource
+    temporarily unavailable``)."""
+    code = exc.errno
+    if code in (errno.EAGAIN, errno.EWOULDBLOCK, errno.EBUSY):
+        # pyserial's exclusive lock (flock) is held: another program has the port open.
+        return "in use by another program; share it with `fpgalink-cli router`"
+    if code in (errno.ENOENT, errno.ENODEV, errno.ENXIO):
+        return ("no such device (unplugged? `fpgalink-cli ports` lists the serial ports "
+                "there are)")
+    if code == errno.EACCES:
+        return ("permission denied (is your user in the group that owns it, such as "
+                "dialout?)")
+    if code is not None:
+        return os.strerror(code)
+    return str(exc)
 
 
 @functools.cache
 def _loop_serial_class() -> Any:
-    """pyserial's POSIX port with a read made for an event loop. The transport reads only
-    when the loop has seen the port readable, yet ``Serial.read`` still runs ``select``
-    before and after its ``read`` — three system calls where one does, at 1,000 reads a
-    second per board."""
+    """pyserial's POSIX port with a read made for an event loop: ``Serial.read`` runs
+    ``select`` before and after its ``read`` — three system calls where one does. The
+    transport reads the descriptor itself; this read serves a link that collects a batch
+    from a paused transport (``get_extra_info("serial").read(n)``)."""
     import serial
 
     if os.name != "posix":  # pragma: no cover - the project runs on POSIX
@@ -178,8 +183,8 @@ def _loop_serial_class() -> Any:
             if not self.is_open:
                 raise serial.PortNotOpenError()
             try:
-                # Everything waiting, not just what the transport asks for (1,024 bytes):
-                # a link that batches reads must find its whole batch in one call.
+                # Everything waiting, not just what is asked for: a link that batches
+                # reads must find its whole batch in one call.
                 data = os.read(self.fd, max(size, READ_CHUNK))
             except BlockingIOError:
                 return b""

@@ -82,14 +82,18 @@ class CliError(click.ClickException):
 
 def classify(exc: FpgalinkError, where: str = "") -> CliError:
     """Library error → the CLI's message and exit code (:func:`fpgalink.errors.exit_code`)."""
-    from fpgalink.errors import exit_code
+    from fpgalink.errors import ParameterRefused, exit_code
+    from fpgalink.protocol import NackReason
 
     code = exit_code(exc)
     prefix = f"{where}: " if where else ""
     if code is ExitCode.NO_ANSWER:
         return CliError(f"{prefix}board not answering: {exc}", code)
     if code in (ExitCode.REFUSED, ExitCode.FAILURE):
-        return CliError(f"{prefix}{exc}", code)
+        hint = ("; run it after that client, or watch with --passive"
+                if isinstance(exc, ParameterRefused) and exc.code == NackReason.NOT_CONTROLLER
+                else "")
+        return CliError(f"{prefix}{exc}{hint}", code)
     return CliError(str(exc), code)
 
 

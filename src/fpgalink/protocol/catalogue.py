@@ -70,6 +70,8 @@ class NackReason(IntEnum):
     BAD_CHANNEL = 2  #: board parameter with channel ≠ 0, or channel parameter with 0 or > 2
     OUT_OF_RANGE = 3  #: value outside the range (NaN and infinities included)
     WRONG_TYPE = 4  #: type code is not the parameter's type
+    #: not from a board: ``fpgalink-cli router`` refused it, another client controls the board
+    NOT_CONTROLLER = 5
 
     @property
     def text(self) -> str:
@@ -78,6 +80,7 @@ class NackReason(IntEnum):
             2: "bad channel",
             3: "value out of range",
             4: "wrong value type",
+            5: "another client controls the board",
         }[self.value]
 
 

@@ -74,6 +74,9 @@ def test_missing_port_exits_5_naming_it(command: list[str], tmp_path) -> None:  
             else run_cli(*command, "--port", port)
         assert done.returncode == 5, done.stderr
         assert_one_line_error(done.stderr, port)
+        # Issue 41: said once, in words (was: the path and "[Errno 2]" twice each).
+        assert done.stderr.count(port) == 1 and "Errno" not in done.stderr, done.stderr
+    assert "no such device" in done.stderr
 
 
 def test_busy_port_exits_5_naming_it() -> None:
@@ -81,9 +84,14 @@ def test_busy_port_exits_5_naming_it() -> None:
     path = os.ttyname(slave)
     holder = serial.Serial(path, exclusive=True)  # another program has the port
     try:
-        done = run_cli("param", "get", "TsTimerPeriod", "--port", path)
-        assert done.returncode == 5, done.stderr
-        assert_one_line_error(done.stderr, path)
+        for command in (["param", "get", "TsTimerPeriod"], ["router"]):
+            done = run_cli(*command, "--port", path)
+            assert done.returncode == 5, done.stderr
+            # Issue 41: what it means and what to do (was: "[Errno 11] Could not
+            # exclusively lock port …: [Errno 11] Resource temporarily unavailable").
+            assert_one_line_error(done.stderr, path, "in use by another program; share it "
+                                  "with `fpgalink-cli router`")
+            assert done.stderr.count(path) == 1 and "Errno" not in done.stderr, done.stderr
     finally:
         holder.close()
         os.close(master)

@@ -146,7 +146,10 @@ def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
                                       "TsTimerPeriod", "5", "--port", url],
                                      capture_output=True, text=True, cwd=ROOT,
                                      env=cli_env(), timeout=60)
-            assert refused.returncode == 4, refused.stderr  # no answer: it never reached it
+            # Told, in words (issue 41): the router answered its PS with PN 5.
+            assert refused.returncode == 3, refused.stderr
+            assert_one_line_error(refused.stderr, "refused by the router: another client "
+                                  "controls the board")
             assert "is an observer" in router.stderr()
         finally:
             controller.send_signal(signal.SIGINT)
@@ -157,7 +160,7 @@ def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
     clients = {c["client"]: c for c in summary["clients"]}
     assert clients[1]["role"] == "controller" and clients[1]["refused_frames"] == 0
     assert clients[2]["refused_by_id"] == {"RE": 1} and clients[2]["frames_to_board"] == 0
-    assert clients[3]["refused_by_id"] == {"PS": 2}  # --retries 2: both tries refused
+    assert clients[3]["refused_by_id"] == {"PS": 1}  # the PN is final: not sent again
 
 
 def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
@@ -460,7 +463,7 @@ class _Wire:
         self.transport = Transport(self.written)
 
 
-def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
+async def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
         capsys: pytest.CaptureFixture[str]) -> None:
     """The controller leaves while the board's port is gone and another client takes over
     before it is back: the RD the first one was owed goes to the board first (the board
@@ -480,19 +483,19 @@ def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
     second: Any = Client()
     route.joined(first, "first")
     route.joined(second, "second")
-    route.from_client(first, b"RE")
+    route.from_client(first, [b"RE"])
     assert wire.written == [encode_frame(b"RE")]
     route.port_lost(None)
     route.left(first)
     assert route.disable_pending and route.disables_sent == 0
-    route.from_client(second, b"RE")  # the port is gone: unsent
+    route.from_client(second, [b"RE"])  # the port is gone: unsent
     assert second.stats.unsent_frames == 1
     assert route.controller is second
     route.board = wire.transport
     route.port_back(1)
     assert wire.written[1:] == [DISABLE]
     assert route.disables_sent == 1 and not route.disable_pending
-    route.from_client(second, b"RE")
+    route.from_client(second, [b"RE"])
     assert wire.written[2:] == [encode_frame(b"RE")]
     assert "RD sent for the controller that left while the port was gone" in (
         capsys.readouterr().err)
@@ -544,3 +547,285 @@ def test_bad_link_refused_through_the_console_script(tmp_path: Path) -> None:
     finally:
         os.close(master)
         os.close(slave)
+
+
+# --- issue 37: floods toward the board; issue 41: a refusal said ---------------------------
+
+
+def _serve(kind: str, err: Path) -> tuple[subprocess.Popen[str], str]:
+    """``fpgaemu serve`` (``pty`` or ``tcp``) streaming telemetry from power-up, its stderr
+    (the accounting it prints when it stops) into ``err``; and its URL once ready."""
+    where = ["--pty"] if kind == "pty" else ["--tcp", "127.0.0.1:0"]
+    with err.open("w") as stderr:
+        proc = subprocess.Popen([sys.executable, "-m", "fpgaemu", "serve", *where, "--set",
+                                 "GetDataPeriodical=1"], stdout=subprocess.PIPE,
+                                stderr=stderr, text=True, cwd=ROOT)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    assert line.startswith("ready "), (line, err.read_text())
+    return proc, line.split()[2]
+
+
+def _stop(observer: subprocess.Popen[str] | None, router: Router | None,
+          serve: subprocess.Popen[str], serve_err: Path) -> int:
+    """Stop what a flood test started; what the board's line received from the host."""
+    if observer is not None:
+        observer.kill()
+        observer.communicate(timeout=30)
+    if router is not None:
+        router.kill()
+    return _host_bytes_the_board_got(serve, serve_err)
+
+
+def _host_bytes_the_board_got(serve: subprocess.Popen[str], err: Path) -> int:
+    """Stop serve; what its board's line received from the host (its own count)."""
+    import re
+
+    serve.send_signal(signal.SIGINT)
+    serve.wait(timeout=30)
+    found = re.search(r"host → board ([\d,]+) bytes", err.read_text())
+    assert found, err.read_text()
+    return int(found.group(1).replace(",", ""))
+
+
+def _samples(path: Path) -> list[dict[str, Any]]:
+    return [json.loads(line) for line in path.read_text().splitlines()
+            if line.startswith("{") and '"t_us"' in line]
+
+
+def _observer(router: Router, out: Path) -> subprocess.Popen[str]:
+    with out.open("w") as stdout:
+        proc = subprocess.Popen([*SCRIPT, "monitor", "--passive", "--format", "jsonl",
+                                 *router.ports()], stdout=stdout, stderr=subprocess.PIPE,
+                                text=True, cwd=ROOT, env=cli_env())
+    wait_until_sync(lambda: "client #1 connected" in router.stderr(), 30, "the observer")
+    return proc
+
+
+def _flooder(router: Router) -> Any:
+    import socket
+
+    host, port = router.urls["L"].removeprefix("socket://").rsplit(":", 1)
+    flooder = socket.create_connection((host, int(port)))
+    wait_until_sync(lambda: "client #2 connected" in router.stderr(), 30, "the flooder")
+    return flooder
+
+
+def test_one_burst_does_not_freeze_the_router(tmp_path: Path) -> None:
+    """Issue 37.1: a client's burst of 100,000 RE toward a board on a pty. Before, the
+    router queued each frame in pyserial-asyncio's transport, which summed its whole
+    buffer at every write: minutes of a frozen router, no observer served, SIGTERM
+    unheard. Now the router goes on serving its observer, stops on SIGTERM, and every one
+    of the burst's frames is accounted for: passed to the board (the board's own count
+    agrees), refused for a full line, or dropped behind the RD it sent when it stopped."""
+    serve_err, observed = tmp_path / "serve.err", tmp_path / "observer.jsonl"
+    serve, board = _serve("pty", serve_err)
+    router = observer = None
+    try:
+        router = Router(tmp_path, "--port", f"L={board}")
+        observer = _observer(router, observed)
+        wait_until_sync(lambda: len(_samples(observed)) > 100, 30, "the observer's TMs")
+        flooder = _flooder(router)
+        try:
+            flooder.sendall(b"SREP" * 100_000)
+            before = len(_samples(observed))
+            wait_until_sync(lambda: len(_samples(observed)) > before + 500, 60,
+                            "the observer served through the burst")
+            router.proc.send_signal(signal.SIGTERM)
+            out, _ = router.proc.communicate(timeout=30)
+        finally:
+            flooder.close()
+        assert router.proc.returncode == 0, router.stderr()
+        summary = json.loads(out)
+    finally:
+        got = _stop(observer, router, serve, serve_err)
+    clients = {c["client"]: c for c in summary["clients"]}
+    burst = clients[2]
+    assert burst["role"] == "controller" and burst["to_board_by_id"].keys() <= {"RE"}
+    passed = burst["frames_to_board"]
+    assert passed + burst["line_full_frames"] + burst["overtaken_frames"] == 100_000, burst
+    assert burst["line_full_frames"] > 0  # it wrote 4 s of line time at once
+    assert got == 4 * passed + 4  # the board got exactly those, and the router's RD
+    assert clients[1]["dropped_frames"] == 0 and clients[1]["refused_frames"] == 0
+
+
+def test_a_flooding_controller_that_leaves_is_overtaken_by_the_rd(tmp_path: Path) -> None:
+    """Issue 37.2: a controller writes 10 s of line time (250,000 RE) toward a TCP board
+    and leaves. Before, the router had handed it all to the port, and its RD came after
+    it: the board stayed enabled for 10 s. Now at most BOARD_QUEUE_S of line time waits
+    for the board; the RD goes ahead of the departed client's queued frames, which are
+    dropped and counted. Checked on the board: its line received exactly what the router
+    says it passed, then the RD (so nothing of the departed client came after it); its
+    telemetry (board time) shows it enabled for no longer than the client was connected,
+    plus the margin of a loaded machine."""
+    import socket
+    import time
+
+    serve_err, observed = tmp_path / "serve.err", tmp_path / "observer.jsonl"
+    serve, board = _serve("tcp", serve_err)
+    router = observer = None
+    try:
+        router = Router(tmp_path, "--port", f"L={board}")
+        observer = _observer(router, observed)
+        flooder = _flooder(router)
+        began = time.monotonic()
+        try:
+            flooder.sendall(b"SREP" * 250_000)
+            flooder.shutdown(socket.SHUT_WR)  # then read until the router lets it go
+            flooder.settimeout(60)
+            while flooder.recv(65536):
+                pass
+            flood_s = time.monotonic() - began  # it sent, and the router let it go
+        finally:
+            flooder.close()
+        wait_until_sync(lambda: "client #2 (controller) left" in router.stderr(), 30, "it")
+
+        def settled() -> bool:
+            # Disabled for 300 TMs (300 ms of board time) after it was last enabled: a
+            # watchdog lapse while the flood came (a loaded machine's stall between two
+            # handed frames) was followed by the next RE; nothing follows the RD.
+            enabled = [s["a_flags"] & 1 for s in _samples(observed)]
+            return 1 in enabled and enabled[::-1].index(1) > 300
+
+        wait_until_sync(settled, 60, "the board disabled for good")
+        summary = router.stop()
+    finally:
+        got = _stop(observer, router, serve, serve_err)
+    samples = _samples(observed)
+    enabled = [s["a_flags"] & 1 for s in samples]
+    on = enabled.index(1)
+    off = len(enabled) - enabled[::-1].index(1)  # the first TM after the last enabled one
+    enabled_s = (samples[off]["t_us"] - samples[on]["t_us"]) / 1e6
+    assert enabled_s <= flood_s + 2.0, (enabled_s, flood_s)  # was 10 s
+    from fpgalink.cli.router import BOARD_QUEUE_S
+
+    flood = {c["client"]: c for c in summary["clients"]}[2]
+    passed = flood["frames_to_board"]
+    assert passed + flood["line_full_frames"] + flood["overtaken_frames"] == 250_000, flood
+    # What went to the board is bounded by the line's time while it was connected.
+    assert 4 * passed <= (flood["connected_s"] + BOARD_QUEUE_S) * 100_000, flood
+    assert got == 4 * passed + 4  # its frames the router passed, then the RD: no more
+    assert summary["boards"][0]["disables_sent"] == 1
+
+def test_a_refused_parameter_set_says_the_router_refused_it(tmp_path: Path) -> None:
+    """Issue 41.4: while another client controls the board through the router, a client's
+    ``param set`` was "board not answering … no answer after 8 tries", exit 4, the reason
+    only on the router's stderr. The router answers a non-controller's PS with PN 5: exit
+    3, one line saying the router refused it and why, and the board untouched. (The
+    controller here is a plain socket that sent one RD: a driving command would do, but a
+    loaded machine can stop one before the refusal is tried.)"""
+    import socket
+
+    router = Router(tmp_path, "--port", "L=emu://")
+    try:
+        host, port = router.urls["L"].removeprefix("socket://").rsplit(":", 1)
+        with socket.create_connection((host, int(port))) as controller:
+            controller.sendall(b"SRDP")
+            wait_until_sync(lambda: "client #1 (" in router.stderr(), 30, "the controller")
+            refused = subprocess.run([*SCRIPT, "param", "set", "Kp_Wheel_PidA", "500",
+                                      "--port", router.urls["L"]], capture_output=True,
+                                     text=True, cwd=ROOT, env=cli_env(), timeout=60)
+            answer = _answer_to_a_crc_request(host, int(port))
+        wait_until_sync(lambda: "client #1 (controller) left" in router.stderr(), 30, "it")
+        untouched = subprocess.run([*SCRIPT, "param", "get", "Kp_Wheel_PidA", "--port",
+                                    router.urls["L"]], capture_output=True, text=True,
+                                   cwd=ROOT, env=cli_env(), timeout=60)
+        summary = router.stop()
+    finally:
+        router.kill()
+    assert refused.returncode == 3, refused.stderr
+    assert_one_line_error(refused.stderr, "Kp_Wheel_PidA on channel A refused by the "
+                          "router: another client controls the board", "--passive")
+    assert untouched.returncode == 0 and float(untouched.stdout.split()[-1]) != 500, (
+        untouched.stdout, untouched.stderr)
+    clients = {c["client"]: c for c in summary["clients"]}
+    assert clients[2]["role"] == "observer" and clients[2]["refused_by_id"] == {"PS": 1}
+    # A client with the wire CRC on is answered with it (docs/protocol.md §7), else its
+    # link would drop the answer as a CRC failure.
+    from fpgalink.protocol import NackReason, ParamNack, parse_content
+    from fpgalink.protocol.crc import strip_crc
+
+    body = strip_crc(answer)
+    assert body is not None, answer
+    assert parse_content(body) == ParamNack(1, 0, NackReason.NOT_CONTROLLER, 0)
+    assert clients[3]["refused_by_id"] == {"PG": 1}
+
+
+def _answer_to_a_crc_request(host: str, port: int) -> bytes:
+    """A raw client's ``PG TsTimerPeriod`` with the wire CRC, and the content of the first
+    ``PN`` it gets back."""
+    import socket
+
+    from fpgalink.protocol import DEFAULT_FRAMING, FrameDecoder, ParamGet, encode_frame
+    from fpgalink.protocol import encode_message as encode
+    from fpgalink.protocol.crc import append_crc
+
+    with socket.create_connection((host, port)) as client:
+        client.sendall(encode_frame(append_crc(encode(ParamGet(1, 0), 0)), DEFAULT_FRAMING))
+        client.settimeout(30)
+        decoder = FrameDecoder()
+        while True:
+            data = client.recv(65536)
+            assert data, "closed before an answer"
+            for item in decoder.feed(data):
+                if isinstance(item, bytes) and item[:2] == b"PN":
+                    return item
+
+
+async def test_the_line_queue_paces_bounds_and_is_overtaken_by_a_disable() -> None:
+    """LineQueue on its own, time passed in: frames go to the port only while what went
+    before has less than the lead left on the line; beyond the bound they are refused; a
+    disable goes ahead of what waits, which is dropped and returned."""
+    from fpgalink.cli.router import LineQueue
+
+    line: LineQueue[int] = LineQueue(1_000_000, bound=0.01, lead=0.002)  # 1,000 / 200 B
+    assert all(line.push(i, 100, 0.0) for i in range(10))
+    assert not line.push(10, 100, 0.0)  # 1,000 bytes wait: full
+    assert line.take(0.0) == [0, 1]  # 200 bytes of lead
+    assert line.take(0.0) == []  # the lead is on its way
+    assert line.wake_at() == pytest.approx(0.001)
+    assert line.take(0.001) == [2]  # 1 ms to go: 100 bytes more
+    assert line.backlog(0.001) == pytest.approx(0.009)
+    assert line.push(10, 100, 0.001)  # room again, 100 bytes gone
+    assert line.overtake(4, 0.001) == [3, 4, 5, 6, 7, 8, 9, 10]
+    assert len(line) == 0 and line.wake_at() is None
+    assert line.in_flight(0.001) == pytest.approx(0.002 + 4e-5)
+
+
+def test_the_routers_refusal_is_no_part_of_the_boards_counter_sequence() -> None:
+    """The router's PN 5 carries its own counter toward the client (from 00000). The link
+    settles the request with it but does not count it in the board's sequence: before, a
+    00000 amid the board's counters was judged the board restarting (and the link set
+    everything again), any other value a duplicate or a gap."""
+    from fpgalink import Connection, ParameterRefused
+    from fpgalink.events import BoardRestarted, RequestFailed
+    from fpgalink.protocol import (
+        DEFAULT_FRAMING,
+        Alive,
+        CountedMessage,
+        NackReason,
+        ParamNack,
+        encode_frame,
+        encode_message,
+        lookup,
+    )
+
+    def frame(message: CountedMessage | ParamNack, counter: int) -> bytes:
+        return encode_frame(encode_message(message, counter), DEFAULT_FRAMING)
+
+    connection = Connection()
+    connection.start(0.0)
+    chatter = CountedMessage("ZZ", (), None)
+    connection.receive_data(b"".join(frame(chatter, c) for c in range(500, 510)), 0.01)
+    param = lookup("Kp_Wheel_Pid")
+    request = connection.set_param(param, 1, 500.0, 0.02)
+    connection.receive_data(frame(ParamNack(param.id, 1, NackReason.NOT_CONTROLLER), 0),
+                            0.03)
+    connection.receive_data(frame(chatter, 510) + encode_frame(Alive().content), 0.04)
+    events = list(connection.events())
+    (failed,) = [e for e in events if isinstance(e, RequestFailed)]
+    assert failed.request_id == request and isinstance(failed.error, ParameterRefused)
+    assert "refused by the router" in str(failed.error)
+    assert not any(isinstance(e, BoardRestarted) for e in events)
+    stats = connection.stats
+    assert stats.duplicates == stats.lost == stats.restarts == 0
