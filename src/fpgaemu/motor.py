@@ -598,12 +598,25 @@ class DrivenMotors:
         self._noise: Any = None
 
     def attach(self, board: Board) -> None:
+        """Wire the drives to ``board``'s PWM stages and encoders. Attached again after a
+        power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the drives are the same
+        ones, which the body's physics holds: their wheels turn on, the power-up board's
+        PWM (0) drives them from now on, and only its counters start again, from the
+        wheels' present angles. (New drives here left the physics driving the old ones at
+        the duty they had when the power went, and the board counting wheels that never
+        turned: odometry saw half the motion.)"""
         self._board = board
         self._cycle = board.now
-        if self.current_noise_a > 0:
+        if self.current_noise_a > 0 and self._noise is None:
             self._noise = board.timeline.rng("hall")
         for code, io in board.channels.items():
-            self.wheels[code] = WheelDrive(self.train)
+            wheel = self.wheels.get(code)
+            if wheel is None:
+                self.wheels[code] = WheelDrive(self.train)
+            else:
+                wheel.duty = 0  # the power-up PWM, until the board's next write
+                io.encoder.power_up(wheel.angle_deg)
+                io.current_a = wheel.current
             io.pwm.on_change(self.advance_to)
         board.on_settle(self.advance_to)
 
