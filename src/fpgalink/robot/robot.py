@@ -136,6 +136,7 @@ class Robot:
         self._restarts: dict[str, int] = {}
         #: encoder counts each wheel had before its board's restarts (joint angles go on)
         self._count_offset: dict[tuple[str, int], int] = {}
+        self._before_restart: dict[str, Telemetry] = {}
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
 
@@ -459,12 +460,8 @@ class Robot:
         self._restarts[name] = self._restarts.get(name, 0) + 1
         self._stale.pop(name, None)
         latest = self.latest.pop(name, None)
-        if latest is not None:
-            for wheel in self.description.wheels:
-                if wheel.board == name:
-                    key = (name, wheel.channel)
-                    data = latest.a if wheel.channel == 1 else latest.b
-                    self._count_offset[key] = self._count_offset.get(key, 0) + data.position
+        if latest is not None:  # its counts are carried at its first sample that restarted
+            self._before_restart[name] = latest
         self.odometry.restart(name)
         self._carry_out(self.supervisor.board_fault(
             name, Fault.RESTARTED, now, f"restarted: reconfiguring ({detail})"))
@@ -564,6 +561,15 @@ class Robot:
                 self._on_telemetry(name, sample)
 
     def _on_telemetry(self, name: str, sample: Telemetry) -> None:
+        previous = self.latest.get(name) or self._before_restart.pop(name, None)
+        if previous is not None and (sample.t_us - previous.t_us) % (1 << 32) >= 1 << 31:
+            # Its clock went back: it restarted, and its counters start from 0 again (the
+            # samples say so exactly where, however late its link's event is read).
+            for wheel in self.description.wheels:
+                if wheel.board == name:
+                    key = (name, wheel.channel)
+                    data = previous.a if wheel.channel == 1 else previous.b
+                    self._count_offset[key] = self._count_offset.get(key, 0) + data.position
         self.latest[name] = sample
         self.odometry.update(name, sample)
 
