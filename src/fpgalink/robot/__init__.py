@@ -40,6 +40,7 @@ _HOMES = {
     "Phase": "fpgalink.robot.goto",
     "GoalTimeout": "fpgalink.robot.robot",
     "Robot": "fpgalink.robot.robot",
+    "RobotClosed": "fpgalink.robot.robot",
     "RobotError": "fpgalink.robot.robot",
     "RobotStopped": "fpgalink.robot.robot",
 }
@@ -58,7 +59,7 @@ if TYPE_CHECKING:
     from fpgalink.robot.goto import GoTo, GoToSettings, Phase
     from fpgalink.robot.limits import AxisLimits, SpeedLimiter
     from fpgalink.robot.odometry import Odometry, OdometryState
-    from fpgalink.robot.robot import GoalTimeout, Robot, RobotError, RobotStopped
+    from fpgalink.robot.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
     from fpgalink.robot.supervision import NotReady, StopReason, SupervisionEvent, Supervisor
 
 
@@ -83,6 +84,7 @@ __all__ = [
     "Phase",
     "Pose",
     "Robot",
+    "RobotClosed",
     "RobotDescription",
     "RobotError",
     "RobotStopped",

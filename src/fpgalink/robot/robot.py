@@ -44,7 +44,7 @@ from fpgalink.robot.supervision import (
     Supervisor,
 )
 
-__all__ = ["TRUTH_EXTRA", "GoalTimeout", "Robot", "RobotError", "RobotStopped"]
+__all__ = ["TRUTH_EXTRA", "GoalTimeout", "Robot", "RobotClosed", "RobotError", "RobotStopped"]
 
 #: What an emulated robot's transport offers for its true pose (see fpgaemu.serve).
 TRUTH_EXTRA = "fpgaemu.truth"
@@ -81,6 +81,11 @@ class RobotStopped(RobotError):
     def __init__(self, message: str, event: SupervisionEvent | None = None) -> None:
         super().__init__(message)
         self.event = event
+
+
+class RobotClosed(RobotError):
+    """The robot was closed: every command after :meth:`Robot.close` raises this, as a
+    closed :class:`~fpgalink.aio.Link`'s raise :class:`~fpgalink.errors.LinkClosed`."""
 
 
 class GoalTimeout(RobotError):
@@ -126,6 +131,7 @@ class Robot:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._streaming_before: dict[str, int | float] = {}
         self._started = False
+        self._closed = False
         self._stopped_event = asyncio.Event()
         #: boards restarted and not yet reconfigured, and boards whose telemetry stopped
         self._reconfiguring: set[str] = set()
@@ -245,12 +251,14 @@ class Robot:
                                      f"off to set it up: {exc}") from exc
 
     async def close(self) -> None:
-        """Disable every board, restore their telemetry setting, close the links."""
+        """Disable every board, restore their telemetry setting, close the links. Every
+        command after it raises :class:`RobotClosed`; closing again does nothing."""
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
         if self.supervisor.state is State.ENABLED:
             self._carry_out(self.supervisor.request_disable(self._now()))
+        self._closed = True
         for remove in self._removers:
             remove()
         self._removers.clear()
@@ -291,6 +299,9 @@ class Robot:
             self._carry_out(exc.actions)
             raise RobotStopped(str(exc), self.supervisor.last_stop) from None
         self._carry_out(actions)
+        if self.supervisor.state is not State.ENABLED:  # a board's link refused it
+            stop = self.supervisor.last_stop
+            raise RobotStopped(stop.describe() if stop else "the enable failed", stop)
 
     def disable(self) -> None:
         """Disable every board now (``RD``)."""
@@ -339,16 +350,18 @@ class Robot:
 
     def _carry_out(self, actions: list[Action]) -> None:
         for action in actions:
-            for link in self.links.values():
-                with contextlib.suppress(FpgalinkError):
-                    if action is Action.ENABLE_ALL:
-                        # Zero first. This project's board clears its references when
-                        # enable falls (SPEC §4); the seed's firmware gated only the PWM
-                        # output (its §3.2) and kept its references in memory, so such a
-                        # board would drive off with the last ones when enabled again.
-                        link.set_references(0.0, 0.0)
-                        link.enable()
-                    elif action is Action.DISABLE_ALL:
+            if action is Action.ENABLE_ALL:
+                refused = self._enable_all()
+                if refused is not None:  # said and stopped, every board disabled again
+                    name, exc = refused
+                    self._carry_out(self.supervisor.enable_failed(name, self._now(),
+                                                                  str(exc)))
+                    return
+            elif action is Action.DISABLE_ALL:
+                for link in self.links.values():
+                    # A link that cannot send RD is closed (it sent RD as it closed) or its
+                    # port is gone (the board's watchdog disables it in 300 ms).
+                    with contextlib.suppress(FpgalinkError):
                         link.disable()
                         link.set_references(0.0, 0.0)
         if any(a is Action.DISABLE_ALL for a in actions):
@@ -359,6 +372,21 @@ class Robot:
             for sub in self._subs:
                 sub._push(event)
         self._arm_timer()
+
+    def _enable_all(self) -> tuple[str, FpgalinkError] | None:
+        """``RV 0`` then ``RE`` to every board; the first board whose link refuses (and
+        why), the boards after it not asked."""
+        for name, link in self.links.items():
+            try:
+                # Zero first. This project's board clears its references when enable falls
+                # (SPEC §4); the seed's firmware gated only the PWM output (its §3.2) and
+                # kept its references in memory, so such a board would drive off with the
+                # last ones when enabled again.
+                link.set_references(0.0, 0.0)
+                link.enable()
+            except FpgalinkError as exc:
+                return name, exc
+        return None
 
     def _arm_timer(self) -> None:
         if self._timer is not None:
@@ -639,6 +667,7 @@ class Robot:
 
     def stop(self) -> None:
         """Zero references to every board (still enabled)."""
+        self._ensure_started()
         for link in self.links.values():
             with contextlib.suppress(FpgalinkError):
                 link.set_references(0.0, 0.0)
@@ -652,6 +681,7 @@ class Robot:
         :class:`GoalTimeout` (robot stopped) when not there within ``timeout`` s, and
         :class:`RobotStopped` when supervision stops the robot meanwhile. The robot must be
         enabled, and its enable renewed (:meth:`enabled`) while it drives."""
+        self._ensure_started()
         if not (math.isfinite(timeout) and timeout > 0):
             raise ValueError(f"timeout must be a positive number of seconds, got {timeout!r}")
         controller = GoTo(x, y, theta, settings or self.goto_settings)
@@ -750,6 +780,8 @@ class Robot:
         return loop.time()
 
     def _ensure_started(self) -> None:
+        if self._closed:
+            raise RobotClosed("the robot is closed")
         if not self._started:
             raise RobotError("the robot is not started: use `async with robot:` or "
                              "`await robot.start()`")

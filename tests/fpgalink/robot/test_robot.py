@@ -24,7 +24,8 @@ from fpgaemu.uartcommand import EnableCause, EnableChange
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
 from fpgalink.protocol import float32
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
-from fpgalink.robot import GoalTimeout, Robot, RobotError, RobotStopped
+from fpgalink.errors import BoardLost
+from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
 from tests.support.interpose import HeldReads, LateReads, SlowReader, interpose
@@ -532,3 +533,56 @@ async def test_odometry_after_a_board_restart_follows_every_boards_wheels() -> N
         assert odometry == pytest.approx(truth, rel=0.02), (odometry, truth)
         assert abs(robot.pose.theta) < math.radians(3)
         robot.disable()
+
+
+async def test_a_closed_robot_refuses_every_command() -> None:
+    # Issue 37.9: after close, enable() returned without error and the state read ENABLED
+    # until the deadman fired, every board's link closed. Every command now raises, as a
+    # closed Link's do; the state stays what close left (disabled); close again is quiet.
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    await robot.start()
+    robot.enable()
+    await robot.close()
+    assert robot.state is State.DISABLED
+    for call in (robot.enable, robot.disable, robot.stop, lambda: robot.drive(0.1, 0.0)):
+        with pytest.raises(RobotClosed):
+            call()
+    with pytest.raises(RobotClosed):
+        await robot.go_to(1.0, 0.0)
+    with pytest.raises(RobotClosed):
+        async with robot.enabled():
+            pass
+    assert robot.state is State.DISABLED
+    await robot.close()
+
+
+async def test_an_enable_a_board_refused_is_a_failed_enable_said_and_stopped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # Issue 37.9: the robot suppressed a link's refusal to enable (its port gone a moment
+    # before its link said so, say) and reported ENABLED with that board never enabled.
+    async with emulated("surface=ideal") as robot:
+        logs = {n: enable_log(robot, n) for n in ("L", "R")}
+
+        def refuse() -> None:
+            raise BoardLost("R: port is disconnected (reconnecting)")
+
+        monkeypatch.setattr(robot.links["R"], "enable", refuse)
+        events = robot.events()
+        with pytest.raises(RobotStopped, match="board R") as raised:
+            robot.enable()
+        assert robot.state is State.DISABLED
+        assert raised.value.event is not None
+        assert raised.value.event.reason is StopReason.ENABLE_FAILED
+        event = await asyncio.wait_for(events.__anext__(), PATIENCE)
+        if event.reason is None:  # enabled, L's RE sent, before R refused
+            event = await asyncio.wait_for(events.__anext__(), PATIENCE)
+        assert event.reason is StopReason.ENABLE_FAILED and event.board == "R", event
+        assert "port is disconnected" in event.detail
+        # L, enabled before R refused, got its RD.
+        await wait_until(lambda: logs["L"] and not logs["L"][-1].enabled, PATIENCE,
+                         "L disabled")
+        assert logs["L"][-1].cause is EnableCause.DISABLE
+        assert not logs["R"] or not logs["R"][-1].enabled
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.drive(0.1, 0.0)
