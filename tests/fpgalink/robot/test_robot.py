@@ -22,9 +22,9 @@ from fpgaemu.serve import FAR_END_LAG_EXTRA
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
+from fpgalink.errors import BoardLost
 from fpgalink.protocol import float32
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
-from fpgalink.errors import BoardLost
 from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
@@ -358,16 +358,17 @@ async def test_a_resync_reported_with_a_new_restart_behind_it_does_not_make_the_
         def event(kind: LinkEventKind, cause: Any = None) -> LinkEvent:
             return LinkEvent(kind, loop.time(), "synthetic", cause)
 
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
-                                              BoardResynced(3, ())))
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        recovery = robot.recovery
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
+                                                BoardResynced(3, ())))
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
         # Restart 1's read-back is answered (the board is there) and ends.
-        await wait_until(lambda: not any(not t.done() for t in robot._tasks[2:]), PATIENCE,
+        await wait_until(lambda: recovery.reading_back == 0, PATIENCE,
                          "the read-back after restart 1's resync")
         await asyncio.sleep(0.2)
-        assert len(robot._tasks) == 2  # the boards' telemetry; a finished task is not kept
-        assert "L" in robot._reconfiguring
+        assert recovery.reading_back == 0  # a finished read-back is not kept
+        assert "L" in recovery.reconfiguring
         assert robot.supervisor.blocked.get("L", "").startswith("restarted"), \
             robot.supervisor.blocked
         with pytest.raises(RobotStopped):
