@@ -80,11 +80,14 @@ class Held:
 
 @dataclass(frozen=True, slots=True)
 class CommandNotice:
-    """What the arbiter did by itself, said: a timed command ran out (the wheels to rest),
-    a held command that could not be sent."""
+    """What the robot's commands did by themselves: a timed command ran out (the wheels to
+    rest), a held command sent once the robot was enabled (``command``: the body command
+    it drove) or not sent. ``fault``: worth a warning."""
 
     at: float
     text: str
+    command: WheelCommand | None = None
+    fault: bool = True
 
 
 class Taken(Enum):

@@ -89,10 +89,13 @@ class BoardRecovery:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks.clear()
 
-    def on_link_event(self, name: str, link: Link, event: LinkEvent) -> None:
-        """Board ``name``'s link noticed ``event`` (synchronously, as it happened)."""
+    def on_link_event(self, name: str, link: Link, event: LinkEvent, react: bool = True
+                      ) -> None:
+        """Board ``name``'s link noticed ``event`` (synchronously, as it happened): the
+        robot reacts (``react``: once started, until closed), then its readers hear of it."""
         with self._guarded(f"board {name}'s {event.kind.value} event"):
-            self._link_event(name, link, event)
+            if react:
+                self._link_event(name, link, event)
             self._notify(BoardNotice(
                 name, event.at, event.kind.value, event.detail, event.kind in _FAULTS or (
                     event.kind is LinkEventKind.BOARD_RESYNCED and "failed" in event.detail)))

@@ -36,14 +36,14 @@ from fpgalink.robot.arbiter import CommandArbiter, CommandNotice, Send, Source
 from fpgalink.robot.boards import TRUTH_EXTRA, Boards
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
-from fpgalink.robot.feed import Feed
+from fpgalink.robot.feed import Feed, SetFeed
 from fpgalink.robot.goto import GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, supervision_status
 from fpgalink.robot.joints import JointStates
 from fpgalink.robot.limits import AxisLimits
 from fpgalink.robot.odometry import Odometry, OdometryState
 from fpgalink.robot.recovery import BoardNotice, BoardRecovery
-from fpgalink.robot.stamping import StampedSet
+from fpgalink.robot.stamping import SampleStamper, StampedSet
 from fpgalink.robot.supervision import (
     DEADMAN_S,
     Action,
@@ -106,26 +106,27 @@ class Robot:
         self.recovery = BoardRecovery(
             description, self.supervisor, carry_out=self._carry_out, now=self._now,
             guarded=self._guarded, restarted=self.tracking.restarted,
-            read_back=self.tracking.read_back,
-            notify=self._notify)
-        #: encoder pulses per turn and TorqueCoef (N·m/A) per (board, channel), read from
-        #: the boards at start and followed through every confirmed change
-        self.resolution = self.tracking.resolution
-        self.torque_coef = self.tracking.torque_coef
-        #: each board's latest telemetry sample
+            read_back=self.tracking.read_back, notify=self._notify)
+        #: pulses per turn, TorqueCoef (by board, channel), each board's latest sample
+        self.resolution, self.torque_coef = self.tracking.resolution, self.tracking.torque_coef
         self.latest = self.tracking.latest
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._removers: list[Callable[[], None]] = []
         self._feeds: set[Feed[SupervisionEvent]] = set()
-        self._set_feeds: set[Feed[StampedSet]] = set()
+        self._set_feeds: set[SetFeed] = set()
         self._listeners: list[Callable[[Notice], None]] = []
         self._timers = LoopTimers()  #: "deadman" (the supervisor's), "commands" (arbiter's)
         self._streaming_before: dict[str, int | float] = {}
         self._started = self._closed = False
         #: set when supervision stops the robot (a waiter clears it first)
         self.stopped = asyncio.Event()
+        for name, link in self.links.items():
+            # Synchronously: the other boards get RD in the very callback that notices. For
+            # the robot's life (its readers hear the links from their first word to their
+            # close); the robot reacts only while started.
+            link.on_event(functools.partial(self._on_link_event, name, link))
 
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
@@ -158,15 +159,12 @@ class Robot:
         for name, link in self.links.items():
             self.supervisor.board_alive(name, link.board_alive, self._now())
             self._tasks.append(asyncio.ensure_future(self._follow_telemetry(name, link)))
-            # Synchronously: the other boards get RD in the very callback that notices.
-            self._removers.append(link.on_event(functools.partial(
-                self.recovery.on_link_event, name, link)))
             self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
                                                                       name)))
         self._started = True
         return self
 
-    async def _wait_for_boards(self) -> None:
+    async def _wait_for_boards(self) -> None:  # a test's hook
         await setup.wait_for_boards(self.links)
 
     async def close(self) -> None:
@@ -250,9 +248,8 @@ class Robot:
                 self.disable()
 
     def keep_enabled(self, every: float | None) -> None:
-        """Renew the enable by itself every ``every`` s while the robot is enabled
-        (``None``: the caller renews it). A fault still stops it; enabling again is the
-        caller's (or a command's, with :attr:`CommandArbiter.auto_enable`)."""
+        """Renew the enable every ``every`` s while enabled (``None``: the caller renews
+        it); a fault still stops it, and enabling again is the caller's."""
         self.arbiter.renew_period = every
         if self.supervisor.state is State.ENABLED:
             self.arbiter.enabled(self._now())
@@ -273,13 +270,15 @@ class Robot:
         return feed
 
     def on_notice(self, callback: Callable[[Notice], None]) -> Callable[[], None]:
-        """Call ``callback`` with what the boards' links notice (:class:`BoardNotice`) and
-        what the command arbiter did by itself (:class:`CommandNotice`: a command timed
-        out), synchronously, as it happens. Returns a remover."""
+        """Call ``callback`` with what the boards' links notice (:class:`BoardNotice`, from
+        their first word to their close) and what the robot's commands did by themselves
+        (:class:`CommandNotice`), synchronously, as it happens. Returns a remover."""
         self._listeners.append(callback)
         return lambda: self._listeners.remove(callback) \
             if callback in self._listeners else None
 
+    def _on_link_event(self, name: str, link: Link, event: Any) -> None:
+        self.recovery.on_link_event(name, link, event, self._started and not self._closed)
     def _notify(self, notice: Notice) -> None:
         for listener in list(self._listeners):
             listener(notice)
@@ -387,20 +386,21 @@ class Robot:
                                             event.value)
 
     def sample_sets(self, min_period: float = 0.0, clock: Callable[[float], int] | None = None,
-                    maxsize: int = 4096) -> Feed[StampedSet]:
+                    maxsize: int = 4096) -> SetFeed:
         """The boards' telemetry as stamped sets (:class:`~fpgalink.robot.stamping.
         StampedSet`: one sample per board, each mapped onto ``clock``'s time, with the
         odometry then), at most one per ``min_period`` s. ``clock(received)``: when a
         sample arrived (the loop's clock, s) on the reader's clock, ns (default: the
-        loop's clock in ns)."""
-        feed: Feed[StampedSet] = Feed(maxsize, self._forget_sets)
+        loop's clock in ns; 0: not started, nothing stamped)."""
+        feed = SetFeed(maxsize, self._forget_sets,
+                       SampleStamper(self.description.boards, min_period))
         self._set_feeds.add(feed)
-        self.tracking.add_reader(min_period, clock or (lambda received: round(received * 1e9)),
-                                 feed.put)
+        self.tracking.add_reader(feed.stamper,
+                                 clock or (lambda received: round(received * 1e9)), feed.put)
         return feed
 
     def _forget_sets(self, feed: Subscription[StampedSet]) -> None:
-        if isinstance(feed, Feed):
+        if isinstance(feed, SetFeed):
             self._set_feeds.discard(feed)
             self.tracking.remove_reader(feed.put)
 

@@ -7,7 +7,8 @@ recordings (``--rosbag2``).
 
 A board that restarts starts its mapping again (:meth:`SampleStamper.restart`; its clock
 going back does too). A clock that reads 0 has not started (ROS time under
-``use_sim_time`` before the first ``/clock``): no set is stamped on it.
+``use_sim_time`` before the first ``/clock``): a set then is given unstamped
+(:attr:`StampedSet.clocked` false), its samples mapped on nothing.
 """
 
 from __future__ import annotations
@@ -41,6 +42,11 @@ class StampedSet:
     #: body commands a ramp drove since the set before, each stamped at its control step
     driven: tuple[tuple[int, WheelCommand], ...] = ()
 
+    @property
+    def clocked(self) -> bool:
+        """Whether its samples are stamped (the reader's clock had a time)."""
+        return bool(self.stamps)
+
 
 class SampleStamper:
     """Feed it every board's samples in arrival order (:meth:`add`); it gives a
@@ -54,7 +60,7 @@ class SampleStamper:
         self._last_odometry = 0
         self._driven: list[tuple[int, WheelCommand]] = []
         self._stamps: dict[str, int] = {}  #: each board's latest sample's stamp
-        self.unclocked = 0  #: samples not stamped: the consumer's clock read 0
+        self.unclocked = 0  #: sets given unstamped: the consumer's clock read 0
 
     @property
     def min_period(self) -> float:
@@ -81,13 +87,16 @@ class SampleStamper:
         its samples by their own arrival. A complete set carries ``odometry()``, the
         robot's then."""
         now_ns = clock(received)
-        if now_ns == 0:
-            self.unclocked += 1
-            return None
-        self._stamps[board] = self._clocks[board].ns(sample.t_us, now_ns)
+        if now_ns:
+            self._stamps[board] = self._clocks[board].ns(sample.t_us, now_ns)
+        else:  # no time yet: mapped on nothing (a board clock anchored at 0 would be lost)
+            self._stamps.pop(board, None)
         complete = self._sets.add(board, sample, received)
         if complete is None:
             return None
+        if len(self._stamps) < len(self.boards):
+            self.unclocked += 1
+            return StampedSet(complete, {}, 0, now_ns, odometry(), 0)
         stamps = dict(self._stamps)  # each board's latest sample: the set's
         first = self.boards[0]
         stamp = stamps[first]

@@ -79,13 +79,13 @@ class Teleop:
         return Commanded(Taken.DRIVEN, send.command)
 
     def release(self, now: float) -> CommandNotice | None:
-        """The robot was just enabled: the held command, if still fresh, is driven now;
-        what could not be sent is said."""
+        """The robot was just enabled: the held command, if still fresh, is driven now,
+        and said (what could not be sent too)."""
         held = self.robot.arbiter.take_held(now)
         if held is None:
             return None
         try:
-            self._execute(held.source, held.value, now)
+            done = self._execute(held.source, held.value, now)
         except FpgalinkError as exc:  # the enable stands; the command is said lost
             return CommandNotice(now, f"held command not sent: {exc}")
-        return None
+        return CommandNotice(now, "held command sent", done.command, fault=False)

@@ -25,10 +25,20 @@ class LoopTimers:
         return (self.loop or asyncio.get_running_loop()).time()
 
     def arm(self, name: str, deadline: float | None, callback: Callable[[], None]) -> None:
-        """``callback`` at ``deadline`` (the loop's clock), in place of the one before;
-        ``None``: not at all."""
-        self.fired(name)
-        if deadline is not None and self.loop is not None:
+        """``callback`` by ``deadline`` (the loop's clock; ``None``: none due). A timer
+        already armed no later stays: it fires first, and its callback (which calls
+        :meth:`fired`, then arms the next) finds what is due then. (Re-armed at every
+        command, a timer whose deadline had passed was cancelled from the ready queue by
+        the next command of a flood before it could run, again and again: the enable's
+        renewal starved and the deadman lapsed.)"""
+        if self.loop is None:
+            return
+        armed = self._handles.get(name)
+        if armed is not None and not armed.cancelled():
+            if deadline is None or armed.when() <= deadline:
+                return
+            armed.cancel()
+        if deadline is not None:
             self._handles[name] = self.loop.call_at(deadline, callback)
 
     def fired(self, name: str) -> None:

@@ -84,9 +84,9 @@ class Tracking:
         for stamper, _, _ in self._readers:
             stamper.restart(name)
 
-    def add_reader(self, min_period: float, clock: Callable[[float], int],
+    def add_reader(self, stamper: SampleStamper, clock: Callable[[float], int],
                    sink: Callable[[StampedSet], None]) -> None:
-        self._readers.append((SampleStamper(self.description.boards, min_period), sink, clock))
+        self._readers.append((stamper, sink, clock))
 
     def remove_reader(self, sink: Callable[[StampedSet], None]) -> None:
         self._readers[:] = [reader for reader in self._readers if reader[1] != sink]

@@ -587,3 +587,37 @@ async def test_an_enable_a_board_refused_is_a_failed_enable_said_and_stopped(
         assert not logs["R"] or not logs["R"][-1].enabled
         with pytest.raises(RobotStopped, match="not enabled"):
             robot.drive(0.1, 0.0)
+
+
+async def test_a_flood_of_commands_does_not_starve_the_enables_renewal() -> None:
+    # A teleop without the deadman (the node's require_enable false): the robot renews
+    # its enable itself while a command comes on every turn of the loop for 2 s. (Each
+    # command re-armed the renewal's timer, cancelling it from the ready queue before it
+    # could run: the deadman lapsed, again and again, under a cmd_vel flood.)
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.keep_enabled(0.125)
+        robot.arbiter.auto_enable = True
+        events = robot.events()
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 2.0
+        sent = 0
+
+        def flood() -> None:
+            nonlocal sent
+            robot.teleop.velocity(0.05, 0.0)
+            sent += 1
+            if loop.time() < end:
+                loop.call_soon(flood)
+
+        loop.call_soon(flood)
+        while loop.time() < end + 0.2:
+            await asyncio.sleep(0.05)
+        stops = []
+        while len(events):
+            event = await events.__anext__()
+            if event.state is State.DISABLED and not event.recovered:
+                stops.append(event)
+        assert sent > 10  # a command on every turn of the loop, however slow the machine
+        assert not [e for e in stops if e.reason is StopReason.DEADMAN], stops
+        assert robot.state is State.ENABLED
+        robot.disable()

@@ -50,10 +50,16 @@ def test_a_set_per_pair_of_samples_stamped_on_each_boards_clock() -> None:
 
 
 def test_a_clock_not_started_stamps_nothing() -> None:
+    # ROS time under use_sim_time before the first /clock: the set is given (the emulated
+    # robot's /clock ticks on it), unstamped; the boards' clocks are not anchored at 0.
     stamper = SampleStamper(("L", "R"))
-    for board in ("L", "R"):
-        assert stamper.add(board, sample(0), 1.0, lambda received: 0, lambda: STATE) is None
-    assert stamper.unclocked == 2
+    assert stamper.add("L", sample(0), 1.0, lambda received: 0, lambda: STATE) is None
+    got = stamper.add("R", sample(0), 1.0, lambda received: 0, lambda: STATE)
+    assert got is not None and not got.clocked and stamper.unclocked == 1
+    feed(stamper, "L", 1000)
+    got = feed(stamper, "R", 1000)
+    assert got is not None and got.clocked
+    assert abs(got.stamps["L"] - (10**18 + 1_000_000 + DELAY_NS)) < 1000
 
 
 def test_a_ramps_commands_are_stamped_at_their_steps() -> None:
