@@ -91,6 +91,25 @@ def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path)
         assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
 
 
+@pytest.mark.parametrize(("where", "path"),
+                         [m for package in ("fpgalink.ros2", "fpgalink.campaign", "fpgalink.cli")
+                          for m in modules(package)])
+def test_above_the_robot_link_events_are_the_robots(where: str, path: Path) -> None:
+    # The node, the campaigns and the CLI's robot commands reach the boards through the
+    # robot (its arbiter drives them; its notices say what their links noticed), so the
+    # link's events are read in one place (fpgalink.robot.recovery). The CLI's one-board
+    # commands (monitor, record, step, param…) stand on a Link of their own.
+    one_board = ("cli/session.py", "cli/step.py", "cli/monitor.py", "cli/record.py",
+                 "cli/options.py", "cli/param.py", "cli/send.py", "cli/budget.py",
+                 "cli/ports.py", "cli/router.py")
+    if where.endswith(one_board):
+        return
+    text = path.read_text(encoding="utf-8")
+    assert "LinkEvent" not in text, f"{where} reads link events: ask the robot (on_notice)"
+    assert ".links[" not in text and ".links." not in text, \
+        f"{where} reaches into the robot's links: use the robot's own methods"
+
+
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.campaign"))
 def test_campaigns_stand_on_the_robot_and_below(where: str, path: Path) -> None:
     # Beside the CLI and the node: the CLI's campaign and tune commands stand on it.
