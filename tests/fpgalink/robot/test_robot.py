@@ -7,6 +7,7 @@ cycle-exact, so the checks hold however slow the machine is."""
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import time
 from collections.abc import AsyncIterator, Callable
@@ -23,9 +24,10 @@ from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
 from fpgalink.errors import BoardLost
-from fpgalink.protocol import float32
+from fpgalink.protocol import LocalProtocolError, float32
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
 from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
+from fpgalink.robot.arbiter import CommandNotice, Taken
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
 from tests.support.interpose import HeldReads, LateReads, SlowReader, interpose
@@ -621,3 +623,86 @@ async def test_a_flood_of_commands_does_not_starve_the_enables_renewal() -> None
         assert not [e for e in stops if e.reason is StopReason.DEADMAN], stops
         assert robot.state is State.ENABLED
         robot.disable()
+
+
+async def test_a_teleop_command_before_the_enable_is_held_and_driven_when_it_comes() -> None:
+    # cmd_vel's first message often overtakes enable's: held, then driven by the enable
+    # within the command timeout (said as a notice with what it drove); a stale one never.
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.arbiter.command_timeout = 0.5
+        notices: list[Any] = []
+        robot.on_notice(notices.append)
+        held = robot.teleop.velocity(0.1, 0.0)
+        assert held.taken is Taken.HELD and "not enabled" in held.reason
+        robot.enable()
+        sent = [n for n in notices if isinstance(n, CommandNotice)]
+        assert sent and sent[-1].command is not None and sent[-1].command.v == 0.1
+        await wait_until(lambda: firmware(robot, "L").channels[1].reference != 0.0,
+                         PATIENCE, "L driven by the held command")
+        robot.disable()
+        robot.teleop.velocity(0.1, 0.0)
+        await asyncio.sleep(0.6)  # older than the command timeout when the enable comes
+        robot.enable()
+        assert robot.command is None
+        robot.disable()
+
+
+async def test_a_timed_command_that_runs_out_brings_the_wheels_to_rest_and_is_said(
+        ) -> None:
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.arbiter.command_timeout = 0.2
+        notices: list[Any] = []
+        robot.on_notice(notices.append)
+        async with robot.enabled():
+            driven = robot.teleop.velocity(0.1, 0.0)
+            assert driven.taken is Taken.DRIVEN
+            await wait_until(lambda: any(isinstance(n, CommandNotice) for n in notices),
+                             PATIENCE, "the command's timeout")
+            (notice,) = [n for n in notices if isinstance(n, CommandNotice)]
+            assert "no command for 0.2 s: wheels to rest" in notice.text
+            await wait_until(lambda: all(firmware(robot, b).channels[c].reference == 0.0
+                                         for b in ("L", "R") for c in (1, 2)),
+                             PATIENCE, "every reference 0")
+            assert robot.state is State.ENABLED  # to rest, still enabled
+
+
+async def test_wheel_references_reach_each_wheel_with_its_boards_sign() -> None:
+    # BR mounted the other way round (forward -1): a forward-positive reference is sent
+    # to it negated; wheels not named get 0; unknown wheels are refused, nothing sent.
+    br_block = 'board = "R"\nchannel = "B"\nx = -0.29\ny = -0.33\nforward = 1'
+    assert br_block in SEED_ROBOT_TOML
+    description = parse_robot(SEED_ROBOT_TOML.replace(br_block, br_block[:-1] + "-1"))
+    assert description.wheel("BR").forward == -1
+    async with emulated("surface=ideal&body=kinematic", description=description) as robot:
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.set_wheel_references({"FL": 10.0})
+        async with robot.enabled():
+            robot.set_wheel_references({"FL": 12.0, "BR": -7.0})
+            br = robot.description.wheel("BR")
+            await wait_until(lambda: firmware(robot, "L").channels[1].reference == 12.0
+                             and firmware(robot, "R").channels[br.channel].reference
+                             == -7.0 * br.forward, PATIENCE, "the references on the boards")
+            assert firmware(robot, "L").channels[2].reference == 0.0
+            with pytest.raises(LocalProtocolError, match="no wheel"):
+                robot.set_wheel_references({"XX": 1.0})
+
+
+async def test_sample_sets_are_stamped_by_each_boards_own_time() -> None:
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        sets = robot.sample_sets(min_period=0.01)
+        got = []
+        async for stamped in sets:
+            got.append(stamped)
+            if len(got) == 60:
+                break
+        sets.close()
+        assert all(s.clocked for s in got)
+        for stamped in got[-10:]:
+            # Each sample on the host's clock by its board's own time: the boards' stamps
+            # are as far apart as their t_us (their mapping settled within a few ms).
+            apart_us = stamped.samples["R"].t_us - stamped.samples["L"].t_us
+            assert abs((stamped.stamps["R"] - stamped.stamps["L"]) / 1000 - apart_us) < 5000
+            assert stamped.stamp == stamped.stamps["L"]
+        spacing = [b.stamp - a.stamp for a, b in itertools.pairwise(got)]
+        assert min(spacing) > 0  # in order, at most one set per 10 ms of arrival
+        assert [s.odometry_stamp for s in got] == sorted(s.odometry_stamp for s in got)
