@@ -37,6 +37,13 @@ class Boards:
         for board, (ref_a, ref_b) in references.items():
             self.links[board].set_references(ref_a, ref_b)
 
+    def send_each(self, references: Mapping[str, tuple[float, float]]) -> None:
+        """As :meth:`send`, each board whatever another's link says (one whose port is
+        gone is said by its link; the others still get theirs)."""
+        for board, (ref_a, ref_b) in references.items():
+            with contextlib.suppress(FpgalinkError):
+                self.links[board].set_references(ref_a, ref_b)
+
     def enable_all(self) -> tuple[str, FpgalinkError] | None:
         """``RV 0`` then ``RE`` to every board; the first board whose link refuses (and
         why), the boards after it not asked."""

@@ -334,8 +334,7 @@ class Robot:
             if timeout is not None:
                 self._notify(timeout)
             if send is not None:
-                with contextlib.suppress(FpgalinkError):  # a board gone: said by its link
-                    self.send(send)
+                self.boards.send_each(send.references)
             if renew:
                 with contextlib.suppress(RobotStopped):
                     self.enable()
@@ -371,8 +370,7 @@ class Robot:
         if name == self.description.boards[0]:
             send = self.arbiter.control_step(sample.t_us)
             if send is not None and send.command is not None:
-                with contextlib.suppress(FpgalinkError):  # a board gone: said by its link
-                    self.send(send)
+                self.boards.send_each(send.references)
                 self.tracking.drove(sample.t_us, send.command)
         self.tracking.publish(name, received, sample)
 
@@ -435,8 +433,7 @@ class Robot:
     def stop(self) -> None:
         """Zero references to every board (still enabled)."""
         self._ensure_started()
-        with contextlib.suppress(FpgalinkError):  # a board gone: said by its link
-            self.send(self.arbiter.stop())
+        self.boards.send_each(self.arbiter.stop().references)
 
     def send(self, send: Send) -> None:
         """Send what the robot's arbiter decided (the arbiter's answer to a command)."""
