@@ -58,7 +58,8 @@ class SampleStamper:
         self._sets = SampleSets(boards, min_period)
         self._clocks = {board: BoardClock() for board in boards}
         self._last_odometry = 0
-        self._driven: list[tuple[int, WheelCommand]] = []
+        #: what a ramp drove since the last set: (the sample's t_us, the command, its stamp)
+        self._driven: list[tuple[int, WheelCommand, int | None]] = []
         self._stamps: dict[str, int] = {}  #: each board's latest sample's stamp
         self.unclocked = 0  #: sets given unstamped: the consumer's clock read 0
 
@@ -75,9 +76,9 @@ class SampleStamper:
         self._clocks[board].restart()
 
     def drove(self, t_us: int, command: WheelCommand) -> None:
-        """A ramp drove ``command`` at the first board's sample time ``t_us``: given with
-        the next set, stamped on its mapping."""
-        self._driven.append((t_us, command))
+        """A ramp drove ``command`` at the first board's sample ``t_us`` (added next): given
+        with the next set, stamped as that sample is."""
+        self._driven.append((t_us, command, None))
 
     def add(self, board: str, sample: Telemetry, received: float,
             clock: Callable[[float], int], odometry: Callable[[], OdometryState]
@@ -88,7 +89,12 @@ class SampleStamper:
         robot's then."""
         now_ns = clock(received)
         if now_ns:
-            self._stamps[board] = self._clocks[board].ns(sample.t_us, now_ns)
+            self._stamps[board] = stamp = self._clocks[board].ns(sample.t_us, now_ns)
+            if board == self.boards[0]:
+                # Each step at its own sample's stamp: as far from the next as the board
+                # clock's mapping keeps consecutive samples, not a set's apart.
+                self._driven = [(t_us, command, stamp if t_us == sample.t_us else at)
+                                for t_us, command, at in self._driven]
         else:  # no time yet: mapped on nothing (a board clock anchored at 0 would be lost)
             self._stamps.pop(board, None)
         complete = self._sets.add(board, sample, received)
@@ -105,8 +111,8 @@ class SampleStamper:
         driven, self._driven = self._driven, []
         t_first = complete[first].t_us
         return StampedSet(complete, stamps, stamp, now_ns, odometry(), odometry_stamp,
-                          tuple((_before(stamp, t_first, t_us), command)
-                                for t_us, command in driven))
+                          tuple((_before(stamp, t_first, t_us) if at is None else at, command)
+                                for t_us, command, at in driven))
 
 
 def _before(stamp: int, t_us: int, earlier_us: int) -> int:

@@ -87,3 +87,28 @@ def test_a_restarted_board_is_mapped_afresh() -> None:
     got = feed(stamper, "R", 5_010_000, 10**18)
     assert got is not None
     assert abs(got.stamps["L"] - got.stamps["R"]) < 1_000_000
+
+
+def test_a_ramps_steps_keep_their_spacing_while_a_late_start_is_worked_off() -> None:
+    # The first samples came 0.2 s late (a loaded start): the board clock's mapping works
+    # that off at 25 % of the board time passed, so consecutive samples' stamps stay at
+    # least 75 % of their spacing. A ramp stepped every 10 ms of board time is stamped at
+    # each step's own sample and keeps that; stamped back from the set it went out with
+    # (sets 10 to 19 ms of board time apart), two steps came 42.5 ms out of order here, and
+    # 5 ms apart in the ROS describe scenario's ramp.
+    stamper = SampleStamper(("L", "R"), min_period=0.0105)
+    command = wheel_command(seed_robot(), 0.05, 0.0)
+    driven: list[int] = []
+    for k in range(600):
+        t_us = 1_000_000 + k * 1000
+        if k % 10 == 0:
+            stamper.drove(t_us, command)
+        late = max(0.2 - k * 0.001, 0.0007)  # the backlog read out at twice real time
+        for board in ("L", "R"):
+            got = stamper.add(board, sample(t_us), t_us / 1e6 + late,
+                              lambda received: round(received * 1e9), lambda: STATE)
+            if got is not None:
+                driven += [stamp for stamp, _ in got.driven]
+    gaps = [b - a for a, b in itertools.pairwise(driven)]
+    assert len(gaps) > 40
+    assert min(gaps) >= 0.75 * 10_000_000, sorted(gaps)[:5]
