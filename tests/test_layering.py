@@ -79,13 +79,18 @@ def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -
     assert not above, f"{where} imports {sorted(above)}"
 
 
+#: The robot's modules that run on asyncio (over the links); the rest of it is sans-I/O.
+ROBOT_ON_ASYNCIO = ("robot.py", "boards.py", "setup.py", "recovery.py", "goal.py", "timers.py",
+                    "feed.py")
+
+
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.robot"))
 def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path) -> None:
     names = imports_of(path)
-    above = {n for n in first_party(names)
-             if within(n, "fpgalink.cli", "fpgalink.ros2", "fpgalink.live")}
+    above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2",
+                                                      "fpgalink.campaign", "fpgalink.live")}
     assert not above, f"{where} imports {sorted(above)}"
-    if not where.endswith("robot/robot.py"):  # the sans-I/O parts: no I/O, no clock
+    if path.name not in ROBOT_ON_ASYNCIO:  # the sans-I/O parts: no I/O, no clock
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
         assert not {n for n in first_party(names) if within(n, "fpgalink.aio")}, where
 
@@ -102,6 +107,26 @@ def test_bring_up_stands_beside_the_robot(where: str, path: Path) -> None:
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
         assert not {n for n in first_party(names)
                     if within(n, "fpgalink.aio", "fpgalink.robot.robot")}, where
+
+
+@pytest.mark.parametrize(("where", "path"),
+                         [m for package in ("fpgalink.ros2", "fpgalink.campaign", "fpgalink.cli",
+                                          "fpgalink.live")
+                          for m in modules(package)])
+def test_above_the_robot_link_events_are_the_robots(where: str, path: Path) -> None:
+    # The node, the campaigns and the CLI's robot commands reach the boards through the
+    # robot (its arbiter drives them; its notices say what their links noticed), so the
+    # link's events are read in one place (fpgalink.robot.recovery). The CLI's one-board
+    # commands (monitor, record, step, param…) stand on a Link of their own.
+    one_board = ("cli/session.py", "cli/step.py", "cli/monitor.py", "cli/record.py",
+                 "cli/options.py", "cli/param.py", "cli/send.py", "cli/budget.py",
+                 "cli/ports.py", "cli/router.py", "cli/liveview.py")
+    if where.endswith(one_board):
+        return
+    text = path.read_text(encoding="utf-8")
+    assert "LinkEvent" not in text, f"{where} reads link events: ask the robot (on_notice)"
+    assert ".links[" not in text and ".links." not in text, \
+        f"{where} reaches into the robot's links: use the robot's own methods"
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.campaign"))

@@ -220,3 +220,48 @@ def test_a_restart_on_the_crc_wire_is_found_and_the_crc_set_again(firmware_kind:
     assert host.link.wire_crc.on
     after = [t for t, e in host.events if isinstance(e, Telemetry) and t > 0.9]
     assert len(after) > 500  # the stream came back, checked by its CRC
+
+
+def test_a_restarted_board_on_the_physics_body_no_longer_drives_and_counts_its_wheels(
+        ) -> None:
+    # Issue 37.13. L power-cycles at 0.5 s while both boards drive their wheels at 50
+    # deg/s; its host keeps asking (the link stops enabling a restarted board, so L stays
+    # disabled). The physics must then feel L's power-up PWM (0: the wheels coast and the
+    # worm gears hold them), and L's new counters must follow those same wheels. (The
+    # physics kept driving them at the duty they had when the power went, and L counted
+    # wheels that never turned: odometry saw half the robot's motion.)
+    robot = EmulatedRobot(body="mujoco", surface="gravel", faults={"L": ["restart=0.5"]})
+    assert robot.physics is not None
+    hosts = {name: Connection() for name in robot.boards}
+    for conn in hosts.values():
+        conn.enable(0.0)
+        conn.set_param(lookup("GetDataPeriodical"), 0, 1, 0.0)
+        conn.send(References(50.0, 50.0), 0.0)
+    front_left = robot.physics.drives[[w.name for w in robot.description.wheels].index("FL")]
+    at_restart = 0.0
+    after: list[tuple[float, int]] = []  # (the wheel's angle, L's count), after the restart
+    for step in range(1, 1501):
+        now = step / 1000
+        for name, board in robot.boards.items():
+            board.host_write(hosts[name].data_to_send())
+        robot.run_until(ms(step))
+        if step == 500:
+            at_restart = front_left.angle_deg
+        for name, board in robot.boards.items():
+            conn = hosts[name]
+            conn.receive_data(board.read_host_bytes(), now)
+            timer = conn.get_timer()
+            if timer is not None and timer <= now:
+                conn.handle_timer(now)
+            for event in conn.events():
+                if name == "L" and isinstance(event, Telemetry) and now > 0.55:
+                    after.append((front_left.angle_deg, event.a.position))
+    assert robot.boards["L"].power_cycles == 1
+    assert robot.wheel("FL") is front_left  # the board's drive is the one the physics moves
+    assert front_left.duty == 0 and not robot.boards["L"].global_enable
+    assert abs(front_left.speed_dps) < 15.0  # coasting to a stop, not driven on at 50
+    assert front_left.angle_deg - at_restart > 3.0  # it did turn after the restart
+    per_degree = robot.boards["L"].channels[1].encoder.counts_per_turn / 360.0
+    assert len(after) > 500
+    for angle, count in after:  # a sample leaves the board up to a tick after its count
+        assert count == pytest.approx((angle - at_restart) * per_degree, abs=3), (angle, count)

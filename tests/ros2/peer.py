@@ -547,12 +547,13 @@ class FaultRun:
     the peer driving; ``None`` from :meth:`start` when the machine was too slow to be
     driving before the fault."""
 
-    def __init__(self, peer: Peer, fault: str, at: float) -> None:
+    def __init__(self, peer: Peer, fault: str, at: float,
+                 body: tuple[str, ...] = ("--surface", "ideal")) -> None:
         self.peer, self.at = peer, at
         #: messages stamped before this are an earlier run's, arriving late
         self.started_ns = peer.get_clock().now().nanoseconds
         self.serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                             "--surface", "ideal", "--fault", fault)
+                             *body, "--fault", fault)
         ready = {line[1]: line[2] for line in self.serve.ready_lines(3)}
         self.truth = Truth(ready.pop("truth"))
         self.node = start_node(ready)
@@ -582,13 +583,17 @@ def fault_scenario(peer: Peer) -> None:
     stopping. Each timing is taken on the node's own stamps or the emulator's clock."""
     _fault_run(peer, "restart", _restart_run)
     _fault_run(peer, "stale", _stale_run)
+    _fault_run(peer, "restart_physics", _restart_physics_run,
+               ("--surface", "gravel", "--body", "mujoco"))
 
 
-def _fault_run(peer: Peer, check: str, body: Any) -> None:
+def _fault_run(peer: Peer, check: str, body: Any,
+               serve_body: tuple[str, ...] = ("--surface", "ideal")) -> None:
     at = FAULT_AT_S
     for attempt in range(5):  # a loaded machine may stop the robot before the fault
-        fault = (f"L:restart={at:g}" if check == "restart" else f"R:tm-loss={at:g}:1")
-        run = FaultRun(peer, fault, at)
+        fault = (f"L:restart={at:g}" if check.startswith("restart")
+                 else f"R:tm-loss={at:g}:1")
+        run = FaultRun(peer, fault, at, serve_body)
         try:
             peer.odom.clear()
             peer.joints.clear()
@@ -708,6 +713,51 @@ def _around_worst(odom: list[tuple[int, float, float]], jumps: list[float], sinc
         return []
     worst = jumps.index(max(jumps))
     return [((stamp - since_ns) / 1e6, x, y) for stamp, x, y in odom[max(0, worst - 3):worst + 4]]
+
+
+def _at_rest(peer: Peer, truth: Truth) -> tuple[float, float, float, float] | None:
+    """The wheels brought to rest, the enable held, until the body and odom are still:
+    odom's (x, y) and the truth's, where neither moves (no timing between them counts);
+    ``None`` when the body never came to rest (a wheel still driven)."""
+    def still() -> bool:
+        odom = peer.odom[-1].twist.twist if peer.odom else None
+        return (abs(truth.latest["v"]) < 1e-3 and abs(truth.latest["omega"]) < 1e-3
+                and odom is not None and abs(odom.linear.x) < 1e-3)
+
+    try:
+        peer.spin_until(still, "the robot at rest", lambda: peer.drive(0.0, 0.0))
+    except TimeoutError:
+        return None
+    peer.spin_for(0.1, lambda: peer.drive(0.0, 0.0))
+    odom = peer.odom[-1].pose.pose.position
+    return odom.x, odom.y, truth.latest["x"], truth.latest["y"]
+
+
+def _restart_physics_run(peer: Peer, run: FaultRun) -> dict[str, Any]:
+    """Issue 37.13: on the physics body, odom after L's restart follows the body (it
+    counted L's new counters, which the emulator no longer turned: half the motion)."""
+    truth = run.truth
+    drive = lambda: peer.drive(0.2, 0.0)  # noqa: E731
+    peer.spin_until(lambda: truth.latest["t"] > run.at, "the restart", drive, timeout=60)
+    peer.spin_until(lambda: truth.latest["t"] > run.at + 0.2
+                    and _status(peer, "board L")[0] in (0, 1)
+                    and _status(peer, "supervision") == (0, "enabled"),
+                    "board L ready and the robot enabled again", drive, timeout=60)
+    start = _at_rest(peer, truth)
+    end = None
+    if start is not None:
+        x = truth.latest["x"]
+        peer.spin_until(lambda: truth.latest["x"] > x + 0.4, "0.4 m after the restart", drive)
+        end = _at_rest(peer, truth)
+    facts: dict[str, Any] = {"disturbed": _disturbed(list(truth.lines), run.at),
+                             "at_rest": start is not None and end is not None}
+    if start is not None and end is not None:
+        facts.update(odom_m=math.dist(start[:2], end[:2]), truth_m=math.dist(start[2:], end[2:]),
+                     odom_yaw_deg=math.degrees(2 * math.atan2(
+                         peer.odom[-1].pose.pose.orientation.z,
+                         peer.odom[-1].pose.pose.orientation.w)),
+                     truth_yaw_deg=math.degrees(truth.latest["theta"]))
+    return facts
 
 
 def _stale_run(peer: Peer, run: FaultRun) -> dict[str, Any]:

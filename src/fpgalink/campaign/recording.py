@@ -36,10 +36,11 @@ from fpgalink.recording import (
     log_record,
     parameter_record,
 )
+from fpgalink.robot.recovery import BoardNotice
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import LinkEvent
     from fpgalink.campaign.spec import Action, Scenario
+    from fpgalink.robot.arbiter import CommandNotice
     from fpgalink.robot.robot import Robot
     from fpgalink.robot.supervision import SupervisionEvent
 
@@ -105,13 +106,12 @@ class ScenarioRecording:
             return
         self._loop = asyncio.get_running_loop()
         self._robot = robot
-        for board, link in robot.links.items():
+        for board in robot.description.boards:
             state = _BoardState(board)
             self._boards.append(state)
-            self._removers.append(link.add_listener(
-                functools.partial(self._guard, self._received, state)))
-            self._removers.append(link.on_event(
-                functools.partial(self._guard, self._link_event, board)))
+            self._removers.append(robot.boards.add_listener(
+                board, functools.partial(self._guard, self._received, state)))
+        self._removers.append(robot.on_notice(functools.partial(self._guard, self._notice)))
 
     # --- hooks (each guarded: a listener must not raise) -----------------------------------
 
@@ -131,9 +131,11 @@ class ScenarioRecording:
             if record is not None:
                 self._add(f"/board/{state.board}/params", record, now)
 
-    def _link_event(self, board: str, event: LinkEvent) -> None:
-        self._add(f"/board/{board}/events",
-                  log_record(event.kind.value, event.detail, event.at, board), self._now())
+    def _notice(self, notice: BoardNotice | CommandNotice) -> None:
+        if isinstance(notice, BoardNotice):
+            self._add(f"/board/{notice.board}/events",
+                      log_record(notice.kind, notice.detail, notice.at, notice.board),
+                      self._now())
 
     def _robot_state(self, now: float) -> None:
         robot = self._robot
@@ -148,7 +150,7 @@ class ScenarioRecording:
 
     def _stats(self, state: _BoardState, now: float) -> None:
         assert self._robot is not None
-        stats = self._robot.links[state.board].stats
+        stats = self._robot.boards.stats(state.board)
         received = stats.telemetry_received
         span = now - state.stats_at
         rate = (received - state.stats_received) / span if span > 0 else 0.0

@@ -177,13 +177,13 @@ class _Run:
 
     async def _set(self, setting: ParamSetting) -> None:
         param = lookup(setting.name)
-        boards = [setting.board] if setting.board else list(self.robot.links)
+        boards = [setting.board] if setting.board else list(self.robot.description.boards)
         channels = [setting.channel] if setting.channel or param.scope is Scope.BOARD \
             else [CHANNEL_A, CHANNEL_B]
         for board in boards:
             for channel in channels:
-                await self.robot.links[board].set_param(param.name, setting.value,
-                                                        channel or None)
+                await self.robot.boards.set_parameter(board, param.name, setting.value,
+                                                      channel or None)
 
     def _truth(self) -> dict[str, Any]:
         truth = self.robot.truth()
@@ -220,17 +220,10 @@ class _Run:
         command()
 
     def _hold_references(self, speed: Callable[[WheelMount], float]) -> None:
-        """Every wheel at ``speed(wheel)`` deg/s forward (its board's sign applied)."""
-        robot = self.robot
-        refs: dict[str, list[float]] = {b: [0.0, 0.0] for b in robot.links}
-        for wheel in robot.description.wheels:
-            refs[wheel.board][wheel.channel - 1] = speed(wheel) * wheel.forward
-
-        def send() -> None:
-            for board, (ref_a, ref_b) in refs.items():
-                robot.links[board].set_references(ref_a, ref_b)
-
-        self._hold_command(send)
+        """Every wheel at ``speed(wheel)`` deg/s forward (the robot applies each board's
+        sign)."""
+        references = {wheel.name: speed(wheel) for wheel in self.robot.description.wheels}
+        self._hold_command(lambda: self.robot.set_wheel_references(references))
 
     # --- actions ------------------------------------------------------------------------
 
@@ -301,7 +294,7 @@ class _Run:
                 abs(_channel(robot.latest.get(w.board), w.channel).speed) >= AT_REST_DPS
                 for w in wheels if robot.latest.get(w.board) is not None):
             await asyncio.sleep(CONTROL_PERIOD_S)
-        subs = {board: robot.links[board].telemetry(maxsize=1 << 16)
+        subs = {board: robot.boards.telemetry(board, maxsize=1 << 16)
                 for board in {w.board for w in wheels}}
         samples: dict[str, list[Telemetry]] = {board: [] for board in subs}
 
@@ -343,7 +336,7 @@ class _Run:
             self.stopped_s += asyncio.get_running_loop().time() - self.stopped_at
         truth = self._truth()
         pose = self.robot.pose
-        stats = [link.stats for link in self.robot.links.values()]
+        stats = [self.robot.boards.stats(board) for board in self.robot.description.boards]
         put = self.figures.__setitem__
         put("emulated_s", round(emulated_s, 6))
         put("distance_m", round(truth["distance"], 9))

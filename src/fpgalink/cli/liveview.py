@@ -6,13 +6,15 @@ from __future__ import annotations
 
 import contextlib
 from collections.abc import AsyncIterator, Callable
-from typing import TYPE_CHECKING, Any, TypeVar
+from typing import TYPE_CHECKING, TypeVar
 
 import click
 
 from fpgalink.cli.output import CliError, ExitCode, note
 
 if TYPE_CHECKING:
+    from fpgalink.aio.link import Link
+    from fpgalink.connection import LinkStats
     from fpgalink.live import LiveAddress, LiveView
 
 __all__ = ["add_live_boards", "foxglove_option", "opened_live"]
@@ -78,8 +80,20 @@ async def opened_live(address: LiveAddress | None, name: str
              f"sent{dropped}")
 
 
-def add_live_boards(view: LiveView | None, links: dict[str, Any]) -> None:
-    """Each board of a command that has no robot (``monitor``, ``step``)."""
-    if view is not None:
-        for name, link in links.items():
-            view.add_board(name, link)
+def add_live_boards(view: LiveView | None, links: dict[str, Link]) -> None:
+    """Each board of a command that has no robot (``monitor``, ``step``): its own link."""
+    if view is None:
+        return
+    from fpgalink.live import BoardTap
+
+    for name, link in links.items():
+        def on_event(callback: Callable[[str, str], None], link: Link = link
+                     ) -> Callable[[], None]:
+            return link.on_event(lambda event: callback(event.kind.value, event.detail))
+
+        def stats(link: Link = link) -> LinkStats:
+            return link.stats
+
+        view.add_board(name, BoardTap(
+            add_listener=link.add_listener, stamped_telemetry=link.stamped_telemetry,
+            stats=stats, held=link.held, on_event=on_event))

@@ -29,7 +29,7 @@ if TYPE_CHECKING:
     from fpgalink.cli.rosbag import RosbagWriter
     from fpgalink.live import LiveAddress
     from fpgalink.protocol.robot import RobotDescription
-    from fpgalink.robot.joints import SampleSets
+    from fpgalink.robot.feed import SetFeed
     from fpgalink.robot.robot import Robot
     from fpgalink.robot.supervision import SupervisionEvent
 
@@ -361,7 +361,7 @@ class RobotRun:
         self._truth_reader = _TruthReader(truth_url) if truth_url else None
         self._sink: Any = None
         self._started = 0.0
-        self._bag_truth_at = -math.inf  #: host time /truth was last written to the bag
+        self._bag_truth_at = -(1 << 62)  #: host time /truth was last written to the bag, ns
         self._bag_log_ns = 0  #: the latest log time written to the bag
         self.robot: Robot | None = None
         self.last_truth: dict[str, Any] | None = None
@@ -477,7 +477,7 @@ class RobotRun:
         from fpgalink.cli.session import compact, json_safe, telemetry_row
 
         clock = BoardClock()
-        async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
+        async for received, sample in robot.boards.stamped_telemetry(name, maxsize=65536):
             sink = self._sink
             if sink is None:
                 return
@@ -513,51 +513,40 @@ class RobotRun:
         self.stop.set()
 
     def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:
-        from fpgalink.robot.joints import SampleSets
-
-        sets = SampleSets(robot.description.boards)
-        clocks = {board: BoardClock() for board in robot.description.boards}
-        # One truth clock for all the boards' tasks: /truth at most every BAG_TRUTH_PERIOD_S.
-        self._bag_truth_at = -math.inf
+        # One truth clock for the whole bag: /truth at most every BAG_TRUTH_PERIOD_S.
+        self._bag_truth_at = -(1 << 62)
         # One mapping of the loop's clock onto epoch time for every board: bag times of
-        # different boards are then on one clock (taken per task, they differed by µs).
+        # different boards are then on one clock.
         to_epoch_ns = time.time_ns() - round(asyncio.get_running_loop().time() * 1e9)
-        return [*(asyncio.ensure_future(self._bag_telemetry(robot, name, sets, clocks,
-                                                            to_epoch_ns))
-                  for name in robot.description.boards),
+        sets = robot.sample_sets(clock=lambda received: round(received * 1e9) + to_epoch_ns,
+                                 maxsize=65536)
+        return [asyncio.ensure_future(self._bag_telemetry(robot, sets)),
                 asyncio.ensure_future(self._bag_diagnostics(robot))]
 
-    async def _bag_telemetry(self, robot: Robot, name: str, sets: SampleSets,
-                             clocks: dict[str, BoardClock], to_epoch_ns: int) -> None:
+    async def _bag_telemetry(self, robot: Robot, sets: SetFeed) -> None:
+        """Every set of samples (the robot's stamping: each sample on the host clock by its
+        board's time, the odometry with its own stamp) into the bag."""
         bag = self.bag
         assert bag is not None
-        boards = robot.description.boards
-        async for received, sample in robot.links[name].stamped_telemetry(maxsize=65536):
-            complete = sets.add(name, sample, received)
-            if complete is None:
-                continue
-            # When the host received it, never before what the bag already holds: each
-            # board's link keeps its own time (an in-process emulated board's trails the
-            # wall clock by its own lag), and a bag read in log-time order must give the
-            # messages in the order they were written.
-            now_ns = max(round(received * 1e9) + to_epoch_ns, self._bag_log_ns)
-            self._bag_log_ns = now_ns
-            stamp_ns = clocks[boards[0]].ns(complete[boards[0]].t_us, now_ns)
-            for board in boards[1:]:
-                clocks[board].ns(complete[board].t_us, now_ns)
-            states = robot.joint_states(complete)
-            try:
-                if states is not None:
-                    bag.joint_states(states, stamp_ns, now_ns)
-                bag.odometry(robot.odometry_state, stamp_ns, now_ns)
-                if received - self._bag_truth_at >= BAG_TRUTH_PERIOD_S:
-                    truth = self.truth()
-                    if truth is not None:
-                        bag.truth(truth, now_ns, now_ns)
-                        self._bag_truth_at = received
-            except OSError as exc:
-                self._bag_failed(exc)
-                return
+        with contextlib.closing(sets):
+            async for stamped in sets:
+                # When the host received it, never before what the bag already holds: a
+                # bag read in log-time order must give the messages in the order written.
+                now_ns = max(stamped.received, self._bag_log_ns)
+                self._bag_log_ns = now_ns
+                states = robot.joint_states(stamped.samples)
+                try:
+                    if states is not None:
+                        bag.joint_states(states, stamped.stamp, now_ns)
+                    bag.odometry(stamped.odometry, stamped.odometry_stamp, now_ns)
+                    if now_ns - self._bag_truth_at >= round(BAG_TRUTH_PERIOD_S * 1e9):
+                        truth = self.truth()
+                        if truth is not None:
+                            bag.truth(truth, now_ns, now_ns)
+                            self._bag_truth_at = now_ns
+                except OSError as exc:
+                    self._bag_failed(exc)
+                    return
 
     async def _bag_diagnostics(self, robot: Robot) -> None:
         bag = self.bag
@@ -638,15 +627,14 @@ class RobotRun:
             wheels.add_column(column, justify="left" if column in ("wheel", "board", "link")
                               else "right", overflow="fold")
         for wheel in self.description.wheels:
-            link = robot.links[wheel.board]
-            latest = link.latest
+            latest = robot.latest.get(wheel.board)
             channel = None if latest is None else (latest.a if wheel.channel == 1 else latest.b)
             wheels.add_row(
                 wheel.name, f"{wheel.board}/{'AB'[wheel.channel - 1]}",
                 "-" if channel is None else f"{channel.reference:.1f}",
                 "-" if channel is None else f"{channel.speed:.1f}",
                 "-" if channel is None else str(channel.pwm),
-                "alive" if link.board_alive else "SILENT")
+                "alive" if robot.boards.alive(wheel.board) else "SILENT")
         from rich.console import Group
 
         return Group(table, wheels)

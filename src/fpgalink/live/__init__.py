@@ -5,7 +5,7 @@ the CLI and the ROS 2 node open one; the robot never imports it. See docs/live.m
 
     view = LiveView(parse_address("8765"), "fpgalink-cli drive")
     view.start()                       # listening: view.url
-    view.add_board("L", link)          # per board: telemetry, parameters, events, stats
+    view.add_board("L", tap)           # per board: telemetry, parameters, events, stats
     view.add_robot(robot, truth)       # pose, path, truth, /tf, URDF, supervision
     ...
     await view.close()
@@ -17,14 +17,13 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Any
 
 from fpgalink.live.address import DEFAULT_PORT, LiveAddress, parse_address
-from fpgalink.live.feeds import BoardFeed, RobotFeed
+from fpgalink.live.feeds import BoardFeed, BoardTap, RobotFeed
 from fpgalink.live.server import INSTALL_HINT, LiveServer, LiveStats, require_sdk
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import Link
     from fpgalink.robot.robot import Robot
 
-__all__ = ["DEFAULT_PORT", "INSTALL_HINT", "LiveAddress", "LiveStats", "LiveView",
+__all__ = ["DEFAULT_PORT", "INSTALL_HINT", "BoardTap", "LiveAddress", "LiveStats", "LiveView",
            "parse_address", "require_sdk"]
 
 
@@ -49,16 +48,16 @@ class LiveView:
     def start(self) -> None:
         self.server.start()
 
-    def add_board(self, name: str, link: Link) -> None:
-        feed = BoardFeed(self.server, name, link)
+    def add_board(self, name: str, tap: BoardTap) -> None:
+        feed = BoardFeed(self.server, name, tap)
         feed.start()
         self._boards.append(feed)
 
     def add_robot(self, robot: Robot,
                   truth: Callable[[], dict[str, Any] | None] | None = None) -> None:
         """The robot, and each of its boards."""
-        for name, link in robot.links.items():
-            self.add_board(name, link)
+        for name in robot.description.boards:
+            self.add_board(name, BoardTap.of_robot(robot, name))
         self._robot = RobotFeed(self.server, robot, truth)
         self._robot.start()
 

@@ -11,7 +11,8 @@ import asyncio
 import functools
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from fpgalink.boardclock import BoardClock
@@ -44,11 +45,12 @@ from fpgalink.recording import (
 )
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import Link, LinkEvent
+    from fpgalink.aio.link import Stamped, Subscription
+    from fpgalink.connection import LinkStats
     from fpgalink.robot.robot import Robot
     from fpgalink.robot.supervision import SupervisionEvent
 
-__all__ = ["BoardFeed", "RobotFeed", "telemetry_json"]
+__all__ = ["BoardFeed", "BoardTap", "RobotFeed", "telemetry_json"]
 
 #: How often the slow topics go out: statistics, the parameter table, health, the URDF (a
 #: client that subscribes later has it within this).
@@ -64,17 +66,50 @@ PATH_POSES = 5000
 TELEMETRY_QUEUE = 4096
 
 
+@dataclass(frozen=True)
+class BoardTap:
+    """What a live view reads of one board, whoever holds its link: a one-board command its
+    own link, a robot its boards (:meth:`of_robot`)."""
+
+    #: everything the board's connection reports, in order (a remover back)
+    add_listener: Callable[[Callable[[Event], None]], Callable[[], None]]
+    #: its telemetry, each sample with when it arrived
+    stamped_telemetry: Callable[[int], Subscription[Stamped]]
+    #: the link's statistics now
+    stats: Callable[[], LinkStats]
+    #: the parameters this host holds for it (name → value)
+    held: Mapping[str, float]
+    #: what its link notices, as (kind, detail) (a remover back)
+    on_event: Callable[[Callable[[str, str], None]], Callable[[], None]]
+
+    @classmethod
+    def of_robot(cls, robot: Robot, board: str) -> BoardTap:
+        """Board ``board`` of ``robot``, through the robot's own methods."""
+        boards = robot.boards
+
+        def on_event(callback: Callable[[str, str], None]) -> Callable[[], None]:
+            def notice(seen: Any) -> None:
+                if getattr(seen, "board", None) == board and hasattr(seen, "kind"):
+                    callback(seen.kind, seen.detail)
+            return robot.on_notice(notice)
+
+        return cls(add_listener=functools.partial(boards.add_listener, board),
+                   stamped_telemetry=functools.partial(boards.stamped_telemetry, board),
+                   stats=functools.partial(boards.stats, board),
+                   held=boards.held(board), on_event=on_event)
+
+
 class BoardFeed:
     """One board's link on the live view: ``/board/NAME/telemetry`` (every sample),
     ``/params`` (every PA/PN), ``/parameters`` (the table: what this host set and the board
     confirmed, and every value the board confirmed since), ``/events`` (foxglove.Log),
     ``/stats``."""
 
-    def __init__(self, server: LiveServer, name: str, link: Link) -> None:
+    def __init__(self, server: LiveServer, name: str, tap: BoardTap) -> None:
         self.server = server
         self.name = name
-        self.link = link
-        self.values: dict[str, float] = dict(link.held)
+        self.tap = tap
+        self.values: dict[str, float] = dict(tap.held)
         self._prefix = f"/board/{name}"
         self._tasks: list[asyncio.Task[None]] = []
         self._removers: list[Callable[[], None]] = []
@@ -87,8 +122,8 @@ class BoardFeed:
         server.channel(f"{prefix}/parameters", PARAMETERS_SCHEMA)
         server.channel(f"{prefix}/events", EVENT_SCHEMA)
         server.channel(f"{prefix}/stats", STATS_SCHEMA)
-        self._removers += [self.link.add_listener(self._on_message),
-                           self.link.on_event(self._on_link_event)]
+        self._removers += [self.tap.add_listener(self._on_message),
+                           self.tap.on_event(self._on_link_event)]
         self._tasks += [asyncio.ensure_future(self._telemetry()),
                         asyncio.ensure_future(self._slow())]
 
@@ -103,16 +138,16 @@ class BoardFeed:
             self.values[record["name"]] = record["value"]
         self.server.publish(f"{self._prefix}/params", record, now)
 
-    def _on_link_event(self, event: LinkEvent) -> None:
+    def _on_link_event(self, kind: str, detail: str) -> None:
         now = time.time()
         self.server.publish(f"{self._prefix}/events", lambda: log_record(
-            event.kind.value, event.detail, now, f"board {self.name}"), now)
+            kind, detail, now, f"board {self.name}"), now)
 
     async def _telemetry(self) -> None:
         topic = f"{self._prefix}/telemetry"
         clock = BoardClock()
         to_epoch = time.time() - asyncio.get_running_loop().time()
-        async for received, sample in self.link.stamped_telemetry(maxsize=TELEMETRY_QUEUE):
+        async for received, sample in self.tap.stamped_telemetry(TELEMETRY_QUEUE):
             self._received += 1
             if not self.server.wanted(topic):
                 continue
@@ -133,7 +168,7 @@ class BoardFeed:
             now = time.monotonic()
             rate = (self._received - counted) / max(now - last, 1e-9)
             last, counted = now, self._received
-            stats = self.link.stats
+            stats = self.tap.stats()
             record: dict[str, Any] = {"timestamp": time.time(), "telemetry_rate": rate}
             record.update({name: getattr(stats, name) for name in STATS_FIELDS[1:]})
             self.server.publish(f"{self._prefix}/stats", record)

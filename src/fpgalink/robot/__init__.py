@@ -3,13 +3,17 @@
 * the description and the skid-steer model, shared with the emulator, live in
   :mod:`fpgalink.protocol.robot` (re-exported here);
 * :mod:`.drive` — body command → wheel references, limits keeping the curvature;
+* :mod:`.arbiter` — what drives the wheels now (body commands, wheel references, velocity
+  commands under limits, timed and held commands, the enable's renewal);
+* :mod:`.stamping` — the boards' samples as sets stamped on a reader's clock;
 * :mod:`.limits` — diff_drive_controller's velocity, acceleration and jerk limits;
 * :mod:`.odometry` — pose from encoder counts, with a covariance;
 * :mod:`.supervision` — the deadman and the boards' liveness, as a table;
 * :mod:`.goto` — the seed's position controller (Algorithm 1);
 * :mod:`.robot` — :class:`Robot`, all of it over one asyncio link per board.
 
-Everything but :class:`Robot` is sans-I/O: time is passed in. Names load on first use.
+Everything but :class:`Robot` and what it runs over the links is sans-I/O: time is passed
+in. Names load on first use.
 """
 
 from __future__ import annotations
@@ -26,6 +30,11 @@ _HOMES = {
     "parse_robot": "fpgalink.protocol.robot",
     "seed_robot": "fpgalink.protocol.robot",
     "WheelCommand": "fpgalink.robot.drive",
+    "CommandArbiter": "fpgalink.robot.arbiter",
+    "CommandNotice": "fpgalink.robot.arbiter",
+    "Commanded": "fpgalink.robot.arbiter",
+    "BoardNotice": "fpgalink.robot.recovery",
+    "StampedSet": "fpgalink.robot.stamping",
     "wheel_command": "fpgalink.robot.drive",
     "AxisLimits": "fpgalink.robot.limits",
     "SpeedLimiter": "fpgalink.robot.limits",
@@ -40,6 +49,7 @@ _HOMES = {
     "Phase": "fpgalink.robot.goto",
     "GoalTimeout": "fpgalink.robot.robot",
     "Robot": "fpgalink.robot.robot",
+    "RobotClosed": "fpgalink.robot.robot",
     "RobotError": "fpgalink.robot.robot",
     "RobotStopped": "fpgalink.robot.robot",
 }
@@ -54,11 +64,14 @@ if TYPE_CHECKING:
         parse_robot,
         seed_robot,
     )
+    from fpgalink.robot.arbiter import CommandArbiter, Commanded, CommandNotice
     from fpgalink.robot.drive import WheelCommand, wheel_command
     from fpgalink.robot.goto import GoTo, GoToSettings, Phase
     from fpgalink.robot.limits import AxisLimits, SpeedLimiter
     from fpgalink.robot.odometry import Odometry, OdometryState
-    from fpgalink.robot.robot import GoalTimeout, Robot, RobotError, RobotStopped
+    from fpgalink.robot.recovery import BoardNotice
+    from fpgalink.robot.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
+    from fpgalink.robot.stamping import StampedSet
     from fpgalink.robot.supervision import NotReady, StopReason, SupervisionEvent, Supervisor
 
 
@@ -73,6 +86,10 @@ def __getattr__(name: str) -> object:
 
 __all__ = [
     "AxisLimits",
+    "BoardNotice",
+    "CommandArbiter",
+    "CommandNotice",
+    "Commanded",
     "DescriptionError",
     "GoTo",
     "GoToSettings",
@@ -83,11 +100,13 @@ __all__ = [
     "Phase",
     "Pose",
     "Robot",
+    "RobotClosed",
     "RobotDescription",
     "RobotError",
     "RobotStopped",
     "SkidSteer",
     "SpeedLimiter",
+    "StampedSet",
     "StopReason",
     "SupervisionEvent",
     "Supervisor",

@@ -9,7 +9,7 @@ from dataclasses import dataclass
 from fpgalink.protocol import LocalProtocolError
 from fpgalink.protocol.robot import RobotDescription, SkidSteer
 
-__all__ = ["WheelCommand", "wheel_command"]
+__all__ = ["WheelCommand", "changed_kinematics", "wheel_command"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,3 +54,26 @@ def wheel_command(description: RobotDescription, v: float, omega: float,
         references[wheel.board][wheel.channel - 1] = side * wheel.forward
     return WheelCommand(v * scale, omega * scale, left, right, scale,
                         {b: (a, bb) for b, (a, bb) in references.items()})
+
+
+def changed_kinematics(model: SkidSteer, *, wheel_radius: float | None = None,
+                       track: float | None = None, chi: float | None = None,
+                       left_radius_multiplier: float | None = None,
+                       right_radius_multiplier: float | None = None) -> SkidSteer:
+    """``model`` with the values given changed, the others kept. ``ValueError`` for a value
+    that is not finite and positive (χ: ≥ 1)."""
+    wanted = {"wheel_radius": (model.wheel_radius if wheel_radius is None else wheel_radius,
+                               0.0),
+              "track": (model.track if track is None else track, 0.0),
+              "chi": (model.chi if chi is None else chi, 1.0),
+              "left_radius_multiplier": (model.left_radius_multiplier
+                                         if left_radius_multiplier is None
+                                         else left_radius_multiplier, 0.0),
+              "right_radius_multiplier": (model.right_radius_multiplier
+                                          if right_radius_multiplier is None
+                                          else right_radius_multiplier, 0.0)}
+    for name, (value, low) in wanted.items():
+        if not (math.isfinite(value) and (value > low if low == 0.0 else value >= low)):
+            raise ValueError(f"{name} must be a finite number "
+                             f"{'> 0' if low == 0.0 else '≥ 1'}, got {value!r}")
+    return SkidSteer(*(value for value, _ in wanted.values()))

@@ -17,8 +17,9 @@ band is that jitter's bound — one encoder count and a period of a side at full
 so jitter moves nothing, and motion beyond it counts in full (less the band once per
 reversal).
 
-A board that restarts counts from 0 again (:meth:`restart`): its next sample is a new
-reference, and motion the encoders did not see while it was away is not invented.
+A board that restarts counts from 0 again (:meth:`restart`, or its clock ``t_us`` going
+back, whichever comes first): its next sample is a new reference, and motion the encoders
+did not see while it was away is not invented.
 """
 
 from __future__ import annotations
@@ -196,6 +197,11 @@ class Odometry:
     def update(self, board: str, sample: Telemetry) -> None:
         """One ``TM`` of ``board``: its wheels' positions and speeds."""
         last_t_us = self._last_t_us.get(board)
+        if last_t_us is not None and (sample.t_us - last_t_us) % _WRAP >= _HALF:
+            # Its clock went back (a wrap goes forward): it restarted, whether or not its
+            # link has said so yet, and its counters start from 0 again.
+            self.restart(board)
+            last_t_us = None
         self._last_t_us[board] = sample.t_us
         if last_t_us is not None:
             apart = (sample.t_us - last_t_us) % (1 << 32) / 1e6

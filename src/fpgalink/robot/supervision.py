@@ -50,6 +50,7 @@ class Input(Enum):
     TELEMETRY_STALE = "telemetry_stale"  #: a board's telemetry stopped (not ready)
     WATCHDOG_LAPSED = "watchdog_lapsed"  #: a board's watchdog disabled it
     TASK_FAILED = "task_failed"  #: a robot task failed (the robot is not ready any more)
+    ENABLE_FAILED = "enable_failed"  #: a board's link could not send its enable
 
 
 class Action(Enum):
@@ -65,6 +66,7 @@ class StopReason(Enum):
     TELEMETRY_STALE = "a board's telemetry stopped"
     WATCHDOG_LAPSED = "a board disabled itself"
     TASK_FAILED = "a robot task failed"
+    ENABLE_FAILED = "a board could not be enabled"
     REQUESTED = "disable was asked for"
 
 
@@ -118,6 +120,9 @@ TRANSITIONS: dict[tuple[State, Input], tuple[State, tuple[Action, ...], object]]
     (State.DISABLED, Input.WATCHDOG_LAPSED): (State.DISABLED, (), StopReason.WATCHDOG_LAPSED),
     (State.DISABLED, Input.TASK_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
                                           StopReason.TASK_FAILED),
+    # The enable reached some boards and not another: those are disabled again, and said.
+    (State.DISABLED, Input.ENABLE_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                            StopReason.ENABLE_FAILED),
     (State.ENABLED, Input.ENABLE): (State.ENABLED, (Action.RENEW,), None),
     (State.ENABLED, Input.ENABLE_REFUSED): (State.DISABLED, (Action.DISABLE_ALL,),
                                             StopReason.BOARD_LOST),
@@ -135,6 +140,8 @@ TRANSITIONS: dict[tuple[State, Input], tuple[State, tuple[Action, ...], object]]
                                              StopReason.WATCHDOG_LAPSED),
     (State.ENABLED, Input.TASK_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
                                          StopReason.TASK_FAILED),
+    (State.ENABLED, Input.ENABLE_FAILED): (State.DISABLED, (Action.DISABLE_ALL,),
+                                           StopReason.ENABLE_FAILED),
 }
 
 
@@ -224,6 +231,12 @@ class Supervisor:
             self._events.append(SupervisionEvent(now, self.state, None, board, detail,
                                                  recovered=True))
         return []
+
+    def enable_failed(self, board: str, now: float, detail: str) -> list[Action]:
+        """``board``'s link could not send the enable (its port gone, say): an enable that
+        failed on any board is a failed enable, every board disabled and the reason
+        said."""
+        return self._apply(Input.ENABLE_FAILED, now, board, detail)
 
     def task_failed(self, now: float, detail: str) -> list[Action]:
         """A robot task failed: every board stops, and the robot is not ready any more."""

@@ -257,7 +257,7 @@ def main(argv: list[str] | None = None) -> None:
     rclpy.init(args=argv)
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live))
+                                bag, options.lifecycle, live, argv))
     finally:
         if bag is not None:
             bag.close()
@@ -269,7 +269,8 @@ def main(argv: list[str] | None = None) -> None:
 
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
-               bag: Any = None, lifecycle: bool = False, live: Any = None) -> int:
+               bag: Any = None, lifecycle: bool = False, live: Any = None,
+               argv: list[str] | None = None) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -277,16 +278,18 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot import Robot, RobotError
     from fpgalink.ros2.node import NODE_NAME, BadOverride, RosBridge, spin_in_thread
+    from fpgalink.ros2.parameters import overrides_in
 
     assert isinstance(description, RobotDescription)
     loop = asyncio.get_running_loop()
     stop = asyncio.Event()
     for sig in (signal.SIGINT, signal.SIGTERM):
         loop.add_signal_handler(sig, stop.set)
+    overrides = overrides_in(argv or [], NODE_NAME)
     if lifecycle:
         from fpgalink.ros2.managed import run_managed
 
-        return await run_managed(description, ports, baud, bag, stop)
+        return await run_managed(description, ports, baud, bag, stop, overrides)
     robot = Robot.open(description, ports, baud=baud)
     try:
         await robot.start()
@@ -296,7 +299,7 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     node = Node(NODE_NAME, start_parameter_services=False)
     try:
         try:
-            bridge = RosBridge(robot, node, loop, bag=bag)
+            bridge = RosBridge(robot, node, loop, bag=bag, overrides=overrides)
             await bridge.declare_board_parameters()
         except (ParameterException, BadOverride) as exc:  # a -p value out of range, …
             print(f"{PROG}: error: --ros-args -p: {_parameter_error(exc)}", file=sys.stderr,

@@ -24,7 +24,7 @@ import contextlib
 from collections.abc import Coroutine
 from typing import Any
 
-from rclpy.exceptions import ParameterException
+from rclpy.exceptions import ParameterException, ParameterImmutableException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from fpgalink.errors import FpgalinkError
@@ -42,37 +42,35 @@ TRANSITION_TIMEOUT_S = 60.0
 class _NodeMark:
     """What a node has before a configure, to give back what a failed configure added:
     its parameters (declared again next time, not ParameterAlreadyDeclared), publishers,
-    subscriptions, services and parameter checks."""
+    subscriptions and services. (The bridge takes back its own check of parameter sets.)
+    rclpy withdraws no read-only parameter: those stay declared, and the next configure
+    takes them as they are (each is the same for the node's life: a -p, or the robot
+    file's)."""
 
     def __init__(self, node: LifecycleNode) -> None:
         self.node = node
-        self.parameters = set(node._parameters)
+        self.parameters = set(node.list_parameters([], 0).names)
         self.publishers = list(node.publishers)
         self.subscriptions = list(node.subscriptions)
         self.services = list(node.services)
-        self.checks = list(node._on_set_parameters_callbacks)
 
     def undo(self) -> None:
         node = self.node
-        for name in set(node._parameters) - self.parameters:
-            # As undeclare_parameter does, which refuses read-only parameters (their -p
-            # override stays with the node and is taken again by the next declaration).
-            node._parameters.pop(name, None)
-            node._descriptors.pop(name, None)
+        for name in set(node.list_parameters([], 0).names) - self.parameters:
+            with contextlib.suppress(ParameterImmutableException):
+                node.undeclare_parameter(name)
         for publisher in [p for p in node.publishers if p not in self.publishers]:
             node.destroy_publisher(publisher)
         for subscription in [s for s in node.subscriptions if s not in self.subscriptions]:
             node.destroy_subscription(subscription)
         for service in [s for s in node.services if s not in self.services]:
             node.destroy_service(service)
-        node._on_set_parameters_callbacks[:] = [
-            c for c in node._on_set_parameters_callbacks if c in self.checks]
 
 
 class _ManagedNode(LifecycleNode):
     def __init__(self, loop: asyncio.AbstractEventLoop, description: RobotDescription,
                  ports: dict[str, str], baud: int, bag: NodeBag | None,
-                 stop: asyncio.Event) -> None:
+                 stop: asyncio.Event, overrides: set[str]) -> None:
         super().__init__(NODE_NAME, start_parameter_services=False)
         self.loop = loop
         self.description = description
@@ -80,6 +78,7 @@ class _ManagedNode(LifecycleNode):
         self.baud = baud
         self.bag = bag
         self.stop = stop
+        self.overrides = overrides
         self.executor_ref: Any = None
         self.robot: Robot | None = None
         self.bridge: RosBridge | None = None
@@ -112,12 +111,12 @@ class _ManagedNode(LifecycleNode):
         return self._on_loop(self._cleanup())
 
     def on_shutdown(self, state: LifecycleState) -> TransitionCallbackReturn:
-        result = self._on_loop(self._shutdown())
+        result = self._on_loop(self.shut_down())
         self.loop.call_soon_threadsafe(self.stop.set)
         return result
 
     def on_error(self, state: LifecycleState) -> TransitionCallbackReturn:
-        self._on_loop(self._shutdown())
+        self._on_loop(self.shut_down())
         return TransitionCallbackReturn.SUCCESS
 
     # --- the same, on the asyncio loop ---------------------------------------------------
@@ -127,6 +126,7 @@ class _ManagedNode(LifecycleNode):
         mark = _NodeMark(self)
         robot = Robot.open(self.description, self.ports, baud=self.baud)
         configured = False
+        bridge: RosBridge | None = None
         try:
             try:
                 await robot.start()
@@ -135,7 +135,7 @@ class _ManagedNode(LifecycleNode):
                 return TransitionCallbackReturn.FAILURE
             try:
                 bridge = RosBridge(robot, self, self.loop, executor=self.executor_ref,
-                                   bag=self.bag, managed=True)
+                                   bag=self.bag, managed=True, overrides=self.overrides)
                 await bridge.declare_board_parameters()
             except (ParameterException, BadOverride, FpgalinkError) as exc:
                 log.error(f"configure: {exc}")
@@ -144,6 +144,8 @@ class _ManagedNode(LifecycleNode):
             configured = True
         finally:
             if not configured:  # failed, or out of time: as before it, to be tried again
+                if bridge is not None:
+                    bridge.withdraw()
                 mark.undo()
                 await robot.close()
         self.robot, self.bridge, self.mark = robot, bridge, mark
@@ -180,6 +182,7 @@ class _ManagedNode(LifecycleNode):
         if self.bridge is None or self.robot is None or self.mark is None:
             return TransitionCallbackReturn.FAILURE
         await self._stop_running()
+        self.bridge.withdraw()
         self.mark.undo()
         await self.robot.close()
         self.robot = self.bridge = self.mark = None
@@ -192,7 +195,8 @@ class _ManagedNode(LifecycleNode):
             await asyncio.gather(self.running, return_exceptions=True)
             self.running = None
 
-    async def _shutdown(self) -> TransitionCallbackReturn:
+    async def shut_down(self) -> TransitionCallbackReturn:
+        """The boards closed (the shutdown transition's work, and SIGINT's)."""
         if self.bridge is not None:
             self.bridge.active = False
         await self._stop_running()
@@ -203,16 +207,16 @@ class _ManagedNode(LifecycleNode):
 
 
 async def run_managed(description: RobotDescription, ports: dict[str, str], baud: int,
-                      bag: NodeBag | None, stop: asyncio.Event) -> int:
+                      bag: NodeBag | None, stop: asyncio.Event, overrides: set[str]) -> int:
     """The managed node until SIGINT/SIGTERM (``stop``) or its shutdown transition."""
     loop = asyncio.get_running_loop()
-    node = _ManagedNode(loop, description, ports, baud, bag, stop)
+    node = _ManagedNode(loop, description, ports, baud, bag, stop, overrides)
     executor, thread = spin_in_thread(node)
     node.executor_ref = executor
     node.get_logger().info("up, unconfigured (--lifecycle): configure opens the boards")
     try:
         await stop.wait()
-        await node._shutdown()
+        await node.shut_down()
     finally:
         executor.shutdown(timeout_sec=1.0)
         thread.join(timeout=2.0)

@@ -205,6 +205,33 @@ def test_a_restarted_board_is_a_new_reference_not_a_jump() -> None:
     assert odo.reanchors == 1
 
 
+def test_a_restart_seen_only_in_the_samples_is_a_new_reference_not_a_jump() -> None:
+    # Issue 37.13: the board's clock going back is its restart, whether or not its link's
+    # event came first (a loaded host's odometry task may read the restarted board's first
+    # samples before the event is noticed, or the event is never there: a recording).
+    odo = odometry()
+    drive_counts(odo, 2000, 2000, 20)
+    x = odo.pose.x
+    odo.update("R", sample(21_000, 2100, 2100))  # R moved while L was away: dropped
+    odo.update("L", sample(3000, 7, 7))  # L's clock went back: counts from 0 again
+    odo.update("R", sample(22_000, 2200, 2200))
+    odo.update("L", sample(4000, 107, 107))
+    step = 100 / COUNTS_PER_TURN * math.tau * 0.2
+    assert odo.pose.x == pytest.approx(x + step, abs=1e-9)
+    assert odo.pose.theta == pytest.approx(0.0, abs=1e-12)
+    assert odo.reanchors == 1
+    # Its clock wrapping (every 71.6 min) is no restart: the counts go on.
+    odo = Odometry(ROBOT)
+    for board in ("L", "R"):
+        for channel in (1, 2):
+            odo.set_resolution(board, channel, 500)
+    for k, t_us in enumerate((2**32 - 3000, 2**32 - 2000, 2**32 - 1000, 0, 1000)):
+        odo.update("L", sample(t_us, 100 * k, 100 * k))
+        odo.update("R", sample(t_us, 100 * k, 100 * k))
+    assert odo.pose.x == pytest.approx(4 * step, abs=1e-9)
+    assert odo.reanchors == 0
+
+
 def test_a_sides_radius_multiplier_scales_that_sides_distance_only() -> None:
     # The left wheels 2 % larger (diff_drive_controller's left_wheel_radius_multiplier):
     # equal counts on both sides are a curve to the right, its mean path 1 % longer.

@@ -7,6 +7,7 @@ cycle-exact, so the checks hold however slow the machine is."""
 from __future__ import annotations
 
 import asyncio
+import itertools
 import math
 import time
 from collections.abc import AsyncIterator, Callable
@@ -22,9 +23,11 @@ from fpgaemu.serve import FAR_END_LAG_EXTRA
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
 from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
-from fpgalink.protocol import float32
+from fpgalink.errors import BoardLost
+from fpgalink.protocol import LocalProtocolError, float32
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
-from fpgalink.robot import GoalTimeout, Robot, RobotError, RobotStopped
+from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
+from fpgalink.robot.arbiter import CommandNotice, Taken
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
 from tests.support.interpose import HeldReads, LateReads, SlowReader, interpose
@@ -357,16 +360,17 @@ async def test_a_resync_reported_with_a_new_restart_behind_it_does_not_make_the_
         def event(kind: LinkEventKind, cause: Any = None) -> LinkEvent:
             return LinkEvent(kind, loop.time(), "synthetic", cause)
 
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
-                                              BoardResynced(3, ())))
-        robot._on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        recovery = robot.recovery
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
+                                                BoardResynced(3, ())))
+        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
         # Restart 1's read-back is answered (the board is there) and ends.
-        await wait_until(lambda: not any(not t.done() for t in robot._tasks[2:]), PATIENCE,
+        await wait_until(lambda: recovery.reading_back == 0, PATIENCE,
                          "the read-back after restart 1's resync")
         await asyncio.sleep(0.2)
-        assert len(robot._tasks) == 2  # the boards' telemetry; a finished task is not kept
-        assert "L" in robot._reconfiguring
+        assert recovery.reading_back == 0  # a finished read-back is not kept
+        assert "L" in recovery.reconfiguring
         assert robot.supervisor.blocked.get("L", "").startswith("restarted"), \
             robot.supervisor.blocked
         with pytest.raises(RobotStopped):
@@ -484,3 +488,221 @@ async def test_a_restarted_board_answering_later_than_a_requests_tries_is_reconf
         statuses = {s.name: s for s in robot.health()}
         assert statuses["board L"].level.name == "OK", statuses["board L"]
         robot.disable()
+
+
+async def _at_rest(robot: Robot) -> tuple[float, float, float, float]:
+    """Wheels to rest, the enable held, until the body and odometry are still: the
+    odometry's (x, y) and the truth's, where neither is moving (so no timing between them
+    counts)."""
+    loop = asyncio.get_running_loop()
+    give_up = loop.time() + 3 * PATIENCE
+
+    def still() -> bool:
+        truth = robot.truth()
+        assert truth is not None
+        return (abs(truth["v"]) < 1e-3 and abs(truth["omega"]) < 1e-3
+                and abs(robot.odometry_state.v) < 1e-3)
+
+    while not still():
+        if loop.time() > give_up:
+            raise TimeoutError("the robot never came to rest")
+        robot.stop()
+        robot.enable()
+        await asyncio.sleep(0.02)
+    truth = robot.truth()
+    assert truth is not None
+    return robot.pose.x, robot.pose.y, float(truth["x"]), float(truth["y"])
+
+
+async def test_odometry_after_a_board_restart_follows_every_boards_wheels() -> None:
+    # Issue 37.13, through the robot on the physics body: L restarts mid-drive; once the
+    # robot drives again, odometry must count both sides' wheels as before, within the 2 %
+    # docs/robot.md promises on a straight line. (It counted L's new counters, which the
+    # emulator no longer turned: 0.205 m against the body's 0.427 m, and a turn.)
+    async with emulated("body=mujoco&surface=gravel&fault=L:restart=1.5") as robot:
+        link = robot.links["L"]
+        await drive_until(robot, lambda: link.stats.restarts > 0
+                          and not robot.supervisor.blocked and robot.state is State.ENABLED,
+                          "L restarted and the robot enabled again", v=0.2)
+        odom_x, odom_y, true_x, true_y = await _at_rest(robot)
+        x0 = robot.pose.x
+        await drive_until(robot, lambda: robot.pose.x > x0 + 0.4, "0.4 m after the restart",
+                          v=0.2)
+        odom_x1, odom_y1, true_x1, true_y1 = await _at_rest(robot)
+        assert link.stats.restarts == 1
+        odometry = math.hypot(odom_x1 - odom_x, odom_y1 - odom_y)
+        truth = math.hypot(true_x1 - true_x, true_y1 - true_y)
+        assert truth > 0.4
+        assert odometry == pytest.approx(truth, rel=0.02), (odometry, truth)
+        assert abs(robot.pose.theta) < math.radians(3)
+        robot.disable()
+
+
+async def test_a_closed_robot_refuses_every_command() -> None:
+    # Issue 37.9: after close, enable() returned without error and the state read ENABLED
+    # until the deadman fired, every board's link closed. Every command now raises, as a
+    # closed Link's do; the state stays what close left (disabled); close again is quiet.
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    await robot.start()
+    robot.enable()
+    await robot.close()
+    assert robot.state is State.DISABLED
+    for call in (robot.enable, robot.disable, robot.stop, lambda: robot.drive(0.1, 0.0)):
+        with pytest.raises(RobotClosed):
+            call()
+    with pytest.raises(RobotClosed):
+        await robot.go_to(1.0, 0.0)
+    with pytest.raises(RobotClosed):
+        async with robot.enabled():
+            pass
+    assert robot.state is State.DISABLED
+    await robot.close()
+
+
+async def test_an_enable_a_board_refused_is_a_failed_enable_said_and_stopped(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # Issue 37.9: the robot suppressed a link's refusal to enable (its port gone a moment
+    # before its link said so, say) and reported ENABLED with that board never enabled.
+    async with emulated("surface=ideal") as robot:
+        logs = {n: enable_log(robot, n) for n in ("L", "R")}
+
+        def refuse() -> None:
+            raise BoardLost("R: port is disconnected (reconnecting)")
+
+        monkeypatch.setattr(robot.links["R"], "enable", refuse)
+        events = robot.events()
+        with pytest.raises(RobotStopped, match="board R") as raised:
+            robot.enable()
+        assert robot.state is State.DISABLED
+        assert raised.value.event is not None
+        assert raised.value.event.reason is StopReason.ENABLE_FAILED
+        event = await asyncio.wait_for(events.__anext__(), PATIENCE)
+        if event.reason is None:  # enabled, L's RE sent, before R refused
+            event = await asyncio.wait_for(events.__anext__(), PATIENCE)
+        assert event.reason is StopReason.ENABLE_FAILED and event.board == "R", event
+        assert "port is disconnected" in event.detail
+        # L, enabled before R refused, got its RD.
+        await wait_until(lambda: logs["L"] and not logs["L"][-1].enabled, PATIENCE,
+                         "L disabled")
+        assert logs["L"][-1].cause is EnableCause.DISABLE
+        assert not logs["R"] or not logs["R"][-1].enabled
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.drive(0.1, 0.0)
+
+
+async def test_a_flood_of_commands_does_not_starve_the_enables_renewal() -> None:
+    # A teleop without the deadman (the node's require_enable false): the robot renews
+    # its enable itself while a command comes on every turn of the loop for 2 s. (Each
+    # command re-armed the renewal's timer, cancelling it from the ready queue before it
+    # could run: the deadman lapsed, again and again, under a cmd_vel flood.)
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.keep_enabled(0.125)
+        robot.arbiter.auto_enable = True
+        events = robot.events()
+        loop = asyncio.get_running_loop()
+        end = loop.time() + 2.0
+        sent = 0
+
+        def flood() -> None:
+            nonlocal sent
+            robot.teleop.velocity(0.05, 0.0)
+            sent += 1
+            if loop.time() < end:
+                loop.call_soon(flood)
+
+        loop.call_soon(flood)
+        while loop.time() < end + 0.2:
+            await asyncio.sleep(0.05)
+        stops = []
+        while len(events):
+            event = await events.__anext__()
+            if event.state is State.DISABLED and not event.recovered:
+                stops.append(event)
+        assert sent > 10  # a command on every turn of the loop, however slow the machine
+        assert not [e for e in stops if e.reason is StopReason.DEADMAN], stops
+        assert robot.state is State.ENABLED
+        robot.disable()
+
+
+async def test_a_teleop_command_before_the_enable_is_held_and_driven_when_it_comes() -> None:
+    # cmd_vel's first message often overtakes enable's: held, then driven by the enable
+    # within the command timeout (said as a notice with what it drove); a stale one never.
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.arbiter.command_timeout = 0.5
+        notices: list[Any] = []
+        robot.on_notice(notices.append)
+        held = robot.teleop.velocity(0.1, 0.0)
+        assert held.taken is Taken.HELD and "not enabled" in held.reason
+        robot.enable()
+        sent = [n for n in notices if isinstance(n, CommandNotice)]
+        assert sent and sent[-1].command is not None and sent[-1].command.v == 0.1
+        await wait_until(lambda: firmware(robot, "L").channels[1].reference != 0.0,
+                         PATIENCE, "L driven by the held command")
+        robot.disable()
+        robot.teleop.velocity(0.1, 0.0)
+        await asyncio.sleep(0.6)  # older than the command timeout when the enable comes
+        robot.enable()
+        assert robot.command is None
+        robot.disable()
+
+
+async def test_a_timed_command_that_runs_out_brings_the_wheels_to_rest_and_is_said(
+        ) -> None:
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        robot.arbiter.command_timeout = 0.2
+        notices: list[Any] = []
+        robot.on_notice(notices.append)
+        async with robot.enabled():
+            driven = robot.teleop.velocity(0.1, 0.0)
+            assert driven.taken is Taken.DRIVEN
+            await wait_until(lambda: any(isinstance(n, CommandNotice) for n in notices),
+                             PATIENCE, "the command's timeout")
+            (notice,) = [n for n in notices if isinstance(n, CommandNotice)]
+            assert "no command for 0.2 s: wheels to rest" in notice.text
+            await wait_until(lambda: all(firmware(robot, b).channels[c].reference == 0.0
+                                         for b in ("L", "R") for c in (1, 2)),
+                             PATIENCE, "every reference 0")
+            assert robot.state is State.ENABLED  # to rest, still enabled
+
+
+async def test_wheel_references_reach_each_wheel_with_its_boards_sign() -> None:
+    # BR mounted the other way round (forward -1): a forward-positive reference is sent
+    # to it negated; wheels not named get 0; unknown wheels are refused, nothing sent.
+    br_block = 'board = "R"\nchannel = "B"\nx = -0.29\ny = -0.33\nforward = 1'
+    assert br_block in SEED_ROBOT_TOML
+    description = parse_robot(SEED_ROBOT_TOML.replace(br_block, br_block[:-1] + "-1"))
+    assert description.wheel("BR").forward == -1
+    async with emulated("surface=ideal&body=kinematic", description=description) as robot:
+        with pytest.raises(RobotStopped, match="not enabled"):
+            robot.set_wheel_references({"FL": 10.0})
+        async with robot.enabled():
+            robot.set_wheel_references({"FL": 12.0, "BR": -7.0})
+            br = robot.description.wheel("BR")
+            await wait_until(lambda: firmware(robot, "L").channels[1].reference == 12.0
+                             and firmware(robot, "R").channels[br.channel].reference
+                             == -7.0 * br.forward, PATIENCE, "the references on the boards")
+            assert firmware(robot, "L").channels[2].reference == 0.0
+            with pytest.raises(LocalProtocolError, match="no wheel"):
+                robot.set_wheel_references({"XX": 1.0})
+
+
+async def test_sample_sets_are_stamped_by_each_boards_own_time() -> None:
+    async with emulated("surface=ideal&body=kinematic") as robot:
+        sets = robot.sample_sets(min_period=0.01)
+        got = []
+        async for stamped in sets:
+            got.append(stamped)
+            if len(got) == 60:
+                break
+        sets.close()
+        assert all(s.clocked for s in got)
+        for stamped in got[-10:]:
+            # Each sample on the host's clock by its board's own time: the boards' stamps
+            # are as far apart as their t_us (their mapping settled within a few ms).
+            apart_us = stamped.samples["R"].t_us - stamped.samples["L"].t_us
+            assert abs((stamped.stamps["R"] - stamped.stamps["L"]) / 1000 - apart_us) < 5000
+            assert stamped.stamp == stamped.stamps["L"]
+        spacing = [b.stamp - a.stamp for a, b in itertools.pairwise(got)]
+        assert min(spacing) > 0  # in order, at most one set per 10 ms of arrival
+        assert [s.odometry_stamp for s in got] == sorted(s.odometry_stamp for s in got)
