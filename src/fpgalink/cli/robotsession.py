@@ -383,8 +383,9 @@ class RobotRun:
 
         install_stop_signals(self.stop)
         robot = Robot.open(self.description, self.ports, baud=self.conn.baud)
-        for name, link in robot.links.items():
-            log_wire(name, link, self.conn.verbose)
+        for name in self.description.boards:
+            log_wire(name, functools.partial(robot.boards.add_listener, name),
+                     self.conn.verbose)
         try:
             await robot.start()
         except RobotError as exc:

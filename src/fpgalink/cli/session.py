@@ -120,15 +120,19 @@ async def gather_all(*aws: Awaitable[T]) -> list[T]:
 _RECEIVED = Message | CountedMessage | DirectCommand | Malformed
 
 
-def on_messages(link: Link, callback: Callable[[Parsed], None]) -> Callable[[], None]:
+def on_messages(link: Link | Callable[[Callable[[Event], None]], Callable[[], None]],
+                callback: Callable[[Parsed], None]) -> Callable[[], None]:
     """Call ``callback`` with every message ``link`` receives (``PA`` echoes, unknown IDs,
-    ``E`` … not only telemetry); returns the function that stops it."""
+    ``E`` … not only telemetry); returns the function that stops it. ``link`` may also be
+    an ``add_listener`` of its own (a robot's board: ``functools.partial(robot.boards.
+    add_listener, name)``)."""
 
     def listener(event: Event) -> None:
         if isinstance(event, _RECEIVED):
             callback(event)
 
-    return link.add_listener(listener)
+    add_listener = link if callable(link) else link.add_listener
+    return add_listener(listener)
 
 
 def write_stdout(text: str) -> None:

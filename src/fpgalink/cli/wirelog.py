@@ -14,7 +14,10 @@ from fpgalink.cli.output import describe
 from fpgalink.cli.session import on_messages
 
 if TYPE_CHECKING:
+    from collections.abc import Callable
+
     from fpgalink.aio.link import Link
+    from fpgalink.events import Event
     from fpgalink.protocol import Parsed
 
 __all__ = ["content_bytes", "log_wire"]
@@ -31,9 +34,10 @@ def content_bytes(message: Parsed) -> bytes:
     return encode_message(message, message.counter or 0)
 
 
-def log_wire(name: str, link: Link, verbose: int) -> None:
-    """At ``-v`` (``verbose`` ≥ 1) say each message ``link`` receives; telemetry at
-    ``-vv``."""
+def log_wire(name: str, link: Link | Callable[[Callable[[Event], None]], Callable[[], None]],
+             verbose: int) -> None:
+    """At ``-v`` (``verbose`` ≥ 1) say each message ``link`` (or a robot board's
+    ``add_listener``) receives; telemetry at ``-vv``."""
     if verbose < 1:
         return
     from fpgalink.protocol import Telemetry
