@@ -337,6 +337,11 @@ def _board_faults(specs: list[str], names: list[str]) -> dict[str, list[str]]:
             raise ServeError(str(exc).splitlines()[0], EXIT_BAD_INPUT) from None
         for target in targets:
             faults[target].append(fault)
+    for name, specs in faults.items():  # and no board given more than the grammar allows
+        try:
+            parse_faults(specs)
+        except ValueError as exc:
+            raise ServeError(f"board {name}: {exc}", EXIT_BAD_INPUT) from None
     return faults
 
 
