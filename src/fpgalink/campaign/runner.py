@@ -24,7 +24,7 @@ from typing import Any, TypeVar
 
 from fpgalink.campaign.recording import recording_name
 from fpgalink.campaign.scenario import Result, run_scenario
-from fpgalink.campaign.spec import Campaign, CampaignError, Scenario
+from fpgalink.campaign.spec import Campaign, CampaignError, Scenario, check_installed
 
 __all__ = ["DASK_MISSING", "default_jobs", "iter_results", "recording_paths", "run_campaign"]
 
@@ -58,6 +58,7 @@ def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | Non
 def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
                  dask: str | None = None, mcap_dir: str | Path | None = None
                  ) -> Iterator[Result]:
+    check_installed(scenarios)  # before the first scenario, not in each one
     paths = recording_paths(scenarios, mcap_dir)
     # A file there older than this run is an earlier run's, not one a lost worker began.
     began = time.time()
