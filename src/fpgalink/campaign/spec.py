@@ -44,7 +44,7 @@ from fpgalink.protocol.robot import (
 from fpgalink.protocol.tomlfile import TomlFileError, load_toml
 
 __all__ = ["Action", "Campaign", "CampaignError", "ParamSetting", "Scenario", "check_installed",
-           "check_surface", "load_campaign", "parse_campaign"]
+           "check_surface", "importable", "load_campaign", "parse_campaign"]
 
 BODIES = ("kinematic", "mujoco")
 #: The grounds of the mujoco body (fpgaemu's physics; a test holds the two lists equal). The
@@ -441,13 +441,14 @@ def check_installed(scenarios: Sequence[Scenario], where: str = "campaign") -> N
     that submits needs it too.)"""
     for body, (module, what, extra) in BODY_NEEDS.items():
         count = sum(1 for s in scenarios if s.body == body)
-        if count and not _importable(module):
+        if count and not importable(module):
             raise CampaignError(f"{where}: {count} of {len(scenarios)} scenario(s) run on "
                                 f"body {body!r}, which needs {what}, not installed here: "
                                 f"pip install 'fpgalink[{extra}]'")
 
 
-def _importable(module: str) -> bool:
+def importable(module: str) -> bool:
+    """Whether ``module`` can be found here, without importing it."""
     try:
         return importlib.util.find_spec(module) is not None
     except (ImportError, ValueError):  # a finder that refuses it, a broken half-import

@@ -31,12 +31,12 @@ from fpgalink.campaign.results import (
     write_json,
     write_parquet,
 )
+from fpgalink.campaign.runner import check_runnable
 from fpgalink.campaign.scenario import TOTALS
 from fpgalink.campaign.spec import (
     MAX_ACTION_S,
     MAX_SCENARIOS,
     MAX_STEP_DPS,
-    check_installed,
     check_surface,
 )
 from fpgalink.cli.figures import check_plot_path
@@ -245,7 +245,7 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
     _check_jobs(jobs)
     try:
         spec = load_campaign(spec_file)
-        check_installed(spec.scenarios, str(spec_file))
+        check_runnable(spec.scenarios, dask=dask, where=str(spec_file))
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     if mcap is not None:
@@ -385,7 +385,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
                 "scenario": scenarios}
     try:
         spec = parse_campaign(document, source="tune")
-        check_installed(spec.scenarios, f"tune --body {body}")
+        check_runnable(spec.scenarios, dask=dask, where=f"tune --body {body}")
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     if mcap_dir is not None:

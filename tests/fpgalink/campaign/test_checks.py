@@ -158,6 +158,17 @@ def test_a_file_that_needs_mujoco_where_it_is_missing_runs_nothing(tmp_path: Pat
                           "pip install 'fpgalink[physics]'")
 
 
+def test_dask_where_it_is_missing_runs_nothing(tmp_path: Path) -> None:
+    spec = _write(tmp_path / "c.toml", "[[scenario]]\nscript = [{ wait = 0.2 }]\n")
+    out = tmp_path / "out"
+    done = _plain("fpgalink-cli", PLAIN_CLI, "campaign", str(spec), "--dask", "local",
+                  "--out", str(out), "--mcap")
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, "--dask needs dask.distributed: pip install "
+                          "'fpgalink[campaign]'")
+    assert ANNOUNCED not in done.stderr and not out.exists()
+
+
 def _readme_commands() -> tuple[list[list[str]], list[list[str]]]:
     """README's campaign block: the commands before its ``pip install`` (what works after
     ``make demo``) and those after it."""
