@@ -129,6 +129,22 @@ def test_a_campaign_file_written_wrong_runs_nothing(tmp_path: Path, head: str,
     assert ANNOUNCED not in done.stderr and not out.exists()
 
 
+def test_the_kinematic_body_stands_on_the_robot_files_own_surfaces(tmp_path: Path) -> None:
+    from fpgalink.campaign import CampaignError, parse_campaign
+    from fpgalink.protocol.robot import SEED_ROBOT_TOML
+
+    robot = SEED_ROBOT_TOML.replace("[surfaces]", "[surfaces]\nasphalt = 1.2", 1)
+    assert robot != SEED_ROBOT_TOML
+    _write(tmp_path / "robot.toml", robot)
+    head: dict[str, str] = {"robot": "robot.toml", "surface": "asphalt"}
+    document = {"campaign": head, "scenario": [{"script": [{"wait": 0.1}]}]}
+    (scenario,) = parse_campaign(document, base=tmp_path).scenarios
+    assert scenario.description.chi == 1.2  # the host's odometry takes its χ
+    head["body"] = "mujoco"
+    with pytest.raises(CampaignError, match="surface 'asphalt': the mujoco body knows"):
+        parse_campaign(document, base=tmp_path)
+
+
 def test_the_mujoco_grounds_are_the_emulators() -> None:
     from fpgaemu import physics
     from fpgalink.campaign.spec import MUJOCO_SURFACES
