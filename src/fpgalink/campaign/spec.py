@@ -51,6 +51,7 @@ BODIES = ("kinematic", "mujoco")
 #: kinematic body takes the surfaces of the robot's description (the seed's robot: ideal,
 #: gravel, marble, grass).
 MUJOCO_SURFACES = ("gravel", "marble", "grass", "slope45-sand", "stairs")
+_NOT_FLAT = ("slope45-sand", "stairs")  #: grounds no kinematic (flat) body can stand for
 #: What a body needs beyond a plain install: the module, and the extra that brings it.
 BODY_NEEDS = {"mujoco": ("mujoco", "MuJoCo", "physics")}
 MAX_SCENARIOS = 100_000  #: a grid beyond this is a typo, not a campaign
@@ -427,7 +428,7 @@ def check_surface(body: str, surface: str, description: RobotDescription) -> Non
                                 f"{', '.join(MUJOCO_SURFACES)}")
     elif surface not in description.surfaces:
         known = ", ".join(description.surfaces)
-        if surface in MUJOCO_SURFACES:
+        if surface in _NOT_FLAT:
             raise CampaignError(f"surface {surface!r} on the kinematic body: it knows {known} "
                                 "(it is flat: slopes and stairs need the mujoco body)")
         raise CampaignError(f"surface {surface!r}: the kinematic body knows {known}; the "
