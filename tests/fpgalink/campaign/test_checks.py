@@ -185,45 +185,52 @@ def test_dask_where_it_is_missing_runs_nothing(tmp_path: Path) -> None:
     assert ANNOUNCED not in done.stderr and not out.exists()
 
 
-def _readme_commands() -> tuple[list[list[str]], list[list[str]]]:
-    """README's campaign block: the commands before its ``pip install`` (what works after
-    ``make demo``) and those after it."""
-    block = README[README.index("$ .venv/bin/fpgalink-cli campaign"):]
-    block = block[:block.index("```")]
-    before: list[list[str]] = []
-    after: list[list[str]] = []
-    into = before
-    for line in block.splitlines():
-        words = shlex.split(line.removeprefix("$ "), comments=True)
-        if words[0] == ".venv/bin/pip":
-            into = after
-        else:
-            assert words[0] == ".venv/bin/fpgalink-cli", line
-            into.append(words[1:])
-    return before, after
+EXAMPLES = sorted((ROOT / "examples" / "campaigns").glob("*.toml"))
 
 
-def test_the_readmes_campaign_examples_work_after_make_demo(tmp_path: Path) -> None:
-    """``make demo`` installs the package and matplotlib: a plain install here (matplotlib
-    left out too; it only adds summary.png). Each command's --out goes to a temporary
-    directory."""
-    before, after = _readme_commands()
-    assert [words[0] for words in before] == ["campaign", "tune"]
-    for number, words in enumerate(before):
-        if "--out" in words:
-            words[words.index("--out") + 1] = str(tmp_path / f"out{number}")
-        done = _plain("fpgalink-cli", PLAIN_CLI, *words, "--format", "json", timeout=280)
-        assert done.returncode == 0, (words, done.stderr[-2000:])
-        rows = json.loads(done.stdout)
-        assert rows and all(row["status"] == "ok" for row in rows), words
-    campaign = json.loads((tmp_path / "out0" / "results.json").read_text(encoding="utf-8"))
-    assert len(list((tmp_path / "out0").glob("*.mcap"))) == len(campaign)
-    # The seed's table needs MuJoCo: without it, refused at once, as the README says.
-    (seed36,) = after
-    done = _plain("fpgalink-cli", PLAIN_CLI, *seed36[:2])
-    assert done.returncode == 2, done.stderr
-    assert_one_line_error(done.stderr, "seed36.toml: 5 of 10 scenario(s)",
-                          "pip install 'fpgalink[physics]'")
+def _needs_mujoco(path: Path) -> bool:
+    from fpgalink.campaign import load_campaign
+
+    return any(s.body == "mujoco" for s in load_campaign(path).scenarios)
+
+
+@pytest.mark.parametrize("example", EXAMPLES, ids=[p.stem for p in EXAMPLES])
+def test_each_example_campaign_runs_after_make_demo_or_says_what_it_needs(
+        tmp_path: Path, example: Path) -> None:
+    """``make demo`` installs the package and matplotlib: here a plain install (matplotlib
+    left out too; it only adds summary.png). A file on the kinematic body runs whole, every
+    scenario ok, recorded; one with mujoco scenarios is refused at once, naming the extra."""
+    out = tmp_path / "out"
+    args = ("campaign", str(example.relative_to(ROOT)), "--out", str(out), "--mcap",
+            "--format", "json")
+    if _needs_mujoco(example):
+        done = _plain("fpgalink-cli", PLAIN_CLI, *args)
+        assert done.returncode == 2, done.stderr
+        assert_one_line_error(done.stderr, f"{example.name}: ", "scenario(s) run on body "
+                              "'mujoco'", "pip install 'fpgalink[physics]'")
+        assert not out.exists()
+        return
+    done = _plain("fpgalink-cli", PLAIN_CLI, *args, timeout=280)
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = json.loads(done.stdout)
+    assert rows and all(row["status"] == "ok" for row in rows), rows
+    assert len(list(out.glob("*.mcap"))) == len(rows)
+
+
+def test_what_the_readme_runs_after_make_demo_needs_no_extra() -> None:
+    """README's campaign commands before its ``pip install`` line (what works after ``make
+    demo``) name example files on the kinematic body; the test above runs each."""
+    shown = re.findall(r"^\$ \.venv/bin/(\S+) (.*)$", README, re.MULTILINE)
+    before_pip = []
+    for program, line in shown:
+        if program == "pip":
+            break
+        words = shlex.split(line, comments=True)
+        if program == "fpgalink-cli" and words[0] == "campaign":
+            before_pip.append(ROOT / words[1])
+    assert before_pip or "fpgalink-cli campaign" not in README
+    for path in before_pip:
+        assert path in EXAMPLES and not _needs_mujoco(path), path
 
 
 # --- literal text: nothing read as markup ----------------------------------------------
