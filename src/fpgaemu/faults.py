@@ -3,7 +3,9 @@
 Line faults (bit errors, dropped, duplicated and noise bytes, stuck and cut windows) live in
 :class:`~fpgaemu.uart.LineFaults`, one per direction. This module adds what is not a property
 of one line: a host that babbles random bytes at full line rate (:class:`Babbler`, a board
-peripheral), and the parser that turns ``--fault SPEC`` strings into a :class:`FaultSet`.
+peripheral), and :func:`parse_faults`, which turns ``--fault SPEC`` strings into a
+:class:`FaultSet`: the grammar itself (and its bounds) is :mod:`fpgalink.protocol.faults`,
+shared with the host, which checks a campaign's faults with it before anything runs.
 
 Everything random draws from ``Timeline.rng(name)``, so a seed fixes every fault exactly.
 Times in specs are seconds of emulated time from power-up (for ``fpgaemu serve``, from when
@@ -18,44 +20,34 @@ from typing import TYPE_CHECKING, Any
 
 from fpgaemu.timeline import seconds_to_cycles
 from fpgaemu.uart import LineFaults
+from fpgalink.protocol.faults import (
+    FAULT_HELP,
+    FAULT_KEYS,
+    Babble,
+    DropFrames,
+    Fault,
+    FaultSpecError,
+    LineNoise,
+    LineRate,
+    LineWindow,
+    Restart,
+    TelemetryLoss,
+    Unplug,
+    WheelStuck,
+    WindowFault,
+    parse_fault,
+)
+from fpgalink.protocol.faults import parse_faults as parse_fault_list
 
 if TYPE_CHECKING:
     from fpgaemu.board import Board
 
-__all__ = ["FAULT_HELP", "Babbler", "BoardFaults", "FaultSet", "parse_fault_spec", "parse_faults"]
-
-#: The grammar, for ``--help`` and error messages (docs/reliability.md has the long form).
-FAULT_HELP = """\
-rx-* = host->board line, tx-* = board->host line; RATE is a probability in [0, 1],
-START_S:DURATION_S are seconds of emulated time from power-up. Repeatable.
-  rx-ber=RATE / tx-ber=RATE        each bit slot inverted with probability RATE
-  rx-drop=RATE / tx-drop=RATE      each byte lost with probability RATE
-  rx-dup=RATE / tx-dup=RATE        each byte sent twice with probability RATE
-  rx-noise=RATE:LEN / tx-noise=..  LEN random bytes inserted before a byte, probability RATE
-  rx-stuck=START_S:DURATION_S      line held low (break): bytes become framing errors
-  tx-stuck=..., stuck=...          (stuck = both lines)
-  rx-cut=START_S:DURATION_S        line cut: nothing sent in the window arrives
-  tx-cut=..., disconnect=...       (disconnect = both lines)
-  stall=START_S:DURATION_S         the host stalls: the board hears nothing (= rx-cut)
-  babble=START_S:DURATION_S        the host sends random bytes at full line rate
-  drop-frames=ID:N                 lose the first N host->board frames with message ID
-  wheel-stuck=A|B[:START_S:DUR_S]  that channel's wheel is blocked (from power-up, for ever)
-  restart=T_S (or restart@T_S)     the board power-cycles at T_S: registers, RAM, counter,
-                                   clock and parameters back to power-up; the wheels go on
-  tm-loss=START_S:DURATION_S       the board's TM frames are lost on the way to the host
-                                   (E, PA, PN pass): a telemetry-only loss
-  unplug=START_S:DURATION_S        fpgaemu serve: the board's pty or TCP connection goes
-                                   away (the host's port is lost) and comes back"""
-
-FAULT_KEYS = ("rx-ber", "tx-ber", "rx-drop", "tx-drop", "rx-dup", "tx-dup", "rx-noise",
-              "tx-noise", "rx-stuck", "tx-stuck", "stuck", "rx-cut", "tx-cut", "disconnect",
-              "stall", "babble", "drop-frames", "wheel-stuck", "restart", "tm-loss", "unplug")
+__all__ = ["FAULT_HELP", "FAULT_KEYS", "Babbler", "BoardFaults", "FaultSet", "FaultSpecError",
+           "parse_fault_spec", "parse_faults"]
 
 #: The babbler refills the line this often; short enough that the line never goes idle
 #: between refills for longer than a few bytes, long enough to cost one call per refill.
 BABBLE_CHUNK_S = 0.001
-#: Times in a spec are below this (a year of emulated time): anything later is a typo.
-_LONGEST_S = 365 * 86400.0
 
 
 @dataclass
@@ -91,10 +83,11 @@ class FaultSet:
 
 
 def parse_faults(specs: list[str]) -> FaultSet:
-    """``--fault`` specs → everything they ask for; ``ValueError`` naming the grammar."""
+    """One board's ``--fault`` specs → everything they ask for; :class:`FaultSpecError` (a
+    ``ValueError``) naming the grammar, or the bound a number is outside."""
     wanted = FaultSet()
-    for spec in specs:
-        parse_fault_spec(spec, wanted)
+    for fault in parse_fault_list(specs):
+        _add(fault, wanted)
     return wanted
 
 
@@ -170,86 +163,52 @@ class BoardFaults:
         return True
 
 
-def _rate(text: str) -> float:
-    rate = float(text)
-    if not 0.0 <= rate <= 1.0:
-        raise ValueError
-    return rate
-
-
-def _window(text: str) -> tuple[int, int]:
-    start_s, sep, duration_s = text.partition(":")
-    if not sep:
-        raise ValueError
-    start, duration = float(start_s), float(duration_s)
-    if not (0 <= start < _LONGEST_S and 0 <= duration < _LONGEST_S):  # NaN fails too
-        raise ValueError
-    first = seconds_to_cycles(start)
-    return first, first + seconds_to_cycles(duration)
-
-
 def parse_fault_spec(spec: str, into: FaultSet) -> None:
-    """Add one ``KEY=VALUE`` spec to ``into``; ``ValueError`` naming the grammar if bad."""
-    key, _, value = spec.partition("=")
-    try:
-        direction, _, kind = key.partition("-")
-        lines = {"rx": [into.rx], "tx": [into.tx]}.get(direction)
-        if key == "drop-frames":
-            msg_id, _, count = value.partition(":")
-            if len(msg_id) not in (1, 2) or not count.isdigit():
-                raise ValueError
-            into.drop_frames[msg_id.encode()] = int(count)
-        elif key in ("stuck", "disconnect", "stall"):
-            window = _window(value)
-            targets = [into.rx] if key == "stall" else [into.rx, into.tx]
-            for line in targets:
-                (line.stuck if key == "stuck" else line.cut).append(window)
-        elif key == "babble":
-            start, end = _window(value)
-            into.babble.append((start, end))
-        elif key == "restart" or key.startswith("restart@"):
-            at = key.partition("@")[2] if key != "restart" else value
-            if key != "restart" and value:
-                raise ValueError
-            restart_s = float(at)
-            if not 0 <= restart_s < _LONGEST_S:  # NaN fails too
-                raise ValueError
-            into.restarts.append(seconds_to_cycles(restart_s))
-        elif key == "tm-loss":
-            into.tm_loss.append(_window(value))
-        elif key == "unplug":
-            into.unplugs.append(_window(value))
-        elif key == "wheel-stuck":
-            channel, _, when = value.partition(":")
-            if channel not in ("A", "B"):
-                raise ValueError
-            first, last = _window(when) if when else (0, None)
-            into.stuck_wheels.append((1 if channel == "A" else 2, first, last))
-        elif lines is not None and kind == "ber":
-            for line in lines:
-                line.bit_error_rate = _rate(value)
-        elif lines is not None and kind == "drop":
-            for line in lines:
-                line.drop_rate = _rate(value)
-        elif lines is not None and kind == "dup":
-            for line in lines:
-                line.dup_rate = _rate(value)
-        elif lines is not None and kind == "noise":
-            rate, _, length = value.partition(":")
-            for line in lines:
-                line.noise_rate = _rate(rate)
-                line.noise_len = int(length) if length else 1
-                if line.noise_len < 1:
-                    raise ValueError
-        elif lines is not None and kind in ("stuck", "cut"):
-            for line in lines:
-                (line.stuck if kind == "stuck" else line.cut).append(_window(value))
-        else:
-            raise ValueError
-    except ValueError:
-        raise ValueError(f"bad fault spec {spec!r}: expected KEY=VALUE with KEY one of "
-                         f"{', '.join(FAULT_KEYS)} (the grammar: fpgaemu serve --help, "
-                         "docs/reliability.md)") from None
+    """Add one ``KEY=VALUE`` spec to ``into``; :class:`FaultSpecError` (a ``ValueError``)
+    naming the grammar, or the bound a number is outside, if bad."""
+    _add(parse_fault(spec), into)
+
+
+def _cycles(fault: WindowFault) -> tuple[int, int]:
+    first = seconds_to_cycles(fault.start_s)
+    return first, first + seconds_to_cycles(fault.duration_s)
+
+
+def _lines(into: FaultSet, which: tuple[str, ...]) -> list[LineFaults]:
+    return [into.rx if line == "rx" else into.tx for line in which]
+
+
+def _add(fault: Fault, into: FaultSet) -> None:
+    if isinstance(fault, LineRate):
+        for line in _lines(into, fault.lines):
+            setattr(line, _RATES[fault.kind], fault.rate)
+    elif isinstance(fault, LineNoise):
+        for line in _lines(into, fault.lines):
+            line.noise_rate, line.noise_len = fault.rate, fault.length
+    elif isinstance(fault, LineWindow):
+        for line in _lines(into, fault.lines):
+            (line.stuck if fault.kind == "stuck" else line.cut).append(_cycles(fault))
+    elif isinstance(fault, Babble):
+        into.babble.append(_cycles(fault))
+    elif isinstance(fault, TelemetryLoss):
+        into.tm_loss.append(_cycles(fault))
+    elif isinstance(fault, Unplug):
+        into.unplugs.append(_cycles(fault))
+    elif isinstance(fault, DropFrames):
+        into.drop_frames[fault.message_id.encode()] = fault.count
+    elif isinstance(fault, Restart):
+        into.restarts.append(seconds_to_cycles(fault.at_s))
+    elif isinstance(fault, WheelStuck):
+        first = seconds_to_cycles(fault.start_s)
+        last = None if fault.duration_s is None else first + seconds_to_cycles(
+            fault.duration_s)
+        into.stuck_wheels.append((1 if fault.channel == "A" else 2, first, last))
+    else:  # a kind the grammar gained and this model not yet
+        raise FaultSpecError(f"fault spec {fault.text!r}: not modelled by the emulator")
+
+
+#: ``LineRate.kind`` → the :class:`~fpgaemu.uart.LineFaults` field it sets
+_RATES = {"ber": "bit_error_rate", "drop": "drop_rate", "dup": "dup_rate"}
 
 
 class Babbler:

@@ -46,6 +46,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 from fpgaemu.timeline import CLOCK_HZ, Timeline
+from fpgalink.protocol.faults import MAX_NOISE_LEN
 
 if TYPE_CHECKING:  # numpy loads only for a line with faults
     import numpy as np
@@ -144,6 +145,8 @@ class LineFaults:
     dup_rate: float = 0.0
     #: probability that a burst of ``noise_len`` random bytes precedes each sender byte.
     noise_rate: float = 0.0
+    #: at most :data:`~fpgalink.protocol.faults.MAX_NOISE_LEN`: a burst is laid out bit by
+    #: bit, noise and all, so this bounds the memory a burst can take
     noise_len: int = 1
     #: ``[start, end)`` cycle windows in which the line is held low (a break): every slot
     #: sent then reads 0, so the receiver sees zero bytes with framing errors.
@@ -157,8 +160,8 @@ class LineFaults:
             rate = getattr(self, name)
             if not 0.0 <= rate <= 1.0:
                 raise ValueError(f"{name} must be in [0, 1], got {rate}")
-        if self.noise_len < 1:
-            raise ValueError(f"noise_len must be at least 1, got {self.noise_len}")
+        if not 1 <= self.noise_len <= MAX_NOISE_LEN:  # the --fault grammar's bound
+            raise ValueError(f"noise_len must be 1..{MAX_NOISE_LEN}, got {self.noise_len}")
         for _, bit in self.flip_bits:
             if not 0 <= bit < BITS_PER_BYTE:
                 raise ValueError(f"bit index {bit} is not a slot 0..9 of an 8N1 byte")

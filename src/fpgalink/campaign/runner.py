@@ -24,9 +24,16 @@ from typing import Any, TypeVar
 
 from fpgalink.campaign.recording import recording_name
 from fpgalink.campaign.scenario import Result, run_scenario
-from fpgalink.campaign.spec import Campaign, CampaignError, Scenario
+from fpgalink.campaign.spec import (
+    Campaign,
+    CampaignError,
+    Scenario,
+    check_installed,
+    importable,
+)
 
-__all__ = ["DASK_MISSING", "default_jobs", "iter_results", "recording_paths", "run_campaign"]
+__all__ = ["DASK_MISSING", "check_runnable", "default_jobs", "iter_results", "recording_paths",
+           "run_campaign"]
 
 _T = TypeVar("_T")
 
@@ -58,6 +65,7 @@ def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | Non
 def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
                  dask: str | None = None, mcap_dir: str | Path | None = None
                  ) -> Iterator[Result]:
+    check_runnable(scenarios, dask=dask)  # before the first scenario, not in each one
     paths = recording_paths(scenarios, mcap_dir)
     # A file there older than this run is an earlier run's, not one a lost worker began.
     began = time.time()
@@ -72,6 +80,15 @@ def iter_results(scenarios: Sequence[Scenario], *, jobs: int | None = None,
             yield run_scenario(scenario, paths[scenario.index])
         return
     yield from _on_processes(scenarios, paths, min(jobs, len(scenarios)), began)
+
+
+def check_runnable(scenarios: Sequence[Scenario], *, dask: str | None = None,
+                   where: str = "campaign") -> None:
+    """:class:`CampaignError` (one line) if what the run needs is not installed here: the
+    extras of the scenarios' bodies and, for ``dask``, ``dask.distributed``."""
+    check_installed(scenarios, where)
+    if dask is not None and not importable("dask.distributed"):
+        raise CampaignError(DASK_MISSING)
 
 
 def recording_paths(scenarios: Sequence[Scenario], mcap_dir: str | Path | None

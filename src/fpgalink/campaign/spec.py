@@ -23,6 +23,7 @@ script = [{ wheels = [50, -50], seconds = 20, settle = 3 }]
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 import math
 from collections.abc import Mapping, Sequence
@@ -32,6 +33,7 @@ from typing import Any
 from urllib.parse import quote
 
 from fpgalink.protocol.errors import FpgalinkError
+from fpgalink.protocol.faults import MAX_FAULTS, Unplug, parse_fault
 from fpgalink.protocol.params import Scope, lookup, resolve
 from fpgalink.protocol.robot import (
     BOARD_NAME,
@@ -41,15 +43,20 @@ from fpgalink.protocol.robot import (
 )
 from fpgalink.protocol.tomlfile import TomlFileError, load_toml
 
-__all__ = ["Action", "Campaign", "CampaignError", "ParamSetting", "Scenario", "load_campaign",
-           "parse_campaign"]
+__all__ = ["Action", "Campaign", "CampaignError", "ParamSetting", "Scenario", "check_installed",
+           "check_surface", "importable", "load_campaign", "parse_campaign"]
 
 BODIES = ("kinematic", "mujoco")
-#: Surfaces the emulated robot knows (fpgaemu's physics; the kinematic body takes the first
-#: three). Checked again by the emulator, which names its own list.
-SURFACES = ("ideal", "gravel", "marble", "grass", "slope45-sand", "stairs")
+#: The grounds of the mujoco body (fpgaemu's physics; a test holds the two lists equal). The
+#: kinematic body takes the surfaces of the robot's description (the seed's robot: ideal,
+#: gravel, marble, grass).
+MUJOCO_SURFACES = ("gravel", "marble", "grass", "slope45-sand", "stairs")
+_NOT_FLAT = ("slope45-sand", "stairs")  #: grounds no kinematic (flat) body can stand for
+#: What a body needs beyond a plain install: the module, and the extra that brings it.
+BODY_NEEDS = {"mujoco": ("mujoco", "MuJoCo", "physics")}
 MAX_SCENARIOS = 100_000  #: a grid beyond this is a typo, not a campaign
 MAX_ACTION_S = 3600.0  #: one action's emulated seconds
+MAX_STEP_DPS = 1000.0  #: a step's target, deg/s (and a wheel speed's)
 ACTION_KINDS = ("wheels", "drive", "goto", "step", "wait")
 
 
@@ -164,10 +171,12 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
         "body": "kinematic", "surface": "gravel", "seed": 0, "robot": None,
         "params": (), "faults": (), "mcap": False})
     name = _text(head.get("name", Path(source).stem), f"{where}: [campaign] name")
-    grid = _grid(_table(document.get("grid", {}), f"{where}: [grid]"), f"{where}: [grid]")
     raw = document.get("scenario")
     if not isinstance(raw, list) or not raw:
         raise CampaignError(f"{where}: no [[scenario]]: a campaign needs at least one")
+    grid_table = _table(document.get("grid", {}), f"{where}: [grid]")
+    _count(grid_table, len(raw), f"{where}: [grid]")  # counted before anything is built
+    grid = _grid(grid_table, f"{where}: [grid]")
     templates = []
     for number, table in enumerate(raw, 1):
         at = f"{where}: scenario {number}"
@@ -177,13 +186,10 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
         settings = _common(table, at, base, defaults)
         label = _text(table.get("name", f"scenario {number}"), f"{at} name")
         script = _script(table.get("script"), f"{at} ({label})")
-        templates.append((label, settings, script))
+        templates.append((f"{at} ({label})", label, settings, script))
     points = list(itertools.product(*(values for _, values in grid))) or [()]
-    total = len(points) * len(templates)
-    if total > MAX_SCENARIOS:
-        raise CampaignError(f"{where}: {total:,} scenarios; at most {MAX_SCENARIOS:,}")
     scenarios: list[Scenario] = []
-    for label, settings, script in templates:
+    for at, label, settings, script in templates:
         for point in points:
             chosen = dict(settings)
             params = list(chosen["params"])
@@ -192,14 +198,20 @@ def parse_campaign(document: Mapping[str, Any], *, source: str = "campaign",
                     chosen[key] = value
                 else:
                     params = [p for p in params if p.label != value.label] + [value]
+            shown = tuple((key, value.value if isinstance(value, ParamSetting) else value)
+                          for (key, _), value in zip(grid, point, strict=True))
             description = chosen["description"]
+            try:
+                check_surface(chosen["body"], chosen["surface"], description)
+            except CampaignError as exc:
+                said = ", ".join(f"{key} = {value!r}" for key, value in shown)
+                raise CampaignError(at + (f", grid point {said}" if said else "")
+                                    + f": {exc}") from None
             if chosen["surface"] in description.surfaces:
                 # The host's odometry uses the χ of the ground the robot is on; a surface
                 # the description has no χ for (a slope, stairs) keeps its default.
                 description = description.on_surface(chosen["surface"])
             _check_boards(params, chosen["faults"], description, f"{where}: {label}")
-            shown = tuple((key, value.value if isinstance(value, ParamSetting) else value)
-                          for (key, _), value in zip(grid, point, strict=True))
             scenarios.append(Scenario(
                 name=label, index=len(scenarios), body=chosen["body"],
                 surface=chosen["surface"], seed=chosen["seed"], description=description,
@@ -216,8 +228,8 @@ def _common(table: Mapping[str, Any], where: str, base: Path | None,
     out = dict(defaults)
     if "body" in table:
         out["body"] = _choice(table["body"], BODIES, f"{where} body")
-    if "surface" in table:
-        out["surface"] = _choice(table["surface"], SURFACES, f"{where} surface")
+    if "surface" in table:  # which surfaces the body knows: checked per scenario
+        out["surface"] = _text(table["surface"], f"{where} surface")
     if "seed" in table:
         out["seed"] = _seed(table["seed"], f"{where} seed")
     if "robot" in table:
@@ -237,18 +249,48 @@ def _common(table: Mapping[str, Any], where: str, base: Path | None,
             raise CampaignError(f"{where} mcap: true or false")
         out["mcap"] = table["mcap"]
     if "faults" in table:
-        faults = table["faults"]
-        if not isinstance(faults, list) or not all(isinstance(f, str) for f in faults):
-            raise CampaignError(f"{where} faults: a list of \"BOARD:FAULT\" strings, as "
-                                "fpgaemu serve --fault takes them (e.g. \"L:restart=5\")")
-        out["faults"] = tuple(faults)
+        out["faults"] = _faults(table["faults"], f"{where} faults")
     return out
+
+
+def _faults(faults: object, where: str) -> tuple[str, ...]:
+    """``["L:restart=5", …]``: each spec checked with the emulator's own grammar
+    (:mod:`fpgalink.protocol.faults`), bounds and all; which boards there are is checked
+    per scenario, with its robot."""
+    if not isinstance(faults, list) or not all(isinstance(f, str) for f in faults):
+        raise CampaignError(f"{where}: a list of \"BOARD:FAULT\" strings, as fpgaemu serve "
+                            "--fault takes them (e.g. \"L:restart=5\")")
+    per_board: dict[str, int] = {}
+    for number, text in enumerate(faults, 1):
+        at = f"{where}[{number}] {text[:120]!r}"
+        board, sep, spec = text.partition(":")
+        if not sep or not BOARD_NAME.fullmatch(board):
+            raise CampaignError(f"{at}: write BOARD:FAULT (e.g. \"L:restart=5\")")
+        try:
+            fault = parse_fault(spec)
+        except FpgalinkError as exc:
+            raise CampaignError(f"{at}: {exc}") from None
+        if isinstance(fault, Unplug):
+            raise CampaignError(f"{at}: unplug is a fault of fpgaemu serve's pty or TCP "
+                                "link; a campaign's boards run in its own process")
+        per_board[board] = per_board.get(board, 0) + 1
+        if per_board[board] > MAX_FAULTS:
+            raise CampaignError(f"{where}: more than {MAX_FAULTS} faults for board {board}; "
+                                f"at most {MAX_FAULTS}")
+    return tuple(faults)
 
 
 def _params(table: object, where: str) -> list[ParamSetting]:
     if not isinstance(table, Mapping):
         raise CampaignError(f"{where}: a table of NAME = value (e.g. Kp_Wheel_Pid = 400.0)")
-    return [_param(key, value, where) for key, value in table.items()]
+    settings: dict[str, tuple[str, ParamSetting]] = {}
+    for key, value in table.items():
+        setting = _param(key, value, where)
+        if setting.label in settings:  # Kp_Wheel_PidA and Kp_Wheel_Pid.A: one would be lost
+            raise CampaignError(f"{where}: {settings[setting.label][0]!r} and {key!r} both "
+                                f"set {setting.label}: give it once")
+        settings[setting.label] = (key, setting)
+    return [setting for _, setting in settings.values()]
 
 
 def _param(key: str, value: object, where: str) -> ParamSetting:
@@ -277,20 +319,46 @@ def _param(key: str, value: object, where: str) -> ParamSetting:
     return ParamSetting(param.name, code, float(value), board)
 
 
-def _grid(table: Mapping[str, Any], where: str) -> list[tuple[str, list[Any]]]:
-    grid: list[tuple[str, list[Any]]] = []
+def _count(table: Mapping[str, Any], templates: int, where: str) -> None:
+    """The grid's scenarios, counted from the lengths of its lists before a value is read
+    or a combination built: a grid too large to run is refused at once, whatever its size."""
+    lengths = []
     for key, values in table.items():
         if not isinstance(values, list) or not values:
             raise CampaignError(f"{where} {key}: a non-empty list of values")
+        lengths.append(len(values))
+    total = math.prod(lengths) * templates
+    if total > MAX_SCENARIOS:
+        product = " × ".join(f"{n:,}" for n in lengths)
+        raise CampaignError(f"{where}: {total:,} scenarios ({product} values × {templates} "
+                            f"[[scenario]]); at most {MAX_SCENARIOS:,}")
+
+
+def _grid(table: Mapping[str, Any], where: str) -> list[tuple[str, list[Any]]]:
+    grid: list[tuple[str, list[Any]]] = []
+    for key, values in table.items():
         if key == "body":
             grid.append((key, [_choice(v, BODIES, f"{where} body") for v in values]))
         elif key == "surface":
-            grid.append((key, [_choice(v, SURFACES, f"{where} surface") for v in values]))
+            grid.append((key, [_text(v, f"{where} surface") for v in values]))
         elif key == "seed":
             grid.append((key, [_seed(v, f"{where} seed") for v in values]))
         else:
-            grid.append((key, [_param(key, v, where) for v in values]))
+            settings = [_param(key, v, where) for v in values]
+            for other, earlier in grid:
+                if other not in ("body", "surface", "seed") and _overlap(earlier[0],
+                                                                          settings[0]):
+                    raise CampaignError(f"{where}: {other!r} and {key!r} both set "
+                                        f"{settings[0].label}: give it one key")
+            grid.append((key, settings))
     return grid
+
+
+def _overlap(a: ParamSetting, b: ParamSetting) -> bool:
+    """Whether two settings set the same parameter of some board's channel (a name without
+    a board means every board; channel 0 of a channel parameter, both channels)."""
+    return a.name == b.name and (a.board is None or b.board is None or a.board == b.board) \
+        and (a.channel == 0 or b.channel == 0 or a.channel == b.channel)
 
 
 def _script(raw: object, where: str) -> tuple[Action, ...]:
@@ -328,7 +396,7 @@ def _action(kind: str, item: Mapping[str, Any], where: str, number: int) -> Acti
     else:
         seconds = default_s
     if kind == "wheels":
-        left, right = _pair(item["wheels"], f"{where} wheels", 1000.0)
+        left, right = _pair(item["wheels"], f"{where} wheels", MAX_STEP_DPS)
         settle = _number(item.get("settle", 0.0), f"{where} settle", 0.0, MAX_ACTION_S)
         return Action(kind, seconds, label, left=left, right=right, settle=settle)
     if kind == "drive":
@@ -340,7 +408,7 @@ def _action(kind: str, item: Mapping[str, Any], where: str, number: int) -> Acti
         return Action(kind, seconds, label, x=x, y=y, theta=None if theta is None else
                       _number(theta, f"{where} theta", -360.0, 360.0))
     if kind == "step":
-        to = _number(item["step"], f"{where} step", -1000.0, 1000.0)
+        to = _number(item["step"], f"{where} step", -MAX_STEP_DPS, MAX_STEP_DPS)
         if to == 0:
             raise CampaignError(f"{where} step: a step to 0 deg/s from rest is no step")
         wheel = item.get("wheel")
@@ -348,6 +416,44 @@ def _action(kind: str, item: Mapping[str, Any], where: str, number: int) -> Acti
             wheel = _text(wheel, f"{where} wheel")
         return Action(kind, seconds, label, to=to, wheel=wheel)
     return Action(kind, seconds, label)
+
+
+def check_surface(body: str, surface: str, description: RobotDescription) -> None:
+    """:class:`CampaignError` (one line, no location) if ``body`` cannot stand on
+    ``surface``: the kinematic body knows the description's surfaces (it needs their χ),
+    the mujoco body its physical grounds. The emulator holds to the same rule."""
+    if body == "mujoco":
+        if surface not in MUJOCO_SURFACES:
+            raise CampaignError(f"surface {surface!r}: the mujoco body knows "
+                                f"{', '.join(MUJOCO_SURFACES)}")
+    elif surface not in description.surfaces:
+        known = ", ".join(description.surfaces)
+        if surface in _NOT_FLAT:
+            raise CampaignError(f"surface {surface!r} on the kinematic body: it knows {known} "
+                                "(it is flat: slopes and stairs need the mujoco body)")
+        raise CampaignError(f"surface {surface!r}: the kinematic body knows {known}; the "
+                            f"mujoco body {', '.join(MUJOCO_SURFACES)}")
+
+
+def check_installed(scenarios: Sequence[Scenario], where: str = "campaign") -> None:
+    """:class:`CampaignError` (one line naming what is missing and the pip command) if a
+    scenario's body needs what is not installed here. Called before any scenario runs, so
+    a campaign never runs its first half to fail its second. (On a Dask cluster the machine
+    that submits needs it too.)"""
+    for body, (module, what, extra) in BODY_NEEDS.items():
+        count = sum(1 for s in scenarios if s.body == body)
+        if count and not importable(module):
+            raise CampaignError(f"{where}: {count} of {len(scenarios)} scenario(s) run on "
+                                f"body {body!r}, which needs {what}, not installed here: "
+                                f"pip install 'fpgalink[{extra}]'")
+
+
+def importable(module: str) -> bool:
+    """Whether ``module`` can be found here, without importing it."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a finder that refuses it, a broken half-import
+        return False
 
 
 def _check_boards(params: Sequence[ParamSetting], faults: Sequence[str],

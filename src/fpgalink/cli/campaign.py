@@ -31,9 +31,25 @@ from fpgalink.campaign.results import (
     write_json,
     write_parquet,
 )
+from fpgalink.campaign.runner import check_runnable
 from fpgalink.campaign.scenario import TOTALS
+from fpgalink.campaign.spec import (
+    MAX_ACTION_S,
+    MAX_SCENARIOS,
+    MAX_STEP_DPS,
+    check_surface,
+)
+from fpgalink.cli.figures import check_plot_path
 from fpgalink.cli.formats import Column, emit_rows, format_option
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
+from fpgalink.cli.output import (
+    EXIT_CODES_HELP,
+    CliError,
+    ExitCode,
+    FiniteRange,
+    console,
+    note,
+)
+from fpgalink.protocol.robot import seed_robot
 
 __all__ = ["campaign", "tune"]
 
@@ -68,11 +84,19 @@ def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: boo
         f"{min(jobs or default_jobs(), total)} process(es)"
     if not quiet:
         note(f"campaign {spec.name}: {total} scenario(s) on {where}")
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TimeElapsedColumn
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+    )
 
     failed = 0
-    with Progress("[progress.description]{task.description}", BarColumn(),
-                  MofNCompleteColumn(), TimeElapsedColumn(), transient=True,
+    # The campaign's name is the user's text: shown as it is, never read as markup.
+    with Progress(TextColumn("{task.description}", style="progress.description",
+                             markup=False), BarColumn(), MofNCompleteColumn(),
+                  TimeElapsedColumn(), console=console(stderr=True), transient=True,
                   disable=quiet or not sys.stderr.isatty()) as progress:
         task = progress.add_task(spec.name, total=total)
 
@@ -221,6 +245,7 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
     _check_jobs(jobs)
     try:
         spec = load_campaign(spec_file)
+        check_runnable(spec.scenarios, dask=dask, where=str(spec_file))
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     if mcap is not None:
@@ -249,24 +274,47 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
 
 
 def _grid(entries: Sequence[str]) -> list[tuple[str, list[float]]]:
-    grid = []
+    """``--grid`` entries → (gain, values), each gain once; the combinations are counted
+    from the entries' lengths before a value is read or a combination built."""
+    given: dict[str, str] = {}
+    words: list[tuple[str, str, list[str]]] = []
     for entry in entries:
         name, sep, values = entry.partition("=")
         key = GAIN_NAMES.get(name.strip().lower())
         if not sep or key is None:
-            raise CliError(f"--grid {entry!r}: write Kp=V1,V2,…, Ti=…, or Td=…",
+            raise CliError(f"--grid {_short(entry)!r}: write Kp=V1,V2,…, Ti=…, or Td=…",
                            ExitCode.BAD_INPUT)
+        if key in given:  # a second Kp= would silently replace the first
+            raise CliError(f"--grid {_short(entry)!r}: {name.strip()} given twice (also "
+                           f"--grid {_short(given[key])!r}): one --grid per gain, every "
+                           "value in it (Kp=500,600)", ExitCode.BAD_INPUT)
+        given[key] = entry
+        words.append((key, entry, [v for v in values.split(",") if v.strip()]))
+    if not words:
+        raise CliError("--grid: give at least one of Kp=…, Ti=…, Td=…", ExitCode.BAD_INPUT)
+    combinations = math.prod(len(texts) for _, _, texts in words)
+    most = MAX_SCENARIOS - 1  # and the seed's row
+    if combinations > most:
+        product = " × ".join(f"{len(texts):,}" for _, _, texts in words)
+        raise CliError(f"--grid: {combinations:,} combinations ({product}); at most {most:,}",
+                       ExitCode.BAD_INPUT)
+    grid = []
+    for key, entry, texts in words:
         try:
-            numbers = [float(v) for v in values.split(",") if v.strip()]
+            numbers = [float(v) for v in texts]
         except ValueError:
-            raise CliError(f"--grid {entry!r}: values must be numbers",
+            raise CliError(f"--grid {_short(entry)!r}: values must be numbers",
                            ExitCode.BAD_INPUT) from None
         if not numbers or not all(math.isfinite(v) for v in numbers):
-            raise CliError(f"--grid {entry!r}: give finite numbers", ExitCode.BAD_INPUT)
+            raise CliError(f"--grid {_short(entry)!r}: give finite numbers",
+                           ExitCode.BAD_INPUT)
         grid.append((key, numbers))
-    if not grid:
-        raise CliError("--grid: give at least one of Kp=…, Ti=…, Td=…", ExitCode.BAD_INPUT)
     return grid
+
+
+def _short(text: str, most: int = 60) -> str:
+    """A user's long option value, cut for a one-line message."""
+    return text if len(text) <= most else text[:most - 1] + "…"
 
 
 def _score(row: dict[str, Any]) -> tuple[float, float, float]:
@@ -284,12 +332,16 @@ def _score(row: dict[str, Any]) -> tuple[float, float, float]:
               metavar="NAME=V1,V2,…",
               help="Gains to try: Kp=…, Ti=…, Td=… (repeat; every combination runs).")
 @click.option("--surface", default="gravel", show_default=True,
-              help="The ground the robot stands on.")
+              help="The ground the robot stands on: with --body kinematic a surface of the "
+                   "seed's robot (ideal, gravel, marble, grass), with mujoco gravel, marble, "
+                   "grass, slope45-sand or stairs.")
 @click.option("--body", type=click.Choice(["kinematic", "mujoco"]), default="kinematic",
               show_default=True)
-@click.option("--to", "target", type=float, default=45.0, show_default=True,
+@click.option("--to", "target", type=FiniteRange(-MAX_STEP_DPS, MAX_STEP_DPS), default=45.0,
+              show_default=True,
               help="The step, deg/s, on every wheel (the robot drives straight).")
-@click.option("--seconds", type=float, default=2.0, show_default=True)
+@click.option("--seconds", type=FiniteRange(0.0, MAX_ACTION_S, min_open=True), default=2.0,
+              show_default=True, help="How long each step is measured (emulated s).")
 @click.option("--jobs", "-j", type=int, default=None)
 @click.option("--dask", metavar="ADDRESS")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
@@ -306,9 +358,19 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
     Every wheel steps with each combination of gains set on CHANNEL of every board; the
     best settles soonest (then overshoots least). The seed's §3.4 pidtune gains, converted
     to this board's units, run beside them as the reference row."""
+    # Everything the options say is checked before the first combination runs.
     _check_jobs(jobs)
     channel = channel.upper()
     grid = _grid(grid_entries)
+    if target == 0:
+        raise CliError("--to 0: a step to 0 deg/s from rest is no step", ExitCode.BAD_INPUT)
+    try:
+        check_surface(body, surface, seed_robot())
+    except CampaignError as exc:
+        raise CliError(f"--surface {_short(surface)} --body {body}: {exc}",
+                       ExitCode.BAD_INPUT) from None
+    if plot is not None:
+        check_plot_path(plot)
     combos = [dict(zip([k for k, _ in grid], values, strict=True))
               for values in itertools.product(*(v for _, v in grid))]
     scenarios: list[dict[str, Any]] = [{"name": "seed §3.4", "params": {f"{k}.{channel}": v
@@ -323,6 +385,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
                 "scenario": scenarios}
     try:
         spec = parse_campaign(document, source="tune")
+        check_runnable(spec.scenarios, dask=dask, where=f"tune --body {body}")
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     if mcap_dir is not None:
@@ -362,9 +425,8 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
 
 
 def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str) -> None:
-    from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+    from fpgalink.cli.figures import new_figure, save_figure
 
-    check_plot_path(path)
     figure = new_figure((8.0, 6.0))
     names = [("step.settling_s", "settling s"), ("step.overshoot_pct", "overshoot %"),
              ("step.rise_s", "rise s")]

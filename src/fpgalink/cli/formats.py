@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from fpgalink.cli.output import CliError, ExitCode, write_out
+from fpgalink.cli.output import CliError, ExitCode, console, write_out
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -111,16 +111,7 @@ def console_width() -> int:
 
 
 def _console() -> Console:
-    from rich.console import Console
-
-    class PipeConsole(Console):
-        """rich's console ends the program with exit 1 when its reader goes away (``|
-        head -1``); here that is the entry point's quiet exit 0, as for every other write."""
-
-        def on_broken_pipe(self) -> None:
-            raise BrokenPipeError
-
-    return PipeConsole(width=console_width(), soft_wrap=False, highlight=False)
+    return console(width=console_width(), soft_wrap=False)
 
 
 def print_renderable(renderable: Any) -> None:
@@ -146,8 +137,10 @@ def fit_table(columns: Sequence[Column], rows: Sequence[Sequence[str]], width: i
               title: str | None = None) -> Table:
     """A rich table of ``rows`` (text) that fits ``width``: droppable columns are left out,
     highest :attr:`Column.drop` first, until it fits; what is left folds rather than being
-    cut with an ellipsis."""
+    cut with an ellipsis. Every text is literal (:class:`rich.text.Text`): a cell holds what
+    a user or a dependency wrote, never markup."""
     from rich.table import Table
+    from rich.text import Text
 
     natural = [max([len(c.header), *(len(r[i]) for r in rows)]) for i, c in
                enumerate(columns)]
@@ -164,13 +157,15 @@ def fit_table(columns: Sequence[Column], rows: Sequence[Sequence[str]], width: i
     if left_out:
         caption = (f"left out to fit {width} columns: {', '.join(left_out)} "
                    "(--format json has every column)")
-    table = Table(title=title, caption=caption, title_justify="left", caption_justify="left")
+    table = Table(title=None if title is None else Text(title),
+                  caption=None if caption is None else Text(caption), title_justify="left",
+                  caption_justify="left")
     for i in keep:
         column = columns[i]
-        table.add_column(column.header, justify=column.justify,  # type: ignore[arg-type]
+        table.add_column(Text(column.header), justify=column.justify,  # type: ignore[arg-type]
                          overflow="fold")
     for row in rows:
-        table.add_row(*(row[i] for i in keep))
+        table.add_row(*(Text(row[i]) for i in keep))
     return table
 
 

@@ -155,12 +155,13 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
 
 async def _live_table(sessions: list[BoardSession], stop: asyncio.Event,
                       duration: float | None) -> None:
-    from rich.console import Console
     from rich.live import Live
+
+    from fpgalink.cli.output import console
 
     started = time.monotonic()
     deadline = None if duration is None else started + duration
-    with Live(render(sessions, started, duration), console=Console(), auto_refresh=False,
+    with Live(render(sessions, started, duration), console=console(), auto_refresh=False,
               transient=False) as live:
         while not stop.is_set():
             now = time.monotonic()

@@ -27,6 +27,7 @@ __all__ = [
     "FiniteRange",
     "SignedNumbers",
     "classify",
+    "console",
     "describe",
     "echo_out",
     "format_value",
@@ -216,8 +217,23 @@ def quiet_stdout() -> None:
     os.dup2(devnull, sys.stdout.fileno())
 
 
-def table_console() -> Console:
-    """stdout for tables: a terminal's width, or wide enough not to cut names in a pipe."""
+def console(*, stderr: bool = False, **options: Any) -> Console:
+    """A rich console that prints text as it is: no markup, no emoji codes, no highlighting.
+    Everything the CLI shows may hold what a user or a dependency wrote (a file name, a
+    scenario's name, an error's hint such as ``pip install 'fpgalink[physics]'``), and rich
+    would take ``[physics]`` for a style and drop it. Every console the CLI prints through
+    is made here. A reader that goes away (``| head -1``) is a BrokenPipeError, which the
+    entry point ends with a quiet exit 0, as for every other write (rich's own console
+    would exit 1)."""
     from rich.console import Console
 
-    return Console(soft_wrap=False) if sys.stdout.isatty() else Console(width=200)
+    class PipeConsole(Console):
+        def on_broken_pipe(self) -> None:
+            raise BrokenPipeError
+
+    return PipeConsole(stderr=stderr, markup=False, emoji=False, highlight=False, **options)
+
+
+def table_console() -> Console:
+    """stdout for tables: a terminal's width, or wide enough not to cut names in a pipe."""
+    return console(soft_wrap=False) if sys.stdout.isatty() else console(width=200)

@@ -238,11 +238,13 @@ async def _record_stats(session: BoardSession, write: Any) -> None:
 
 async def _progress(stop: asyncio.Event, duration: float | None, counts: dict[str, int],
                     path: Path) -> None:
-    from rich.console import Console
     from rich.progress import BarColumn, Progress, SpinnerColumn, TextColumn, TimeElapsedColumn
 
-    console = Console(stderr=True)
-    columns: list[Any] = [SpinnerColumn(), TextColumn("recording to {task.fields[path]}")]
+    from fpgalink.cli.output import console as plain_console
+
+    console = plain_console(stderr=True)
+    columns: list[Any] = [SpinnerColumn(),
+                          TextColumn("recording to {task.fields[path]}", markup=False)]
     if duration is not None:
         columns.append(BarColumn())
     columns += [TimeElapsedColumn(), TextColumn("{task.fields[samples]} samples")]

@@ -706,10 +706,11 @@ class RobotRun:
 @contextlib.contextmanager
 def live(run: RobotRun, status: Callable[[], str]) -> Any:
     """A live view on stderr while the block runs (only on a terminal)."""
-    from rich.console import Console
     from rich.live import Live
 
-    console = Console(stderr=True)
+    from fpgalink.cli.output import console as plain_console
+
+    console = plain_console(stderr=True)
     if not console.is_terminal:
         yield lambda: None
         return

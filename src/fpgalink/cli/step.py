@@ -332,15 +332,16 @@ class _StepProgress:
     """A bar on stderr while the step runs (only on a terminal, like ``record``'s)."""
 
     def __init__(self, total: float, samples: list[Any], stop: asyncio.Event) -> None:
-        from rich.console import Console
         from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
-        console = Console(stderr=True)
+        from fpgalink.cli.output import console as plain_console
+
+        console = plain_console(stderr=True)
         self._samples = samples
         self._stop = stop
         self._started = time.monotonic()
         self._progress = Progress(
-            TextColumn("{task.description}"), BarColumn(), TimeElapsedColumn(),
+            TextColumn("{task.description}", markup=False), BarColumn(), TimeElapsedColumn(),
             TextColumn("{task.fields[samples]} samples"),
             console=console, disable=not console.is_terminal)
         self._task = self._progress.add_task("starting", total=total, samples=0)
