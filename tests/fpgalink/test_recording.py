@@ -6,8 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from fpgalink import recording
-from fpgalink.recording import McapSink
+from fpgalink.recording import McapSink, files, mcapfile, partial_path
 from tests.support.recordings import readable_topics
 
 #: One message of about 1 kB: a chunk holds CHUNK_BYTES // 1000 of them.
@@ -16,7 +15,7 @@ RECORD = {"kind": "x", "detail": "y" * 900, "timestamp": 0.0}
 
 def fast_writer(path: Path, monkeypatch: pytest.MonkeyPatch) -> McapSink:
     """A recording written faster than its timed flushes: none comes."""
-    monkeypatch.setattr(recording, "FLUSH_S", float("inf"))
+    monkeypatch.setattr(mcapfile, "FLUSH_S", float("inf"))
     return McapSink(path, ["L"], {}, library="test")
 
 
@@ -27,12 +26,13 @@ def test_an_abandoned_recording_keeps_every_complete_chunk(
     writer fills many chunks in one flush period."""
     path = tmp_path / "r.mcap"
     sink = fast_writer(path, monkeypatch)
-    per_chunk = recording.CHUNK_BYTES // 1000
+    per_chunk = mcapfile.CHUNK_BYTES // 1000
     written = 6 * per_chunk
     for i in range(written):
         sink.add("/board/L/params", RECORD, float(i))
     sink.abandon()
-    readable = len(readable_topics(path))
+    assert not path.exists()  # not finished: it stays under its partial name
+    readable = len(readable_topics(partial_path(path)))
     # Every message but those of the chunk still open (at most a chunk's worth).
     assert written - per_chunk - 10 <= readable < written
 
@@ -44,13 +44,13 @@ def test_the_summarys_room_stays_reserved_ahead_of_a_fast_writer(
     fills then must still take the summary."""
     path = tmp_path / "r.mcap"
     sink = fast_writer(path, monkeypatch)
-    for i in range(3 * recording.RESERVE_BYTES // 1000):  # three reserves' worth
+    for i in range(3 * files.RESERVE_BYTES // 1000):  # three reserves' worth
         sink.add("/board/L/params", RECORD, float(i))
-    stat = path.stat()
+    stat = partial_path(path).stat()  # being written
     allocated_past_end = stat.st_blocks * 512 - stat.st_size
     sink.close()
-    if recording._fallocate() is None:
+    if files._fallocate() is None:
         pytest.skip("no fallocate here: the reserve is the writes' to find")
     # Reserved from the last chunk's end: the reserve, less what of its last block the
     # file's end already used.
-    assert allocated_past_end >= recording.RESERVE_BYTES - 4096, allocated_past_end
+    assert allocated_past_end >= files.RESERVE_BYTES - 4096, allocated_past_end

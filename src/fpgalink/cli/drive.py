@@ -31,15 +31,17 @@ __all__ = ["drive"]
 @format_option
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
-          record: Path | None, rosbag: Path | None, fmt: str, robot_file: Path | None,
-          surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
+          record: Path | None, rosbag: Path | None, force: bool, fmt: str,
+          robot_file: Path | None, surface: str | None, truth_url: str | None,
+          conn: ConnectionOptions) -> int:
     """Drive the robot at --v and --omega, holding the deadman, with a live view.
 
     A command beyond the robot's limits (speed, turn rate, any wheel's maximum) is scaled
     down keeping its curvature. Ends after --for seconds or on Ctrl-C, stopped and disabled.
     Exit 7 when supervision stopped it (a board went silent).
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag,
+                       force=force)
     code = run(_drive(session, speed, math.radians(omega), duration))
     session.print_summary(fmt, {"command": {"v_mps": speed, "omega_dps": omega,
                                             "for_s": duration}})

@@ -39,7 +39,7 @@ __all__ = ["goto"]
 @format_option
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
-         plot: Path | None, record: Path | None, rosbag: Path | None, fmt: str,
+         plot: Path | None, record: Path | None, rosbag: Path | None, force: bool, fmt: str,
          robot_file: Path | None, surface: str | None, truth_url: str | None,
          conn: ConnectionOptions) -> int:
     """Drive the robot to X Y (m, in the odometry frame of the start) and stop there.
@@ -48,7 +48,8 @@ def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: 
     stops within --tolerance (then turns to --theta if given). Exit 0 on arrival, 6 when not
     there within --time-limit, 7 when supervision stopped the robot, 130 on Ctrl-C.
     """
-    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag)
+    session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag,
+                       force=force)
     target = f"({x:g}, {y:g})" + ("" if theta is None else f", θ {theta:g}°")
     arrived: list[Any] = []
     try:

@@ -49,20 +49,25 @@ class ExitCode(IntEnum):
     BAD_INPUT = 2  #: usage, unknown parameter, value out of range or of the wrong type
     REFUSED = 3  #: the board answered PN (or another value than the one sent)
     NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
-    PORT = 5  #: the port is missing, busy or failed
+    #: the port is missing, busy or failed; or a file or directory to write is being
+    #: written by another process now
+    PORT = 5
     TIMEOUT = 6  #: a goal was not reached in time (goto); the robot was stopped
     #: a fault stopped the robot or the step: a board went silent, restarted, disabled itself
     #: (its watchdog: this host stalled) or its telemetry stopped; or the deadman lapsed
     STOPPED = 7
+    #: a recording read back is damaged: what is intact was used, each damaged part named
+    DAMAGED = 8
     INTERRUPTED = 130  #: Ctrl-C (128 + SIGINT), after a clean stop
 
 
 EXIT_CODES_HELP = (
     "Exit codes: 0 ok; 1 other failure; 2 bad input (usage, unknown parameter, value out of "
     "range or of the wrong type; nothing sent); 3 board refused (PN) or confirmed another "
-    "value; 4 board not answering; 5 port missing or busy; 6 goal not reached in time; 7 "
-    "stopped by a fault (a board silent, restarted, disabled by its watchdog, its telemetry "
-    "stopped; the deadman); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), each "
+    "value; 4 board not answering; 5 port missing or busy (or a file another process is "
+    "writing now); 6 goal not reached in time; 7 stopped by a fault (a board silent, restarted, "
+    "disabled by its watchdog, its telemetry stopped; the deadman); 8 a recording read is "
+    "damaged (the rest was used); 130 interrupted (Ctrl-C), 143 terminated (SIGTERM), each "
     "after a clean stop."
 )
 
@@ -110,7 +115,14 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
         RequestTimeout,
         ValueMismatch,
     )
+    from fpgalink.recording import OutputBusy, OutputRefused, RecordingError
 
+    if isinstance(exc, RecordingError):  # its message names the file: no prefix
+        if isinstance(exc, OutputRefused):
+            return CliError(f"{exc}; --force replaces it" if exc.exists else str(exc),
+                            ExitCode.BAD_INPUT)
+        return CliError(str(exc), ExitCode.PORT if isinstance(exc, OutputBusy)
+                        else ExitCode.FAILURE)
     prefix = f"{where}: " if where else ""
     if isinstance(exc, ParameterError | LocalProtocolError):
         return CliError(str(exc), ExitCode.BAD_INPUT)

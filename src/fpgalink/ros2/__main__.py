@@ -39,8 +39,11 @@ def _fail(message: str, code: int = 2) -> None:
 EXIT_CODES_TABLE = """\
 exit codes:
   0    stopped by SIGINT or SIGTERM, the robot stopped and the boards disabled
-  1    stdout could not be written (--help or --version into a full disk)
-  2    bad input: usage, a robot description, a --port
+  1    stdout could not be written (--help or --version into a full disk), or the --bag
+       recording stopped early (a full disk: the bag complete up to there) or could not be
+       finished
+  2    bad input: usage, a robot description, a --port, a --bag DIR that exists (without
+       --force) or that another process is writing
   3    ROS 2 is not installed (the message says how to install it)
   4    the boards could not be reached, or a link failed while running"""
 
@@ -68,6 +71,8 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--bag", metavar="DIR", type=Path,
                         help="record the node's inputs and outputs into a new rosbag2 DIR "
                         "(MCAP, CDR; with the rosbags library)")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the --bag DIR if it exists")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -224,18 +229,24 @@ def main(argv: list[str] | None = None) -> None:
 
         try:
             bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
-                                        "robot": description.name})
+                                        "robot": description.name}, force=options.force)
         except BagError as exc:
-            _fail(str(exc))
+            _fail(str(exc), exc.code)
     rclpy.init(args=argv)
+    code = 0
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
                                 bag, options.lifecycle))
     finally:
         if bag is not None:
-            bag.close()
-            print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
-                  flush=True)
+            try:
+                bag.close()
+            except BagError as exc:  # stopped early: complete up to there, or not finished
+                print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+                code = code or exc.code
+            else:
+                print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
+                      flush=True)
         with contextlib.suppress(Exception):
             rclpy.shutdown()
     sys.exit(code)

@@ -140,5 +140,6 @@ def test_help_documents_exit_codes() -> None:
     assert done.returncode == 0
     text = " ".join(done.stdout.split())
     for code in ("2 bad input", "3 board refused", "4 board not answering",
-                 "5 port missing or busy", "130 interrupted"):
+                 "5 port missing or busy", "8 a recording read is damaged",
+                 "130 interrupted"):
         assert code in text

@@ -1,0 +1,176 @@
+"""A rosbag2 (version 9, MCAP storage, CDR) through the same path as every recording: the
+bag directory is made as ``NAME.partial/NAME`` and renamed into place when closed; its MCAP
+file is written by :class:`~fpgalink.recording.mcapfile.McapFile` (chunks with CRCs, closed
+every half second, the summary's room reserved), so a full disk closes the bag complete up to
+there and any failure is one :class:`~fpgalink.recording.files.RecordingError` line.
+
+``rosbags`` writes the bag (its message definitions, type hashes, QoS and ``metadata.yaml``)
+with :class:`BagStorage` as its MCAP storage; this module does not import ``rosbags`` (ROS
+stays in the CLI's ``--rosbag2`` and the node's ``--bag``): the caller hands over a
+``rosbags.rosbag2.Writer`` whose ``STORAGE_PLUGINS`` map MCAP to :class:`BagStorage`.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from fpgalink.recording.files import DiskFull, Output, RecordingError
+from fpgalink.recording.mcapfile import McapFile, describe_error
+
+__all__ = ["BagRecording", "BagStorage"]
+
+#: Kept allocated beside the bag and released just before it is closed: room for its
+#: ``metadata.yaml`` on a full disk (the MCAP file's summary has its own reserve).
+METADATA_RESERVE_BYTES = 256 * 1024
+RESERVE_NAME = ".fpgalink-reserve"
+#: The first line of an IDL message definition (rosbags' mark for the ``ros2idl`` encoding).
+_IDL = "=" * 80 + "\nIDL: "
+
+
+class BagStorage:
+    """``rosbags``' storage writer protocol over :class:`McapFile`: the bag directory's
+    ``NAME.mcap``, profile ``ros2``, schemas ``ros2msg`` (or ``ros2idl``), channels with their
+    ``offered_qos_profiles``, and the ``rosbag2`` metadata record ``rosbags`` writes."""
+
+    def __init__(self, path: Path, compression: Any = None) -> None:
+        self.path = path / f"{path.name}.mcap"
+        self._file = self.path.open("xb")
+        try:
+            self.mcap = McapFile(self._file, library="fpgalink rosbag2", profile="ros2")
+        except BaseException:
+            self._file.close()
+            raise
+        self._schemas: dict[str, int] = {}
+        self._channels: dict[int, int] = {}  # rosbags' connection id → the MCAP channel's
+
+    def add_msgtype(self, connection: Any) -> None:
+        text: str = connection.msgdef.data
+        encoding = "ros2idl" if text.startswith(_IDL) else "ros2msg"
+        self._schemas[connection.msgtype] = self.mcap.schema(connection.msgtype, encoding,
+                                                             text.encode())
+
+    def add_connection(self, connection: Any, offered_qos_profiles: str) -> None:
+        self._channels[connection.id] = self.mcap.channel(
+            connection.topic, connection.ext.serialization_format,
+            self._schemas[connection.msgtype], {"offered_qos_profiles": offered_qos_profiles})
+
+    def write(self, connection: Any, timestamp: int, data: bytes | memoryview) -> None:
+        self.mcap.add(self._channels[connection.id], bytes(data), timestamp, timestamp)
+
+    def close(self, version: int, metadata: str) -> None:
+        self.mcap.metadata("rosbag2", {"serialized_metadata": metadata})
+        self.mcap.finish()
+        self._file.close()
+
+    def abort(self) -> None:
+        self.mcap.cut_back()
+        with contextlib.suppress(OSError):
+            self._file.close()
+
+
+class BagRecording:
+    """One bag at ``target``: ``writer`` makes the (unopened) ``rosbags.rosbag2.Writer`` for a
+    directory path, with :class:`BagStorage` for MCAP. ``force``: replace a bag there (else
+    :class:`~fpgalink.recording.files.OutputRefused`); ``custom_data`` goes into its
+    ``metadata.yaml``. Write through :meth:`add_connection` and :meth:`write`; a failure
+    raises :class:`RecordingError` and stops the recording (every later write raises it
+    again); :meth:`close` puts the bag in place and says, by raising, what went wrong."""
+
+    def __init__(self, target: Path, *, force: bool, writer: Callable[[Path], Any],
+                 custom_data: dict[str, str]) -> None:
+        self.path = target
+        self.failure: BaseException | None = None
+        self.in_place = False  #: closed, and at ``target`` (complete up to where it got)
+        self._closed = False
+        self._output = Output(target, force=force, directory=True)
+        self._reserve = self._output.partial / RESERVE_NAME
+        try:
+            self._hold_reserve()
+            self.writer = writer(self._output.path)
+            for key, value in custom_data.items():
+                self.writer.set_custom_data(key, value)
+            self.writer.open()
+            storage = self.writer.storage
+            if not isinstance(storage, BagStorage):
+                raise TypeError("the bag's writer must store MCAP through BagStorage")
+            self.storage = storage
+        except BaseException as exc:
+            self._output.discard()
+            if isinstance(exc, OSError):
+                raise RecordingError(f"{target}: {describe_error(exc)}: the bag could not be "
+                                     "started; nothing left") from None
+            raise
+
+    @property
+    def messages(self) -> int:
+        return self.storage.mcap.messages
+
+    def _hold_reserve(self) -> None:
+        fd = os.open(self._reserve, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
+        try:
+            os.posix_fallocate(fd, 0, METADATA_RESERVE_BYTES)
+        except OSError as exc:
+            raise DiskFull(exc.errno, exc.strerror) from None
+        finally:
+            os.close(fd)
+
+    def _guard(self, call: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
+        if self._closed:
+            raise RecordingError(f"{self.path}: the bag is closed")
+        if self.failure is not None:
+            raise RecordingError(f"{self.path}: recording stopped: "
+                                 f"{describe_error(self.failure)}")
+        try:
+            return call(*args, **kwargs)
+        except OSError as exc:
+            self.failure = exc
+            raise RecordingError(f"{self.path}: recording stopped: {describe_error(exc)}"
+                                 ) from None
+
+    def add_connection(self, topic: str, msgtype: str, **options: Any) -> Any:
+        """``rosbags``' ``Writer.add_connection``; its connection."""
+        return self._guard(self.writer.add_connection, topic, msgtype, **options)
+
+    def write(self, connection: Any, log_ns: int, data: bytes | memoryview) -> None:
+        self._guard(self.writer.write, connection, log_ns, data)
+
+    def close(self) -> None:
+        """Close the bag (its MCAP summary, ``metadata.yaml``) and put it in place."""
+        if self._closed:
+            return
+        self._closed = True
+        storage = self.storage
+        problem = self.failure
+        with contextlib.suppress(OSError):
+            self._reserve.unlink()  # its room is metadata.yaml's now
+        if storage.mcap.consistent and (problem is None or self.messages):
+            try:
+                self.writer.close()
+            except OSError as exc:
+                problem = problem or exc
+            else:
+                self._output.commit()
+                self.in_place = True
+                if problem is None:
+                    return
+                span = ("" if storage.mcap.first_ns is None else
+                        f" after {(storage.mcap.last_ns - storage.mcap.first_ns) / 1e9:.1f} s")
+                raise RecordingError(
+                    f"{self.path}: {describe_error(problem)}; recording stopped{span} with "
+                    f"{self.messages} messages in the bag, which is complete up to there")
+        with contextlib.suppress(Exception):
+            self.writer.abort()
+        assert problem is not None
+        if storage.mcap.durable:
+            self._output.keep_partial()
+            raise RecordingError(
+                f"{self.path}: {describe_error(problem)}; the bag could not be finished: its "
+                f"{storage.mcap.durable} messages in complete chunks are in "
+                f"{self._output.path} (`ros2 bag reindex` rebuilds its metadata)")
+        self._output.discard()
+        raise RecordingError(f"{self.path}: {describe_error(problem)}; nothing was recorded, "
+                             "no bag left")
