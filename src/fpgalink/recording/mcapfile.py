@@ -76,6 +76,8 @@ class McapFile:
         self.last_ns = 0  #: the latest log time
         self.consistent = True  #: whether the writer's state matches the file's
         self._guarded(self._writer.start, profile=profile, library=library)
+        # Room for the summary before anything else: a disk without it refuses at once.
+        self._guarded(self._space.mark_good)
 
     def schema(self, name: str, encoding: str, data: bytes) -> int:
         schema_id: int = self._guarded(self._writer.register_schema, name=name,
