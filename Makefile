@@ -106,6 +106,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.flood --mb 5
 	$(PY) -m benchmarks.faults
 	$(PY) -m benchmarks.router
+	$(PY) -m benchmarks.recording
 	$(PY) -m benchmarks.campaign
 	$(PY) -m benchmarks.ceiling
 

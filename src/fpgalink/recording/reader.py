@@ -329,6 +329,9 @@ class RecordingReader:
             if not indexes and opcode == _CHUNK:
                 chunks_seen += 1
                 number = chunks_seen
+            if problem is None and index is not None and opcode != _CHUNK:
+                problem = "not a chunk where the file's index has one (damaged)"
+            framed = False  # whether the record's own length can be trusted
             if problem is None and opcode == _CHUNK:
                 found, header = self._read_chunk(pos, length, index)
                 if not isinstance(found, str):
@@ -342,15 +345,24 @@ class RecordingReader:
                     pos += 9 + length
                     continue
                 problem = found
+                # Its header parsed whole (and agrees with the index on its length): the
+                # damage is inside it, and reading goes on right after it.
+                framed = header is not None and (index is None or index.length == 9 + length)
             elif problem is None:
                 if opcode == _DATA_END:
-                    self._check_data_crc(pos)
+                    if not any(d.offset < pos for d in self.damage):  # else it says nothing new
+                        self._check_data_crc(pos)
                     return
                 pos += 9 + length
                 continue
-            # Damage: skipped up to the next place a chunk is known (or found) to start.
-            resume, budget = self._resume(pos, offsets, budget)
-            damage = Damage(pos, resume, problem, number)
+            # Damage: skipped up to the end of a chunk whose framing holds, else to the next
+            # place a chunk is known (or found) to start.
+            if framed:
+                resume = pos + 9 + length
+            else:
+                resume, budget = self._resume(pos, offsets, budget)
+            damage = Damage(pos, resume if index is None else pos + index.length, problem,
+                            number)
             if index is not None:
                 damage.start_ns, damage.end_ns, damage.exact = (index.start_ns, index.end_ns,
                                                                 True)
@@ -523,8 +535,9 @@ def _chunk_header(body: _Cursor) -> _ChunkHeader:
 
 
 def _check_structure(opcode: int, body: _Cursor) -> None:
-    """The records outside chunks whose fields say their length: checked, so a damaged
-    length is found here and does not carry the reading over a chunk unseen."""
+    """A record outside the chunks, its fields against its length: a damaged length or
+    opcode (a chunk's, turned into another record's) is found here, and never carries the
+    reading over a chunk unseen."""
     if opcode == _MESSAGE_INDEX:
         body.u16()
         entries = body.u32()
@@ -545,28 +558,65 @@ def _check_structure(opcode: int, body: _Cursor) -> None:
     elif opcode == _CHANNEL:
         _channel(body)
         return
-    else:
-        return  # others (attachments, indexes) are skipped as their length says
+    elif opcode == _CHUNK_INDEX:
+        _chunk_index(body)
+        return
+    elif opcode == _ATTACHMENT:
+        body.take(16)
+        body.text()
+        body.text()
+        body.take(body.u64())
+        body.take(4)
+    elif opcode == _ATTACHMENT_INDEX:
+        body.take(40)
+        body.text()
+        body.text()
+    elif opcode == _STATISTICS:
+        body.take(8 + 2 + 4 * 4 + 16)
+        body.take(body.u32())
+    elif opcode == _METADATA_INDEX:
+        body.take(16)
+        body.text()
+    elif opcode == _SUMMARY_OFFSET:
+        body.take(17)
+    elif opcode == _FOOTER:
+        body.take(20)
     body.done()
 
 
+#: A message record's start: opcode, length, channel, sequence, log and publish time.
+_MESSAGE_HEAD = struct.Struct("<BQHIQQ")
+_RECORD_HEAD = struct.Struct("<BQ")
+
+
 def _chunk_records(content: bytes) -> list[Any]:
+    """The records of a chunk's content (messages read in one unpack each: a chunk holds
+    hundreds)."""
     records: list[Any] = []
     pos, end = 0, len(content)
+    message_head, record_head = _MESSAGE_HEAD, _RECORD_HEAD
     while pos < end:
-        cursor = _Cursor(content, pos, end)
-        opcode = cursor.raw(1)[0]
-        body = cursor.sub(cursor.u64())
-        if opcode == _SCHEMA:
-            records.append(_schema(body))
-        elif opcode == _CHANNEL:
-            records.append(_channel(body))
-        elif opcode == _MESSAGE:
-            channel_id, sequence, log_time, publish_time = (body.u16(), body.u32(),
-                                                            body.u64(), body.u64())
+        if content[pos] == _MESSAGE and pos + 31 <= end:
+            _, length, channel_id, sequence, log_time, publish_time = \
+                message_head.unpack_from(content, pos)
+            stop = pos + 9 + length
+            if length < 22 or stop > end:
+                raise _Malformed
             records.append(Message(channel_id, sequence, log_time, publish_time,
-                                   body.raw(body.end - body.pos)))
+                                   content[pos + 31:stop]))
+            pos = stop
+            continue
+        if pos + 9 > end:
+            raise _Malformed
+        opcode, length = record_head.unpack_from(content, pos)
+        cursor = _Cursor(content, pos + 9, pos + 9 + length)
+        if cursor.end > end:
+            raise _Malformed
+        if opcode == _SCHEMA:
+            records.append(_schema(cursor))
+        elif opcode == _CHANNEL:
+            records.append(_channel(cursor))
         elif not _HEADER <= opcode <= _DATA_END:
             raise _Malformed
-        pos = cursor.pos
+        pos = cursor.end
     return records
