@@ -132,6 +132,23 @@ def test_a_disk_that_fills_stops_the_recording_complete_with_one_line(
 
 
 @needs_tmpfs
+def test_tune_on_a_disk_that_fills_says_each_recording_and_leaves_only_whole_files(
+        tmp_path: Path) -> None:
+    done, left, kept = on_small_disk(tmp_path, "1200k", "tune", "-c", "A", "--grid",
+                                     "Kp=100,200,300", "--seconds", "4", "--jobs", "1",
+                                     "--format", "json", "--mcap", "{small}/steps")
+    assert done.returncode == 1, done.stderr
+    assert "error: 3 of 4 recording(s) failed" in done.stderr and "Traceback" not in done.stderr
+    said = [line for line in done.stderr.splitlines() if ": recording: " in line]
+    assert len(said) == 3 and all("the disk is full" in line for line in said), said
+    assert left == ["steps"]
+    files = sorted(p.name for p in (kept / "steps").iterdir())
+    assert files and not [f for f in files if not f.endswith(".mcap")]  # no stub, no partial
+    for name in files:
+        assert mcap_messages(kept / "steps" / name) > 1000
+
+
+@needs_tmpfs
 def test_plot_onto_a_full_disk_is_one_line_and_leaves_no_stub(tmp_path: Path) -> None:
     recording = tmp_path / "run.mcap"
     assert run_cli("record", str(recording), "--duration", "0.5").returncode == 0
