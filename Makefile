@@ -88,7 +88,7 @@ test: $(STAMP) iverilog cc tf2-msgs
 # command says that the built-in emulator stands in; the second names it, so it is said once.
 demo: $(DEMO_STAMP)
 	$(VENV)/bin/fpgalink-cli param list
-	$(VENV)/bin/fpgalink-cli step --channel A --to 45 --hold 2 --plot step.png --port emu://
+	$(VENV)/bin/fpgalink-cli step --channel A --to 45 --hold 2 --plot step.png --force --port emu://
 
 lint: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks
