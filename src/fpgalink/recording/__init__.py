@@ -28,7 +28,14 @@ from fpgalink.recording.files import (
     check_target,
     partial_path,
 )
-from fpgalink.recording.mcapfile import CHUNK_BYTES, FLUSH_S, McapFile, McapSink, describe_error
+from fpgalink.recording.mcapfile import (
+    CHUNK_BYTES,
+    FLUSH_S,
+    Lifecycle,
+    McapFile,
+    McapSink,
+    describe_error,
+)
 from fpgalink.recording.reader import Damage, NotARecording, RecordingReader
 from fpgalink.recording.topics import (
     CHANNEL_FIELDS,
@@ -65,6 +72,7 @@ __all__ = [
     "Damage",
     "DirectoryLock",
     "DiskFull",
+    "Lifecycle",
     "McapFile",
     "McapSink",
     "NotARecording",

@@ -18,8 +18,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from fpgalink.recording.files import DiskFull, Output, RecordingError
-from fpgalink.recording.mcapfile import McapFile, describe_error
+from fpgalink.recording.files import DiskFull, Output
+from fpgalink.recording.mcapfile import Lifecycle, McapFile
 
 __all__ = ["BagRecording", "BagStorage"]
 
@@ -78,19 +78,18 @@ class BagRecording:
     :class:`~fpgalink.recording.files.OutputRefused`); ``custom_data`` goes into its
     ``metadata.yaml``. Write through :meth:`add_connection` and :meth:`write`; a failure
     raises :class:`RecordingError` and stops the recording (every later write raises it
-    again); :meth:`close` puts the bag in place and says, by raising, what went wrong."""
+    again); :meth:`close` puts the bag in place and says, by raising, what went wrong
+    (:class:`~fpgalink.recording.mcapfile.Lifecycle`, as for every recording)."""
 
     def __init__(self, target: Path, *, force: bool, writer: Callable[[Path], Any],
                  custom_data: dict[str, str]) -> None:
         self.path = target
-        self.failure: BaseException | None = None
-        self.in_place = False  #: closed, and at ``target`` (complete up to where it got)
-        self._closed = False
-        self._output = Output(target, force=force, directory=True)
-        self._reserve = self._output.partial / RESERVE_NAME
+        output = Output(target, force=force, directory=True)
+        self._life = Lifecycle(target, output, "bag")
+        self._reserve = output.partial / RESERVE_NAME
         try:
             self._hold_reserve()
-            self.writer = writer(self._output.path)
+            self.writer = writer(output.path)
             for key, value in custom_data.items():
                 self.writer.set_custom_data(key, value)
             self.writer.open()
@@ -98,16 +97,26 @@ class BagRecording:
             if not isinstance(storage, BagStorage):
                 raise TypeError("the bag's writer must store MCAP through BagStorage")
             self.storage = storage
+            self._life.mcap = storage.mcap
         except BaseException as exc:
-            self._output.discard()
             if isinstance(exc, OSError):
-                raise RecordingError(f"{target}: {describe_error(exc)}: the bag could not be "
-                                     "started; nothing left") from None
+                raise self._life.not_started(exc) from None
+            output.discard()
             raise
 
     @property
     def messages(self) -> int:
         return self.storage.mcap.messages
+
+    @property
+    def failure(self) -> BaseException | None:
+        """The write error that stopped the recording, if one did."""
+        return self._life.failure
+
+    @property
+    def in_place(self) -> bool:
+        """Closed, and at its target (complete up to where it got)."""
+        return self._life.in_place
 
     def _hold_reserve(self) -> None:
         fd = os.open(self._reserve, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)
@@ -118,59 +127,19 @@ class BagRecording:
         finally:
             os.close(fd)
 
-    def _guard(self, call: Callable[..., Any], *args: Any, **kwargs: Any) -> Any:
-        if self._closed:
-            raise RecordingError(f"{self.path}: the bag is closed")
-        if self.failure is not None:
-            raise RecordingError(f"{self.path}: recording stopped: "
-                                 f"{describe_error(self.failure)}")
-        try:
-            return call(*args, **kwargs)
-        except OSError as exc:
-            self.failure = exc
-            raise RecordingError(f"{self.path}: recording stopped: {describe_error(exc)}"
-                                 ) from None
-
     def add_connection(self, topic: str, msgtype: str, **options: Any) -> Any:
         """``rosbags``' ``Writer.add_connection``; its connection."""
-        return self._guard(self.writer.add_connection, topic, msgtype, **options)
+        return self._life.write(self.writer.add_connection, topic, msgtype, **options)
 
     def write(self, connection: Any, log_ns: int, data: bytes | memoryview) -> None:
-        self._guard(self.writer.write, connection, log_ns, data)
+        self._life.write(self.writer.write, connection, log_ns, data)
+
+    def _finish(self) -> None:
+        with contextlib.suppress(OSError):
+            self._reserve.unlink()  # its room is metadata.yaml's now
+        self.writer.close()
 
     def close(self) -> None:
         """Close the bag (its MCAP summary, ``metadata.yaml``) and put it in place."""
-        if self._closed:
-            return
-        self._closed = True
-        storage = self.storage
-        problem = self.failure
-        with contextlib.suppress(OSError):
-            self._reserve.unlink()  # its room is metadata.yaml's now
-        if storage.mcap.consistent and (problem is None or self.messages):
-            try:
-                self.writer.close()
-            except OSError as exc:
-                problem = problem or exc
-            else:
-                self._output.commit()
-                self.in_place = True
-                if problem is None:
-                    return
-                span = ("" if storage.mcap.first_ns is None else
-                        f" after {(storage.mcap.last_ns - storage.mcap.first_ns) / 1e9:.1f} s")
-                raise RecordingError(
-                    f"{self.path}: {describe_error(problem)}; recording stopped{span} with "
-                    f"{self.messages} messages in the bag, which is complete up to there")
-        with contextlib.suppress(Exception):
-            self.writer.abort()
-        assert problem is not None
-        if storage.mcap.durable:
-            self._output.keep_partial()
-            raise RecordingError(
-                f"{self.path}: {describe_error(problem)}; the bag could not be finished: its "
-                f"{storage.mcap.durable} messages in complete chunks are in "
-                f"{self._output.path} (`ros2 bag reindex` rebuilds its metadata)")
-        self._output.discard()
-        raise RecordingError(f"{self.path}: {describe_error(problem)}; nothing was recorded, "
-                             "no bag left")
+        self._life.end(self._finish, self.writer.abort,
+                       "`ros2 bag reindex` rebuilds its metadata")

@@ -37,7 +37,7 @@ from fpgalink.recording.topics import (
     telemetry_schema,
 )
 
-__all__ = ["CHUNK_BYTES", "FLUSH_S", "McapFile", "McapSink", "describe_error"]
+__all__ = ["CHUNK_BYTES", "FLUSH_S", "Lifecycle", "McapFile", "McapSink", "describe_error"]
 
 #: Close a chunk this often: what a hard kill can lose.
 FLUSH_S = 0.5
@@ -146,6 +146,84 @@ class McapFile:
         self._space.cut_back()
 
 
+class Lifecycle:
+    """What every MCAP recording shares (a JSON recording, a rosbag2): it stops at its first
+    failed write (every later one raises again), and it ends one way: finished and put in
+    place (one line saying so if it stopped early); kept as ``NAME.partial`` without summary
+    when its writer cannot be trusted to finish; or removed when it holds no message.
+    ``noun`` names it in the lines (``file``, ``bag``)."""
+
+    def __init__(self, target: Path, output: Output, noun: str) -> None:
+        self.target = target
+        self.output = output
+        self.noun = noun
+        self.mcap: McapFile | None = None  #: set once the file is begun
+        self.failure: BaseException | None = None
+        self.in_place = False  #: ended, and at ``target`` (complete up to where it got)
+        self.closed = False
+
+    def not_started(self, exc: OSError) -> RecordingError:
+        """The recording could not begin: nothing is left."""
+        self.closed = True
+        self.output.discard()
+        return RecordingError(f"{self.target}: {describe_error(exc)}: the recording could not "
+                              f"be started; no {self.noun} left")
+
+    def write(self, call: Any, *args: Any, **kwargs: Any) -> Any:
+        """``call``, unless the recording has stopped or ended; an :class:`OSError` from it
+        stops the recording: :class:`RecordingError`."""
+        if self.closed:
+            raise RecordingError(f"{self.target}: the recording is closed")
+        if self.failure is not None:
+            raise RecordingError(f"{self.target}: recording stopped: "
+                                 f"{describe_error(self.failure)}")
+        try:
+            return call(*args, **kwargs)
+        except OSError as exc:
+            self.failure = exc
+            raise RecordingError(f"{self.target}: recording stopped: {describe_error(exc)}"
+                                 ) from None
+
+    def end(self, finish: Any, abandon: Any, kept_hint: str) -> None:
+        """``finish()`` writes the summary (and what else the format needs); ``abandon()``
+        leaves the file as it stands. :class:`RecordingError` saying what is on disk when
+        the recording stopped early or cannot be finished."""
+        if self.closed:
+            return
+        self.closed = True
+        mcap = self.mcap
+        assert mcap is not None
+        problem = self.failure
+        if mcap.consistent and (problem is None or mcap.messages):
+            try:
+                finish()
+            except OSError as exc:
+                problem = problem or exc
+            else:
+                self.output.commit()
+                self.in_place = True
+                if problem is None:
+                    return
+                span = "" if mcap.first_ns is None else \
+                    f" after {(mcap.last_ns - mcap.first_ns) / 1e9:.1f} s"
+                raise RecordingError(
+                    f"{self.target}: {describe_error(problem)}; recording stopped{span} with "
+                    f"{mcap.messages} messages in the {self.noun}, which is complete up to "
+                    "there")
+        with contextlib.suppress(Exception):
+            abandon()
+        assert problem is not None
+        if mcap.durable:
+            self.output.keep_partial()
+            raise RecordingError(
+                f"{self.target}: {describe_error(problem)}; the recording could not be "
+                f"finished: its {mcap.durable} messages in complete chunks are in "
+                f"{self.output.path} ({kept_hint})")
+        self.output.discard()
+        raise RecordingError(f"{self.target}: {describe_error(problem)}; nothing was recorded, "
+                             f"no {self.noun} left")
+
+
 class McapSink:
     """A JSON recording at ``target``: topics per board, ``/board/<name>/telemetry``,
     ``/params``, ``/events`` (foxglove.Log), ``/stats``; plus ``extra_topics`` (topic →
@@ -154,20 +232,18 @@ class McapSink:
 
     A write that fails raises :class:`RecordingError` and stops the recording (every later
     write raises it again); :meth:`close` then finishes the file as well as it can and raises
-    the one line that says what is on disk. :class:`RecordingError` from the start when the
-    file cannot be begun (nothing is left)."""
+    the one line that says what is on disk (:class:`Lifecycle`). :class:`RecordingError`
+    from the start when the file cannot be begun (nothing is left)."""
 
     def __init__(self, target: Path, boards: list[str], metadata: dict[str, str],
                  extra_topics: dict[str, dict[str, Any]] | None = None, *,
                  library: str, force: bool = False) -> None:
         self.path = target
-        self._output = Output(target, force=force)
-        self._file = self._output.file()
-        self.failure: BaseException | None = None
-        self.in_place = False  #: closed, and at ``target`` (complete up to where it got)
-        self._closed = False
+        output = Output(target, force=force)
+        self._life = Lifecycle(target, output, "file")
+        self._file = output.file()
         try:
-            self._mcap = McapFile(self._file, library=library)
+            self._mcap = self._life.mcap = McapFile(self._file, library=library)
             schemas = {
                 kind: self._mcap.schema(schema["title"], "jsonschema",
                                         json.dumps(schema).encode())
@@ -188,39 +264,35 @@ class McapSink:
         except BaseException as exc:
             with contextlib.suppress(OSError):
                 self._file.close()
-            self._output.discard()
             if isinstance(exc, OSError):
-                raise RecordingError(f"{target}: {describe_error(exc)}: the recording could "
-                                     "not be started; no file left") from None
+                raise self._life.not_started(exc) from None
+            output.discard()
             raise
 
     @property
     def messages(self) -> int:
         return self._mcap.messages
 
-    def _write(self, call: Any, *args: Any) -> None:
-        if self._closed:
-            raise RecordingError(f"{self.path}: the recording is closed")
-        if self.failure is not None:
-            raise RecordingError(f"{self.path}: recording stopped: "
-                                 f"{describe_error(self.failure)}")
-        try:
-            call(*args)
-        except OSError as exc:
-            self.failure = exc
-            raise RecordingError(f"{self.path}: recording stopped: {describe_error(exc)}"
-                                 ) from None
+    @property
+    def failure(self) -> BaseException | None:
+        """The write error that stopped the recording, if one did."""
+        return self._life.failure
+
+    @property
+    def in_place(self) -> bool:
+        """Closed, and at its target (complete up to where it got)."""
+        return self._life.in_place
 
     def add(self, topic: str, record: dict[str, Any], log_time: float,
             publish_time: float | None = None) -> None:
         """One JSON message on ``topic`` (a channel given at the start)."""
         log_ns = int(log_time * 1e9)
-        self._write(self._mcap.add, self._channels[topic], _ENCODE(record).encode(), log_ns,
-                    log_ns if publish_time is None else int(publish_time * 1e9))
+        self._life.write(self._mcap.add, self._channels[topic], _ENCODE(record).encode(),
+                         log_ns, log_ns if publish_time is None else int(publish_time * 1e9))
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
         """A metadata record (``name``: key → text) beside the one given at the start."""
-        self._write(self._mcap.metadata, name, data)
+        self._life.write(self._mcap.metadata, name, data)
 
     def telemetry(self, board: str, row: dict[str, Any], received: float,
                   sampled: float) -> None:
@@ -241,56 +313,27 @@ class McapSink:
         cannot be trusted. The file is cut back to its last complete chunk and kept as
         ``NAME.partial`` (removed if it holds no message); readers of a file without
         summary (``fpgalink-cli plot``, mcap's ``NonSeekingReader``) read it."""
-        if self._closed:
+        if self._life.closed:
             return
-        self._closed = True
+        self._life.closed = True
+        self._cut()
+        if self._mcap.durable:
+            self._life.output.keep_partial()
+        else:
+            self._life.output.discard()
+
+    def _cut(self) -> None:
         self._mcap.cut_back()
         with contextlib.suppress(OSError):
             self._file.close()
-        if self._mcap.durable:
-            self._output.keep_partial()
-        else:
-            self._output.discard()
+
+    def _finish(self) -> None:
+        self._mcap.finish()
+        self._file.close()
 
     def close(self) -> None:
         """Finish: the summary and footer written, the file put in place. Raises
         :class:`RecordingError` when the recording stopped early or cannot be finished;
         its one line says what is on disk."""
-        if self._closed:
-            return
-        self._closed = True
-        problem = self.failure
-        if problem is not None and not self.messages:
-            self._mcap.cut_back()  # a header and no room for more is no recording
-        elif self._mcap.consistent:
-            try:
-                self._mcap.finish()
-            except OSError as exc:
-                problem = problem or exc
-        with contextlib.suppress(OSError):
-            self._file.close()
-        if problem is None or (self._mcap.consistent and self.messages):
-            self._output.commit()
-            self.in_place = True
-            if problem is None:
-                return
-            raise RecordingError(
-                f"{self.path}: {describe_error(problem)}; recording stopped"
-                f"{self._span()} with {self.messages} messages in the file, which is "
-                "complete up to there")
-        assert problem is not None
-        if self._mcap.durable:
-            self._output.keep_partial()
-            raise RecordingError(
-                f"{self.path}: {describe_error(problem)}; the recording could not be "
-                f"finished: its {self._mcap.durable} messages in complete chunks are in "
-                f"{self._output.partial} (no summary; fpgalink-cli plot reads it)")
-        self._output.discard()
-        raise RecordingError(f"{self.path}: {describe_error(problem)}; nothing was recorded, "
-                             "no file left")
-
-    def _span(self) -> str:
-        first = self._mcap.first_ns
-        if first is None:
-            return ""
-        return f" after {(self._mcap.last_ns - first) / 1e9:.1f} s"
+        self._life.end(self._finish, self._cut,
+                       "no summary; fpgalink-cli plot reads it")

@@ -101,7 +101,7 @@ def test_a_disk_that_fills_closes_the_bag_complete_and_says_so(tmp_path: Path) -
 def test_a_bag_that_cannot_begin_leaves_nothing(tmp_path: Path) -> None:
     said, left, _ = write_on_small_disk(tmp_path, "300k", 10)
     assert len(said) == 1 and said[0].startswith("open 1: --bag ")
-    assert "the disk is full" in said[0] and "nothing left" in said[0]
+    assert "the disk is full" in said[0] and "no bag left" in said[0]
     assert left == []  # was: a bag directory holding a stub
 
 
