@@ -19,7 +19,7 @@ from pathlib import Path
 from typing import Any
 
 from fpgalink.recording.files import DiskFull, Output
-from fpgalink.recording.mcapfile import Lifecycle, McapFile
+from fpgalink.recording.mcapfile import Lifecycle, McapFile, Recorded
 
 __all__ = ["BagRecording", "BagStorage"]
 
@@ -72,7 +72,7 @@ class BagStorage:
             self._file.close()
 
 
-class BagRecording:
+class BagRecording(Recorded):
     """One bag at ``target``: ``writer`` makes the (unopened) ``rosbags.rosbag2.Writer`` for a
     directory path, with :class:`BagStorage` for MCAP. ``force``: replace a bag there (else
     :class:`~fpgalink.recording.files.OutputRefused`); ``custom_data`` goes into its
@@ -103,20 +103,6 @@ class BagRecording:
                 raise self._life.not_started(exc) from None
             output.discard()
             raise
-
-    @property
-    def messages(self) -> int:
-        return self.storage.mcap.messages
-
-    @property
-    def failure(self) -> BaseException | None:
-        """The write error that stopped the recording, if one did."""
-        return self._life.failure
-
-    @property
-    def in_place(self) -> bool:
-        """Closed, and at its target (complete up to where it got)."""
-        return self._life.in_place
 
     def _hold_reserve(self) -> None:
         fd = os.open(self._reserve, os.O_WRONLY | os.O_CREAT | os.O_CLOEXEC, 0o600)

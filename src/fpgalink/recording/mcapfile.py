@@ -37,7 +37,8 @@ from fpgalink.recording.topics import (
     telemetry_schema,
 )
 
-__all__ = ["CHUNK_BYTES", "FLUSH_S", "Lifecycle", "McapFile", "McapSink", "describe_error"]
+__all__ = ["CHUNK_BYTES", "FLUSH_S", "Lifecycle", "McapFile", "McapSink", "Recorded",
+           "describe_error"]
 
 #: Close a chunk this often: what a hard kill can lose.
 FLUSH_S = 0.5
@@ -224,7 +225,29 @@ class Lifecycle:
                              f"no {self.noun} left")
 
 
-class McapSink:
+class Recorded:
+    """What a recording tells of itself, from its :class:`Lifecycle`."""
+
+    _life: Lifecycle
+
+    @property
+    def messages(self) -> int:
+        """Messages written so far."""
+        mcap = self._life.mcap
+        return 0 if mcap is None else mcap.messages
+
+    @property
+    def failure(self) -> BaseException | None:
+        """The write error that stopped the recording, if one did."""
+        return self._life.failure
+
+    @property
+    def in_place(self) -> bool:
+        """Closed, and at its target (complete up to where it got)."""
+        return self._life.in_place
+
+
+class McapSink(Recorded):
     """A JSON recording at ``target``: topics per board, ``/board/<name>/telemetry``,
     ``/params``, ``/events`` (foxglove.Log), ``/stats``; plus ``extra_topics`` (topic →
     JSON schema), such as ``/robot/truth``. ``library`` names the writer in the file's
@@ -268,20 +291,6 @@ class McapSink:
                 raise self._life.not_started(exc) from None
             output.discard()
             raise
-
-    @property
-    def messages(self) -> int:
-        return self._mcap.messages
-
-    @property
-    def failure(self) -> BaseException | None:
-        """The write error that stopped the recording, if one did."""
-        return self._life.failure
-
-    @property
-    def in_place(self) -> bool:
-        """Closed, and at its target (complete up to where it got)."""
-        return self._life.in_place
 
     def add(self, topic: str, record: dict[str, Any], log_time: float,
             publish_time: float | None = None) -> None:
