@@ -291,9 +291,6 @@ class RobotRun:
         self.record_path = record
         self.rosbag_path = rosbag
         self.bag: RosbagWriter | None = None
-        #: a recording stopped early (a full disk, a write error): the run stops, and each
-        #: recording says at the end, when it is closed, what is on disk
-        self.recording_failed = False
         #: the recordings closed complete, as asked (only these are said to be recorded)
         self.recorded: list[Path] = []
         self.path = PathLog()
@@ -406,11 +403,11 @@ class RobotRun:
             {"robot": self.description.name, "surface": self.description.surface}, topics,
             force=self.force)
 
-    def _recording_failed(self) -> None:
-        """A recording stopped (its write raised): the run stops; the recording says
-        what is on disk when it is closed."""
-        self._sink = None
-        self.recording_failed = True
+    def _recording_failed(self, *, sink: bool = False) -> None:
+        """A recording stopped (its write raised; ``sink``: the ``--record`` one, written no
+        more): the run stops; the recording says what is on disk when it is closed."""
+        if sink:
+            self._sink = None
         self.stop.set()
 
     async def _record_board(self, robot: Robot, name: str, to_epoch: float) -> None:
@@ -430,7 +427,7 @@ class RobotRun:
             try:
                 sink.telemetry(name, row, received, sampled)
             except RecordingError:
-                self._recording_failed()
+                self._recording_failed(sink=True)
                 return
 
     # --- rosbag2 --------------------------------------------------------------------------
@@ -537,7 +534,7 @@ class RobotRun:
                         "v": command.v, "omega": command.omega, "left": command.left_dps,
                         "right": command.right_dps, "scale": command.scale}, now)
             except RecordingError:
-                self._recording_failed()
+                self._recording_failed(sink=True)
 
     def view(self, status: str) -> Any:
         """The live table (rich renderable)."""
