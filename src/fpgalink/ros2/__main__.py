@@ -39,11 +39,8 @@ def _fail(message: str, code: int = 2) -> None:
 EXIT_CODES_TABLE = """\
 exit codes:
   0    stopped by SIGINT or SIGTERM, the robot stopped and the boards disabled
-  1    stdout could not be written (--help or --version into a full disk), or the --bag
-       recording stopped early (a full disk: the bag complete up to there) or could not be
-       finished
-  2    bad input: usage, a robot description, a --port, a --bag DIR that exists (without
-       --force) or that another process is writing
+  1    stdout could not be written (--help or --version into a full disk); the --bag stopped early
+  2    bad input: usage, a robot description, a --port; a --bag DIR there (no --force) or busy
   3    ROS 2 is not installed (the message says how to install it)
   4    the boards could not be reached, or a link failed while running"""
 
