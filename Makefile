@@ -94,7 +94,7 @@ test: $(STAMP) iverilog cc tf2-msgs
 # command says that the built-in emulator stands in; the second names it, so it is said once.
 demo: $(DEMO_STAMP)
 	$(VENV)/bin/fpgalink-cli param list
-	$(VENV)/bin/fpgalink-cli step --channel A --to 45 --hold 2 --plot step.png --port emu://
+	$(VENV)/bin/fpgalink-cli step --channel A --to 45 --hold 2 --plot step.png --force --port emu://
 
 lint: $(STAMP)
 	$(PY) -m ruff check src tests benchmarks
@@ -112,6 +112,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.flood --mb 5
 	$(PY) -m benchmarks.faults
 	$(PY) -m benchmarks.router
+	$(PY) -m benchmarks.recording
 	$(PY) -m benchmarks.campaign
 	$(PY) -m benchmarks.ceiling
 

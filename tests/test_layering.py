@@ -158,10 +158,12 @@ def test_the_config_file_reader_stands_on_the_protocol_alone(where: str, path: P
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.recording"))
 def test_the_recording_writer_stands_on_the_protocol_alone(where: str, path: Path) -> None:
-    # The CLI's record, drive and goto and the campaigns write MCAP through it, and the
-    # campaigns may not import the CLI: it sits below both, beside the sans-I/O layer.
+    # The CLI's record, drive, goto and --rosbag2, the campaigns and the node's --bag write
+    # (and plot reads) through it, and the campaigns and the node may not import the CLI:
+    # it sits below all of them, beside the sans-I/O layer.
     names = imports_of(path)
-    assert not {n for n in first_party(names) if not within(n, "fpgalink.protocol")}, where
+    assert not {n for n in first_party(names)
+                if not within(n, "fpgalink.protocol", "fpgalink.recording")}, where
     assert not names & {"asyncio", "socket", "serial", "threading"}, where
 
 

@@ -6,6 +6,8 @@ prints. It stays short: a README says what it is, how to install, one example, a
 
 from __future__ import annotations
 
+import itertools
+import os
 import re
 import subprocess
 import sys
@@ -107,9 +109,52 @@ def test_make_demo_says_once_that_the_built_in_emulator_stands_in(tmp_path: Path
                                     capture_output=True, text=True, timeout=60, cwd=ROOT,
                                     env={"COLUMNS": "200", "NO_COLOR": "1",
                                          "PATH": "/usr/bin:/bin",
-                                         "XDG_CONFIG_HOME": str(tmp_path)})
+                                         "XDG_CONFIG_HOME": str(tmp_path),
+                                         "PYTHONPATH": os.pathsep.join(
+                                             [str(ROOT / "src"), str(ROOT)])})
             if result.returncode != 7:
                 break
         assert result.returncode == 0, result.stderr
         said += result.stderr.count("using the built-in emulator")
     assert said == 1
+
+
+def _try_it_writers() -> list[list[str]]:
+    """The "Try it" lines that write files (a plot, a recording), in order."""
+    section = README[README.index("## Try it"):]
+    block = section[section.index("```console"):].split("```", 2)[1]
+    lines = []
+    for line in block.splitlines():
+        if not line.startswith("$ .venv/bin/fpgalink-cli "):
+            continue
+        command = line.removeprefix("$ .venv/bin/fpgalink-cli ").split("#")[0]
+        if "'" in command or "|" in command or "&&" in command:
+            continue  # the C core (an extra), pipes, make: not files this sequence writes
+        args = command.split()
+        if args[0] in ("plot", "record") or "--plot" in args or "--record" in args:
+            lines.append(args)
+    assert len(lines) >= 4, lines
+    return lines
+
+
+def test_the_try_it_sequence_runs_as_written_after_make_demo(tmp_path: Path) -> None:
+    """Issue 41.9: `record run.mcap` after the `drive … --record run.mcap` before it
+    replaced that run silently; now an existing file is refused, so no two lines of the
+    sequence (nor `make demo` before them, nor the demo run twice) may write the same
+    file."""
+    env = {"COLUMNS": "200", "NO_COLOR": "1", "PATH": "/usr/bin:/bin",
+           "XDG_CONFIG_HOME": str(tmp_path / "xdg"),
+           "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT)])}
+    for args in [*_demo_commands(), *_demo_commands(), *_try_it_writers()]:
+        for _ in range(3):  # a drive or step stopped by a loaded machine's own stall: again
+            result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
+                                    capture_output=True, text=True, timeout=100,
+                                    cwd=tmp_path, env=env)
+            if result.returncode != 7:
+                break
+            for option, value in itertools.pairwise(args):
+                if option in ("--plot", "--record"):
+                    (tmp_path / value).unlink(missing_ok=True)
+        assert result.returncode == 0, (args, result.stderr)
+    assert {"step.png", "step45.png", "run.mcap", "run.png", "idle.mcap"} <= {
+        p.name for p in tmp_path.iterdir()}

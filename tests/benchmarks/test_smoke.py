@@ -369,3 +369,14 @@ def test_ceiling_quick(tmp_path: Path) -> None:
     assert "flat loop" in stdout
     assert set(report["cases"]) == {"arithmetic", "+ TM", "+ RV", "board"}
     assert all(case["us_per_ms"] > 0 for case in report["cases"].values())
+
+
+def test_recording_quick(tmp_path: Path) -> None:
+    stdout, report = run_quick("recording", tmp_path)
+    assert "silently different" in stdout
+    flips = report["config"]["flips"]
+    for reader, outcomes in report["flips"].items():
+        assert sum(outcomes.values()) == flips, reader  # every flip counted once
+    # fpgalink's reader never takes a damaged chunk for a whole one
+    assert report["flips"]["fpgalink"].get("silently different", 0) == 0
+    assert set(report["speed"]) == {"mcap", "mcap+crc", "fpgalink"}

@@ -8,7 +8,12 @@ listener, a link event callback, the scenario's own watcher), none starts a task
 so the emulated-time loop runs the same callbacks at the same times with or without one, and
 the figures are the same. A write that fails (a full disk, a directory that cannot be
 written) stops the recording, never the scenario: the error is kept for the scenario's
-result (``mcap_error``).
+result (``mcap_error``), saying what is on disk.
+
+The file is written as every recording is (:mod:`fpgalink.recording.files`): as
+``INDEX-NAME.mcap.partial``, renamed into place when the scenario's recording is closed; the
+campaign's directory is its own (the CLI refuses one holding an earlier campaign's files
+unless ``--force``, and one another campaign is writing), so a file there is replaced.
 """
 
 from __future__ import annotations
@@ -33,6 +38,7 @@ from fpgalink.recording import (
     STATS_FIELDS,
     McapSink,
     RecordingError,
+    describe_error,
     log_record,
     parameter_record,
 )
@@ -79,6 +85,7 @@ class ScenarioRecording:
         self._next_truth = -math.inf
         self._boards: list[_BoardState] = []
         self._last = 0.0  #: the latest log time written: the file's end
+        self._in_place = False
         metadata = {
             "scenario": scenario.name, "index": str(scenario.index), "body": scenario.body,
             "surface": scenario.surface, "seed": str(scenario.seed),
@@ -89,17 +96,14 @@ class ScenarioRecording:
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
             self._sink = McapSink(path, list(scenario.description.boards), metadata, TOPICS,
-                                  library=f"fpgalink-campaign {__version__}")
+                                  library=f"fpgalink-campaign {__version__}", force=True)
         except Exception as exc:  # whatever it was, the scenario runs unrecorded
-            self._failed(exc, "cannot write")
-            if path.is_file():  # a header and no room for more is no recording
-                with contextlib.suppress(OSError):
-                    path.unlink()
+            self._failed(exc, "could not start")
 
     @property
     def written(self) -> bool:
-        """Whether a file is there (complete, or up to where it stopped)."""
-        return self.error is None or self.path.is_file()
+        """Whether the file is in place (complete, or complete up to where it stopped)."""
+        return self._in_place
 
     def attach(self, robot: Robot) -> None:
         if self._sink is None:
@@ -195,7 +199,9 @@ class ScenarioRecording:
         try:
             sink.metadata("fpgalink.result", result)
         except Exception as exc:
-            self._failed(exc, "cannot write")
+            self._sink = sink
+            self._failed(exc, "stopped")
+            return
         try:
             sink.close()
         except RecordingError as exc:
@@ -203,10 +209,12 @@ class ScenarioRecording:
         except Exception as exc:
             self.error = self.error or (
                 f"{self.path}: cannot finish: {type(exc).__name__}: {exc}".splitlines()[0])
+        self._in_place = sink.in_place
 
     def abandon(self) -> None:
         """The campaign is being stopped, by an exception raised wherever the scenario was
-        (a write included): the file is left at its last complete chunk, without summary."""
+        (a write included): the file is left at its last complete chunk, without summary,
+        as ``INDEX-NAME.mcap.partial``."""
         for remove in self._removers:
             remove()
         self._removers.clear()
@@ -236,17 +244,26 @@ class ScenarioRecording:
             self._failed(exc, "stopped")
 
     def _failed(self, exc: BaseException, what: str) -> None:
-        if self.error is None:
-            reason = (exc.strerror or str(exc)) if isinstance(exc, OSError) else (
-                f"{type(exc).__name__}: {exc}")
-            at = f" at {self._now():.3f} s emulated" if self._loop is not None else ""
-            self.error = f"{self.path}: {what}{at}: {reason}".splitlines()[0]
+        """The recording stops here (the scenario goes on): closed as well as it can be, and
+        :attr:`error` says why and what is on disk."""
         # The hooks stay registered (a link runs its listeners from the very list removing
         # one would change under it); without a sink they do nothing.
         sink, self._sink = self._sink, None
+        said = str(exc) if isinstance(exc, RecordingError) else (
+            f"{self.path}: recording {what}: {describe_error(exc)}"
+            if isinstance(exc, OSError) else
+            f"{self.path}: recording {what}: {type(exc).__name__}: {exc}")
         if sink is not None:
-            with contextlib.suppress(Exception):
-                sink.close()  # complete up to the last chunk, or cut back to it
+            try:
+                sink.close()  # complete up to the last chunk, or kept as it stands
+            except RecordingError as closing:
+                said = str(closing)  # says what is on disk
+            except Exception as closing:
+                said = f"{said}; cannot finish: {type(closing).__name__}: {closing}"
+            self._in_place = sink.in_place
+        if self.error is None:
+            at = f" (at {self._now():.3f} s emulated)" if self._loop is not None else ""
+            self.error = f"{said}{at}".splitlines()[0]
 
 
 class _BoardState:

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import collections
 import concurrent.futures
+import contextlib
 import importlib
 import multiprocessing
 import os
@@ -31,6 +32,7 @@ from fpgalink.campaign.spec import (
     check_installed,
     importable,
 )
+from fpgalink.recording import DirectoryLock, partial_path
 
 __all__ = ["DASK_MISSING", "check_runnable", "default_jobs", "iter_results", "recording_paths",
            "run_campaign"]
@@ -53,12 +55,18 @@ def run_campaign(campaign: Campaign, *, jobs: int | None = None, dask: str | Non
                  on_result: Callable[[Result], None] | None = None,
                  mcap_dir: str | Path | None = None) -> list[Result]:
     """Every scenario of ``campaign``; ``on_result`` is called as each finishes. The
-    scenarios that record (``mcap``) write their MCAP files into ``mcap_dir``."""
+    scenarios that record (``mcap``) write their MCAP files into ``mcap_dir``, replacing
+    what is there under their names; one campaign at a time writes there
+    (:class:`~fpgalink.recording.OutputBusy` while another, in any process, does)."""
     results = []
-    for result in iter_results(campaign.scenarios, jobs=jobs, dask=dask, mcap_dir=mcap_dir):
-        if on_result is not None:
-            on_result(result)
-        results.append(result)
+    lock = (DirectoryLock(Path(mcap_dir)) if mcap_dir is not None and
+            any(s.mcap for s in campaign.scenarios) else contextlib.nullcontext())
+    with lock:
+        for result in iter_results(campaign.scenarios, jobs=jobs, dask=dask,
+                                   mcap_dir=mcap_dir):
+            if on_result is not None:
+                on_result(result)
+            results.append(result)
     return sorted(results, key=lambda r: r.index)
 
 
@@ -194,13 +202,17 @@ def _on_processes(scenarios: Sequence[Scenario], paths: dict[int, str | None], j
 
 def _lost(scenario: Scenario, mcap: str | None, why: str, began: float) -> Result:
     """A scenario whose worker never returned: failed, and its recording, if it asked for
-    one, said unfinished (the file, where this machine sees it, holds what was written up to
-    the death, readable without its summary; on a cluster it is on the worker's machine)."""
+    one, said unfinished: what was written up to the death is in ``INDEX-NAME.mcap.partial``
+    (where this machine sees it; on a cluster, on the worker's machine), readable without
+    its summary."""
     if mcap is None:
         return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid)
+    partial = str(partial_path(Path(mcap)))
+    begun = _written_since(partial, began)
     return Result(scenario.index, scenario.name, "failed", {}, why, grid=scenario.grid,
-                  mcap=mcap if _written_since(mcap, began) else None,
-                  mcap_error=f"not finished: {why}")
+                  mcap=partial if begun else None,
+                  mcap_error=f"not finished: {why}" + (
+                      f"; what it recorded is in {partial}" if begun else ""))
 
 
 def _written_since(path: str, began: float) -> bool:

@@ -15,7 +15,8 @@ import click
 
 from fpgalink import __version__
 from fpgalink.cli.options import global_connection_options
-from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, quiet_stdout
+from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, classify, quiet_stdout
+from fpgalink.protocol.errors import FpgalinkError
 
 __all__ = ["COMMANDS", "cli", "main"]
 
@@ -140,6 +141,10 @@ def main(argv: list[str] | None = None) -> None:
     except CliError as exc:
         exc.show()
         sys.exit(exc.exit_code)
+    except FpgalinkError as exc:  # a library error a command let through: its one line
+        error = classify(exc)
+        error.show()
+        sys.exit(error.exit_code)
     except click.ClickException as exc:
         if no_args_is_help is not None and isinstance(exc, no_args_is_help):
             # A command group without a command (`fpgalink-cli`, `fpgalink-cli param`): its

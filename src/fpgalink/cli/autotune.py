@@ -120,7 +120,7 @@ def autotune(channels: str, wheels: str | None, max_duty: float | None, duration
         except FitError as exc:
             raise CliError(f"--model {model_file}: {exc}", ExitCode.BAD_INPUT) from None
     if plot is not None:
-        check_plot_path(plot)
+        check_plot_path(plot, force=False)
     announce_emulator(conn)
     wanted = ["A", "B"] if channels.lower() == "both" else [channels.upper()]
     outcome = run(_autotune(conn, wanted, options, model, target, max_overshoot, apply,
@@ -330,7 +330,7 @@ def _plot(path: Path, results: list[Tuned]) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     axes[-1].set_xlabel("s after the step")
-    save_figure(figure, path)
+    save_figure(figure, path, force=False)
 
 
 def _save(path: Path, results: list[Tuned], conn: ConnectionOptions) -> None:

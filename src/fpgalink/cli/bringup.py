@@ -119,7 +119,7 @@ class Recorder:
             raise CliError(f"--record {path}: not a file in an existing directory",
                            ExitCode.BAD_INPUT)
         try:
-            self.sink: McapSink | None = McapSink(path, boards, metadata)
+            self.sink: McapSink | None = McapSink(path, boards, metadata, force=False)
         except OSError as exc:
             raise CliError(f"--record {path}: cannot write: {exc.strerror or exc}",
                            ExitCode.FAILURE) from None
@@ -328,7 +328,7 @@ def save_fit_plot(path: Path, record: ChannelRecord, fit: PlantFit, title: str) 
     bode.grid(True, which="both", alpha=0.3)
     bode.legend(loc="lower left", fontsize="small")
     phase.legend(loc="upper right", fontsize="small")
-    save_figure(figure, path)
+    save_figure(figure, path, force=False)
 
 
 def load_model(path: Path) -> DiscreteModel:

@@ -323,7 +323,8 @@ def _open_sink(path: Path, description: RobotDescription) -> McapSink:
     try:
         return McapSink(path, list(description.boards),
                         {"command": "calibrate", "robot": description.name,
-                         "surface": description.surface}, {SAMPLE_TOPIC: SAMPLE_SCHEMA})
+                         "surface": description.surface}, {SAMPLE_TOPIC: SAMPLE_SCHEMA},
+                        force=False)
     except OSError as exc:
         raise CliError(f"--record {path}: cannot write: {exc.strerror or exc}",
                        ExitCode.FAILURE) from None

@@ -3,11 +3,12 @@ cluster), into one table (docs/campaigns.md)."""
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import signal
 import sys
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -40,12 +41,14 @@ from fpgalink.campaign.spec import (
     check_surface,
 )
 from fpgalink.cli.figures import check_plot_path
+from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.formats import Column, emit_rows, format_option
 from fpgalink.cli.output import (
     EXIT_CODES_HELP,
     CliError,
     ExitCode,
     FiniteRange,
+    classify,
     console,
     note,
 )
@@ -131,26 +134,67 @@ def _terminated(signum: int, frame: object) -> None:
     raise _Terminated
 
 
-def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign) -> None:
+#: What ``--out`` holds besides the recordings.
+RESULT_FILES = ("results.csv", "results.json", "results.parquet", "summary.png")
+
+
+def _check_out(out: Path, spec: Campaign, recorded: bool, force: bool) -> None:
+    """Before the first scenario: every file the campaign will write into ``out`` (results,
+    recordings) may be written — none is there, unless ``--force``."""
+    from fpgalink.campaign.runner import recording_paths
+
+    if not out.is_dir():
+        return
+    paths = [out / name for name in RESULT_FILES]
+    if recorded:
+        paths += [Path(p) for p in recording_paths(spec.scenarios, out).values() if p]
+    for path in paths:
+        check_output(path, force=force)
+
+
+def _write_result(path: Path, write: Any, table: list[dict[str, Any]], force: bool) -> bool:
+    """One results file through ``NAME.partial``, put in place when whole; ``False`` when
+    ``write`` wrote nothing (parquet without pyarrow)."""
+    from fpgalink.recording import Output, RecordingError
+
+    try:
+        output = Output(path, force=force)
+        try:
+            written = write(output.path, table) is not False
+        except OSError as exc:
+            output.discard()
+            raise RecordingError(f"{path}: cannot write: {exc.strerror or exc}") from None
+        if not written:
+            output.discard()
+            return False
+        output.commit()
+    except RecordingError as exc:
+        raise classify(exc) from None
+    return True
+
+
+def _write(out: Path | None, table: list[dict[str, Any]], spec: Campaign,
+           force: bool) -> None:
     if out is None:
         return
     recorded = sum(1 for row in table if row.get("mcap"))
     try:
         out.mkdir(parents=True, exist_ok=True)
-        write_csv(out / "results.csv", table)
-        write_json(out / "results.json", table)
-        parquet = write_parquet(out / "results.parquet", table)
     except OSError as exc:
         raise CliError(f"--out {out}: {exc.strerror or exc}") from None
+    _write_result(out / "results.csv", write_csv, table, force)
+    _write_result(out / "results.json", write_json, table, force)
+    parquet = _write_result(out / "results.parquet", write_parquet, table, force)
     written = "results.csv, results.json" + (", results.parquet" if parquet else "")
-    if _summary_plot(out / "summary.png", table, spec):
+    if _summary_plot(out / "summary.png", table, spec, force):
         written += ", summary.png"
     if recorded:
         written += f" and {recorded} recording(s) (INDEX-NAME.mcap)"
     note(f"wrote {written} into {out}")
 
 
-def _summary_plot(path: Path, table: list[dict[str, Any]], spec: Campaign) -> bool:
+def _summary_plot(path: Path, table: list[dict[str, Any]], spec: Campaign,
+                  force: bool) -> bool:
     """One bar chart per numeric figure column (up to six), a bar per scenario."""
     try:
         from fpgalink.cli.figures import new_figure, save_figure
@@ -175,8 +219,24 @@ def _summary_plot(path: Path, table: list[dict[str, Any]], spec: Campaign) -> bo
         axes.set_ylabel(name, fontsize=7)
     figure.axes[0].set_title(f"campaign {spec.name}: one bar per scenario (index)")
     figure.axes[-1].set_xlabel("scenario")
-    save_figure(figure, path)
+    save_figure(figure, path, force=force)
     return True
+
+
+@contextlib.contextmanager
+def _out_lock(directory: Path | None) -> Iterator[None]:
+    """The lock on a directory of results and recordings, held while the block runs (none
+    without one); a campaign writing there already is one line, exit 5."""
+    if directory is None:
+        yield
+        return
+    from fpgalink.recording import DirectoryLock, RecordingError
+
+    try:
+        with DirectoryLock(directory):
+            yield
+    except RecordingError as exc:
+        raise classify(exc) from None
 
 
 def _emit(fmt: str, table: list[dict[str, Any]], title: str) -> None:
@@ -234,9 +294,10 @@ def _cell(value: Any) -> str:
               help="Record every scenario (or none) into --out as INDEX-NAME.mcap: "
                    "telemetry, events and the truth in emulated time [default: the "
                    "scenarios the file marks mcap = true].")
+@force_option
 @format_option
 def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | None,
-             mcap: bool | None, fmt: str) -> None:
+             mcap: bool | None, force: bool, fmt: str) -> None:
     """Run the scenarios of SPEC.toml on emulated robots and print their figures.
 
     Each scenario runs on a fresh in-process emulated robot, as fast as it goes (emulated
@@ -259,10 +320,15 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
             out.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise CliError(f"--out {out}: {exc.strerror or exc}") from None
-    results = _run(spec, jobs, dask, quiet=fmt != "table",
-                   mcap_dir=out if recorded else None)
-    table = rows(results)
-    _write(out, table, spec)
+    # One campaign at a time in --out (a second is refused, exit 5), held until its results
+    # are written; what it will write checked before anything runs.
+    with _out_lock(out):
+        if out is not None:
+            _check_out(out, spec, recorded > 0, force)
+        results = _run(spec, jobs, dask, quiet=fmt != "table",
+                       mcap_dir=out if recorded else None)
+        table = rows(results)
+        _write(out, table, spec, force)
     _emit(fmt, table, f"campaign {spec.name}")
     failed = sum(not r.ok for r in results)
     unrecorded = sum(r.mcap_error is not None for r in results)
@@ -349,10 +415,11 @@ def _score(row: dict[str, Any]) -> tuple[float, float, float]:
 @click.option("--mcap", "mcap_dir", type=click.Path(file_okay=False, path_type=Path),
               help="Record every combination's step into this directory as INDEX-NAME.mcap "
                    "(telemetry, events and the truth in emulated time).")
+@force_option
 @format_option
 def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, target: float,
          seconds: float, jobs: int | None, dask: str | None, plot: Path | None,
-         mcap_dir: Path | None, fmt: str) -> None:
+         mcap_dir: Path | None, force: bool, fmt: str) -> None:
     """Pick the wheel PID gains that settle a step soonest, from a grid.
 
     Every wheel steps with each combination of gains set on CHANNEL of every board; the
@@ -370,7 +437,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
         raise CliError(f"--surface {_short(surface)} --body {body}: {exc}",
                        ExitCode.BAD_INPUT) from None
     if plot is not None:
-        check_plot_path(plot)
+        check_plot_path(plot, force=force)
     combos = [dict(zip([k for k, _ in grid], values, strict=True))
               for values in itertools.product(*(v for _, v in grid))]
     scenarios: list[dict[str, Any]] = [{"name": "seed §3.4", "params": {f"{k}.{channel}": v
@@ -393,7 +460,14 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
             mcap_dir.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise CliError(f"--mcap {mcap_dir}: {exc.strerror or exc}") from None
-    results = _run(spec, jobs, dask, quiet=fmt != "table", mcap_dir=mcap_dir)
+    with _out_lock(mcap_dir):
+        if mcap_dir is not None:
+            from fpgalink.campaign.runner import recording_paths
+
+            for path in recording_paths(spec.scenarios, mcap_dir).values():
+                if path:
+                    check_output(Path(path), force=force)
+        results = _run(spec, jobs, dask, quiet=fmt != "table", mcap_dir=mcap_dir)
     table = rows(results)
     for row in table:
         row["kp"], row["ti"], row["td"] = (row.get(f"{name}{channel}")
@@ -413,7 +487,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
     emit_rows(fmt, cols, table, title=f"tune channel {channel}: step to {target:g} deg/s "
               f"on {surface} ({body})")
     if plot is not None:
-        _tune_plot(plot, table, channel)
+        _tune_plot(plot, table, channel, force)
     if best is None:
         raise CliError("no combination ran: see the failures above", ExitCode.FAILURE)
     if mcap_dir is not None:
@@ -424,7 +498,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
         note(f"wrote {len(results)} recording(s) (INDEX-NAME.mcap) into {mcap_dir}")
 
 
-def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str) -> None:
+def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str, force: bool) -> None:
     from fpgalink.cli.figures import new_figure, save_figure
 
     figure = new_figure((8.0, 6.0))
@@ -443,5 +517,5 @@ def _tune_plot(path: Path, table: list[dict[str, Any]], channel: str) -> None:
         axes.set_xticks(range(len(table)), labels if number == len(names) else [""] *
                         len(table), fontsize=6)
     figure.axes[0].set_title(f"tune channel {channel}: green the best, grey the seed's gains")
-    save_figure(figure, path)
+    save_figure(figure, path, force=force)
     note(f"wrote {path}")

@@ -41,8 +41,8 @@ __all__ = ["drive"]
 @format_option
 @robot_options
 def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
-          record: Path | None, rosbag: Path | None, foxglove: LiveAddress | None, fmt: str,
-          robot_file: Path | None,
+          record: Path | None, rosbag: Path | None, foxglove: LiveAddress | None,
+          force: bool, fmt: str, robot_file: Path | None,
           surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
     """Drive the robot at --v and --omega, holding the deadman, with a live view.
 
@@ -51,7 +51,7 @@ def drive(speed: float, omega: float, duration: float | None, plot: Path | None,
     Exit 7 when supervision stopped it (a board went silent).
     """
     session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag, foxglove,
-                       "fpgalink-cli drive")
+                       "fpgalink-cli drive", force=force)
     try:
         code = run(_drive(session, speed, math.radians(omega), duration))
     finally:  # a fault stop too: where it stopped is what the user asks first

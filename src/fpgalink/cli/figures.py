@@ -1,12 +1,15 @@
 """Figures for ``step --plot`` and ``plot``: matplotlib's object API with the Agg canvas (no
-pyplot global state, no display), and a path check done before any work."""
+pyplot global state, no display), and a path check done before any work. A figure is
+written as every file a command writes is (:mod:`fpgalink.cli.files`): an existing one
+refused unless ``--force``, the image put in place whole."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import IO, TYPE_CHECKING
 
+from fpgalink.cli.files import check_output, write_file
 from fpgalink.cli.output import CliError, ExitCode
 
 if TYPE_CHECKING:
@@ -17,9 +20,10 @@ __all__ = ["PLOT_SUFFIXES", "check_plot_path", "new_figure", "save_figure"]
 PLOT_SUFFIXES = (".png", ".svg", ".pdf")  #: what --plot can write (Agg, SVG and PDF backends)
 
 
-def check_plot_path(path: Path, option: str = "--plot") -> None:
+def check_plot_path(path: Path, option: str = "--plot", *, force: bool) -> None:
     """Refuse a plot path that cannot be written, before any work is done: a step takes
-    seconds, and its result must not be lost to a typo at the end."""
+    seconds, and its result must not be lost to a typo at the end (or to a file that is
+    there, unless ``force``)."""
     if path.suffix.lower() not in PLOT_SUFFIXES:
         raise CliError(f"{option} {path}: the file name must end in "
                        f"{', '.join(PLOT_SUFFIXES)} (the format is taken from it)",
@@ -32,6 +36,7 @@ def check_plot_path(path: Path, option: str = "--plot") -> None:
     if not os.access(parent, os.W_OK | os.X_OK) or (path.exists() and
                                                      not os.access(path, os.W_OK)):
         raise CliError(f"{option} {path}: not writable", ExitCode.BAD_INPUT)
+    check_output(path, force=force)
     try:
         import matplotlib  # noqa: F401
     except ImportError:
@@ -48,10 +53,10 @@ def new_figure(size: tuple[float, float]) -> Figure:
     return figure
 
 
-def save_figure(figure: Figure, path: Path) -> None:
-    """Save, with a failure (full disk, a path gone since the check) as one line."""
-    try:
-        figure.savefig(str(path), dpi=100)
-    except OSError as exc:
-        raise CliError(f"{path}: cannot write the plot: {exc.strerror or exc}",
-                       ExitCode.FAILURE) from None
+def save_figure(figure: Figure, path: Path, *, force: bool) -> None:
+    """Save, whole or not at all, with a failure (full disk, a path gone since the check)
+    as one line."""
+    def draw(stream: IO[bytes]) -> None:
+        figure.savefig(stream, format=path.suffix.lower().lstrip("."), dpi=100)
+
+    write_file(path, draw, force=force)

@@ -49,7 +49,7 @@ __all__ = ["goto"]
 @robot_options
 def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: float,
          plot: Path | None, record: Path | None, rosbag: Path | None,
-         foxglove: LiveAddress | None, fmt: str,
+         foxglove: LiveAddress | None, force: bool, fmt: str,
          robot_file: Path | None, surface: str | None, truth_url: str | None,
          conn: ConnectionOptions) -> int:
     """Drive the robot to X Y (m, in the odometry frame of the start) and stop there.
@@ -59,7 +59,7 @@ def goto(x: float, y: float, theta: float | None, time_limit: float, tolerance: 
     there within --time-limit, 7 when supervision stopped the robot, 130 on Ctrl-C.
     """
     session = RobotRun(conn, robot_file, surface, truth_url, plot, record, rosbag, foxglove,
-                       "fpgalink-cli goto")
+                       "fpgalink-cli goto", force=force)
     target = f"({x:g}, {y:g})" + ("" if theta is None else f", θ {theta:g}°")
     arrived: list[Any] = []
     try:

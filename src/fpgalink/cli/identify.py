@@ -65,7 +65,7 @@ def identify(channel: str, wheels: str | None, max_duty: float | None, duration:
     options = identification(wheels, max_duty, duration, bit_s, period_ms, orders, offset,
                              driving=from_file is None)
     if plot is not None:
-        check_plot_path(plot)
+        check_plot_path(plot, force=False)
     if from_file is not None:
         if record is not None:
             raise CliError("--record and --from together: --from reads a recording, it makes "

@@ -82,10 +82,18 @@ class CliError(click.ClickException):
 
 
 def classify(exc: FpgalinkError, where: str = "") -> CliError:
-    """Library error → the CLI's message and exit code (:func:`fpgalink.errors.exit_code`)."""
+    """Library error → the CLI's message and exit code (:func:`fpgalink.errors.exit_code`;
+    a recording's errors name their file)."""
     from fpgalink.errors import ParameterRefused, exit_code
     from fpgalink.protocol import NackReason
+    from fpgalink.recording import OutputBusy, OutputRefused, RecordingError
 
+    if isinstance(exc, RecordingError):  # its message names the file: no prefix
+        if isinstance(exc, OutputRefused):
+            return CliError(f"{exc}; --force replaces it" if exc.exists else str(exc),
+                            ExitCode.BAD_INPUT)
+        return CliError(str(exc), ExitCode.PORT if isinstance(exc, OutputBusy)
+                        else ExitCode.FAILURE)
     code = exit_code(exc)
     prefix = f"{where}: " if where else ""
     if code is ExitCode.NO_ANSWER:

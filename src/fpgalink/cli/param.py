@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import datetime as dt
 import math
 import os
@@ -13,6 +14,7 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
+from fpgalink.cli.files import check_output, force_option, write_file
 from fpgalink.cli.formats import (
     Column,
     console_width,
@@ -391,11 +393,11 @@ async def _load(conn: ConnectionOptions, entries: list[Setting], fmt: str) -> in
     return ExitCode.OK
 
 
-def write_output(file: str, text: str) -> None:
-    """Write ``text`` to FILE without ever replacing what a path points to unasked: a new
-    or regular file is written to a temporary beside it and renamed over it (a reader never
-    sees half a file); a symlink's target is replaced that way and the link stays; a device
-    or FIFO is written as a stream. One-line error otherwise (exit 1)."""
+def write_output(file: str, text: str, *, force: bool) -> None:
+    """Write ``text`` to FILE as every file a command writes (:mod:`fpgalink.cli.files`): a
+    new file via ``FILE.partial``, renamed into place (a reader never sees half a file); an
+    existing one only with ``force``, a symlink's target replaced that way and the link kept;
+    a device or FIFO is written as a stream. One-line error otherwise."""
     target = Path(file)
     try:
         mode = target.stat().st_mode if target.exists() else None
@@ -405,26 +407,27 @@ def write_output(file: str, text: str) -> None:
             with open(target, "w", encoding="utf-8") as stream:
                 stream.write(text)
             return
-        real = target.resolve() if target.is_symlink() else target
-        temporary = real.with_name(f".{real.name}.tmp{os.getpid()}")
-        try:
-            temporary.write_text(text, encoding="utf-8")
-            if mode is not None:
-                os.chmod(temporary, stat.S_IMODE(mode))
-            temporary.replace(real)
-        finally:
-            temporary.unlink(missing_ok=True)
     except OSError as exc:
         raise CliError(f"{file}: cannot write: {exc.strerror or exc}", ExitCode.FAILURE) from None
+    write_file(target, text.encode("utf-8"), force=force)
+    if mode is not None:
+        with contextlib.suppress(OSError):  # the replaced file's permissions
+            os.chmod(target.resolve(), stat.S_IMODE(mode))
 
 
 @param.command("dump", epilog=EXIT_CODES_HELP)
 @click.argument("file", type=click.Path(dir_okay=False, allow_dash=True))
+@force_option
 @connection_options()
-def dump(file: str, conn: ConnectionOptions) -> int:
+def dump(file: str, force: bool, conn: ConnectionOptions) -> int:
     """Read every parameter from the board into a TOML FILE ('-' for stdout) that `param
     load` and `fpgaemu serve --config` accept. Nothing is written unless every value was
-    read; an existing regular file is replaced whole, a device or FIFO written to."""
+    read; an existing regular file is refused unless --force (then replaced whole), a
+    device or FIFO written to."""
+    target = Path(file)
+    if file != "-" and not (target.exists() and not target.is_dir()
+                            and not stat.S_ISREG(target.stat().st_mode)):
+        check_output(target, force=force)  # before the board is read
     values = run(_read(conn), conn.single.url)
     stamp = dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat()
     text = render_parameter_file(values, f"fpgalink parameters read from {conn.single.url} "
@@ -432,6 +435,6 @@ def dump(file: str, conn: ConnectionOptions) -> int:
     if file == "-":
         write_out(text)
         return ExitCode.OK
-    write_output(file, text)
+    write_output(file, text, force=force)
     note(f"wrote {len(values)} values to {file}")
     return ExitCode.OK

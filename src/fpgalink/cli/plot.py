@@ -2,8 +2,10 @@
 look without Foxglove or PlotJuggler at hand.
 
 Reads the MCAP files ``record``, ``drive --record`` and ``goto --record`` write (and any
-MCAP with JSON messages), and the rosbag2 directories ``--rosbag2`` writes (CDR, read with
-the ``rosbags`` library of the ros2 extra). A recording whose writer was killed has no
+MCAP with JSON messages), and the rosbag2 directories ``--rosbag2`` writes (CDR, decoded
+with the ``rosbags`` library of the ros2 extra), through
+:class:`fpgalink.recording.RecordingReader`: every chunk checked against its CRC, a damaged
+one skipped and named (exit 9), the rest used. A recording whose writer was killed has no
 summary; its complete chunks are still read, in file order, and the command says so.
 
 Every message is seen as flat numeric fields: nested objects by ``.`` (``pose.pose.
@@ -19,12 +21,15 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
 import click
 
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.files import force_option
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, note
+from fpgalink.recording import NotARecording, RecordingReader
+from fpgalink.recording.reader import Schema
 
 __all__ = ["Reading", "Series", "field_value", "flatten", "plot", "read_series", "unit_of"]
 
@@ -33,9 +38,6 @@ TELEMETRY_SUFFIX = "/telemetry"
 #: A rosbag2 of the robot (``--rosbag2``): each wheel's speed, and the body's.
 BAG_TOPICS = ("/joint_states", "/odom")
 BAG_FIELDS = "velocity,twist.twist.linear.x,twist.twist.angular.z"
-#: What mcap's readers raise on a torn or foreign file (it does not wrap its struct and
-#: decoding errors in McapError).
-_UNREADABLE = (Exception,)
 _CLOCKS = {
     "publish": "the board's sample time (publish_time; header stamps in a bag)",
     "log": "host receive time (log_time; the bag's time)",
@@ -169,52 +171,39 @@ class Message:
     record: Any  #: a JSON object, or a ROS message
 
 
-def _mcap_messages(stream: IO[bytes], topics: list[str] | None
-                   ) -> tuple[Iterator[Any], bool]:
-    """Messages of ``topics`` (all when ``None``), and whether the file was complete."""
-    from mcap.reader import NonSeekingReader, make_reader
-
+def _reader(path: Path) -> RecordingReader:
     try:
-        reader = make_reader(stream)
-        if reader.get_summary() is not None:
-            return reader.iter_messages(topics=topics), True
-    except _UNREADABLE:
-        pass
-    stream.seek(0)
-    # In file order: sorting would load the whole file to memory; time is sorted below.
-    return NonSeekingReader(stream).iter_messages(topics=topics, log_time_order=False), False
+        return RecordingReader(path)
+    except NotARecording as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
+
+
+def _account(reader: RecordingReader, state: dict[str, Any]) -> None:
+    """What reading ``reader`` found besides its messages, into ``state``."""
+    state["complete"] = state.get("complete", True) and reader.complete
+    state["damage"] += [f"{reader.path}: {d.describe(reader.origin_ns)}"
+                        for d in reader.damage]
+    state["orphans"] += reader.skipped_messages
+    state["topics"] = sorted({*state.get("topics", ()),
+                              *(c.topic for c in reader.channels.values())})
 
 
 def _read_mcap(path: Path, topics: list[str] | None, state: dict[str, Any]
                ) -> Iterator[Message]:
-    with path.open("rb") as stream:
-        messages, state["complete"] = _mcap_messages(stream, topics)
-        for _schema, channel, message in messages:
-            try:
-                record = json.loads(message.data)
-            except (ValueError, UnicodeDecodeError, RecursionError):
-                # Not JSON, or nested too deeply: one bad message is counted and said, the
-                # rest still plotted.
-                state["skipped"] += 1
-                continue
-            yield Message(channel.topic, message.publish_time / 1e9, message.log_time / 1e9,
-                          record)
-
-
-def _mcap_topics(path: Path) -> list[str]:
-    """Every topic with a message in an MCAP file (read again only to say what there is
-    when a topic asked for is not)."""
-    topics: set[str] = set()
-    try:
-        with path.open("rb") as stream:
-            messages, _ = _mcap_messages(stream, None)
-            for _schema, channel, _message in messages:
-                topics.add(channel.topic)
-    except OSError:
-        pass
-    except _UNREADABLE:
-        pass  # a torn end: the topics before it
-    return sorted(topics)
+    with _reader(path) as reader:
+        try:
+            for _schema, channel, message in reader.messages(topics):
+                try:
+                    record = json.loads(message.data)
+                except (ValueError, UnicodeDecodeError, RecursionError):
+                    # Not JSON, or nested too deeply: one bad message is counted and said,
+                    # the rest still plotted.
+                    state["skipped"] += 1
+                    continue
+                yield Message(channel.topic, message.publish_time / 1e9,
+                              message.log_time / 1e9, record)
+        finally:
+            _account(reader, state)
 
 
 def is_bag(path: Path) -> bool:
@@ -223,14 +212,56 @@ def is_bag(path: Path) -> bool:
 
 def _read_bag(path: Path, topics: list[str] | None, state: dict[str, Any]
               ) -> Iterator[Message]:
+    """A rosbag2: its MCAP files read as every recording is (chunks checked), the CDR
+    messages decoded with ``rosbags``' types (a type the bag defines and the Jazzy store
+    does not know is taken from the bag); another storage (SQLite) through ``rosbags``."""
     try:
-        from rosbags.highlevel import AnyReader
         from rosbags.typesys import Stores, get_typestore
     except ImportError:
         raise CliError(f"{path} is a rosbag2: reading it needs the rosbags library: pip "
                        "install 'fpgalink[ros2]'", ExitCode.BAD_INPUT) from None
-    state["complete"] = True
-    with AnyReader([path], default_typestore=get_typestore(Stores.ROS2_JAZZY)) as reader:
+    types = get_typestore(Stores.ROS2_JAZZY)
+    files = sorted(path.glob("*.mcap"))
+    if not files:
+        yield from _read_other_bag(path, topics, state, types)
+        return
+    for file in files:
+        with _reader(file) as reader:
+            try:
+                for schema, channel, message in reader.messages(topics):
+                    ros = _decode(types, schema, message.data)
+                    if ros is None:
+                        state["skipped"] += 1
+                        continue
+                    stamp = getattr(getattr(ros, "header", None), "stamp", None)
+                    log = message.log_time / 1e9
+                    publish = log if stamp is None else stamp.sec + stamp.nanosec / 1e9
+                    yield Message(channel.topic, publish, log, ros)
+            finally:
+                _account(reader, state)
+
+
+def _decode(types: Any, schema: Schema | None, data: bytes) -> Any:
+    """A CDR message of ``schema``'s type, or ``None`` when it cannot be decoded."""
+    if schema is None:
+        return None
+    try:
+        if schema.name not in types.fielddefs:
+            from rosbags.typesys import get_types_from_idl, get_types_from_msg
+
+            text = schema.data.decode("utf-8")
+            types.register(get_types_from_idl(text) if schema.encoding == "ros2idl"
+                           else get_types_from_msg(text, schema.name))
+        return types.deserialize_cdr(data, schema.name)
+    except Exception:  # rosbags' errors on a definition or message it cannot read
+        return None
+
+
+def _read_other_bag(path: Path, topics: list[str] | None, state: dict[str, Any],
+                    types: Any) -> Iterator[Message]:
+    from rosbags.highlevel import AnyReader
+
+    with AnyReader([path], default_typestore=types) as reader:
         state["topics"] = sorted({c.topic for c in reader.connections})
         chosen = [c for c in reader.connections if topics is None or c.topic in topics]
         for connection, timestamp, raw in reader.messages(connections=chosen):
@@ -245,13 +276,17 @@ def _read_bag(path: Path, topics: list[str] | None, state: dict[str, Any]
 class Reading:
     """What :func:`read_series` found: the series, whether the file was complete, how many
     messages of the chosen topics were skipped because they could not be read as a record
-    (not JSON, nested too deeply, a number beyond any float …), and every topic with the
-    fields its first message has (to say what there is when something asked for is not)."""
+    (not JSON, nested too deeply, a number beyond any float …), every topic with the fields
+    its first message has (to say what there is when something asked for is not), and the
+    damage: each part of the file skipped (one line each), and the messages of intact chunks
+    skipped because their channel was defined in a damaged one."""
 
     series: list[Series]
     complete: bool
     skipped: int = 0
     available: dict[str, list[str]] = dataclasses.field(default_factory=dict)
+    damage: list[str] = dataclasses.field(default_factory=list)
+    orphans: int = 0
 
 
 def read_series(path: Path, topics: list[str] | None, fields: list[str],
@@ -263,7 +298,7 @@ def read_series(path: Path, topics: list[str] | None, fields: list[str],
     series: dict[tuple[str, str], Series] = {}
     available: dict[str, list[str]] = {}
     origin: float | None = None
-    state: dict[str, Any] = {"complete": False, "skipped": 0}
+    state: dict[str, Any] = {"skipped": 0, "damage": [], "orphans": 0}
     default_topics = topics is None
     wanted = list(BAG_TOPICS) if bag and default_topics else topics
     try:
@@ -294,18 +329,15 @@ def read_series(path: Path, topics: list[str] | None, fields: list[str],
                         line.values.append(value)
     except CliError:
         raise
+    except NotARecording as exc:
+        raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     except OSError as exc:
         raise CliError(f"{path}: cannot read: {exc.strerror or exc}", ExitCode.FAILURE) from None
-    except _UNREADABLE as exc:
-        if origin is None:
-            if bag:
-                raise CliError(f"{path}: not a readable rosbag2 ({type(exc).__name__}: "
-                               f"{exc})", ExitCode.BAD_INPUT) from None
-            why = "it ends before its first complete chunk" if type(exc).__name__ == \
-                "EndOfFile" else f"{type(exc).__name__}: {exc}"
-            raise CliError(f"{path}: not a readable MCAP file ({why})",
-                           ExitCode.BAD_INPUT) from None
-        state["complete"] = False  # a torn end after good chunks: plot what came before it
+    except Exception as exc:  # a foreign bag rosbags cannot read
+        if not bag:
+            raise
+        raise CliError(f"{path}: not a readable rosbag2 ({type(exc).__name__}: {exc})",
+                       ExitCode.BAD_INPUT) from None
     for topic in state.get("topics", []):
         available.setdefault(topic, [])
     for line in series.values():
@@ -313,7 +345,8 @@ def read_series(path: Path, topics: list[str] | None, fields: list[str],
         line.t = [line.t[i] - (origin or 0.0) for i in order]
         line.values = [line.values[i] for i in order]
     ranked = sorted(series.values(), key=lambda s: (s.topic, fields.index(s.asked), s.field))
-    return Reading(ranked, bool(state["complete"]), int(state["skipped"]), available)
+    return Reading(ranked, bool(state.get("complete", False)), int(state["skipped"]), available,
+                   list(state["damage"]), int(state["orphans"]))
 
 
 def _collapse(keys: list[str]) -> list[str]:
@@ -360,15 +393,18 @@ def _listing(available: dict[str, list[str]], topics: list[str]) -> str:
               help="Time axis: the board's sample time (publish) or host receive time (log).")
 @click.option("-o", "--output", type=click.Path(dir_okay=False, path_type=Path),
               help="Image to write (.png, .svg or .pdf). Default: RECORDING with .png.")
+@force_option
 def plot(recording: Path, topics: tuple[str, ...], fields: str | None, clock: str,
-         output: Path | None) -> int:
+         output: Path | None, force: bool) -> int:
     """Plot fields of a recording against time into a PNG.
 
     RECORDING is an MCAP file (record, drive/goto --record) or a rosbag2 directory
     (--rosbag2). One panel per field (or per group joined with +), one line per topic and
     field, references dashed; each axis gives its unit. Values the recording holds as null
     (non-finite on the wire) are gaps. A field or topic that is not in the recording is an
-    error that lists what is. Needs matplotlib (pip install 'fpgalink[plot]').
+    error that lists what is. Every chunk of the recording is checked (its CRC): a damaged
+    one is skipped and named with its time span, the rest plotted, and the exit is 8. Needs
+    matplotlib (pip install 'fpgalink[plot]').
     """
     bag = is_bag(recording)
     if recording.is_dir() and not bag:
@@ -382,17 +418,26 @@ def plot(recording: Path, topics: tuple[str, ...], fields: str | None, clock: st
         raise CliError("--fields: give at least one field name", ExitCode.BAD_INPUT)
     output = output or (recording.parent / f"{recording.name}.png" if bag
                         else recording.with_suffix(".png"))
-    check_plot_path(output, "--output")
+    check_plot_path(output, "--output", force=force)
     reading = read_series(recording, list(topics) or None, names, clock)
     series, available = reading.series, reading.available
+    for damage in reading.damage:
+        note(f"damaged: {damage}; skipped")
+    if reading.orphans:
+        note(f"damaged: skipped {reading.orphans} message(s) of intact chunks whose channel "
+             "was defined in a damaged one")
+    damaged = len(reading.damage) + (1 if reading.orphans else 0)
     if not reading.complete:
         note(f"{recording} was not closed (no summary): plotting the complete chunks it holds")
+    if damaged and not any(s.values for s in series):
+        raise CliError(f"{recording}: damaged, and nothing intact to plot ({damaged} damaged "
+                       "part(s), named above)", ExitCode.DAMAGED)
     if reading.skipped:
         note(f"skipped {reading.skipped} message(s) that are not JSON records with plottable "
              "numbers (not JSON, nested too deeply, or a number beyond a float's range)")
     missing_topics = [t for t in topics if t not in available]
     if missing_topics:
-        every = sorted(available) if bag else _mcap_topics(recording)
+        every = sorted(available)
         raise CliError(f"{recording}: no topic {', '.join(missing_topics)}; it has "
                        f"{', '.join(every) or 'no messages'}", ExitCode.BAD_INPUT)
     chosen = sorted({s.topic for s in series})
@@ -413,10 +458,13 @@ def plot(recording: Path, topics: tuple[str, ...], fields: str | None, clock: st
         note(f"no values for {', '.join(empty)}: left out")
     shown = [[n for n in panel if n not in empty] for panel in panels]
     shown = [panel for panel in shown if panel]
-    _draw(output, recording, series, shown, chosen, clock, bag)
+    _draw(output, recording, series, shown, chosen, clock, bag, force)
     points = sum(len(s.values) for s in series)
     note(f"plotted {points} points of {len(names) - len(empty)} field(s) from "
          f"{len(chosen)} topic(s) to {output}")
+    if damaged:
+        raise CliError(f"{recording}: damaged: {damaged} part(s) skipped (named above); "
+                       f"plotted what is intact to {output}", ExitCode.DAMAGED)
     return ExitCode.OK
 
 
@@ -435,7 +483,7 @@ def _is_reference(field: str) -> bool:
 
 
 def _draw(output: Path, recording: Path, series: list[Series], panels: list[list[str]],
-          chosen: list[str], clock: str, bag: bool) -> None:
+          chosen: list[str], clock: str, bag: bool, force: bool) -> None:
     """One panel per group of fields: a colour per topic and channel, references dashed
     over the measured line (equal lines both stay visible), the units on each axis."""
     figure = new_figure((9, 2.2 * len(panels) + 0.8))
@@ -474,4 +522,4 @@ def _draw(output: Path, recording: Path, series: list[Series], panels: list[list
     title = recording.name if len(chosen) > 1 else f"{recording.name}: {chosen[0]}"
     axes[0].set_title(title)
     axes[-1].set_xlabel(f"s since the first message, {_CLOCKS[clock]}")
-    save_figure(figure, output)
+    save_figure(figure, output, force=force)

@@ -13,7 +13,8 @@ from typing import Any
 import click
 
 from fpgalink.aio.link import Stamped, Subscription
-from fpgalink.cli.options import ConnectionOptions, announce_emulator, connection_options
+from fpgalink.cli.files import check_output, force_option
+from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, FiniteRange, note
 from fpgalink.cli.robotsession import description_options
 from fpgalink.cli.session import (
@@ -31,9 +32,10 @@ from fpgalink.cli.session import (
     telemetry_row,
     wait_or_stop,
 )
-from fpgalink.cli.sinks import STATS_FIELDS, CsvSink, DiskFull, McapSink, Sink
+from fpgalink.cli.settings import DEFAULT, EMULATOR_URL
+from fpgalink.cli.sinks import STATS_FIELDS, CsvSink, McapSink, Sink
 from fpgalink.protocol import Parsed
-from fpgalink.recording import parameter_record
+from fpgalink.recording import RecordingError, parameter_record
 
 __all__ = ["record"]
 
@@ -54,10 +56,11 @@ STATS_PERIOD_S = 1.0
               help="Instead of FILE: the robot (both boards) into a new rosbag2 DIR — "
                    "joint_states, odom, diagnostics, and truth when emulated (MCAP, CDR; "
                    "needs the ros2 extra's rosbags).")
+@force_option
 @description_options
 @connection_options(multi=True, announce=False)
 def record(file: Path | None, duration: float | None, as_csv: bool, passive: bool,
-           rosbag: Path | None, robot_file: Path | None, surface: str | None,
+           rosbag: Path | None, force: bool, robot_file: Path | None, surface: str | None,
            truth_url: str | None, conn: ConnectionOptions) -> int:
     """Record telemetry, parameter changes and link events into FILE (or a rosbag2).
 
@@ -68,6 +71,8 @@ def record(file: Path | None, duration: float | None, as_csv: bool, passive: boo
     Each message's log_time is when the host received it, its publish_time the board's
     sample time on the host clock. Ctrl-C stops cleanly: the file is closed and valid
     (exit 130). A full disk stops the recording with the file complete so far (exit 1).
+    FILE is written as FILE.partial and renamed when complete; an existing FILE is refused
+    unless --force.
 
     --rosbag2 DIR records the robot as the ROS 2 node publishes it (topics /joint_states,
     /odom, /diagnostics, /truth; docs/ros2.md): the robot description's boards (--robot,
@@ -78,7 +83,7 @@ def record(file: Path | None, duration: float | None, as_csv: bool, passive: boo
         if file is not None or as_csv or passive:
             raise CliError("--rosbag2 DIR records the robot on its own: no FILE, --csv or "
                            "--passive with it", ExitCode.BAD_INPUT)
-        return _record_rosbag(conn, rosbag, duration, robot_file, surface, truth_url)
+        return _record_rosbag(conn, rosbag, duration, robot_file, surface, truth_url, force)
     if file is None:
         raise CliError("give FILE (MCAP, or CSV with --csv), or --rosbag2 DIR",
                        ExitCode.BAD_INPUT)
@@ -91,16 +96,18 @@ def record(file: Path | None, duration: float | None, as_csv: bool, passive: boo
         raise CliError("record writes a file (MCAP, or CSV with --csv), not stdout: give a "
                        "file name; for telemetry on stdout use monitor --format csv|jsonl",
                        ExitCode.BAD_INPUT)
-    announce_emulator(conn)
-    if file.exists() and file.is_dir():
-        raise CliError(f"{file} is a directory", ExitCode.BAD_INPUT)
-    if not file.parent.is_dir():
-        raise CliError(f"{file}: no such directory {file.parent}", ExitCode.BAD_INPUT)
-    return run(_record(conn, file, duration, as_csv, passive))
+    check_output(file, force=force)
+    if conn.settings.sources["port"] == DEFAULT:
+        # Not just "the emulator": an idle board records zeros, which looked like a fault.
+        note(f"no --port given (nor FPGALINK_PORT or a config file): recording the built-in "
+             f"emulated board {EMULATOR_URL}, at rest: nothing drives it in this command, so "
+             "its wheels read zero (to record a run, drive --record FILE, or serve a board "
+             "with fpgaemu serve and record it with --port)")
+    return run(_record(conn, file, duration, as_csv, passive, force))
 
 
 async def _record(conn: ConnectionOptions, path: Path, duration: float | None, as_csv: bool,
-                  passive: bool) -> int:
+                  passive: bool, force: bool) -> int:
     stop = asyncio.Event()
     install_stop_signals(stop)
     failure: list[BaseException] = []
@@ -116,19 +123,18 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
                     "baud": str(conn.baud), "started": f"{started:.6f}",
                     "clocks": "log_time: host receive time; publish_time: the board's t_us "
                               "mapped onto the host clock (anchored at the first sample)"}
-        try:
-            sink: Sink = CsvSink(path) if as_csv else McapSink(path, boards, metadata)
-        except OSError as exc:
-            raise CliError(f"{path}: cannot write: {exc.strerror}", ExitCode.FAILURE) from None
+        sink: Sink = (CsvSink(path, force=force) if as_csv else
+                      McapSink(path, boards, metadata, force=force))
 
         def guarded(write: Any) -> Any:
-            """Run a sink write; a write error stops the recording (reported at the end)."""
+            """Run a sink write; a write error stops the recording (the sink says, when it
+            is closed, what is on disk)."""
             def call(*args: Any) -> None:
                 if failure:
                     return
                 try:
                     write(*args)
-                except OSError as exc:
+                except RecordingError as exc:
                     failure.append(exc)
                     stop.set()
             return call
@@ -143,6 +149,7 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
             tasks.append(asyncio.ensure_future(session.follow(
                 functools.partial(on_event, session.endpoint.name))))
         subs = [s.link.stamped_telemetry(maxsize=65536) for s in sessions]
+        ended = False
         try:
             on_event(boards[0], "recording_started", metadata["ports"], time.time())
             if not passive:
@@ -154,6 +161,7 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
                     _record_telemetry(session, sub, on_telemetry, counts, to_epoch)))
                 tasks.append(asyncio.ensure_future(_record_stats(session, on_stats)))
             await _progress(stop, duration, counts, path)
+            ended = True
         finally:
             for task in tasks:
                 task.cancel()
@@ -162,20 +170,14 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
                 await restore_streaming(sessions, passive)
             if not failure:
                 on_event(boards[0], "recording_stopped", "", time.time())
+            if not ended:
+                # Whatever ends the command (a board that never answered, …), what was
+                # recorded is finished and put in place; that error is the one said.
+                with contextlib.suppress(RecordingError):
+                    sink.close()
     total = sum(counts.values())
     elapsed = time.time() - started
-    if failure:
-        error = failure[0]
-        with contextlib.suppress(CliError):
-            sink.close()
-        reason = "the disk is full" if isinstance(error, DiskFull) else (
-            f"cannot write: {getattr(error, 'strerror', None) or error}")
-        kept = sink.rows_written if isinstance(sink, CsvSink) else sink.messages
-        what = "complete rows" if isinstance(sink, CsvSink) else "messages"
-        raise CliError(f"{path}: {reason}; recording stopped after {elapsed:.1f} s with "
-                       f"{kept} {what} in the file, which is complete up to there",
-                       ExitCode.FAILURE)
-    sink.close()
+    sink.close()  # a recording stopped early: its one line, exit 1
     note(f"recorded {total} telemetry samples from {len(counts)} board(s) in "
          f"{elapsed:.1f} s to {path}")
     check_boards_answered(sessions, started)
@@ -184,10 +186,10 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
 
 def _record_rosbag(conn: ConnectionOptions, path: Path, duration: float | None,
                    robot_file: Path | None, surface: str | None,
-                   truth_url: str | None) -> int:
+                   truth_url: str | None, force: bool) -> int:
     from fpgalink.cli.robotsession import RobotRun
 
-    session = RobotRun(conn, robot_file, surface, truth_url, None, None, path)
+    session = RobotRun(conn, robot_file, surface, truth_url, None, None, path, force=force)
 
     async def recording() -> int:
         async with session.opened():
@@ -196,7 +198,7 @@ def _record_rosbag(conn: ConnectionOptions, path: Path, duration: float | None,
 
     started = time.monotonic()
     code = run(recording())
-    if session.bag is not None:
+    if session.bag is not None and session.bag.path in session.recorded:
         note(f"recorded {session.bag.messages} ROS messages in "
              f"{time.monotonic() - started:.1f} s to the bag {path}")
     return code

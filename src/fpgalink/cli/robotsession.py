@@ -9,6 +9,7 @@ import contextlib
 import functools
 import json
 import math
+import sys
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
@@ -20,10 +21,11 @@ import click
 
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.liveview import foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
-from fpgalink.cli.output import CliError, ExitCode, echo_out, note
-from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA
+from fpgalink.cli.output import CliError, ExitCode, classify, echo_out, note
+from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA, RecordingError
 
 if TYPE_CHECKING:
     from fpgalink.cli.rosbag import RosbagWriter
@@ -42,8 +44,8 @@ T = TypeVar("T")
 SAMPLE_S = 0.05
 #: The bag's /truth at most this often (a path plot's resolution, not the wheels').
 BAG_TRUTH_PERIOD_S = 0.01
-#: How often the bag's disk is checked for room (diagnostics go out every fourth check).
-BAG_ROOM_CHECK_S = 0.25
+#: How often the bag gets /diagnostics.
+BAG_DIAGNOSTICS_S = 1.0
 
 
 def robot_options(func: Callable[..., T]) -> Callable[..., T]:
@@ -52,9 +54,9 @@ def robot_options(func: Callable[..., T]) -> Callable[..., T]:
 
 
 def output_options(func: Callable[..., T]) -> Callable[..., T]:
-    """``--plot FILE``, ``--record FILE``, ``--rosbag2 DIR`` and ``--foxglove
+    """``--plot FILE``, ``--record FILE``, ``--rosbag2 DIR``, ``--force`` and ``--foxglove
     [HOST:]PORT``: what a robot command leaves behind, and its live view."""
-    func = foxglove_option(rosbag_option(func))
+    func = foxglove_option(force_option(rosbag_option(func)))
     for option in (  # innermost first: --help lists --plot, --record, --rosbag2
         click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
                      callback=_a_file, help="Save the path (odometry, and truth when "
@@ -183,7 +185,8 @@ class PathLog:
         self.odometry.append(odometry)
         self.truth.append(truth)
 
-    def plot(self, path: Path, title: str, goal: tuple[float, float] | None = None) -> None:
+    def plot(self, path: Path, title: str, goal: tuple[float, float] | None = None, *,
+             force: bool) -> None:
         figure = new_figure((7, 7))
         ax = figure.subplots()
         ax.plot([p[0] for p in self.odometry], [p[1] for p in self.odometry],
@@ -202,7 +205,7 @@ class PathLog:
         ax.set_title(title)
         ax.grid(True, alpha=0.3)
         ax.legend(loc="best", fontsize="small")
-        save_figure(figure, path)
+        save_figure(figure, path, force=force)
 
 
 #: The fields a truth line must hold as finite numbers to be used (the path, the live
@@ -338,15 +341,15 @@ class RobotRun:
     def __init__(self, conn: ConnectionOptions, robot_file: Path | None, surface: str | None,
                  truth_url: str | None, plot: Path | None, record: Path | None,
                  rosbag: Path | None = None, foxglove: LiveAddress | None = None,
-                 name: str = "fpgalink-cli") -> None:
+                 name: str = "fpgalink-cli", *, force: bool = False) -> None:
+        # Every file it will write, checked before the robot moves (--force: replaced).
         if plot is not None:
-            check_plot_path(plot)
-        if record is not None and (record.is_dir() or not record.parent.is_dir()):
-            raise CliError(f"--record {record}: not a file in an existing directory",
-                           ExitCode.BAD_INPUT)
-        if rosbag is not None and (rosbag.exists() or not rosbag.parent.is_dir()):
-            raise CliError(f"--rosbag2 {rosbag}: must be a new directory in an existing one",
-                           ExitCode.BAD_INPUT)
+            check_plot_path(plot, force=force)
+        if record is not None:
+            check_output(record, force=force)
+        if rosbag is not None:
+            check_output(rosbag, force=force, directory=True)
+        self.force = force
         self.conn = conn
         self.description = load_description(conn, robot_file, surface)
         self.ports = robot_ports(conn, self.description, robot_file)
@@ -354,12 +357,13 @@ class RobotRun:
         self.record_path = record
         self.rosbag_path = rosbag
         self.bag: RosbagWriter | None = None
-        #: what stopped the recording early (a full disk, a write error), for the exit
-        self.failure_reason: str | None = None
+        #: the recordings closed complete, as asked (only these are said to be recorded)
+        self.recorded: list[Path] = []
         self.path = PathLog()
         self.stop = asyncio.Event()
         self._truth_reader = _TruthReader(truth_url) if truth_url else None
-        self._sink: Any = None
+        self._sink: Any = None  #: the --record file while it is being written
+        self._sink_opened: Any = None  #: … and once opened, to close it at the end
         self._started = 0.0
         self._bag_truth_at = -(1 << 62)  #: host time /truth was last written to the bag, ns
         self._bag_log_ns = 0  #: the latest log time written to the bag
@@ -427,16 +431,32 @@ class RobotRun:
             if self._truth_reader is not None:
                 await self._truth_reader.close()
                 self._report_truth(self._truth_reader)
-            if self._sink is not None:
-                self._sink.close()
-            if self.bag is not None:
-                self.bag.close()
-        if self.failure_reason is not None and self.bag is not None:  # closed: complete
-            complete = ("which is complete up to there" if self.failure_reason.startswith(
-                "the disk is full") else "whose last chunk may be damaged")
-            raise CliError(f"--rosbag2 {self.rosbag_path}: {self.failure_reason}; recording "
-                           f"stopped with {self.bag.messages} messages in the bag, "
-                           f"{complete}", ExitCode.FAILURE)
+            self._close_recordings()
+
+    def _close_recordings(self) -> None:
+        """Close the recordings: each put in place, complete up to where it got. A
+        recording that stopped early, or cannot be finished, is one line (exit 1); when the
+        run itself ends in an error, that error is the one raised, and the recordings' are
+        said as notes."""
+        failures: list[RecordingError] = []
+        for recording in (self._sink_opened, self.bag):
+            if recording is None:
+                continue
+            try:
+                recording.close()
+            except RecordingError as exc:
+                failures.append(exc)
+            else:
+                self.recorded.append(recording.path)
+        if not failures:
+            return
+        if sys.exc_info()[0] is not None:
+            for failure in failures:
+                note(str(failure))
+            return
+        for failure in failures[1:]:
+            note(str(failure))
+        raise classify(failures[0])
 
     @staticmethod
     def _report_truth(reader: _TruthReader) -> None:
@@ -464,13 +484,17 @@ class RobotRun:
         assert self.record_path is not None
         topics = {"/robot/odometry": POSE_SCHEMA, "/robot/truth": POSE_SCHEMA,
                   "/robot/command": COMMAND_SCHEMA}
-        try:
-            self._sink = McapSink(self.record_path, list(self.description.boards),
-                                  {"robot": self.description.name,
-                                   "surface": self.description.surface}, topics)
-        except OSError as exc:
-            raise CliError(f"--record {self.record_path}: cannot write: {exc.strerror}",
-                           ExitCode.FAILURE) from None
+        self._sink = self._sink_opened = McapSink(
+            self.record_path, list(self.description.boards),
+            {"robot": self.description.name, "surface": self.description.surface}, topics,
+            force=self.force)
+
+    def _recording_failed(self, *, sink: bool = False) -> None:
+        """A recording stopped (its write raised; ``sink``: the ``--record`` one, written no
+        more): the run stops; the recording says what is on disk when it is closed."""
+        if sink:
+            self._sink = None
+        self.stop.set()
 
     async def _record_board(self, robot: Robot, name: str, to_epoch: float) -> None:
         """Every sample of one board into ``/board/NAME/telemetry``, as ``record`` writes it
@@ -488,9 +512,8 @@ class RobotRun:
             row["timestamp"] = round(sampled, 6)
             try:
                 sink.telemetry(name, row, received, sampled)
-            except OSError as exc:
-                self._sink = None
-                note(f"--record stopped: {exc.strerror or exc}")
+            except RecordingError:
+                self._recording_failed(sink=True)
                 return
 
     # --- rosbag2 --------------------------------------------------------------------------
@@ -504,14 +527,8 @@ class RobotRun:
             metadata={"robot": self.description.name, "surface": self.description.surface,
                       "ports": " ".join(f"{b}={u}" for b, u in self.ports.items()),
                       "clocks": "bag time: host receive time; header stamps: the boards' "
-                                "sample times on the host clock"})
-
-    def _bag_failed(self, reason: str | OSError) -> None:
-        """Stop: the command ends, the bag is closed, then the reason is the error."""
-        if self.failure_reason is None:
-            self.failure_reason = reason if isinstance(reason, str) else (
-                f"cannot write: {reason.strerror or reason}")
-        self.stop.set()
+                                "sample times on the host clock"},
+            force=self.force)
 
     def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:
         # One truth clock for the whole bag: /truth at most every BAG_TRUTH_PERIOD_S.
@@ -545,27 +562,21 @@ class RobotRun:
                         if truth is not None:
                             bag.truth(truth, now_ns, now_ns)
                             self._bag_truth_at = now_ns
-                except OSError as exc:
-                    self._bag_failed(exc)
+                except RecordingError:
+                    self._recording_failed()
                     return
 
     async def _bag_diagnostics(self, robot: Robot) -> None:
         bag = self.bag
         assert bag is not None
-        ticks = 0
         while True:
-            await asyncio.sleep(BAG_ROOM_CHECK_S)
-            if not bag.room_left():
-                self._bag_failed("the disk is full")
+            await asyncio.sleep(BAG_DIAGNOSTICS_S)
+            now_ns = time.time_ns()
+            try:
+                bag.diagnostics(robot.health(), now_ns, now_ns)
+            except RecordingError:
+                self._recording_failed()
                 return
-            ticks += 1
-            if ticks % round(1.0 / BAG_ROOM_CHECK_S) == 0:
-                now_ns = time.time_ns()
-                try:
-                    bag.diagnostics(robot.health(), now_ns, now_ns)
-                except OSError as exc:
-                    self._bag_failed(exc)
-                    return
 
     async def _sample(self) -> None:
         while True:
@@ -597,9 +608,8 @@ class RobotRun:
                     self._sink.add("/robot/command", {
                         "v": command.v, "omega": command.omega, "left": command.left_dps,
                         "right": command.right_dps, "scale": command.scale}, now)
-            except OSError as exc:
-                self._sink = None
-                note(f"--record stopped: {exc.strerror or exc}")
+            except RecordingError:
+                self._recording_failed(sink=True)
 
     def view(self, status: str) -> Any:
         """The live table (rich renderable)."""
@@ -695,11 +705,11 @@ class RobotRun:
 
     def finish(self, title: str, goal: tuple[float, float] | None = None) -> None:
         if self.plot_path is not None:
-            self.path.plot(self.plot_path, title, goal)
+            self.path.plot(self.plot_path, title, goal, force=self.force)
             note(f"path plot saved to {self.plot_path}")
-        if self.record_path is not None:
+        if self.record_path is not None and self.record_path in self.recorded:
             note(f"recorded the path to {self.record_path}")
-        if self.bag is not None:
+        if self.bag is not None and self.bag.path in self.recorded:
             note(f"recorded {self.bag.messages} ROS messages to the bag {self.rosbag_path}")
 
 

@@ -9,21 +9,23 @@ for an emulated robot, ``/truth`` (``nav_msgs/Odometry``, the body's true motion
 most). A message's bag timestamp is when the host received it (as ``ros2 bag record``
 does); header stamps are the boards' sample times on the host clock.
 
-A full disk: the recording stops while there is still room to close the bag (a reserve is
-kept beside it and the free space watched), so the bag is complete up to there.
+The bag goes the way every recording goes (:class:`fpgalink.recording.BagRecording`): made
+as ``DIR.partial/DIR`` and renamed into place when closed, an existing ``DIR`` refused unless
+``--force``; its MCAP file has CRCs, and room kept for its summary and ``metadata.yaml``, so
+a full disk stops the recording with the bag complete up to there.
 """
 
 from __future__ import annotations
 
 import contextlib
 import math
-import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 from fpgalink.cli.output import CliError, ExitCode
 from fpgalink.protocol.robot import RobotDescription
+from fpgalink.recording import BagRecording, BagStorage, RecordingError
 from fpgalink.robot.health import Status
 from fpgalink.robot.joints import JointStates
 from fpgalink.robot.odometry import OdometryState
@@ -31,19 +33,15 @@ from fpgalink.robot.odometry import OdometryState
 __all__ = ["ROSBAGS_HINT", "RosbagWriter"]
 
 ROSBAGS_HINT = "--rosbag2 needs the rosbags library: pip install 'fpgalink[ros2]'"
-#: Kept allocated beside the bag and released to close it when the disk is nearly full:
-#: more than the writer's unwritten chunk (up to 1 MiB) and the bag's summary.
-RESERVE_BYTES = 4 * 1024 * 1024
-#: Below this much free space (besides the reserve) the recording stops.
-LOW_WATER_BYTES = 2 * 1024 * 1024
-RESERVE_NAME = ".fpgalink-reserve"
 
 
 class RosbagWriter:
-    """One bag. ``truth``: whether to carry the emulated robot's ``/truth`` topic."""
+    """One bag. ``truth``: whether to carry the emulated robot's ``/truth`` topic. A write
+    that fails raises :class:`~fpgalink.recording.RecordingError` (the recording stops);
+    :meth:`close` says, by raising it, what is on disk."""
 
     def __init__(self, path: Path, description: RobotDescription, *, truth: bool,
-                 metadata: dict[str, str]) -> None:
+                 metadata: dict[str, str], force: bool) -> None:
         try:
             from rosbags.interfaces import (
                 Qos,
@@ -57,19 +55,20 @@ class RosbagWriter:
             from rosbags.typesys import Stores, get_typestore
         except ImportError:
             raise CliError(ROSBAGS_HINT, ExitCode.NOT_INSTALLED) from None
-        if path.exists():
-            raise CliError(f"--rosbag2 {path}: already exists (a bag is a new directory)",
-                           ExitCode.BAD_INPUT)
-        if not path.parent.is_dir():
-            raise CliError(f"--rosbag2 {path}: no such directory {path.parent}",
-                           ExitCode.BAD_INPUT)
+
+        class McapWriter(Writer):
+            """rosbags' writer, its MCAP storage the recording's own."""
+
+            STORAGE_PLUGINS = {StoragePlugin.MCAP: BagStorage}  # noqa: RUF012
+
         self.path = path
         self.description = description
-        self.messages = 0
         self.types = get_typestore(Stores.ROS2_JAZZY)
-        self._writer = Writer(path, version=9, storage_plugin=StoragePlugin.MCAP)
-        for key, value in metadata.items():
-            self._writer.set_custom_data(f"fpgalink.{key}", value)
+        self._bag = BagRecording(
+            path, force=force,
+            writer=lambda where: McapWriter(where, version=9,
+                                            storage_plugin=StoragePlugin.MCAP),
+            custom_data={f"fpgalink.{key}": value for key, value in metadata.items()})
         never = QosTime(sec=0x7FFFFFFF, nsec=0xFFFFFFFF)
 
         def qos(reliability: Any, depth: int) -> list[Any]:
@@ -79,11 +78,6 @@ class RosbagWriter:
                         liveliness_lease_duration=never,
                         avoid_ros_namespace_conventions=False)]
 
-        try:
-            self._writer.open()
-        except OSError as exc:
-            raise CliError(f"--rosbag2 {path}: cannot write: {exc.strerror or exc}",
-                           ExitCode.FAILURE) from None
         sensor = qos(QosReliability.BEST_EFFORT, 5)  # joint_states: the node's sensor QoS
         reliable = qos(QosReliability.RELIABLE, 10)
         topics = [("/joint_states", "sensor_msgs/msg/JointState", sensor),
@@ -91,35 +85,19 @@ class RosbagWriter:
                   ("/diagnostics", "diagnostic_msgs/msg/DiagnosticArray", reliable)]
         if truth:
             topics.append(("/truth", "nav_msgs/msg/Odometry", reliable))
-        self._connections = {
-            topic: self._writer.add_connection(topic, msgtype, typestore=self.types,
-                                               offered_qos_profiles=profiles)
-            for topic, msgtype, profiles in topics}
-        self._reserve = path / RESERVE_NAME
-        self._hold_reserve()
-
-    # --- room -----------------------------------------------------------------------------
-
-    def _hold_reserve(self) -> None:
-        with contextlib.suppress(OSError):
-            fd = os.open(self._reserve, os.O_WRONLY | os.O_CREAT, 0o600)
-            try:
-                os.posix_fallocate(fd, 0, RESERVE_BYTES)
-            finally:
-                os.close(fd)
-
-    def _release_reserve(self) -> None:
-        with contextlib.suppress(OSError):
-            self._reserve.unlink()
-
-    def room_left(self) -> bool:
-        """Whether there is still room to go on (checked by the caller a few times a
-        second); when not, close the bag with :meth:`close`."""
         try:
-            fs = os.statvfs(self.path)
-        except OSError:
-            return True
-        return fs.f_bavail * fs.f_frsize >= LOW_WATER_BYTES
+            self._connections = {
+                topic: self._bag.add_connection(topic, msgtype, typestore=self.types,
+                                                offered_qos_profiles=profiles)
+                for topic, msgtype, profiles in topics}
+        except BaseException:
+            with contextlib.suppress(RecordingError):
+                self._bag.close()
+            raise
+
+    @property
+    def messages(self) -> int:
+        return self._bag.messages
 
     # --- messages -------------------------------------------------------------------------
 
@@ -131,8 +109,7 @@ class RosbagWriter:
 
     def _write(self, topic: str, message: Any, log_ns: int) -> None:
         data = self.types.serialize_cdr(message, message.__msgtype__)
-        self._writer.write(self._connections[topic], log_ns, data)
-        self.messages += 1
+        self._bag.write(self._connections[topic], log_ns, data)
 
     def joint_states(self, states: JointStates, stamp_ns: int, log_ns: int) -> None:
         import numpy as np
@@ -188,13 +165,6 @@ class RosbagWriter:
     # --- the end --------------------------------------------------------------------------
 
     def close(self) -> None:
-        """Write the bag's index and metadata.yaml (the reserve gives them room)."""
-        self._release_reserve()
-        try:
-            self._writer.close()
-        except OSError as exc:
-            with contextlib.suppress(Exception):
-                self._writer.abort()
-            raise CliError(f"--rosbag2 {self.path}: cannot finish the bag: "
-                           f"{exc.strerror or exc}; `ros2 bag reindex {self.path}` rebuilds "
-                           "its index", ExitCode.FAILURE) from None
+        """Close the bag (its index, ``metadata.yaml``) and put it in place;
+        :class:`~fpgalink.recording.RecordingError` when it stopped early or cannot be."""
+        self._bag.close()

@@ -1,12 +1,15 @@
 """Where ``record`` writes: MCAP (the library's writer, :mod:`fpgalink.recording`) or CSV.
-Both survive what a disk can do to them:
+Both go the way every recording goes (:mod:`fpgalink.recording.files`): written as
+``NAME.partial`` and renamed into place when complete, an existing file refused unless
+``--force``. Both survive what a disk can do to them:
 
 * chunks are closed (MCAP) and rows flushed (CSV) every half second, so a hard kill loses at
-  most that much, and what was written stays readable;
-* room for the MCAP file's own summary is reserved ahead of the data with
-  ``fallocate(FALLOC_FL_KEEP_SIZE)``, so when the disk fills the recording stops with an
-  error *and* a complete file (:class:`DiskFull`); should a write fail all the same, the torn
-  tail is cut back to the last complete chunk (or row) before the file is closed.
+  most that much, and what was written stays readable (in ``NAME.partial``);
+* room for the MCAP file's own summary is reserved ahead of the data, so when the disk fills
+  the recording stops with an error *and* a complete file; CSV ends at its last complete row.
+
+A write that fails raises :class:`~fpgalink.recording.RecordingError` and stops the
+recording; ``close`` then says, by raising it, what is on disk (one line, exit 1).
 
 MCAP times (``docs/cli.md``): ``log_time`` is when the host received the message (the MCAP
 spec's meaning), ``publish_time`` is the board's sample time mapped onto the host clock, and
@@ -15,6 +18,7 @@ the payload keeps the board's raw ``t_us`` — so board/host clock drift shows.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import io
 import time
@@ -22,7 +26,6 @@ from pathlib import Path
 from typing import IO, Any, Protocol
 
 from fpgalink import __version__, recording
-from fpgalink.cli.output import CliError, ExitCode
 from fpgalink.recording import (
     EVENT_SCHEMA,
     FLUSH_S,
@@ -31,17 +34,20 @@ from fpgalink.recording import (
     STATS_SCHEMA,
     TELEMETRY_FIELDS,
     DiskFull,
+    Output,
     RecordingError,
     ReservedSpace,
+    describe_error,
     log_level,
 )
 
 __all__ = ["EVENT_SCHEMA", "PARAM_SCHEMA", "STATS_FIELDS", "STATS_SCHEMA", "CsvSink",
-           "DiskFull", "McapSink", "Sink", "log_level"]
+           "McapSink", "Sink", "log_level"]
 
 
 class Sink(Protocol):
-    messages: int
+    @property
+    def messages(self) -> int: ...
 
     def telemetry(self, board: str, row: dict[str, Any], received: float,
                   sampled: float) -> None: ...
@@ -52,28 +58,23 @@ class Sink(Protocol):
 
 
 class McapSink(recording.McapSink):
-    """The library's MCAP writer, named ``fpgalink-cli`` in the file's header; a summary that
-    cannot be written is the command's one-line error (exit 1)."""
+    """The library's MCAP writer, named ``fpgalink-cli`` in the file's header."""
 
     def __init__(self, path: Path, boards: list[str], metadata: dict[str, str],
-                 extra_topics: dict[str, dict[str, Any]] | None = None) -> None:
+                 extra_topics: dict[str, dict[str, Any]] | None = None, *,
+                 force: bool) -> None:
         super().__init__(path, boards, metadata, extra_topics,
-                         library=f"fpgalink-cli {__version__}")
-
-    def close(self) -> None:
-        try:
-            super().close()
-        except RecordingError as exc:
-            raise CliError(str(exc), ExitCode.FAILURE) from None
+                         library=f"fpgalink-cli {__version__}", force=force)
 
 
 class CsvSink:
     """Telemetry only, one row per TM sample (``board`` column first); the rest is dropped.
     Rows are written whole: after a write error the file ends at the last complete row."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, *, force: bool) -> None:
         self.path = path
-        self._file: IO[bytes] = path.open("wb")
+        self._output = Output(path, force=force)
+        self._file: IO[bytes] = self._output.file()
         self._space = ReservedSpace(self._file)
         self._buffer = io.StringIO()
         self._writer = csv.DictWriter(self._buffer, fieldnames=["board", *TELEMETRY_FIELDS],
@@ -83,15 +84,38 @@ class CsvSink:
         self.messages = 0
         self.rows_written = 0  #: rows that are in the file for certain
         self._pending = 0  # rows in the buffer (the header is not one)
-        self._flush()
+        self.failure: OSError | None = None
+        self._closed = False
+        try:
+            self._flush()
+        except OSError as exc:
+            self._closed = True
+            with contextlib.suppress(OSError):
+                self._file.close()
+            self._output.discard()
+            raise RecordingError(f"{path}: {describe_error(exc)}: the recording could not be "
+                                 "started; no file left") from None
 
     def telemetry(self, board: str, row: dict[str, Any], received: float,
                   sampled: float) -> None:
+        if self._closed:
+            raise RecordingError(f"{self.path}: the recording is closed")
+        if self.failure is not None:
+            raise RecordingError(f"{self.path}: recording stopped: "
+                                 f"{describe_error(self.failure)}")
         self._writer.writerow({"board": board, **row})
         self.messages += 1
         self._pending += 1
         if time.monotonic() - self._flushed >= FLUSH_S:
+            self._flush_or_stop()
+
+    def _flush_or_stop(self) -> None:
+        try:
             self._flush()
+        except OSError as exc:
+            self.failure = exc
+            raise RecordingError(f"{self.path}: recording stopped: {describe_error(exc)}"
+                                 ) from None
 
     def _flush(self) -> None:
         try:
@@ -122,12 +146,19 @@ class CsvSink:
         pass
 
     def close(self) -> None:
-        if self._file.closed:
+        """The last rows, and the file in place; :class:`RecordingError` when the recording
+        stopped early or the last rows could not be written."""
+        if self._closed:
             return
-        try:
-            self._flush()
-        except OSError as exc:
-            raise CliError(f"{self.path}: cannot write: {exc.strerror or exc}; the file holds "
-                           f"{self.rows_written} complete rows", ExitCode.FAILURE) from None
-        finally:
+        self._closed = True
+        if self.failure is None:
+            with contextlib.suppress(RecordingError):  # kept in self.failure, said below
+                self._flush_or_stop()
+        self._space.release()
+        with contextlib.suppress(OSError):
             self._file.close()
+        self._output.commit()  # whole rows up to the last written: complete up to there
+        if self.failure is not None:
+            raise RecordingError(f"{self.path}: {describe_error(self.failure)}; recording "
+                                 f"stopped with {self.rows_written} complete rows in the "
+                                 "file, which is complete up to there")

@@ -16,6 +16,7 @@ import click
 from fpgalink.aio.link import LinkEvent
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
+from fpgalink.cli.files import force_option
 from fpgalink.cli.formats import Column, emit_document, emit_rows, format_option
 from fpgalink.cli.liveview import add_live_boards, foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
@@ -90,7 +91,7 @@ CONTROLLERS = {0: "software speed PID", 1: "hardware speed PID", 2: "software cu
 
 
 def save_plot(path: Path, response: StepResponse, channel: str, start: float, target: float,
-              metrics: StepMetrics, setup: StepSetup) -> None:
+              metrics: StepMetrics, setup: StepSetup, *, force: bool = False) -> None:
     """Reference (dashed, so a speed on it still shows) and speed with the ±2 % band, the
     rise (10–90 %) and settling marks; PWM with the board's limit below."""
     figure = new_figure((9, 6.5))
@@ -135,7 +136,7 @@ def save_plot(path: Path, response: StepResponse, channel: str, start: float, ta
     bottom.set_xlabel("time since the step, s")
     bottom.legend(loc="lower right", fontsize="small")
     bottom.grid(True, alpha=0.3)
-    save_figure(figure, path)
+    save_figure(figure, path, force=force)
 
 
 def check_reach(target: float, start: float, conn: ConnectionOptions) -> None:
@@ -169,11 +170,12 @@ def check_reach(target: float, start: float, conn: ConnectionOptions) -> None:
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="Save reference, speed and pwm against time to a .png, .svg or .pdf "
                    "(needs matplotlib; the path is checked before the step runs).")
+@force_option
 @format_option
 @foxglove_option
 @connection_options()
 def step(channel: str, target: float, start: float, hold: float, pre: float,
-         plot: Path | None, fmt: str, foxglove: LiveAddress | None,
+         plot: Path | None, force: bool, fmt: str, foxglove: LiveAddress | None,
          conn: ConnectionOptions) -> int:
     """Step the speed reference of one channel and measure the response.
 
@@ -190,7 +192,7 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
     if float32(target) == float32(start):
         raise CliError("--to and --from are equal: there is no step", ExitCode.BAD_INPUT)
     if plot is not None:
-        check_plot_path(plot)
+        check_plot_path(plot, force=force)
     check_reach(target, start, conn)
     outcome = run(_step(conn, channel, start, target, pre, hold, foxglove), conn.single.url)
     if outcome.signal is not None:
@@ -207,7 +209,8 @@ def step(channel: str, target: float, start: float, hold: float, pre: float,
     metrics = step_metrics([t for t, _ in after], [v for _, v in after], start, target)
     _print_metrics(fmt, metrics, channel, start, target, len(after), outcome.setup)
     if plot is not None:
-        save_plot(plot, response, channel, start, target, metrics, outcome.setup)
+        save_plot(plot, response, channel, start, target, metrics, outcome.setup,
+                  force=force)
         click.echo(f"plot saved to {plot}", err=True)
     return ExitCode.OK
 

@@ -16,12 +16,16 @@ class ExitCode(IntEnum):
     BAD_INPUT = 2  #: usage, a bad value, file, name or URL; nothing was sent
     REFUSED = 3  #: the board answered PN (or confirmed another value than the one sent)
     NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
-    PORT = 5  #: a port is missing, busy or failed (or could not be served)
+    #: a port is missing, busy or failed (or could not be served); or a file or directory
+    #: to write is being written by another process now
+    PORT = 5
     TIMEOUT = 6  #: a goal was not reached in time (goto); the robot was stopped
     #: a fault stopped the robot or the step: a board went silent, restarted, disabled itself
     #: (its watchdog: this host stalled) or its telemetry stopped; or the deadman lapsed
     STOPPED = 7
     NOT_INSTALLED = 8  #: an optional part is not installed; the message gives the pip command
+    #: a recording read back is damaged: what is intact was used, each damaged part named
+    DAMAGED = 9
     INTERRUPTED = 130  #: a command stopped by Ctrl-C (128 + SIGINT), after a clean stop
     TERMINATED = 143  #: a command stopped by SIGTERM (128 + SIGTERM), handled as Ctrl-C
 
@@ -34,12 +38,14 @@ _SHORT = {
                         "file, name or URL; nothing sent)",
     ExitCode.REFUSED: "board refused (PN) or confirmed another value",
     ExitCode.NO_ANSWER: "board not answering",
-    ExitCode.PORT: "port missing, busy or failed",
+    ExitCode.PORT: "port missing, busy or failed (or a file another process is writing "
+                   "now)",
     ExitCode.TIMEOUT: "goal not reached in time",
     ExitCode.STOPPED: "stopped by a fault (a board silent, restarted, disabled by its "
                       "watchdog, its telemetry stopped; the deadman)",
     ExitCode.NOT_INSTALLED: "an optional part not installed (the message gives the pip "
                             "command)",
+    ExitCode.DAMAGED: "a recording read is damaged (the rest was used)",
     ExitCode.INTERRUPTED: "interrupted (Ctrl-C)",
     ExitCode.TERMINATED: "terminated (SIGTERM)",
 }

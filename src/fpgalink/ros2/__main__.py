@@ -77,6 +77,8 @@ def _parser() -> argparse.ArgumentParser:
                         "WebSocket server, loopback unless HOST is given; the foxglove "
                         "extra): the boards' telemetry, parameters, events, the robot's "
                         "pose, path, truth, URDF and supervision; docs/live.md")
+    parser.add_argument("--force", action="store_true",
+                        help="replace the --bag DIR if it exists")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -251,18 +253,24 @@ def main(argv: list[str] | None = None) -> None:
 
         try:
             bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
-                                        "robot": description.name})
+                                        "robot": description.name}, force=options.force)
         except BagError as exc:
-            _fail(str(exc))
+            _fail(str(exc), exc.code)
     rclpy.init(args=argv)
+    code = 0
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
                                 bag, options.lifecycle, live, argv))
     finally:
         if bag is not None:
-            bag.close()
-            print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
-                  flush=True)
+            try:
+                bag.close()
+            except BagError as exc:  # stopped early: complete up to there, or not finished
+                print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+                code = code or exc.code
+            else:
+                print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
+                      flush=True)
         with contextlib.suppress(Exception):
             rclpy.shutdown()
     sys.exit(code)

@@ -32,6 +32,8 @@ from fpgalink.campaign import (
     run_scenario,
 )
 from fpgalink.campaign.results import deterministic_rows
+from fpgalink.recording import partial_path
+from tests.fpgalink.cli.test_errors import assert_one_line_error
 from tests.support.cli import CAN_MOUNT, cli_env, cli_on_small_disk, run_cli
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -526,7 +528,8 @@ def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> No
     from tests.support.recordings import readable_topics
 
     out = tmp_path / "out"
-    path = out / "0-scenario_1.mcap"
+    # Not finished: it is written, and left, under its partial name.
+    path = partial_path(out / "0-scenario_1.mcap")
 
     proc = _long_campaign(tmp_path, seeds=1, jobs=1, extra=("--mcap", "--out", str(out)))
     try:
@@ -549,6 +552,7 @@ def test_a_stopped_campaign_leaves_its_recordings_readable(tmp_path: Path) -> No
     left = readable_topics(path)
     # Every telemetry message readable before the signal is readable after it.
     assert left.count("/board/L/telemetry") >= readable and "/robot/truth" in left
+    assert not (out / "0-scenario_1.mcap").exists()  # never taken for a finished one
 
 
 def test_a_worker_that_dies_costs_only_its_scenario(tmp_path: Path) -> None:
@@ -598,7 +602,8 @@ def test_a_worker_that_dies_costs_only_its_scenario(tmp_path: Path) -> None:
             assert r.mcap is None and r.mcap_error is None
         else:
             assert (r.mcap_error or "").startswith("not finished: its worker process died")
-            assert r.mcap is None or (Path(r.mcap).exists() and Path(r.mcap).parent == tmp_path)
+            assert r.mcap is None or (Path(r.mcap).exists() and Path(r.mcap).parent == tmp_path
+                                      and r.mcap.endswith(".mcap.partial"))
 
 
 def test_figures_are_over_the_seconds_asked_even_between_control_periods() -> None:
@@ -767,7 +772,8 @@ def test_a_recording_that_cannot_be_written_costs_the_recording_not_the_scenario
     assert deterministic_rows([result]) == deterministic_rows(
         run_campaign(replace(campaign, scenarios=(replace(campaign.scenarios[0], mcap=False),
                                                   )), jobs=1))
-    # A full disk: the file is a private /dev/full (char 1:7; the real one is not touched).
+    # A device where the file should go (a private /dev/full, char 1:7; the real one is
+    # not touched): not a file a recording replaces, and left as it is.
     full_dir = tmp_path / "full"
     full_dir.mkdir()
     try:
@@ -777,7 +783,8 @@ def test_a_recording_that_cannot_be_written_costs_the_recording_not_the_scenario
     [result] = run_campaign(campaign, jobs=1, mcap_dir=full_dir)
     assert result.ok and result.figures == figures
     assert result.mcap is None
-    assert result.mcap_error is not None and "No space left" in result.mcap_error
+    assert result.mcap_error is not None and "not a regular file" in result.mcap_error
+    assert stat.S_ISCHR((full_dir / "0-turn_left.mcap").stat().st_mode)
 
 
 def test_a_disk_that_fills_during_a_scenario_stops_its_recording_only(
@@ -816,19 +823,23 @@ def test_campaign_mcap_through_the_console_script(tmp_path: Path) -> None:
     done = run_cli("campaign", str(spec), "--jobs", "2", "--out", str(plain), timeout=300)
     assert done.returncode == 0, done.stderr
     assert not list(plain.glob("*.mcap"))
-    # The second scenario's file is blocked (a directory is in its place): a counted
-    # warning, the campaign and its table go on.
+    # The second scenario's file is blocked (a directory is in its place): said before
+    # anything runs, one line, exit 2, nothing written.
     (recorded / "1-turn.mcap").mkdir(parents=True)
     done = run_cli("campaign", str(spec), "--jobs", "2", "--mcap", "--out", str(recorded),
                    "--format", "json", timeout=300)
-    assert done.returncode == 1, done.stderr
-    assert "scenario 1 (turn): recording:" in done.stderr
-    assert "1 of 2 recording(s) failed" in done.stderr and "Traceback" not in done.stderr
+    assert done.returncode == 2, done.stderr
+    assert_one_line_error(done.stderr, "1-turn.mcap: is a directory")
+    assert sorted(p.name for p in recorded.iterdir()) == ["1-turn.mcap"]
+    (recorded / "1-turn.mcap").rmdir()
+    done = run_cli("campaign", str(spec), "--jobs", "2", "--mcap", "--out", str(recorded),
+                   "--format", "json", timeout=300)
+    assert done.returncode == 0, done.stderr
     rows = json.loads(done.stdout)
     assert [r["status"] for r in rows] == ["ok", "ok"]
     assert Path(rows[0]["mcap"]).is_absolute()
     assert Path(rows[0]["mcap"]).samefile(recorded / "0-turn.mcap")
-    assert rows[0]["mcap_error"] is None and rows[1]["mcap"] is None
+    assert rows[0]["mcap_error"] is None and rows[1]["mcap_error"] is None
     messages, _ = _read_mcap(recorded / "0-turn.mcap")
     assert {"/board/L/telemetry", "/robot/truth"} <= {t for t, _, _, _ in messages}
     # results.json as without recording, but for the columns that say how a row ran.
@@ -862,13 +873,17 @@ def test_a_disk_that_fills_leaves_a_complete_recording_and_the_figures(tmp_path:
     assert [r["status"] for r in rows] == ["ok", "ok"]  # the figures stand
     assert rows[0]["1.wheels.turn_rate_dps"] == rows[1]["1.wheels.turn_rate_dps"]
     first, second = rows
-    assert "stopped at" in first["mcap_error"] and "No space left" in first["mcap_error"]
+    assert "the disk is full" in first["mcap_error"]
+    assert "complete up to there" in first["mcap_error"] and "s emulated" in first["mcap_error"]
     with (out / "0-turn.mcap").open("rb") as stream:
         reader = make_reader(stream)  # summary and footer: the normal reader
         assert reader.get_summary() is not None
-        assert sum(1 for _ in reader.iter_messages()) > 1000
-    assert "cannot write" in second["mcap_error"] and second["mcap"] is None
+        said = int(first["mcap_error"].split(" with ")[1].split()[0])
+        assert sum(1 for _ in reader.iter_messages()) == said > 1000
+    assert "could not be started; no file left" in second["mcap_error"]
+    assert second["mcap"] is None
     assert not (out / "1-turn.mcap").exists()
+    assert not (out / "1-turn.mcap.partial").exists()
 
 
 def test_a_lost_scenario_names_only_a_recording_begun_in_this_run(tmp_path: Path) -> None:
@@ -887,6 +902,9 @@ def test_a_lost_scenario_names_only_a_recording_begun_in_this_run(tmp_path: Path
     began = time.time()
     earlier = _lost(scenario, str(path), "its worker process died", began)
     assert earlier.mcap is None and earlier.mcap_error == "not finished: its worker process died"
-    path.write_bytes(b"begun now")
-    assert _lost(scenario, str(path), "its worker process died", began - 1).mcap == str(path)
+    # What a worker that died had begun is under its partial name (never the finished one).
+    partial = partial_path(path)
+    partial.write_bytes(b"begun now")
+    begun = _lost(scenario, str(path), "its worker process died", began - 1)
+    assert begun.mcap == str(partial) and str(partial) in (begun.mcap_error or "")
     assert _lost(scenario, str(tmp_path / "none.mcap"), "died", began).mcap is None

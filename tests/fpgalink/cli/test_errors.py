@@ -148,6 +148,8 @@ def test_help_documents_exit_codes() -> None:
     assert done.returncode == 0
     text = " ".join(done.stdout.split())
     for code in ("2 bad input", "3 board refused", "4 board not answering",
-                 "5 port missing, busy or failed", "8 an optional part not installed",
+                 "5 port missing, busy or failed (or a file another process is writing now)",
+                 "8 an optional part not installed",
+                 "9 a recording read is damaged",
                  "130 interrupted"):
         assert code in text

@@ -171,7 +171,7 @@ def test_param_dump_into_a_symlink_keeps_the_link(
     target.write_text("old\n")
     link = tmp_path / "link.toml"
     link.symlink_to(target)
-    done = run_cli("param", "dump", str(link), "--port", fake.url)
+    done = run_cli("param", "dump", str(link), "--force", "--port", fake.url)
     assert done.returncode == 0, done.stderr
     assert link.is_symlink() and link.resolve() == target
     assert "TsTimerPeriod" in target.read_text()

@@ -59,9 +59,18 @@ def test_plot_of_a_torn_recording_uses_its_complete_chunks(recording: Path,
     torn.write_bytes(data[: len(data) * 3 // 4])
     out = tmp_path / "torn.png"
     done = run_cli("plot", str(torn), "--fields", "a.speed+a.ref", "-o", str(out))
-    assert done.returncode == 0, done.stderr
+    # Its torn end is skipped and said (exit 9); what came before it is plotted.
+    assert done.returncode == 9, done.stderr
     assert "was not closed" in done.stderr
+    assert "cut short: the file ends inside it; skipped" in done.stderr
     assert out.read_bytes().startswith(PNG_MAGIC)
+    # Cut back to its last complete chunk (as a writer cut short leaves it), nothing is
+    # skipped: only "not closed".
+    with torn.open("rb+") as stream:
+        stream.truncate(int(done.stderr.split(": bytes ")[1].split("–")[0]))
+    done = run_cli("plot", str(torn), "--fields", "a.speed+a.ref", "-o", str(out), "--force")
+    assert done.returncode == 0, done.stderr
+    assert "was not closed" in done.stderr and "damaged" not in done.stderr
 
 
 @pytest.mark.parametrize(("args", "needles"), [

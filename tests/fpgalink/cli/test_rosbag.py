@@ -173,8 +173,8 @@ def test_record_rosbag2_records_the_robot_at_rest(tmp_path: Path) -> None:
     (["record", "--rosbag2", "{bag}", "--csv"], "no FILE, --csv or --passive"),
     (["record"], "give FILE"),
     (["record", "x.mcap", "--surface", "gravel"], "go with --rosbag2"),
-    (["record", "--rosbag2", "{exists}"], "must be a new directory"),
-    (["drive", "--for", "1", "--rosbag2", "{nodir}"], "must be a new directory"),
+    (["record", "--rosbag2", "{exists}"], "exists; --force replaces it"),
+    (["drive", "--for", "1", "--rosbag2", "{nodir}"], "no such directory"),
 ])
 def test_bad_bag_arguments_are_one_line_exit_2(tmp_path: Path, args: list[str],
                                                needle: str) -> None:
@@ -199,7 +199,7 @@ def test_without_rosbags_the_option_says_how_to_install(tmp_path: Path) -> None:
 
 @pytest.mark.skipif(not CAN_MOUNT, reason="needs root and unshare for a private tmpfs")
 def test_a_full_disk_stops_the_bag_complete_up_to_there(tmp_path: Path) -> None:
-    done, bag = cli_on_small_disk(tmp_path, "8m", "bag", "drive", "--v", "0.1", "--for", "60",
+    done, bag = cli_on_small_disk(tmp_path, "2m", "bag", "drive", "--v", "0.1", "--for", "60",
                                   "--rosbag2", "{out}")
     assert done.returncode == 1, done.stderr
     errors = [line for line in done.stderr.splitlines() if "error:" in line]
@@ -220,7 +220,7 @@ def test_plot_reads_the_bag_the_cli_wrote(driven: tuple[Path, str], tmp_path: Pa
     assert png.read_bytes().startswith(b"\x89PNG")
     assert "from 2 topic(s)" in done.stderr
     done = run_cli("plot", str(bag), "--topic", "/odom", "--fields", "twist.nosuch",
-                   "-o", str(png), timeout=60)
+                   "-o", str(png), "--force", timeout=60)
     assert done.returncode == 2
     assert_one_line_error(done.stderr, "no field twist.nosuch", "twist.twist.linear.x",
                           "/joint_states")

@@ -13,6 +13,7 @@ import pytest
 from mcap.reader import make_reader
 
 from fpgalink.boardclock import MAX_SLEW
+from fpgalink.recording import partial_path
 from tests.support.cli import Board, run_cli, start_cli
 from tests.support.waiting import wait_until_sync as wait_until
 
@@ -92,10 +93,13 @@ def test_ctrl_c_stops_record_cleanly_with_a_valid_file(board: Board, tmp_path: P
     path = tmp_path / "interrupted.mcap"
     proc = start_cli("record", str(path), "--port", board.url)
     try:
-        # Poll for real progress (the file grows as chunks are written) rather than sleep.
-        wait_until(lambda: proc.poll() is not None or (path.exists() and
-                                                        path.stat().st_size > 4000),
+        # Poll for real progress (the file grows as chunks are written, under its partial
+        # name until it is complete) rather than sleep.
+        partial = partial_path(path)
+        wait_until(lambda: proc.poll() is not None or (partial.exists() and
+                                                        partial.stat().st_size > 4000),
                    timeout=15, what="record to write telemetry")
+        assert not path.exists()
         assert proc.poll() is None, proc.communicate()
         proc.send_signal(signal.SIGINT)
         _, err = proc.communicate(timeout=10)
@@ -104,7 +108,8 @@ def test_ctrl_c_stops_record_cleanly_with_a_valid_file(board: Board, tmp_path: P
             proc.kill()
     assert proc.returncode == 130, err
     assert "Traceback" not in err
-    topics = read_mcap(path)
+    topics = read_mcap(path)  # in place, complete
+    assert not partial.exists()
     assert len(topics["/board/0/telemetry"]) > 0
     assert topics["/board/0/events"][-1]["message"] == "recording_stopped"
 
