@@ -82,5 +82,6 @@ def test_the_node_without_ros2_is_not_installed(tmp_path: Path) -> None:
 
 def test_the_help_paragraph_names_only_the_codes_asked_for() -> None:
     text = exit_codes_help((ExitCode.OK, ExitCode.PORT))
-    assert text.endswith("0 ok; 5 port missing, busy or failed.")
+    assert text.endswith(
+        "0 ok; 5 port missing, busy or failed (or a file another process is writing now).")
     assert textwrap.fill(text, 79)
