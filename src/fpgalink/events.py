@@ -60,6 +60,7 @@ __all__ = [
     "NoiseDropped",
     "ParamAck",
     "ParamNack",
+    "RequestAskedAgain",
     "RequestDone",
     "RequestFailed",
     "RestartEvidence",
@@ -131,6 +132,18 @@ class RequestFailed(Event):
     channel: int
     error: FpgalinkError
     tries: int
+
+
+@dataclass(frozen=True, slots=True)
+class RequestAskedAgain(Event):
+    """A parameter request went unanswered through a round of tries while the board was
+    heard: it is asked again at once (its ``round``, from 2), so an answer that comes later
+    than the tries (a loaded machine, a slow line) confirms it."""
+
+    request_id: int
+    param: Param
+    channel: int
+    round: int
 
 
 @dataclass(frozen=True, slots=True)

@@ -13,6 +13,7 @@ from fpgalink.events import (
     BoardResynced,
     CounterDuplicate,
     Event,
+    RequestAskedAgain,
     RequestDone,
     RequestFailed,
     RestartEvidence,
@@ -220,7 +221,7 @@ def test_a_resync_interrupted_by_a_silence_goes_on_when_the_board_is_back(
     late = board.answer(host.data_to_send())  # the second one's answer, held up
     assert late and host.resyncing
     if interruption == "silence":
-        host.handle_timer(0.06 + host.liveness_timeout)
+        host.handle_timer(0.06 + host.settings.liveness_timeout)
     else:
         host.port_lost(0.1, "unplugged")
         host.reconnected(0.2)
@@ -254,7 +255,7 @@ def test_a_resync_set_answered_later_than_its_tries_is_asked_again_and_confirmed
         now = round(now + 0.01, 2)
         host.handle_timer(now)
         events += host.events()
-    assert any(isinstance(e, RequestFailed) for e in events)  # the first round's, each
+    assert any(isinstance(e, RequestAskedAgain) for e in events)  # each, after its first round
     (done,) = [e for e in events if isinstance(e, BoardResynced)]
     assert done.ok and done.applied == 3
     assert board.values == {(8, 1): pytest.approx(400.0), (6, 2): 1000, (2, 0): 1}
@@ -276,8 +277,9 @@ def test_a_set_never_answered_by_a_board_heard_all_along_fails_after_its_rounds(
     (done,) = [e for e in events if isinstance(e, BoardResynced)]
     assert [name for name, _ in done.failed] == [
         "Kp_Wheel_PidA", "IncSenzResB", "GetDataPeriodical"]
-    # Each asked 5 times (8 tries each) before it counted as failed.
-    assert sum(isinstance(e, RequestFailed) for e in events) == 3 * 5
+    # Each asked in 5 rounds (8 tries each) before it counted as failed.
+    assert sum(isinstance(e, RequestAskedAgain) for e in events) == 3 * 4
+    assert sum(isinstance(e, RequestFailed) for e in events) == 3
     assert host.stats.retries >= 3 * 5 * 7
     # Asked for again (the caller's choice), everything is set once more.
     host.resync(now)
@@ -293,7 +295,7 @@ def test_a_board_restarting_again_during_a_paused_resync_is_set_up_from_the_star
     list(host.events())
     host.receive_data(board.answer(host.data_to_send()), 0.06)
     host.data_to_send()  # the second set: never answered
-    host.handle_timer(0.06 + host.liveness_timeout)
+    host.handle_timer(0.06 + host.settings.liveness_timeout)
     list(host.events())
     board.power_cycle()
     host.receive_data(board.send(ParamAck(1, 0, 1, 1)), 0.9)

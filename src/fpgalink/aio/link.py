@@ -27,7 +27,7 @@ from fpgalink.aio.transport import (
     open_transport,
 )
 from fpgalink.connection import Connection, LinkStats, Liveness
-from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError, RequestTimeout
+from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
 from fpgalink.events import (
     BoardBack,
     BoardFault,
@@ -414,16 +414,7 @@ class Link:
         return await self._patiently(lambda: self.connection.get_param(param, code, self._now()))
 
     async def _patiently(self, ask: Callable[[], int]) -> int | float:
-        rounds = self.unanswered_rounds
-        while True:
-            try:
-                return await self._request(ask())
-            except RequestTimeout:
-                if rounds <= 0 or not self.board_alive:
-                    raise
-                rounds -= 1
-                # Closed or lost meanwhile: say so, never ask a link that cannot answer.
-                self._ensure_connected()
+        return await self._request(ask())
 
     async def read_params(self, *, hold: bool = False) -> dict[tuple[int, int], int | float]:
         """Every parameter address's value, ``{(param id, channel): value}``, in table order;
@@ -853,6 +844,7 @@ def open_link(
         liveness_timeout=liveness_timeout, request_timeout=request_timeout,
         request_tries=request_tries, max_reference_delay=max_reference_delay,
         heartbeat_give_up=heartbeat_give_up, stale_periods=stale_periods,
+        unanswered_rounds=unanswered_rounds,
     )
 
     async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
@@ -861,5 +853,4 @@ def open_link(
     link = Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
                 reconnect_backoff=reconnect_backoff)
     link.set_read_latency(read_latency)
-    link.unanswered_rounds = unanswered_rounds
     return link

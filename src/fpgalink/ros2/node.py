@@ -591,7 +591,9 @@ class RosBridge:
         self.robot.supervisor.deadman_s = float(self._node_values["enable_timeout"])
         self._publish_period = 1.0 / float(self._node_values["joint_state_rate"])
         for link in self.robot.links.values():
-            link.connection.stale_periods = int(self._node_values["telemetry_timeout_periods"])
+            link.connection.settings = dataclasses.replace(
+                link.connection.settings,
+                stale_periods=int(self._node_values["telemetry_timeout_periods"]))
         if hasattr(self, "_sets"):
             self._sets.min_period = self._publish_period
 

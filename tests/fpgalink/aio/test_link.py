@@ -20,7 +20,7 @@ from fpgalink import (
     ValueMismatch,
 )
 from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
-from fpgalink.events import RequestFailed
+from fpgalink.events import RequestAskedAgain
 from fpgalink.protocol import Disable, Enable, ParamAck, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
@@ -122,7 +122,7 @@ async def test_read_params_reads_every_address_in_table_order() -> None:
 
 
 async def test_heartbeat_and_disable() -> None:
-    link, board, _ = make_link(heartbeat_interval=0.02)
+    link, board, _ = make_link(heartbeat_interval=0.02, liveness_timeout=30.0)
     async with link:
         link.enable()
         await wait_until(lambda: sum(isinstance(e, Enable) for e in board.received) >= 4,
@@ -131,7 +131,8 @@ async def test_heartbeat_and_disable() -> None:
         assert isinstance(board.received[-1], Disable)
         count = sum(isinstance(e, Enable) for e in board.received)
         # No heartbeat is due any more: the link's only timer is the liveness deadline.
-        assert link.connection.get_timer() == link.connection._silence_deadline()
+        timer = link.connection.get_timer()
+        assert timer is not None and timer - asyncio.get_running_loop().time() > 1.0
         assert sum(isinstance(e, Enable) for e in board.received) == count
 
 
@@ -309,9 +310,9 @@ async def test_unanswered_rounds_let_a_late_answer_confirm_the_request_asked_aga
 
 
 async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> None:
-    # Its tries spent with the board heard, the request would be asked again: the link was
-    # closed meanwhile, so it fails at once (LinkClosed), never left waiting on a link that
-    # can no longer answer or time it out.
+    # Its tries spent with the board heard, the request is asked again: the link closed
+    # then, it fails at once (LinkClosed), never left waiting on a link that can no longer
+    # answer or time it out.
     async with open_link("emu://", unanswered_rounds=4, liveness_timeout=5.0) as link:
         await link.set_param("GetDataPeriodical", 1)
         await wait_until(lambda: link.board_alive, 5.0, "the board heard")
@@ -319,7 +320,7 @@ async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> Non
         closing: list[asyncio.Future[None]] = []
 
         def close_on_failure(event: object) -> None:
-            if isinstance(event, RequestFailed) and not closing:
+            if isinstance(event, RequestAskedAgain) and not closing:
                 closing.append(asyncio.ensure_future(link.close()))
 
         link.add_listener(close_on_failure)
