@@ -9,7 +9,7 @@ silence, stale telemetry, watchdog lapses) and :mod:`.restart` (restarts, the re
 from fpgalink.connection.core import Connection
 from fpgalink.connection.liveness import Liveness
 from fpgalink.connection.requests import REQUEST_TABLE, Answer, Outcome
-from fpgalink.connection.settings import WATCHDOG_S, Options, Settings
+from fpgalink.connection.settings import WATCHDOG_S, LinkOptions, Options, Settings
 from fpgalink.connection.stats import LinkStats
 
 __all__ = [
@@ -17,6 +17,7 @@ __all__ = [
     "WATCHDOG_S",
     "Answer",
     "Connection",
+    "LinkOptions",
     "LinkStats",
     "Liveness",
     "Options",

@@ -15,7 +15,7 @@ from typing import TypedDict
 from fpgalink.protocol import DEFAULT_FRAMING, Framing
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
-__all__ = ["WATCHDOG_S", "Options", "Settings"]
+__all__ = ["WATCHDOG_S", "LinkOptions", "Options", "Settings"]
 
 #: The board's watchdog (SPEC §6): enable falls this long after the last ``RE`` arrived.
 WATCHDOG_S = 0.3
@@ -79,11 +79,11 @@ class Settings:
                              f"got {baud!r}")
 
 
-class Options(TypedDict, total=False):
-    """:class:`Settings` as keyword arguments (``Connection(**options)``, ``open_link``)."""
+class LinkOptions(TypedDict, total=False):
+    """:class:`Settings` but the baud, as keyword arguments (``open_link(url, baud, …)``,
+    which opens its port at that baud)."""
 
     framing: Framing
-    baud: int | None
     heartbeat_interval: float
     liveness_timeout: float
     request_timeout: float
@@ -93,3 +93,9 @@ class Options(TypedDict, total=False):
     max_events: int
     heartbeat_give_up: float
     stale_periods: int
+
+
+class Options(LinkOptions, total=False):
+    """:class:`Settings` as keyword arguments (``Connection(**options)``)."""
+
+    baud: int | None

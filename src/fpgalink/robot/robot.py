@@ -264,7 +264,7 @@ class Robot:
                     await link.set_param("GetDataPeriodical", before)
         await self._close_links()
         for sub in list(self._subs):
-            sub._end()
+            sub.finish()
         self._subs.clear()
 
     async def _close_links(self) -> None:
@@ -356,7 +356,7 @@ class Robot:
             if event.state is State.DISABLED:
                 self._stopped_event.set()
             for sub in self._subs:
-                sub._push(event)
+                sub.put(event)
         self._arm_timer()
 
     def _arm_timer(self) -> None:
