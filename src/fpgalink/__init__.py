@@ -15,8 +15,9 @@ use (the asyncio layer, in particular, is not imported by the sans-I/O core).
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from fpgalink.protocol.exports import lazy_exports
 
 __version__ = "0.2.0"
 
@@ -60,14 +61,7 @@ if TYPE_CHECKING:
     from fpgalink.protocol import Role, Telemetry
 
 
-def __getattr__(name: str) -> object:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'fpgalink' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value
-    return value
-
+__getattr__ = lazy_exports(__name__, _HOMES)
 
 __all__ = [
     "BoardLost",
