@@ -64,10 +64,12 @@ __all__ = [
     "RequestDone",
     "RequestFailed",
     "RestartEvidence",
+    "SetWithdrawn",
     "Telemetry",
     "TelemetryResumed",
     "TelemetryStale",
     "WatchdogLapsed",
+    "WithdrawnSetLanded",
 ]
 
 
@@ -251,3 +253,40 @@ class TelemetryResumed(BoardFault):
 
     def describe(self) -> str:
         return f"telemetry resumed ({self.gap * 1000:.0f} ms after the last sample)"
+
+
+@dataclass(frozen=True, slots=True)
+class SetWithdrawn(Event):
+    """The caller gave up on a set (cancelled it) after it went out: it is never sent again,
+    but the board may have taken it. The parameter is read back:
+    :class:`WithdrawnSetLanded` follows when the board holds another value than the one last
+    confirmed."""
+
+    request_id: int
+    param: Param
+    channel: int
+    value: int | float
+
+    def describe(self) -> str:
+        return (f"set {self.param.full_name(self.channel)} = {self.value} withdrawn after it "
+                f"went out: it may still land; reading it back")
+
+
+@dataclass(frozen=True, slots=True)
+class WithdrawnSetLanded(Event):
+    """A parameter read back after a withdrawn set holds ``found``, not the value last
+    confirmed to the caller: ``restored`` is that value, set again (``None``: none was
+    confirmed on this link, so nothing is set back)."""
+
+    param: Param
+    channel: int
+    found: int | float
+    restored: int | float | None
+
+    def describe(self) -> str:
+        name = self.param.full_name(self.channel)
+        if self.restored is None:
+            return (f"{name} reads {self.found} after a withdrawn set; no value was "
+                    f"confirmed on this link to set back")
+        return (f"{name} reads {self.found} after a withdrawn set: set back to "
+                f"{self.restored}, the value last confirmed")

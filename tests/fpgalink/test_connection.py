@@ -34,6 +34,8 @@ from fpgalink.events import (
     EventsDropped,
     RequestDone,
     RequestFailed,
+    SetWithdrawn,
+    WithdrawnSetLanded,
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
@@ -500,3 +502,36 @@ def test_a_side_refuses_to_send_the_other_sides_messages(role: Role) -> None:
     other = ParamAck(1, 0, 1, 1) if role is Role.HOST else ParamSet(1, 0, 1, 1)
     with pytest.raises(LocalProtocolError, match="does not send"):
         Connection(role=role).send(other, 0.0)
+
+
+# --- a withdrawn request (issue 37, item 8) ----------------------------------------------------
+
+
+def test_a_withdrawn_set_is_read_back_and_a_newer_set_decides() -> None:
+    host, board = Connection(), Connection(role=Role.BOARD, baud=None)
+
+    def reply(message: Message, now: float) -> list[Event]:
+        host.receive_data(sent(message, board), now)
+        return drain(host)
+
+    kp = lookup("Kp_Wheel_Pid")
+    host.set_param(kp, 1, 300.0, now=0.0)
+    host.data_to_send()
+    reply(ParamAck(8, 1, 2, 300.0), 0.001)
+    withdrawn = host.set_param(kp, 1, 400.0, now=0.01)
+    host.data_to_send()
+    host.cancel_request(withdrawn, now=0.02)
+    assert drain(host) == [SetWithdrawn(withdrawn, kp, 1, 400.0)]
+    asked = host.data_to_send()
+    assert b"PG" in asked and b"PS" not in asked  # read back, never sent again
+    host.handle_timer(0.065)  # when its second try would have gone: none does, ever
+    assert b"PS" not in host.data_to_send()
+    # A newer set decides what the board holds: the read-back showing the withdrawn value
+    # sets nothing back.
+    host.set_param(kp, 1, 500.0, now=0.07)
+    host.data_to_send()
+    events = reply(ParamAck(8, 1, 2, 400.0), 0.08) + reply(ParamAck(8, 1, 2, 500.0), 0.09)
+    assert not [e for e in events if isinstance(e, WithdrawnSetLanded)]
+    assert host.held[(8, 1)][2] == 500.0 and host.pending_requests == 0
+    host.cancel_request(10_000, now=0.1)  # no such request: nothing happens
+    assert host.data_to_send() == b"" and drain(host) == []

@@ -365,6 +365,8 @@ class Link:
         return results
 
     async def _request(self, request_id: int) -> int | float:
+        """One future per request. Cancelled (the caller gave up: ``wait_for`` ran out, a
+        task was cancelled), the request is withdrawn from the connection."""
         assert self._loop is not None
         future: asyncio.Future[int | float] = self._loop.create_future()
         self._futures[request_id] = future
@@ -372,6 +374,11 @@ class Link:
         self._flush()
         try:
             return await future
+        except asyncio.CancelledError:
+            if self.state is LinkState.CONNECTED:
+                self.connection.cancel_request(request_id, self._now())
+                self._flush()
+            raise
         finally:
             self._futures.pop(request_id, None)
 

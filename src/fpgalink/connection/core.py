@@ -488,12 +488,21 @@ class Connection:
     def set_param(self, param: Param, channel: int, value: int | float, now: float) -> int:
         """Send ``PS`` (already validated by the caller via :meth:`Param.coerce`); returns
         a request id that a :class:`RequestDone` or :class:`RequestFailed` event will carry."""
-        self._continuity.config.sent(param, channel, value)
-        return self._requests.start(param, channel, value, now,
-                                    self._settings.unanswered_rounds)
+        self._continuity.superseded(param, channel)
+        request_id = self._requests.start(param, channel, value, now,
+                                          self._settings.unanswered_rounds)
+        self._continuity.config.sent(param, channel, value, request_id)
+        return request_id
 
     def get_param(self, param: Param, channel: int, now: float) -> int:
         return self._requests.start(param, channel, None, now, self._settings.unanswered_rounds)
+
+    def cancel_request(self, request_id: int, now: float) -> None:
+        """The caller gave up on a request of its own: it is withdrawn, never sent again.
+        A set that went out may still land: :class:`~fpgalink.events.SetWithdrawn` says so,
+        the parameter is read back, and found at another value than the one last confirmed
+        it is set back to it (:class:`~fpgalink.events.WithdrawnSetLanded`)."""
+        self._continuity.withdraw(request_id, now)
 
     @property
     def pending_requests(self) -> int:

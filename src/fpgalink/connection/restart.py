@@ -27,6 +27,8 @@ from fpgalink.events import (
     RequestDone,
     RequestFailed,
     RestartEvidence,
+    SetWithdrawn,
+    WithdrawnSetLanded,
 )
 from fpgalink.protocol import Event, Param, ParamType, float32, lookup
 
@@ -108,21 +110,30 @@ _VERIFYING = frozenset({Phase.VERIFYING, Phase.RESYNC_VERIFYING})
 _RESYNCING = frozenset({Phase.RESYNCING, Phase.RESYNC_PAUSED, Phase.RESYNC_VERIFYING})
 
 
+def _same(param: Param, a: int | float, b: int | float | None) -> bool:
+    """Whether the board holding ``a`` holds ``b`` (a float parameter as float32)."""
+    if b is None or param.type is not ParamType.FLOAT:
+        return a == b
+    return float32(float(a)) == float32(float(b))
+
+
 class Configuration:
     """What this side set and the board confirmed, in the order first set (``held``: set
     again after a restart), and values sent in a set not confirmed since
     (``unconfirmed``: the board may hold any of them, so a probe reading one is no lost
     setting)."""
 
-    __slots__ = ("held", "unconfirmed")
+    __slots__ = ("held", "last_set", "unconfirmed")
 
     def __init__(self) -> None:
         self.held: dict[tuple[int, int], Setting] = {}
         self.unconfirmed: dict[tuple[int, int], set[int | float]] = {}
+        self.last_set: dict[tuple[int, int], int] = {}  #: the newest set's request id
 
-    def sent(self, param: Param, channel: int, value: int | float) -> None:
+    def sent(self, param: Param, channel: int, value: int | float, request_id: int) -> None:
         self.unconfirmed.setdefault((param.id, channel), set()).add(
             float32(float(value)) if param.type is ParamType.FLOAT else value)
+        self.last_set[(param.id, channel)] = request_id
 
     def confirmed(self, param: Param, channel: int, value: int | float) -> None:
         # Keys keep their first place: the order the configuration was built in.
@@ -166,6 +177,9 @@ class Continuity:
         self._in_flight: int | None = None  #: the resync's request
         self._applied = 0
         self._failed: list[tuple[str, FpgalinkError]] = []
+        #: read-backs after a withdrawn set (request id → the set's), and sets back
+        self._rereads: dict[int, Request] = {}
+        self._restores: dict[tuple[int, int], int] = {}
         self._requests = requests
         self._stats = stats
         self._emit = emit
@@ -283,8 +297,7 @@ class Continuity:
             return
         if self._queue:
             param, channel, value = self._queue.popleft()
-            self.config.sent(param, channel, value)
-            self._in_flight = self._requests.start(param, channel, value, now, RESYNC_ROUNDS)
+            self._in_flight = self._set(param, channel, value, now)
             return
         self._in_flight = None
         failed = tuple(self._failed)
@@ -292,9 +305,64 @@ class Continuity:
         self._cue(Cue.RESYNC_DONE)
         self._emit(BoardResynced(self._applied, failed))
 
+    def _set(self, param: Param, channel: int, value: int | float, now: float) -> int:
+        request_id = self._requests.start(param, channel, value, now, RESYNC_ROUNDS)
+        self.config.sent(param, channel, value, request_id)
+        return request_id
+
+    # --- a withdrawn set --------------------------------------------------------------------
+
+    def withdraw(self, request_id: int, now: float) -> None:
+        """The caller gave up on a request of its own (the link's questions are not its to
+        withdraw): never sent again. A set went out, so it may still land: say so and read
+        the parameter back."""
+        if (request_id in (self.probe, self._in_flight) or request_id in self._rereads
+                or request_id in self._restores.values()):
+            return
+        request = self._requests.withdraw(request_id)
+        if request is None or request.value is None:
+            return
+        self._emit(SetWithdrawn(request.request_id, request.param, request.channel,
+                                request.value))
+        reread = self._requests.start(request.param, request.channel, None, now, RESYNC_ROUNDS)
+        self._rereads[reread] = request
+
+    def superseded(self, param: Param, channel: int) -> None:
+        """The caller sets ``param`` anew: that decides what the board holds, so a set back
+        (never sent again after the caller's) is withdrawn."""
+        restore = self._restores.pop((param.id, channel), None)
+        if restore is not None:
+            self._requests.withdraw(restore)
+
+    def _read_back(self, withdrawn: Request, value: int | float, now: float) -> None:
+        """A parameter read back after a withdrawn set: another value than the one last
+        confirmed is set back, and said (unless a newer set decides)."""
+        key = (withdrawn.param.id, withdrawn.channel)
+        if self.config.last_set.get(key) != withdrawn.request_id:
+            return
+        held = self.config.held.get(key)
+        if held is not None and held[2] == value:
+            return
+        if held is None and not _same(withdrawn.param, value, withdrawn.value):
+            return  # nothing confirmed, and the withdrawn set did not land
+        restored = None if held is None else held[2]
+        self._emit(WithdrawnSetLanded(withdrawn.param, withdrawn.channel, value, restored))
+        if restored is not None:
+            self._restores[key] = self._set(withdrawn.param, withdrawn.channel, restored, now)
+
     def settled(self, request: Request, outcome: Outcome, result: RequestDone | RequestFailed,
                 now: float) -> None:
-        """A request ended: the probe's answer may be a lost setting; the resync goes on."""
+        """A request ended: the probe's answer may be a lost setting; the resync goes on; a
+        read-back after a withdrawn set may call for a set back."""
+        withdrawn = self._rereads.pop(request.request_id, None)
+        if withdrawn is not None:
+            if isinstance(result, RequestDone):
+                self._read_back(withdrawn, result.value, now)
+            return
+        key = (request.param.id, request.channel)
+        if self._restores.get(key) == request.request_id:
+            del self._restores[key]
+            return
         if request.request_id == self.probe:
             self.probe = None
             if isinstance(result, RequestDone):

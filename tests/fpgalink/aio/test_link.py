@@ -20,8 +20,8 @@ from fpgalink import (
     ValueMismatch,
 )
 from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
-from fpgalink.events import RequestAskedAgain
-from fpgalink.protocol import Disable, Enable, ParamAck, ParamSet, References
+from fpgalink.events import RequestAskedAgain, SetWithdrawn, WithdrawnSetLanded
+from fpgalink.protocol import Disable, Enable, ParamAck, ParamGet, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
 from tests.support.interpose import LateReads, interpose
@@ -328,3 +328,55 @@ async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> Non
             await asyncio.wait_for(link.get_param("Kp_Wheel_PidA"), 10.0)
         assert link.board_alive  # what the request's retry went by
         await closing[0]
+
+
+# --- a cancelled request is withdrawn (issue 37, item 8) --------------------------------------
+
+
+async def test_a_cancelled_set_is_withdrawn_and_never_lands_later() -> None:
+    # The board loses the first PS; the caller gives up on it after 20 ms and sets another
+    # value, confirmed. The withdrawn set is never sent again: the board keeps the value it
+    # confirmed last. (It was resent at 50 ms and took over: the board read 400.)
+    link, board, _ = make_link(ScriptedBoard(drop_first_ps=1))
+    async with link:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.set_param("Kp_Wheel_PidA", 400), 0.02)
+        assert await link.set_param("Kp_Wheel_PidA", 500) == 500
+        await wait_until(lambda: link.connection.pending_requests == 0, what="the link quiet")
+        assert board.values[(8, 1)] == 500
+        assert await link.get_param("Kp_Wheel_PidA") == 500
+        assert sum(isinstance(e, ParamSet) and e.value == 400 for e in board.received) == 1
+
+
+async def test_a_cancelled_set_that_landed_is_said_and_set_back() -> None:
+    # 300 confirmed; the set of 400 lands but its PA is lost, and the caller gives up on it
+    # before the resend. The link says the withdrawn set may still land, reads the value
+    # back, finds 400, says so and sets 300 again: the board is left as last confirmed.
+    link, board, _ = make_link()
+    said: list[object] = []
+    async with link:
+        link.add_listener(lambda e: said.append(e) if isinstance(
+            e, SetWithdrawn | WithdrawnSetLanded) else None)
+        assert await link.set_param("Kp_Wheel_PidA", 300) == 300
+        board.drop_first_pa = 1
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.set_param("Kp_Wheel_PidA", 400), 0.02)
+        await wait_until(lambda: len(said) == 2 and link.connection.pending_requests == 0,
+                         what="the withdrawn set checked and undone")
+        assert board.values[(8, 1)] == 300
+        withdrawn, landed = said
+        assert isinstance(withdrawn, SetWithdrawn) and withdrawn.value == 400
+        assert isinstance(landed, WithdrawnSetLanded)
+        assert (landed.found, landed.restored) == (400, 300)
+        assert "set back to 300" in landed.describe()
+        assert link.held == {"Kp_Wheel_PidA": 300}
+
+
+async def test_a_cancelled_get_is_withdrawn() -> None:
+    # Nothing is left to ask again (it stayed pending for its 8 tries), nothing read back.
+    link, board, _ = make_link(ScriptedBoard(mute=True))
+    async with link:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.get_param("Kp_Wheel_PidA"), 0.02)
+        assert link.connection.pending_requests == 0
+        assert sum(isinstance(e, ParamGet) for e in board.received) == 1
