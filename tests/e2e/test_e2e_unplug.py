@@ -59,6 +59,42 @@ async def test_an_unplugged_link_is_lost_found_again_and_the_board_is_back(
         assert "plugged in again: " + str(link_path) in report, report
 
 
+async def test_what_a_pty_queued_while_the_host_was_away_is_no_restart(tmp_path: Path) -> None:
+    # The host reopens the port 2.5 s after it went: the pty came back after 0.5 s, and what
+    # the board sent since waited in it (serve's backlog, the kernel's buffer). Read first,
+    # those samples' clock is behind this host's by the wait: no verdict; the samples read
+    # after them show the board ran on. (It was taken for a restart, and the configuration
+    # set again: issue 37, item 12.)
+    link_path = tmp_path / "fpga0"
+    async with (serve("--pty", "--link", str(link_path), "--fault", "unplug=1.5:0.5"),
+                open_link(str(link_path), reconnect_backoff=(2.5, 2.5)) as link):
+        events = link.watch()
+        assert await link.set_param("GetDataPeriodical", 1) == 1
+        await next_event(events, {LinkEventKind.PORT_RESTORED}, 3 * PATIENCE)
+        verdict = await next_event(events, {LinkEventKind.BOARD_BACK,
+                                            LinkEventKind.BOARD_RESTARTED}, 3 * PATIENCE)
+        assert verdict.kind is LinkEventKind.BOARD_BACK, verdict
+        assert link.stats.restarts == 0 and link.held == {"GetDataPeriodical": 1}
+
+
+def test_monitor_through_a_pty_unplug_says_back_not_restarted(tmp_path: Path) -> None:
+    # The issue's own run: fpgalink-cli monitor (its link's default backoff, up to 2 s)
+    # through a 2 s unplug of fpgaemu serve's pty.
+    from tests.support.cli import run_cli, serve_pty
+
+    link = tmp_path / "fpga0"
+    proc, _ = serve_pty("--link", str(link), "--fault", "unplug=1.5:2")
+    try:
+        done = run_cli("--port", str(link), "monitor", "--duration", "6", "--format", "csv",
+                       timeout=60)
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=PATIENCE)
+    assert "# 0: port_restored" in done.stderr, done.stderr
+    assert "board_back: back, not restarted" in done.stderr, done.stderr
+    assert "board_restarted" not in done.stderr and done.returncode == 0, done.stderr
+
+
 def test_unplug_parses_as_a_window_and_is_refused_for_a_board_in_this_process() -> None:
     assert parse_faults(["unplug=1.5:0.5"]).unplugs == [(int(1.5 * CLOCK_HZ), 2 * CLOCK_HZ)]
     with pytest.raises(ValueError, match="bad fault spec"):

@@ -201,7 +201,7 @@ class Connection:
         if self.liveness is not Liveness.ALIVE:
             self._found(now)  # the board is known to be there before the message that shows it
         first = counters[0]
-        if (counters == list(range(first, first + n))
+        if (counters == list(range(first, first + n)) and not self._continuity.doubting
                 and self._counting.tracker.observe_in_order(first, n)):
             self._continuity.went_on()
             self._heartbeat.watch(telemetry, now)
@@ -221,15 +221,19 @@ class Connection:
         """A TM off the in-order fast path: its counter and clock judged, in stream order."""
         counter = msg.counter
         assert counter is not None
-        tracker = self._counting.tracker
-        if tracker.observe_in_order(counter):
-            self._continuity.went_on()
-        elif verdict := self._continuity.judge_clock(msg.t_us, self._stream.last_t_us,
-                                                     self._stream.last_at, now):
+        tracker, continuity = self._counting.tracker, self._continuity
+        in_order = tracker.observe_in_order(counter)
+        if not in_order:
+            verdict = continuity.judge_clock(msg.t_us, self._stream.last_t_us, now)
+        else:
+            verdict = continuity.judge_doubt(msg.t_us, now) if continuity.doubting else None
+        if verdict is not None:
             evidence, detail = verdict
             self._restarted(evidence, f"{detail}, counter {counter:05d} where "
                             f"{tracker.expected:05d} was expected", now)
             tracker.observe(counter)
+        elif in_order:
+            continuity.went_on()
         else:
             self._count_out_of_order(counter, now)
         self._heartbeat.watch((msg,), now)
@@ -299,7 +303,8 @@ class Connection:
     def _found(self, now: float) -> None:
         self._hearing.liveness = Liveness.ALIVE
         self._events.append(BoardFound())
-        self._continuity.heard(now, self._question())
+        self._continuity.heard(now, self._question(), self._stream.last_t_us,
+                               self._stream.last_at)
 
     def _question(self) -> Param:
         return _WIRE_CRC if self.wire_crc.on else _GET_DATA
@@ -349,9 +354,6 @@ class Connection:
     def _queue(self, message: Message | CountedMessage | DirectCommand, now: float) -> None:
         wire = self._frames.encode(message)
         self._outbox.append(wire)
-        stats = self.stats
-        stats.frames_sent += 1
-        stats.bytes_sent += len(wire)
         self._line.sent(len(wire), now)
 
     @property

@@ -86,13 +86,17 @@ class FrameLayer:
         return items, decoder.stats.frames - before == len(items)
 
     def encode(self, message: Message | CountedMessage | DirectCommand) -> bytes:
-        """``message``'s wire bytes: a counted one takes the next counter value (and carries
-        the CRC while on), a direct command neither."""
+        """``message``'s wire bytes (counted as sent): a counted one takes the next counter
+        value (and carries the CRC while on), a direct command neither."""
         if isinstance(message, DirectCommand):
-            return encode_frame(message.content, self.framing)
-        self.wire_crc.sent(message)
-        content = self.wire_crc.outgoing(encode_message(message, self._counter.take()))
-        return encode_frame(content, self.framing)
+            content = message.content
+        else:
+            self.wire_crc.sent(message)
+            content = self.wire_crc.outgoing(encode_message(message, self._counter.take()))
+        wire = encode_frame(content, self.framing)
+        self._stats.frames_sent += 1
+        self._stats.bytes_sent += len(wire)
+        return wire
 
     def answered(self, param_id: int, value: int | float | None) -> None:
         """A ``PA`` (``value``) or ``PN`` (``None``) about ``param_id`` arrived: the board's

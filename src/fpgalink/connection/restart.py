@@ -161,6 +161,62 @@ class Configuration:
                       key=lambda held: (held[0] is _GET_DATA) - (held[0] is _WIRE_CRC))
 
 
+class ClockCheck:
+    """Heard again after it was out of reach: is the board's clock where one that ran on
+    would have it? Its samples' board time since the last sample before (``baseline``)
+    against this host's time over the same stretch: one that ran on counted about the
+    host's time, one that restarted meanwhile only from its power-up (the slack covers a
+    sample that waited in a buffer).
+
+    What a sample's arrival time says depends on where the host was: reading all along
+    (a silence), a sample was sent when it arrived. Back on a reconnected port, the first
+    samples read may have waited in the port while the host was away (a pty queues what the
+    board sent since it came back): their arrival is not their send time, and a clock that
+    looks behind may be nothing but the queue. Such a sample is no verdict (``doubt``);
+    samples read after the board's answer to a question asked since were sent after that
+    question went out (``sent_after``), and decide."""
+
+    __slots__ = ("baseline", "doubt", "sent_after", "trust_arrival")
+
+    def __init__(self) -> None:
+        self.baseline: tuple[int, float] | None = None  #: (t_us, arrival) before the loss
+        self.trust_arrival = True
+        self.sent_after: float | None = None
+        self.doubt = False
+
+    def start(self, last_t_us: int | None, last_at: float | None, queued: bool) -> None:
+        self.baseline = None if last_t_us is None or last_at is None else (last_t_us, last_at)
+        self.trust_arrival = not queued
+        self.sent_after = None
+        self.doubt = False
+
+    def behind(self, t_us: int, now: float) -> str | None:
+        """The restart's detail when the sample at ``t_us``, arrived at ``now``, shows the
+        clock behind; ``None`` when it went on, or is no verdict (then ``doubt``)."""
+        if self.baseline is None:
+            return None
+        base_t_us, base_at = self.baseline
+        board_s = (t_us - base_t_us) % T_US_WRAP / 1e6
+        host_s = now - base_at
+        if not _behind(board_s, host_s):
+            self.doubt = False  # a queue only makes a sample look later: it went on
+            return None
+        if not self.trust_arrival:
+            if self.sent_after is None:
+                self.doubt = True
+                return None
+            host_s = self.sent_after - base_at
+            if not _behind(board_s, host_s):
+                self.doubt = False
+                return None
+        self.doubt = False
+        return f"{board_s:.3f} s of board time over {host_s:.3f} s of this host's"
+
+
+def _behind(board_s: float, host_s: float) -> bool:
+    return board_s < host_s - (_CLOCK_SLACK_S + _CLOCK_SLACK_SHARE * host_s)
+
+
 class Continuity:
     """The board's phase, the question asked to settle it (``probe``) and the resync.
     ``restart`` is the connection's own reaction to a restart found here (a setting read
@@ -173,6 +229,8 @@ class Continuity:
         self.probe: int | None = None  #: the request asking the board what it has
         self._away: tuple[str, float] | None = None  #: out of reach: (where, since)
         self._verify: str | None = None  #: heard again: how long it was away, for the verdict
+        self._queued = False  #: out of reach with its port gone: frames may wait in the port
+        self.clock = ClockCheck()
         self._queue: deque[Setting] = deque()  #: the resync: what is still to set
         self._in_flight: int | None = None  #: the resync's request
         self._applied = 0
@@ -193,6 +251,12 @@ class Continuity:
     def resyncing(self) -> bool:
         return self.phase in _RESYNCING
 
+    @property
+    def doubting(self) -> bool:
+        """Verifying, and a sample's clock looked behind while it may have waited in the
+        port: every sample is judged until one decides."""
+        return self.verifying and self.clock.doubt
+
     def _cue(self, cue: Cue) -> None:
         self.phase = TRANSITIONS[(self.phase, cue)]
 
@@ -204,49 +268,50 @@ class Continuity:
         if where and self._away is not None:
             since = self._away[1]
         self._away = (where, since)
+        self._queued = bool(where)
         self._verify = None
         self._cue(Cue.LOST)
 
-    def heard(self, now: float, question: Param) -> None:
+    def heard(self, now: float, question: Param, last_t_us: int | None,
+              last_at: float | None) -> None:
         """Heard after it was out of reach: it may have restarted meanwhile, or not. What it
-        sends next decides (its counter back at 00000, or going on), and ``question`` asked
+        sends next decides (its counter back at 00000, or going on; its clock, against the
+        last sample before, ``last_t_us`` arrived at ``last_at``), and ``question`` asked
         makes sure something comes."""
         if self._away is None:
             return
         where, since = self._away
         self._away = None
         self._verify = f"heard again after {now - since:.3f} s of silence{where}"
+        self.clock.start(last_t_us, last_at, self._queued)
         self._cue(Cue.HEARD)
         if self.probe is None:
             self.probe = self._requests.start(question, 0, None, now, 0)
 
     def went_on(self) -> None:
-        """Heard again, it went on counting: it did not restart."""
-        if self._verify is None:
+        """Heard again, it went on counting: it did not restart (unless its clock, in
+        doubt, says otherwise yet)."""
+        if self._verify is None or self.doubting:
             return
         detail, self._verify = self._verify, None
         self._drop_probe()
         self._cue(Cue.WENT_ON)
         self._emit(BoardBack(detail))
 
-    def judge_clock(self, t_us: int, last_t_us: int | None, last_at: float | None,
-                    now: float) -> tuple[RestartEvidence, str] | None:
-        """What a sample's clock says, its counter out of sequence (the last sample's board
-        time ``last_t_us``, arrived at ``last_at``): gone back, a restarted board (a damaged
-        t_us alone comes with the counter in order); heard again after a silence, behind
-        this host's time, a board that restarted meanwhile (one that ran on counted about
-        the host's time; the slack covers a sample that waited in a buffer)."""
-        if last_t_us is None:
-            return None
-        if 0 < (last_t_us - t_us) % T_US_WRAP < T_US_WRAP // 2:
+    def judge_clock(self, t_us: int, last_t_us: int | None, now: float
+                    ) -> tuple[RestartEvidence, str] | None:
+        """What a sample's clock says, its counter out of sequence: gone back from the last
+        sample's (``last_t_us``), a restarted board (a damaged t_us alone comes with the
+        counter in order); heard again, behind this host's time (:class:`ClockCheck`), a
+        board that restarted while it was out of reach."""
+        if last_t_us is not None and 0 < (last_t_us - t_us) % T_US_WRAP < T_US_WRAP // 2:
             return RestartEvidence.CLOCK_BACKWARDS, f"t_us {t_us} after {last_t_us}"
-        if not self.verifying or last_at is None:
-            return None
-        board_s, host_s = (t_us - last_t_us) % T_US_WRAP / 1e6, now - last_at
-        if board_s < host_s - (_CLOCK_SLACK_S + _CLOCK_SLACK_SHARE * host_s):
-            return (RestartEvidence.CLOCK_BEHIND,
-                    f"{board_s:.3f} s of board time over {host_s:.3f} s of this host's")
-        return None
+        return self.judge_doubt(t_us, now) if self.verifying else None
+
+    def judge_doubt(self, t_us: int, now: float) -> tuple[RestartEvidence, str] | None:
+        """A sample's clock, heard again (every sample while :attr:`doubting`)."""
+        behind = self.clock.behind(t_us, now)
+        return None if behind is None else (RestartEvidence.CLOCK_BEHIND, behind)
 
     def ask(self, now: float, question: Param) -> None:
         """Telemetry stopped: ask the board what it has (a restart shows as telemetry off,
@@ -268,6 +333,7 @@ class Continuity:
         if self._verify is not None:
             detail += f"; {self._verify}"
             self._verify = None
+        self.clock.doubt = False
         self._emit(BoardRestarted(evidence, detail))
         self.config.unconfirmed.clear()
         self._drop_probe()
@@ -365,7 +431,16 @@ class Continuity:
             return
         if request.request_id == self.probe:
             self.probe = None
-            if isinstance(result, RequestDone):
+            if self.doubting and outcome is Outcome.FAIL_TIMEOUT:
+                # Whatever waited in the port was read by now, or not: only an answer tells.
+                self.probe = self._requests.start(request.param, 0, None, now, 0)
+            elif (self.doubting and self.clock.sent_after is None
+                  and outcome is not Outcome.FAIL_LINK):
+                # What comes after this answer was sent after the question: the next
+                # sample decides.
+                self.clock.sent_after = request.sent_at
+            elif isinstance(result, RequestDone):
+                self.clock.doubt = False
                 lost = self.config.lost(request.param, request.channel, result.value)
                 if lost is not None:
                     self._restart(RestartEvidence.CONFIG_LOST,
