@@ -35,6 +35,7 @@ _HOMES = {
     "RequestTimeout": "fpgalink.errors",
     "UnknownParameter": "fpgalink.errors",
     "ValueMismatch": "fpgalink.errors",
+    "WireCrcMismatchError": "fpgalink.errors",
     "Role": "fpgalink.protocol",
     "Telemetry": "fpgalink.protocol",
     "Link": "fpgalink.aio.link",
@@ -57,6 +58,7 @@ if TYPE_CHECKING:
         RequestTimeout,
         UnknownParameter,
         ValueMismatch,
+        WireCrcMismatchError,
     )
     from fpgalink.protocol import Role, Telemetry
 
@@ -81,6 +83,7 @@ __all__ = [
     "Telemetry",
     "UnknownParameter",
     "ValueMismatch",
+    "WireCrcMismatchError",
     "__version__",
     "open_link",
 ]

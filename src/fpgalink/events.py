@@ -69,6 +69,7 @@ __all__ = [
     "TelemetryResumed",
     "TelemetryStale",
     "WatchdogLapsed",
+    "WireCrcMismatch",
     "WithdrawnSetLanded",
 ]
 
@@ -242,6 +243,26 @@ class TelemetryStale(BoardFault):
     def describe(self) -> str:
         return (f"telemetry stopped: none for {self.silent_for * 1000:.0f} ms "
                 f"({self.silent_for / self.period:.0f} periods of {self.period * 1000:g} ms)")
+
+
+@dataclass(frozen=True, slots=True)
+class WireCrcMismatch(BoardFault):
+    """The board's frames arrive in the other wire-CRC mode than this host's
+    (docs/protocol.md §7): carrying the CRC while this host's is off (``board_crc``), or
+    without it while this host's is on. They are dropped, never messages, and counted
+    (:attr:`~fpgalink.connection.LinkStats.crc_mode_mismatches`); a request then unanswered
+    fails with :class:`~fpgalink.errors.WireCrcMismatchError`. Connect in the board's mode
+    (``open_link(…, wire_crc=True)``, ``fpgalink-cli --wire-crc``). Said once, until this
+    host's mode is settled again (the board's answer about ``WireCrc``, its restart)."""
+
+    board_crc: bool
+
+    def describe(self) -> str:
+        if self.board_crc:
+            return ("the board sends CRC-16 frames and this host has the wire CRC off: they "
+                    "are dropped; connect with the CRC on")
+        return ("the board sends frames without the wire CRC and this host has it on: they "
+                "are dropped; connect with the CRC off")
 
 
 @dataclass(frozen=True, slots=True)

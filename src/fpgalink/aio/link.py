@@ -36,6 +36,7 @@ from fpgalink.events import (
     TelemetryResumed,
     TelemetryStale,
     WatchdogLapsed,
+    WireCrcMismatch,
 )
 from fpgalink.protocol import (
     CountedMessage,
@@ -86,6 +87,8 @@ class LinkEventKind(Enum):
     WATCHDOG_LAPSED = "watchdog_lapsed"
     TELEMETRY_STALE = "telemetry_stale"  #: configured on, and not arriving
     TELEMETRY_RESUMED = "telemetry_resumed"
+    #: the board's frames come in the other wire-CRC mode (:class:`WireCrcMismatch`)
+    WIRE_CRC_MISMATCH = "wire_crc_mismatch"
     PORT_LOST = "port_lost"  #: the device or socket went away
     PORT_RESTORED = "port_restored"
     CLOSED = "closed"  #: the link closed: the last event a watcher gets
@@ -587,6 +590,7 @@ _REPORTED: dict[type[Event], LinkEventKind] = {
     WatchdogLapsed: LinkEventKind.WATCHDOG_LAPSED,
     TelemetryStale: LinkEventKind.TELEMETRY_STALE,
     TelemetryResumed: LinkEventKind.TELEMETRY_RESUMED,
+    WireCrcMismatch: LinkEventKind.WIRE_CRC_MISMATCH,
 }
 
 

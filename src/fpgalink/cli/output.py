@@ -35,6 +35,7 @@ __all__ = [
     "number",
     "quiet_stdout",
     "table_console",
+    "wire_crc_advice",
     "write_out",
 ]
 
@@ -109,9 +110,13 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
         PortError,
         RequestTimeout,
         ValueMismatch,
+        WireCrcMismatchError,
     )
 
     prefix = f"{where}: " if where else ""
+    if isinstance(exc, WireCrcMismatchError):
+        return CliError(f"{prefix}{wire_crc_advice(exc.board_crc)} ({exc.what}: no answer)",
+                        ExitCode.NO_ANSWER)
     if isinstance(exc, ParameterError | LocalProtocolError):
         return CliError(str(exc), ExitCode.BAD_INPUT)
     if isinstance(exc, ParameterRefused | ValueMismatch):
@@ -121,6 +126,15 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
     if isinstance(exc, PortError):
         return CliError(str(exc), ExitCode.PORT)
     return CliError(f"{prefix}{exc}", ExitCode.FAILURE)
+
+
+def wire_crc_advice(board_crc: bool) -> str:
+    """What to do about a board whose frames come in the other wire-CRC mode."""
+    if board_crc:
+        return ("the board sends CRC-16 frames; connect with the CRC on (--wire-crc, or "
+                "FPGALINK_WIRE_CRC=1), or switch the board's off (param set WireCrc 0)")
+    return ("the board sends frames without the wire CRC; connect with the CRC off (leave "
+            "out --wire-crc)")
 
 
 def format_value(value: int | float, kind: ParamType | None = None) -> str:

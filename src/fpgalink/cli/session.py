@@ -17,7 +17,7 @@ from typing import Any, TypeVar
 from fpgalink.aio.link import Link, LinkEventKind, LinkState
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
-from fpgalink.cli.output import CliError, ExitCode, classify, note
+from fpgalink.cli.output import CliError, ExitCode, classify, note, wire_crc_advice
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import (
     ChannelTelemetry,
@@ -249,8 +249,18 @@ FAULT_KINDS = frozenset({LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_L
 def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
     """A board lost and back during the command, or one that restarted, disabled itself or
     whose telemetry stopped, is told on stderr; a board not answering at the end ends the
-    command with "board not answering" (exit 4), saying since when."""
+    command with "board not answering" (exit 4), saying since when. A board whose frames
+    came in the other wire-CRC mode is told how to connect, and ends the command (exit 4)
+    when nothing usable came from it."""
+    unusable: list[str] = []
     for session in sessions:
+        link = session.link
+        if link.stats.crc_mode_mismatches:
+            advice = wire_crc_advice(board_crc=not link.connection.wire_crc.on)
+            if link.stats.telemetry_received == 0:
+                unusable.append(f"board {session.endpoint.name}: {advice}")
+            else:
+                note(f"board {session.endpoint.name}: {advice}")
         for at, what in session.faults:
             note(f"board {session.endpoint.name} {what} at {_clock(at)} "
                  f"({at - started:.1f} s into the run)")
@@ -259,6 +269,8 @@ def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
                 note(f"board {session.endpoint.name} was not answering from "
                      f"{_clock(lost)} to {_clock(back)} ({back - lost:.1f} s; "
                      f"{lost - started:.1f} s into the run)")
+    if unusable:
+        raise CliError("; ".join(unusable), ExitCode.NO_ANSWER)
     gone = [s for s in sessions if s.lost_at is not None]
     if gone:
         first = gone[0]

@@ -104,11 +104,8 @@ class Connection:
     """One link to one board (or, with ``role=Role.BOARD``, the board's side of it).
 
     Settings (:class:`~fpgalink.connection.Settings`) are given whole (``settings=``) or as
-    keywords (``Connection(baud=None, request_tries=3)``). A reference waits for line room
-    rather than queue behind more than ``max_reference_delay`` of earlier bytes: a newer
-    ``RV`` replaces one still waiting (only the newest reference matters), counted in
-    :attr:`LinkStats.references_superseded`.
-    """
+    keywords (``Connection(baud=None, request_tries=3)``); references are paced to the line
+    (:mod:`.pacing`)."""
 
     def __init__(self, role: Role = Role.HOST, settings: Settings | None = None,
                  **options: Unpack[Options]) -> None:
@@ -123,13 +120,14 @@ class Connection:
         self._port_up = True
         self._line = LinePacing(settings, self.stats)
         emit = self._events.append
-        self._frames = FrameLayer(settings.framing, self.stats)
+        self._frames = FrameLayer(settings.framing, self.stats, emit, settings.wire_crc)
         self._heartbeat = Heartbeat(settings, self.stats, send=self._queue, emit=emit,
                                     port_up=lambda: self._port_up)
         self._hearing = Hearing(settings)
         self._stream = TelemetryWatch(settings, self.stats, emit)
         self._requests = Requests(settings, self.stats, send=self._queue, emit=emit,
                                   heard=lambda: self.liveness is Liveness.ALIVE,
+                                  crc_mismatch=lambda: self._frames.mismatch,
                                   settled=self._settled)
         self._continuity = Continuity(self._requests, self.stats, emit=emit,
                                       restart=self._restarted)
@@ -271,6 +269,8 @@ class Connection:
             frames += 1
             msg = parse_content(item)
             if isinstance(msg, Malformed):
+                if self._frames.unexpected(item):
+                    continue  # the other wire-CRC mode's: counted and said, never a message
                 stats.count_malformed(msg)
                 append(msg)
                 continue

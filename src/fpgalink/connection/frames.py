@@ -6,18 +6,25 @@ out), through the check: a good CRC is stripped, a bad one makes the frame a
 :class:`~fpgalink.protocol.CrcMismatch` (counted in ``crc_failures``), never a message.
 Messages sent are encoded, given the CRC while it is on, and framed. The mode follows the
 board's answer about ``WireCrc`` (:class:`~fpgalink.protocol.crc.HostWireCrc`).
+
+A frame of the other mode is recognised and said (:class:`~fpgalink.events.WireCrcMismatch`,
+once until the mode is settled again; ``crc_mode_mismatches``): with the CRC off, a counted
+message with a good CRC after it that is none without it stripped; with the CRC on, a frame
+failing the check that is a counted message as it is.
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 from fpgalink.connection.stats import LinkStats
+from fpgalink.events import WireCrcMismatch
 from fpgalink.protocol import (
     TELEMETRY_RUN_MIN,
     CountedMessage,
     DirectCommand,
+    Event,
     FrameDecoder,
     Framing,
     FramingError,
@@ -28,7 +35,13 @@ from fpgalink.protocol import (
     encode_frame,
     encode_message,
 )
-from fpgalink.protocol.crc import HostWireCrc
+from fpgalink.protocol.crc import (
+    WIRE_CRC_PARAM,
+    CrcMismatch,
+    HostWireCrc,
+    carries_crc,
+    plain_counted,
+)
 
 __all__ = ["FrameLayer", "telemetry_runs"]
 
@@ -57,14 +70,19 @@ class FrameLayer:
     """The decoder, the encoder (with this side's message counter) and the wire CRC of one
     link."""
 
-    __slots__ = ("_counter", "_decoder", "_stats", "framing", "wire_crc")
+    __slots__ = ("_counter", "_decoder", "_emit", "_stats", "framing", "mismatch", "wire_crc")
 
-    def __init__(self, framing: Framing, stats: LinkStats) -> None:
+    def __init__(self, framing: Framing, stats: LinkStats, emit: Callable[[Event], None],
+                 crc_on: bool = False) -> None:
         self.framing = framing
-        self.wire_crc = HostWireCrc()  #: off until the board confirms WireCrc = 1
+        self.wire_crc = HostWireCrc()  #: as the board's answer about WireCrc says
+        self.wire_crc.on = crc_on
+        #: the board's frames came in the other mode: with the CRC (True) or without (False)
+        self.mismatch: bool | None = None
         self._decoder = FrameDecoder(framing)
         self._counter = SendCounter()
         self._stats = stats
+        self._emit = emit
 
     @property
     def next_counter(self) -> int:
@@ -83,7 +101,24 @@ class FrameLayer:
             if failed:
                 self._stats.crc_failures += failed
                 before += failed  # those items are CrcMismatch events now, not frames
+                for item in items:
+                    if type(item) is CrcMismatch and plain_counted(item.content):
+                        self._other_mode(board_crc=False)
         return items, decoder.stats.frames - before == len(items)
+
+    def unexpected(self, content: bytes) -> bool:
+        """Whether ``content``, no message, is one carrying the CRC while this host's is off
+        (then counted and said here)."""
+        if self.wire_crc.checking or not carries_crc(content):
+            return False
+        self._other_mode(board_crc=True)
+        return True
+
+    def _other_mode(self, board_crc: bool) -> None:
+        self._stats.crc_mode_mismatches += 1
+        if self.mismatch is None:
+            self.mismatch = board_crc
+            self._emit(WireCrcMismatch(board_crc))
 
     def encode(self, message: Message | CountedMessage | DirectCommand) -> bytes:
         """``message``'s wire bytes (counted as sent): a counted one takes the next counter
@@ -101,11 +136,14 @@ class FrameLayer:
     def answered(self, param_id: int, value: int | float | None) -> None:
         """A ``PA`` (``value``) or ``PN`` (``None``) about ``param_id`` arrived: the board's
         answer about ``WireCrc`` sets the mode."""
+        if param_id == WIRE_CRC_PARAM:
+            self.mismatch = None
         self.wire_crc.answered(param_id, value)
 
     def board_restarted(self) -> None:
         """A board powers up on the plain wire."""
         self.wire_crc.on = self.wire_crc.asking = False
+        self.mismatch = None
 
     def reset(self) -> None:
         """A new port: a frame begun on the old one is gone."""

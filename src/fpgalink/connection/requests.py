@@ -19,7 +19,13 @@ from enum import Enum
 
 from fpgalink.connection.settings import Settings
 from fpgalink.connection.stats import LinkStats
-from fpgalink.errors import FpgalinkError, ParameterRefused, RequestTimeout, ValueMismatch
+from fpgalink.errors import (
+    FpgalinkError,
+    ParameterRefused,
+    RequestTimeout,
+    ValueMismatch,
+    WireCrcMismatchError,
+)
 from fpgalink.events import RequestAskedAgain, RequestDone, RequestFailed
 from fpgalink.protocol import (
     Event,
@@ -111,18 +117,21 @@ Settled = Callable[[Request, Outcome, RequestDone | RequestFailed, float], None]
 class Requests:
     """The pending requests of one link. ``send`` puts a message on the wire, ``emit`` an
     event in the connection's queue; ``heard`` says whether the board is heard (a new round
-    only then); ``settled`` is told of every outcome."""
+    only then); ``crc_mismatch`` whether its frames came in the other wire-CRC mode (with
+    the CRC: True), which an unanswered request's error says; ``settled`` is told of every
+    outcome."""
 
     def __init__(self, settings: Settings, stats: LinkStats, *,
                  send: Callable[[ParamSet | ParamGet, float], None],
                  emit: Callable[[Event], None], heard: Callable[[], bool],
-                 settled: Settled) -> None:
+                 crc_mismatch: Callable[[], bool | None], settled: Settled) -> None:
         self.settings = settings
         self.pending: dict[int, Request] = {}
         self._stats = stats
         self._send = send
         self._emit = emit
         self._heard = heard
+        self._crc_mismatch = crc_mismatch
         self._settled = settled
         self._next_id = 1
 
@@ -228,4 +237,8 @@ class Requests:
         if last is not None:
             return ValueMismatch(request.what, request.tries, request.value, last.value,
                                  last.value_type)
+        mismatch = self._crc_mismatch()
+        if mismatch is not None:
+            return WireCrcMismatchError(request.what, request.tries,
+                                        self.settings.request_timeout, mismatch)
         return RequestTimeout(request.what, request.tries, self.settings.request_timeout)

@@ -35,6 +35,8 @@ class Settings:
     request; ``unanswered_rounds`` more rounds follow while the board is heard (a late
     answer then confirms the request asked again: a loaded machine, a slow line).
     ``max_events``: the event queue's cap (the oldest dropped beyond it, and said).
+    ``wire_crc``: the link starts with the wire CRC on (a board left with ``WireCrc`` = 1;
+    docs/protocol.md §7); either way the board's answer about ``WireCrc`` sets it.
     """
 
     framing: Framing = DEFAULT_FRAMING
@@ -48,6 +50,7 @@ class Settings:
     max_events: int = 65536
     heartbeat_give_up: float = 0.28
     stale_periods: int = 50
+    wire_crc: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.heartbeat_interval < WATCHDOG_S:
@@ -93,6 +96,7 @@ class LinkOptions(TypedDict, total=False):
     max_events: int
     heartbeat_give_up: float
     stale_periods: int
+    wire_crc: bool
 
 
 class Options(LinkOptions, total=False):

@@ -52,6 +52,9 @@ class LinkStats(WireCounts):
     reconnects: int = 0
     #: frames dropped because their wire CRC did not match (only while the CRC is on)
     crc_failures: int = 0
+    #: frames in the other wire-CRC mode than this host's (the board's CRC on and this
+    #: host's off, or the reverse): dropped, never messages
+    crc_mode_mismatches: int = 0
     malformed_by_reason: dict[str, int] = field(default_factory=dict)
 
     def snapshot(self) -> LinkStats:
