@@ -39,13 +39,12 @@ _HOMES = {
     "Role": "fpgalink.protocol",
     "Telemetry": "fpgalink.protocol",
     "Link": "fpgalink.aio.link",
-    "LinkEvent": "fpgalink.aio.link",
-    "LinkEventKind": "fpgalink.aio.link",
+    "StatusEvent": "fpgalink.events",
     "open_link": "fpgalink.aio.link",
 }
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, open_link
+    from fpgalink.aio.link import Link, open_link
     from fpgalink.connection import Connection, LinkStats
     from fpgalink.errors import (
         BoardLost,
@@ -60,6 +59,7 @@ if TYPE_CHECKING:
         ValueMismatch,
         WireCrcMismatchError,
     )
+    from fpgalink.events import StatusEvent
     from fpgalink.protocol import Role, Telemetry
 
 
@@ -71,8 +71,6 @@ __all__ = [
     "FpgalinkError",
     "Link",
     "LinkClosed",
-    "LinkEvent",
-    "LinkEventKind",
     "LinkStats",
     "LocalProtocolError",
     "ParameterError",
@@ -80,6 +78,7 @@ __all__ = [
     "PortError",
     "RequestTimeout",
     "Role",
+    "StatusEvent",
     "Telemetry",
     "UnknownParameter",
     "ValueMismatch",

@@ -14,7 +14,8 @@ import pytest
 from fpgaemu.faults import parse_faults
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import PortError
-from fpgalink.aio import LinkEventKind, open_link
+from fpgalink.aio import open_link
+from fpgalink.events import BoardBack, BoardRestarted, PortLost, PortRestored
 from tests.support.served import PATIENCE, next_event, serve
 
 pytestmark = pytest.mark.timeout(90)
@@ -33,14 +34,13 @@ async def test_an_unplugged_link_is_lost_found_again_and_the_board_is_back(
             samples = link.telemetry(maxsize=8192)
             assert await link.set_param("TsTimerPeriod", 1) == 1
             assert await link.set_param("GetDataPeriodical", 1) == 1
-            await next_event(events, {LinkEventKind.PORT_LOST}, 3 * PATIENCE)
+            await next_event(events, (PortLost,), 3 * PATIENCE)
             lost_at = link.stats.lost
-            await next_event(events, {LinkEventKind.PORT_RESTORED}, 3 * PATIENCE)
+            await next_event(events, (PortRestored,), 3 * PATIENCE)
             # Heard again: the counter went on from where it was, so the board is back
             # (its configuration as it was), not restarted.
-            back = await next_event(events, {LinkEventKind.BOARD_BACK,
-                                             LinkEventKind.BOARD_RESTARTED}, 3 * PATIENCE)
-            assert back.kind is LinkEventKind.BOARD_BACK, back
+            back = await next_event(events, (BoardBack, BoardRestarted), 3 * PATIENCE)
+            assert isinstance(back, BoardBack), back
             # Telemetry flows again on the new connection, with what was sent while
             # unplugged counted lost, never delivered twice.
             before = samples.dropped
@@ -70,10 +70,9 @@ async def test_what_a_pty_queued_while_the_host_was_away_is_no_restart(tmp_path:
                 open_link(str(link_path), reconnect_backoff=(2.5, 2.5)) as link):
         events = link.watch()
         assert await link.set_param("GetDataPeriodical", 1) == 1
-        await next_event(events, {LinkEventKind.PORT_RESTORED}, 3 * PATIENCE)
-        verdict = await next_event(events, {LinkEventKind.BOARD_BACK,
-                                            LinkEventKind.BOARD_RESTARTED}, 3 * PATIENCE)
-        assert verdict.kind is LinkEventKind.BOARD_BACK, verdict
+        await next_event(events, (PortRestored,), 3 * PATIENCE)
+        verdict = await next_event(events, (BoardBack, BoardRestarted), 3 * PATIENCE)
+        assert isinstance(verdict, BoardBack), verdict
         assert link.stats.restarts == 0 and link.held == {"GetDataPeriodical": 1}
 
 

@@ -32,6 +32,7 @@ from fpgalink.events import (
     CounterDuplicate,
     CounterGap,
     EventsDropped,
+    PortRestored,
     RequestDone,
     RequestFailed,
     SetWithdrawn,
@@ -473,8 +474,8 @@ def test_port_lost_then_reconnected_owns_what_a_replug_resets() -> None:
     liveness: Liveness = host.liveness
     assert host.stats.reconnects == 1 and liveness is Liveness.UNKNOWN
     host.receive_data(board_bytes(tm(0)), now=1.01)
-    assert [type(e) for e in drain(host)] == [BoardFound, BoardRestarted, BoardResynced,
-                                              Telemetry]
+    assert [type(e) for e in drain(host)] == [PortRestored, BoardFound, BoardRestarted,
+                                              BoardResynced, Telemetry]
     assert host.stats.lost == 0 and host.stats.duplicates == 0 and host.stats.restarts == 1
     # Silence on the new port is judged from the replug on: lost 0.5 s after the last
     # message, not at once for the time the port was gone.

@@ -24,20 +24,7 @@ from fpgalink.aio.subscription import Subscription
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.events import (
-    BoardBack,
-    BoardFault,
-    BoardFound,
-    BoardRestarted,
-    BoardResynced,
-    BoardSilent,
-    RequestDone,
-    RequestFailed,
-    TelemetryResumed,
-    TelemetryStale,
-    WatchdogLapsed,
-    WireCrcMismatch,
-)
+from fpgalink.events import RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
     CountedMessage,
     DirectCommand,
@@ -52,8 +39,6 @@ from fpgalink.protocol.params import iter_addresses
 
 __all__ = [
     "Link",
-    "LinkEvent",
-    "LinkEventKind",
     "LinkState",
     "Reopen",
     "Stamped",
@@ -71,36 +56,6 @@ class LinkState(Enum):
     CONNECTED = "connected"
     RECONNECTING = "reconnecting"  #: the port vanished; retrying with backoff
     CLOSED = "closed"
-
-
-class LinkEventKind(Enum):
-    BOARD_LOST = "board_lost"  #: no well-formed message for ``liveness_timeout``
-    BOARD_FOUND = "board_found"
-    #: the board restarted (or may have); the link stopped enabling it and sets again what
-    #: it holds (:class:`~fpgalink.events.BoardRestarted`)
-    BOARD_RESTARTED = "board_restarted"
-    #: after a restart, what the link holds is set again (detail: what failed, if anything)
-    BOARD_RESYNCED = "board_resynced"
-    #: heard again after a silence (or on a reconnected port), it did not restart
-    BOARD_BACK = "board_back"
-    #: the board's watchdog disabled it; the link stopped enabling it
-    WATCHDOG_LAPSED = "watchdog_lapsed"
-    TELEMETRY_STALE = "telemetry_stale"  #: configured on, and not arriving
-    TELEMETRY_RESUMED = "telemetry_resumed"
-    #: the board's frames come in the other wire-CRC mode (:class:`WireCrcMismatch`)
-    WIRE_CRC_MISMATCH = "wire_crc_mismatch"
-    PORT_LOST = "port_lost"  #: the device or socket went away
-    PORT_RESTORED = "port_restored"
-    CLOSED = "closed"  #: the link closed: the last event a watcher gets
-
-
-@dataclass(frozen=True, slots=True)
-class LinkEvent:
-    kind: LinkEventKind
-    at: float  #: loop time
-    detail: str = ""
-    #: the connection's event behind it, where there is one (BoardRestarted, …)
-    cause: Event | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -166,7 +121,7 @@ class Link:
         self._timer_at: float | None = None  #: on the link's time (:meth:`_now`)
         self._clock = LinkClock()
         self._futures: dict[int, asyncio.Future[int | float]] = {}
-        self._subscribers: Subscribers[LinkEvent] = Subscribers(connection.stats)
+        self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
         self._batches = ReadBatcher(lambda data: self._on_data(self._protocol, data),
@@ -231,7 +186,6 @@ class Link:
             self._timer = None
         self._batches.cancel()
         self._process()
-        self._emit(LinkEventKind.CLOSED)
         self._end_waiters()
         transport, self._transport = self._transport, None
         if transport is not None:
@@ -397,13 +351,15 @@ class Link:
         host's side of the clock, beside the board's ``t_us``."""
         return self._subscribers.stamped(maxsize)
 
-    def watch(self, maxsize: int = 256) -> AsyncIterator[LinkEvent]:
-        """Link events (board lost/found, port lost/restored) as an async iterator; it ends
-        after the ``CLOSED`` event when the link closes, for whatever reason."""
+    def watch(self, maxsize: int = 256) -> AsyncIterator[StatusEvent]:
+        """The status events (:class:`~fpgalink.events.StatusEvent`: the board lost, found,
+        back, restarted, its faults, the port lost and restored …) as an async iterator; it
+        ends after :class:`~fpgalink.events.Closed` when the link closes, for whatever
+        reason."""
         return self._subscribers.watch(maxsize)
 
-    def on_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
-        """Call ``callback(event)`` for every link event, synchronously, as it happens: for
+    def on_event(self, callback: Callable[[StatusEvent], None]) -> Callable[[], None]:
+        """Call ``callback(event)`` for every status event, synchronously, as it happens: for
         reactions that must not wait for a task to be scheduled (a robot stopping its other
         boards when one goes silent). Keep it quick and do not raise. Returns a remover."""
         return self._subscribers.on_event(callback)
@@ -517,10 +473,10 @@ class Link:
         self._process()
         self._flush()
 
-    def _emit(self, kind: LinkEventKind, detail: str = "", cause: Event | None = None) -> None:
-        self._subscribers.status(LinkEvent(kind, self._now(), detail, cause))
-
     def _process(self) -> None:
+        """Hand out what the connection reported: every event to the listeners, telemetry
+        to its subscriptions, status events to the watchers, request outcomes to their
+        futures."""
         subscribers, futures = self._subscribers, self._futures
         now = self._now() if subscribers.stamping else 0.0
         for event in self.connection.events():
@@ -534,12 +490,8 @@ class Link:
                     else:
                         assert isinstance(event, RequestFailed)
                         future.set_exception(event.error)
-            elif isinstance(event, BoardSilent):
-                self._emit(LinkEventKind.BOARD_LOST, f"silent for {event.silent_for:.3f} s")
-            elif kind is BoardFound:
-                self._emit(LinkEventKind.BOARD_FOUND)
-            elif isinstance(event, BoardFault):
-                self._emit(_REPORTED[kind], event.describe(), event)
+            elif isinstance(event, StatusEvent):
+                subscribers.status(event)
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -552,18 +504,18 @@ class Link:
         self._protocol = None
         cause = str(exc or "closed by the other end")
         reason = f"{self.name}: port lost ({cause})"
-        self.connection.port_lost(self._now(), reason)
-        self._process()
-        self._emit(LinkEventKind.PORT_LOST, cause)
+        self.connection.port_lost(self._now(), reason, cause)
         if self.reconnect:
             self.state = LinkState.RECONNECTING
+            self._process()
             self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())
         else:
             self.state = LinkState.CLOSED
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None
-            self._emit(LinkEventKind.CLOSED, reason)
+            self.connection.close(self._now(), reason)
+            self._process()
             self._end_waiters()
 
     async def _reconnect_loop(self) -> None:
@@ -577,21 +529,9 @@ class Link:
                 continue
             self.state = LinkState.CONNECTED
             self.connection.reconnected(self._now())
+            self._process()
             self._flush()
-            self._emit(LinkEventKind.PORT_RESTORED)
             return
-
-
-#: The connection's events about the board's real life, and the link events they become.
-_REPORTED: dict[type[Event], LinkEventKind] = {
-    BoardRestarted: LinkEventKind.BOARD_RESTARTED,
-    BoardResynced: LinkEventKind.BOARD_RESYNCED,
-    BoardBack: LinkEventKind.BOARD_BACK,
-    WatchdogLapsed: LinkEventKind.WATCHDOG_LAPSED,
-    TelemetryStale: LinkEventKind.TELEMETRY_STALE,
-    TelemetryResumed: LinkEventKind.TELEMETRY_RESUMED,
-    WireCrcMismatch: LinkEventKind.WIRE_CRC_MISMATCH,
-}
 
 
 def open_link(

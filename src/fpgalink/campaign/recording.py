@@ -38,8 +38,8 @@ from fpgalink.recording import (
 )
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import LinkEvent
     from fpgalink.campaign.spec import Action, Scenario
+    from fpgalink.events import StatusEvent
     from fpgalink.robot.robot import Robot
     from fpgalink.robot.supervision import SupervisionEvent
 
@@ -131,9 +131,9 @@ class ScenarioRecording:
             if record is not None:
                 self._add(f"/board/{state.board}/params", record, now)
 
-    def _link_event(self, board: str, event: LinkEvent) -> None:
+    def _link_event(self, board: str, event: StatusEvent) -> None:
         self._add(f"/board/{board}/events",
-                  log_record(event.kind.value, event.detail, event.at, board), self._now())
+                  log_record(event.name, event.describe(), event.at, board), self._now())
 
     def _robot_state(self, now: float) -> None:
         robot = self._robot

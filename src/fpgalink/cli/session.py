@@ -14,11 +14,20 @@ from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from fpgalink.aio.link import Link, LinkEventKind, LinkState
+from fpgalink.aio.link import Link, LinkState
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
 from fpgalink.cli.output import CliError, ExitCode, classify, note, wire_crc_advice
 from fpgalink.errors import FpgalinkError
+from fpgalink.events import (
+    BoardFound,
+    BoardRestarted,
+    BoardSilent,
+    PortLost,
+    PortRestored,
+    TelemetryStale,
+    WatchdogLapsed,
+)
 from fpgalink.protocol import (
     ChannelTelemetry,
     CountedMessage,
@@ -196,18 +205,18 @@ class BoardSession:
         each event to ``report(kind, detail, epoch time)``."""
         async for event in self.link.watch():
             at = time.time()
-            if event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST):
+            if isinstance(event, BoardSilent | PortLost):
                 if self.lost_at is None:
                     self.lost_at = at
                     self.episodes.append((at, None))
-            elif (event.kind in (LinkEventKind.BOARD_FOUND, LinkEventKind.PORT_RESTORED)
+            elif (isinstance(event, BoardFound | PortRestored)
                   and self.lost_at is not None and self.link.board_alive):
                 self.episodes[-1] = (self.lost_at, at)
                 self.lost_at = None
-            elif event.kind in FAULT_KINDS:
-                self.faults.append((at, event.detail))
+            elif isinstance(event, FAULTS):
+                self.faults.append((at, event.describe()))
             if report is not None:
-                report(event.kind.value, event.detail, at)
+                report(event.name, event.describe(), at)
 
     def update_rate(self, now: float) -> None:
         received = self.link.stats.telemetry_received
@@ -240,10 +249,9 @@ async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOption
     return sessions
 
 
-#: The link events that are a board's faults (its restarts, watchdog lapses, telemetry
+#: The status events that are a board's faults (its restarts, watchdog lapses, telemetry
 #: stopping): said on stderr, never passed over.
-FAULT_KINDS = frozenset({LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
-                         LinkEventKind.TELEMETRY_STALE})
+FAULTS = (BoardRestarted, WatchdogLapsed, TelemetryStale)
 
 
 def check_boards_answered(sessions: list[BoardSession], started: float) -> None:

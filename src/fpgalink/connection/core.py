@@ -46,6 +46,9 @@ from fpgalink.errors import BoardLost, LinkClosed, LocalProtocolError
 from fpgalink.events import (
     BoardFound,
     BoardSilent,
+    Closed,
+    PortLost,
+    PortRestored,
     RequestDone,
     RequestFailed,
     RestartEvidence,
@@ -71,7 +74,6 @@ from fpgalink.protocol import (
     References,
     Role,
     Telemetry,
-    lookup,
     parse_content,
     parse_telemetry_run,
 )
@@ -93,11 +95,6 @@ def _sendable(role: Role) -> frozenset[type]:
 _SENDABLE = {role: _sendable(role) for role in Role}
 #: Bytes decoded between two checks of the event cap, so one huge read cannot fill memory.
 _RECEIVE_SLICE = 1 << 16
-#: What a board heard again, or whose telemetry stopped, is asked (a plain board's
-#: telemetry setting; on the CRC wire WireCrc, which a board restarted onto the plain wire
-#: understands in either form, and whose answer is taken in either form).
-_GET_DATA = lookup("GetDataPeriodical")
-_WIRE_CRC = lookup("WireCrc")
 
 
 class Connection:
@@ -169,24 +166,20 @@ class Connection:
             self._receive(view[start : start + _RECEIVE_SLICE], now)
 
     def _receive(self, data: bytes | bytearray | memoryview, now: float) -> None:
-        items, all_frames = self._frames.feed(data)
+        items, all_frames = self._frames.feed(data, now)
         if items:
             if len(items) < TELEMETRY_RUN_MIN:
                 self._each(items, now)
-            # Every item a frame and every frame a TM: the 1 kHz case, a chunk at a time.
+            # Every item a frame and every frame a TM: the 1 kHz case, a chunk at a time;
+            # else runs long enough to gain a run at a time, the rest one by one, in order.
             elif not all_frames or not self._telemetry(items, now):
-                self._mixed(items, now)
+                for maybe, part in telemetry_runs(items):
+                    if not (maybe and self._telemetry(part, now)):
+                        self._each(part, now)
         self._events.trim(self._settings.max_events)
         if self.liveness is Liveness.ALIVE:
             self._hearing.heard(now)
             self._continuity.go_on(now)
-
-    def _mixed(self, items: list[bytes | FramingError], now: float) -> None:
-        """Items that are not all TM: runs long enough to gain go a run at a time,
-        everything else one by one, in stream order."""
-        for maybe, part in telemetry_runs(items):
-            if not (maybe and self._telemetry(part, now)):
-                self._each(part, now)
 
     def _telemetry(self, frames: list[Any], now: float) -> bool:
         """Take ``frames`` as TM events if every one is a well-formed TM (what
@@ -201,7 +194,7 @@ class Connection:
         first = counters[0]
         if (counters == list(range(first, first + n)) and not self._continuity.doubting
                 and self._counting.tracker.observe_in_order(first, n)):
-            self._continuity.went_on()
+            self._continuity.went_on(now)
             self._heartbeat.watch(telemetry, now)
             self._events.extend(telemetry)
             self._stream.arrived(telemetry[0], telemetry[-1], now)
@@ -231,7 +224,7 @@ class Connection:
                             f"{tracker.expected:05d} was expected", now)
             tracker.observe(counter)
         elif in_order:
-            continuity.went_on()
+            continuity.went_on(now)
         else:
             self._count_out_of_order(counter, now)
         self._heartbeat.watch((msg,), now)
@@ -242,7 +235,7 @@ class Connection:
         if not self._counting.tracker.observe_in_order(counter):
             self._count_out_of_order(counter, now)
         else:
-            self._continuity.went_on()
+            self._continuity.went_on(now)
 
     def _count_out_of_order(self, counter: int, now: float) -> None:
         observation, restart = self._counting.judge(counter)
@@ -250,7 +243,7 @@ class Connection:
             self._restarted(RestartEvidence.COUNTER_RESET, restart, now)
             self._counting.tracker.observe(counter)
             return
-        self._continuity.went_on()
+        self._continuity.went_on(now)
         self._counting.say(observation, counter)
 
     def _each(self, items: list[bytes | FramingError], now: float) -> None:
@@ -269,7 +262,7 @@ class Connection:
             frames += 1
             msg = parse_content(item)
             if isinstance(msg, Malformed):
-                if self._frames.unexpected(item):
+                if self._frames.unexpected(item, now):
                     continue  # the other wire-CRC mode's: counted and said, never a message
                 stats.count_malformed(msg)
                 append(msg)
@@ -302,12 +295,9 @@ class Connection:
 
     def _found(self, now: float) -> None:
         self._hearing.liveness = Liveness.ALIVE
-        self._events.append(BoardFound())
-        self._continuity.heard(now, self._question(), self._stream.last_t_us,
+        self._events.append(BoardFound(at=now))
+        self._continuity.heard(now, self.wire_crc.on, self._stream.last_t_us,
                                self._stream.last_at)
-
-    def _question(self) -> Param:
-        return _WIRE_CRC if self.wire_crc.on else _GET_DATA
 
     def next_event(self) -> Event | None:
         """The oldest pending event, or ``None`` when there is none."""
@@ -440,20 +430,22 @@ class Connection:
             assert origin is not None
             self._hearing.liveness = Liveness.LOST
             self.stats.heartbeat_misses += 1
-            self._events.append(BoardSilent(now - origin))
+            self._events.append(BoardSilent(now - origin, at=now))
             self._continuity.lost("", origin)
             self._requests.fail_all(BoardLost(f"board silent for {now - origin:.3f} s"), now)
         self._requests.expire(now)
         if (self._port_up and self._stream.check(now)
                 and self.liveness is Liveness.ALIVE):
-            self._continuity.ask(now, self._question())
+            self._continuity.ask(now, self.wire_crc.on)
 
     # --- the port -------------------------------------------------------------------------
 
-    def port_lost(self, now: float, reason: str) -> None:
-        """The transport went away: pending requests fail, nothing is sent until
-        :meth:`reconnected`."""
+    def port_lost(self, now: float, reason: str, cause: str = "") -> None:
+        """The transport went away (:class:`~fpgalink.events.PortLost`, saying ``cause``):
+        pending requests fail (:class:`~fpgalink.errors.BoardLost` with ``reason``),
+        nothing is sent until :meth:`reconnected`."""
         self.stats.port_losses += 1
+        self._events.append(PortLost(cause or reason, at=now))
         self._port_up = False
         self._continuity.lost(", on the reconnected port", now)
         self._hearing.liveness = Liveness.LOST
@@ -471,19 +463,22 @@ class Connection:
         holds is set again) or went on (:class:`~fpgalink.events.BoardBack`: what it sent
         meanwhile is counted lost). The caller enables again when it is safe."""
         self.stats.reconnects += 1
+        self._events.append(PortRestored(at=now))
         self._port_up = True
         self._frames.reset()
         self._hearing.reconnected(now)
         self._line.free_at = now
 
-    def close(self, now: float) -> None:
-        """Stop the heartbeat (queueing ``RD`` if enabled) and fail pending requests with
-        :class:`~fpgalink.errors.LinkClosed`."""
+    def close(self, now: float, reason: str = "") -> None:
+        """Stop the heartbeat (queueing ``RD`` if enabled), fail pending requests with
+        :class:`~fpgalink.errors.LinkClosed`; :class:`~fpgalink.events.Closed` (why:
+        ``reason``) is the last status event."""
         if self.enabled:
             self.disable(now)
         self._heartbeat.stop()
         self._line.held = None
         self._requests.fail_all(LinkClosed("link closed while the request was pending"), now)
+        self._events.append(Closed(reason, at=now))
 
     # --- parameter requests and the configuration held ------------------------------------
 
@@ -542,7 +537,7 @@ class Connection:
         telemetry off, parameters at their power-up values, counters from 0, the plain wire.
         Stop keeping it enabled, follow its new counter sequence, set again what is held."""
         self.stats.restarts += 1
-        self._continuity.restarted(evidence, detail)
+        self._continuity.restarted(evidence, detail, now)
         self._counting.restarted()
         self._heartbeat.board_restarted(now)
         self.latest_telemetry = None

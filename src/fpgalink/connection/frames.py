@@ -89,8 +89,8 @@ class FrameLayer:
         """The counter value the next counted message will carry."""
         return self._counter.value
 
-    def feed(self, data: bytes | bytearray | memoryview) -> tuple[list[bytes | FramingError],
-                                                                 bool]:
+    def feed(self, data: bytes | bytearray | memoryview, now: float
+             ) -> tuple[list[bytes | FramingError], bool]:
         """The items ``data`` completes (frame contents and framing errors, in order), and
         whether every one is a frame."""
         decoder = self._decoder
@@ -103,22 +103,22 @@ class FrameLayer:
                 before += failed  # those items are CrcMismatch events now, not frames
                 for item in items:
                     if type(item) is CrcMismatch and plain_counted(item.content):
-                        self._other_mode(board_crc=False)
+                        self._other_mode(False, now)
         return items, decoder.stats.frames - before == len(items)
 
-    def unexpected(self, content: bytes) -> bool:
+    def unexpected(self, content: bytes, now: float) -> bool:
         """Whether ``content``, no message, is one carrying the CRC while this host's is off
         (then counted and said here)."""
         if self.wire_crc.checking or not carries_crc(content):
             return False
-        self._other_mode(board_crc=True)
+        self._other_mode(True, now)
         return True
 
-    def _other_mode(self, board_crc: bool) -> None:
+    def _other_mode(self, board_crc: bool, now: float) -> None:
         self._stats.crc_mode_mismatches += 1
         if self.mismatch is None:
             self.mismatch = board_crc
-            self._emit(WireCrcMismatch(board_crc))
+            self._emit(WireCrcMismatch(board_crc, at=now))
 
     def encode(self, message: Message | CountedMessage | DirectCommand) -> bytes:
         """``message``'s wire bytes (counted as sent): a counted one takes the next counter

@@ -101,7 +101,7 @@ class Heartbeat:
         stop keeping it enabled, make it definite with ``RD``, and say so."""
         self.disable(now)
         self._stats.watchdog_lapses += 1
-        self._emit(WatchdogLapsed(host_silent_for, detail))
+        self._emit(WatchdogLapsed(host_silent_for, detail, at=now))
 
     def board_restarted(self, now: float) -> None:
         if self.enabled:
@@ -241,7 +241,7 @@ class TelemetryWatch:
         self.last_t_us = last.t_us
         if self.stale:
             self.stale = False
-            self._emit(TelemetryResumed(now - (self.last_at or self._since)))
+            self._emit(TelemetryResumed(now - (self.last_at or self._since), at=now))
         self.last_at = now
 
     def board_restarted(self) -> None:
@@ -270,7 +270,7 @@ class TelemetryWatch:
             return False
         self.stale = True
         self._stats.telemetry_stalls += 1
-        self._emit(TelemetryStale(now - since, self.period or 0.001))
+        self._emit(TelemetryStale(now - since, self.period or 0.001, at=now))
         return True
 
     def _window(self) -> tuple[float, float] | None:

@@ -110,6 +110,13 @@ _VERIFYING = frozenset({Phase.VERIFYING, Phase.RESYNC_VERIFYING})
 _RESYNCING = frozenset({Phase.RESYNCING, Phase.RESYNC_PAUSED, Phase.RESYNC_VERIFYING})
 
 
+def _question(crc_on: bool) -> Param:
+    """What a board heard again, or whose telemetry stopped, is asked: a plain board its
+    telemetry setting; on the CRC wire WireCrc, which a board restarted onto the plain wire
+    understands in either form, and whose answer is taken in either form."""
+    return _WIRE_CRC if crc_on else _GET_DATA
+
+
 def _same(param: Param, a: int | float, b: int | float | None) -> bool:
     """Whether the board holding ``a`` holds ``b`` (a float parameter as float32)."""
     if b is None or param.type is not ParamType.FLOAT:
@@ -272,12 +279,12 @@ class Continuity:
         self._verify = None
         self._cue(Cue.LOST)
 
-    def heard(self, now: float, question: Param, last_t_us: int | None,
+    def heard(self, now: float, crc_on: bool, last_t_us: int | None,
               last_at: float | None) -> None:
         """Heard after it was out of reach: it may have restarted meanwhile, or not. What it
         sends next decides (its counter back at 00000, or going on; its clock, against the
-        last sample before, ``last_t_us`` arrived at ``last_at``), and ``question`` asked
-        makes sure something comes."""
+        last sample before, ``last_t_us`` arrived at ``last_at``), and a question asked
+        (:func:`_question`) makes sure something comes."""
         if self._away is None:
             return
         where, since = self._away
@@ -286,9 +293,9 @@ class Continuity:
         self.clock.start(last_t_us, last_at, self._queued)
         self._cue(Cue.HEARD)
         if self.probe is None:
-            self.probe = self._requests.start(question, 0, None, now, 0)
+            self.probe = self._requests.start(_question(crc_on), 0, None, now, 0)
 
-    def went_on(self) -> None:
+    def went_on(self, now: float) -> None:
         """Heard again, it went on counting: it did not restart (unless its clock, in
         doubt, says otherwise yet)."""
         if self._verify is None or self.doubting:
@@ -296,7 +303,7 @@ class Continuity:
         detail, self._verify = self._verify, None
         self._drop_probe()
         self._cue(Cue.WENT_ON)
-        self._emit(BoardBack(detail))
+        self._emit(BoardBack(detail, at=now))
 
     def judge_clock(self, t_us: int, last_t_us: int | None, now: float
                     ) -> tuple[RestartEvidence, str] | None:
@@ -313,11 +320,11 @@ class Continuity:
         behind = self.clock.behind(t_us, now)
         return None if behind is None else (RestartEvidence.CLOCK_BEHIND, behind)
 
-    def ask(self, now: float, question: Param) -> None:
+    def ask(self, now: float, crc_on: bool) -> None:
         """Telemetry stopped: ask the board what it has (a restart shows as telemetry off,
         and as its counter back at 00000 on the answer)."""
         if self.probe is None and not self.resyncing:
-            self.probe = self._requests.start(question, 0, None, now, 0)
+            self.probe = self._requests.start(_question(crc_on), 0, None, now, 0)
 
     def _drop_probe(self) -> None:
         """The question the probe asked is answered otherwise: its request goes, unsaid."""
@@ -327,14 +334,14 @@ class Continuity:
 
     # --- restarts and the resync --------------------------------------------------------------
 
-    def restarted(self, evidence: RestartEvidence, detail: str) -> None:
+    def restarted(self, evidence: RestartEvidence, detail: str, now: float) -> None:
         """Say so; what was sent unconfirmed is gone with the board's power-up. The caller
         resets the rest of the link, then calls :meth:`resync`."""
         if self._verify is not None:
             detail += f"; {self._verify}"
             self._verify = None
         self.clock.doubt = False
-        self._emit(BoardRestarted(evidence, detail))
+        self._emit(BoardRestarted(evidence, detail, at=now))
         self.config.unconfirmed.clear()
         self._drop_probe()
         self._cue(Cue.RESTARTED)
@@ -369,7 +376,7 @@ class Continuity:
         failed = tuple(self._failed)
         self._stats.resync_failures += len(failed)
         self._cue(Cue.RESYNC_DONE)
-        self._emit(BoardResynced(self._applied, failed))
+        self._emit(BoardResynced(self._applied, failed, at=now))
 
     def _set(self, param: Param, channel: int, value: int | float, now: float) -> int:
         request_id = self._requests.start(param, channel, value, now, RESYNC_ROUNDS)
@@ -389,7 +396,7 @@ class Continuity:
         if request is None or request.value is None:
             return
         self._emit(SetWithdrawn(request.request_id, request.param, request.channel,
-                                request.value))
+                                request.value, at=now))
         reread = self._requests.start(request.param, request.channel, None, now, RESYNC_ROUNDS)
         self._rereads[reread] = request
 
@@ -412,7 +419,8 @@ class Continuity:
         if held is None and not _same(withdrawn.param, value, withdrawn.value):
             return  # nothing confirmed, and the withdrawn set did not land
         restored = None if held is None else held[2]
-        self._emit(WithdrawnSetLanded(withdrawn.param, withdrawn.channel, value, restored))
+        self._emit(WithdrawnSetLanded(withdrawn.param, withdrawn.channel, value, restored,
+                                      at=now))
         if restored is not None:
             self._restores[key] = self._set(withdrawn.param, withdrawn.channel, restored, now)
 
@@ -447,7 +455,7 @@ class Continuity:
                                   f"{request.param.full_name(request.channel)} reads "
                                   f"{result.value} on the board; this host set {lost}", now)
                 else:
-                    self.went_on()
+                    self.went_on(now)
         elif request.request_id == self._in_flight:
             self._in_flight = None
             if isinstance(result, RequestDone):

@@ -24,9 +24,24 @@ import math
 from collections.abc import AsyncIterator, Callable, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, Subscription, open_link
+from fpgalink.aio.link import Link, Subscription, open_link
 from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
-from fpgalink.events import BoardResynced, Event, RequestDone, WatchdogLapsed
+from fpgalink.events import (
+    BoardBack,
+    BoardFound,
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    Closed,
+    Event,
+    PortLost,
+    PortRestored,
+    RequestDone,
+    StatusEvent,
+    TelemetryResumed,
+    TelemetryStale,
+    WatchdogLapsed,
+)
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot.drive import WheelCommand, wheel_command
@@ -406,44 +421,41 @@ class Robot:
         with contextlib.suppress(Exception):
             self._carry_out(self.supervisor.task_failed(self._now(), detail))
 
-    def _on_link_event(self, name: str, link: Link, event: LinkEvent) -> None:
-        with self._guarded(f"board {name}'s {event.kind.value} event"):
+    def _on_link_event(self, name: str, link: Link, event: StatusEvent) -> None:
+        with self._guarded(f"board {name}'s {event.name} event"):
             self._link_event(name, link, event)
 
-    def _link_event(self, name: str, link: Link, event: LinkEvent) -> None:
+    def _link_event(self, name: str, link: Link, event: StatusEvent) -> None:
         # The robot reacts in the callback that noticed: its events carry that moment.
-        kind, now = event.kind, event.at
-        if kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST, LinkEventKind.CLOSED):
-            what = kind.value.replace("_", " ")
-            detail = f"{what} ({event.detail})" if event.detail else what
+        now, detail = event.at, event.describe()
+        if isinstance(event, BoardSilent | PortLost | Closed):
+            what = event.name.replace("_", " ")
+            detail = f"{what} ({detail})" if detail else what
             self._carry_out(self.supervisor.board_alive(name, False, now, detail))
-        elif kind is LinkEventKind.BOARD_RESTARTED:
-            self._restarted(name, event.detail, now)
-        elif kind is LinkEventKind.BOARD_RESYNCED:
-            assert isinstance(event.cause, BoardResynced)
+        elif isinstance(event, BoardRestarted):
+            self._restarted(name, detail, now)
+        elif isinstance(event, BoardResynced):
             # The restart this resync answers is the one counted now: another restart may
             # be counted before the task first runs.
             task = asyncio.ensure_future(self._reconfigured(
-                name, link, event.cause, self._restarts.get(name, 0)))
+                name, link, event, self._restarts.get(name, 0)))
             self._tasks.append(task)
             task.add_done_callback(self._forget_task)
-        elif kind is LinkEventKind.WATCHDOG_LAPSED:
-            lapse = event.cause
-            assert isinstance(lapse, WatchdogLapsed)
-            why = (f"watchdog: host silent {lapse.host_silent_for * 1000:.0f} ms"
-                   if lapse.host_silent_for is not None else f"watchdog: {lapse.detail}")
+        elif isinstance(event, WatchdogLapsed):
+            why = (f"watchdog: host silent {event.host_silent_for * 1000:.0f} ms"
+                   if event.host_silent_for is not None else f"watchdog: {event.detail}")
             self._carry_out(self.supervisor.board_fault(name, Fault.WATCHDOG_LAPSED, now, why))
-        elif kind is LinkEventKind.TELEMETRY_STALE:
-            self._stale[name] = event.detail
+        elif isinstance(event, TelemetryStale):
+            self._stale[name] = detail
             self._carry_out(self.supervisor.board_fault(name, Fault.TELEMETRY_STALE, now,
-                                                        event.detail))
-        elif kind is LinkEventKind.TELEMETRY_RESUMED:
+                                                        detail))
+        elif isinstance(event, TelemetryResumed):
             if self._stale.pop(name, None) is not None:
                 self._board_recovered(name, "telemetry flowing again", now)
-        elif kind is LinkEventKind.BOARD_BACK:
+        elif isinstance(event, BoardBack):
             self._checking.discard(name)
-            self._board_recovered(name, event.detail, now)
-        elif link.board_alive:
+            self._board_recovered(name, detail, now)
+        elif isinstance(event, BoardFound | PortRestored) and link.board_alive:
             self.supervisor.board_alive(name, True, now)
             if link.connection.verifying:
                 # Heard again after a silence: whether it restarted meanwhile is being

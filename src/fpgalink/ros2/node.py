@@ -61,9 +61,19 @@ from rosgraph_msgs.msg import Clock
 from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 
-from fpgalink.aio.link import LinkEvent, LinkEventKind
 from fpgalink.boardclock import BOARD_CLOCK_WRAP_US, BoardClock
 from fpgalink.errors import FpgalinkError, ParameterError, ParameterRefused, ValueMismatch
+from fpgalink.events import (
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    Closed,
+    PortLost,
+    StatusEvent,
+    TelemetryStale,
+    WatchdogLapsed,
+    WireCrcMismatch,
+)
 from fpgalink.protocol import PARAMETERS, Param, ParamType, Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B, Scope, channel_name
 from fpgalink.protocol.urdf import FixedJoint, fixed_joints, robot_urdf
@@ -967,18 +977,19 @@ class RosBridge:
             self._cancel_goal()
             self._ramp = None
 
-    def _log_link_event(self, board: str, event: LinkEvent) -> None:
-        text = f"board {board}: {event.kind.value.replace('_', ' ')}" + (
-            f" ({event.detail})" if event.detail else "")
-        if event.kind is LinkEventKind.BOARD_RESTARTED:
+    def _log_link_event(self, board: str, event: StatusEvent) -> None:
+        detail = event.describe()
+        text = f"board {board}: {event.name.replace('_', ' ')}" + (
+            f" ({detail})" if detail else "")
+        if isinstance(event, BoardRestarted):
             # Its clock starts again: the mapping starts afresh (not a wrap, not a jump
             # back), the drift estimate kept.
             self._clocks[board].restart()
-        if event.kind in _FAULT_KINDS or (event.kind is LinkEventKind.BOARD_RESYNCED
-                                          and "failed" in event.detail):
+        if isinstance(event, _FAULTS) or (isinstance(event, BoardResynced)
+                                          and "failed" in detail):
             self.log.error(text)
             self._publish_diagnostics()  # now, not at the next second
-        elif event.kind is not LinkEventKind.CLOSED:
+        elif not isinstance(event, Closed):
             self.log.info(text)
 
     async def _follow(self, board: str, link: Any) -> None:
@@ -1244,10 +1255,9 @@ class _RecordedPublisher:
         return getattr(self._publisher, name)
 
 
-#: Link events that are faults: logged as errors, and diagnostics published at once.
-_FAULT_KINDS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
-                          LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
-                          LinkEventKind.TELEMETRY_STALE})
+#: Status events that are faults: logged as errors, and diagnostics published at once.
+_FAULTS = (BoardSilent, PortLost, BoardRestarted, WatchdogLapsed, TelemetryStale,
+           WireCrcMismatch)
 
 
 def _tf_message_type() -> Any:

@@ -12,15 +12,24 @@ from fpgalink import (
     BoardLost,
     Connection,
     LinkClosed,
-    LinkEventKind,
     LocalProtocolError,
     ParameterError,
     ParameterRefused,
     RequestTimeout,
     ValueMismatch,
 )
-from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
-from fpgalink.events import RequestAskedAgain, SetWithdrawn, WithdrawnSetLanded
+from fpgalink.aio.link import Link, LinkState, open_link
+from fpgalink.events import (
+    BoardFound,
+    BoardSilent,
+    Closed,
+    PortLost,
+    PortRestored,
+    RequestAskedAgain,
+    SetWithdrawn,
+    StatusEvent,
+    WithdrawnSetLanded,
+)
 from fpgalink.protocol import Disable, Enable, ParamAck, ParamGet, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
@@ -169,13 +178,13 @@ async def test_board_lost_and_found() -> None:
     async with link:
         events = link.watch()
         transport.feed(board.alive())
-        assert (await asyncio.wait_for(events.__anext__(), 2)).kind is LinkEventKind.BOARD_FOUND
+        assert type(await asyncio.wait_for(events.__anext__(), 2)) is BoardFound
         lost = await asyncio.wait_for(events.__anext__(), 2)  # nothing more arrives
-        assert lost.kind is LinkEventKind.BOARD_LOST
+        assert type(lost) is BoardSilent
         assert not link.board_alive and link.stats.heartbeat_misses == 1
         transport.feed(board.alive())
         found = await asyncio.wait_for(events.__anext__(), 2)
-        assert found.kind is LinkEventKind.BOARD_FOUND
+        assert type(found) is BoardFound
 
 
 async def test_port_lost_fails_pending_then_reconnects_counting_once() -> None:
@@ -203,10 +212,11 @@ async def test_port_lost_fails_pending_then_reconnects_counting_once() -> None:
             await link.set_param("TsTimerPeriod", 3)
         board.drop_first_ps = 0
         await wait_until(lambda: link.state is LinkState.CONNECTED, what="the reconnect")
-        kinds: list[LinkEventKind] = []
-        while LinkEventKind.PORT_RESTORED not in kinds:
-            kinds.append((await asyncio.wait_for(events.__anext__(), 2)).kind)
-        assert kinds.index(LinkEventKind.PORT_LOST) < kinds.index(LinkEventKind.PORT_RESTORED)
+        kinds: list[type[StatusEvent]] = []
+        while PortRestored not in kinds:
+            event: StatusEvent = await asyncio.wait_for(events.__anext__(), 2)
+            kinds.append(type(event))
+        assert kinds.index(PortLost) < kinds.index(PortRestored)
         # Nothing enabled the board again on the new port: the link was disabled when the
         # port went (the board's watchdog lapsed meanwhile); the caller enables again.
         assert not link.enabled and b"SREP" not in transports[1].written
@@ -237,7 +247,7 @@ async def test_a_late_callback_from_a_replaced_transport_is_ignored() -> None:
         assert link.state is LinkState.CONNECTED and link.stats.telemetry_received == 0
 
 
-async def watch_all(link: Link) -> list[LinkEvent]:
+async def watch_all(link: Link) -> list[StatusEvent]:
     return [event async for event in link.watch()]
 
 
@@ -248,7 +258,7 @@ async def test_watch_ends_when_the_port_is_lost_without_reconnect() -> None:
         await asyncio.sleep(0)
         transport.lose(OSError("gone"))
         events = await asyncio.wait_for(watcher, 2)
-        assert [e.kind for e in events] == [LinkEventKind.PORT_LOST, LinkEventKind.CLOSED]
+        assert [type(e) for e in events] == [PortLost, Closed]
         assert link.state is LinkState.CLOSED
         # A watcher started after the end ends at once.
         assert await asyncio.wait_for(watch_all(link), 1) == []
@@ -261,7 +271,7 @@ async def test_watch_ends_when_the_link_closes() -> None:
     await asyncio.sleep(0)
     await link.close()
     events = await asyncio.wait_for(watcher, 2)
-    assert [e.kind for e in events] == [LinkEventKind.CLOSED]
+    assert [type(e) for e in events] == [Closed]
 
 
 async def test_close_fails_pending_requests_and_sends_rd_when_enabled() -> None:
