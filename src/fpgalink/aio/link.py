@@ -2,9 +2,12 @@
 
 Shaped like aioquic's protocol: a :class:`Link` is handed its connection and a transport.
 It feeds received bytes to the connection, writes what the connection produces, arms one
-loop timer at ``Connection.get_timer()``, and turns events into futures (one per pending
-request), telemetry subscriptions and link events. Every protocol decision and every count
-lives in the connection; the link only moves bytes and wakes waiters.
+loop timer at ``Connection.get_timer()``, and hands the connection's events on: request
+outcomes to their futures (one per request; a cancelled one withdraws its request), the
+rest to its subscribers (:mod:`.fanout`: telemetry, listeners, the status events). Every
+protocol decision, every retry and every count lives in the connection; the link only
+moves bytes, timers and futures. Read batching (:mod:`.batching`) and the link's clock
+(:mod:`.clock`) are its helpers.
 """
 
 from __future__ import annotations
