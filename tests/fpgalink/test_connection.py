@@ -33,6 +33,7 @@ from fpgalink.events import (
     CounterGap,
     EventsDropped,
     PortRestored,
+    RequestAskedAgain,
     RequestDone,
     RequestFailed,
     SetWithdrawn,
@@ -536,3 +537,25 @@ def test_a_withdrawn_set_is_read_back_and_a_newer_set_decides() -> None:
     assert host.held[(8, 1)][2] == 500.0 and host.pending_requests == 0
     host.cancel_request(10_000, now=0.1)  # no such request: nothing happens
     assert host.data_to_send() == b"" and drain(host) == []
+
+
+def test_each_round_of_a_request_is_judged_by_its_own_answers() -> None:
+    # Another value answered in a first round (a late answer to an older question, say),
+    # then nothing: the last round ends unanswered, "no answer" (RequestTimeout: the caller
+    # asks again), not "another value" from a round before, as when each round was a request
+    # of its own. (A robot quieting a board found streaming failed to start on the late 1.)
+    host = Connection(request_tries=2, unanswered_rounds=1)
+    host.start(0.0)
+    host.set_param(lookup("GetDataPeriodical"), 0, 0, now=0.0)
+    host.data_to_send()
+    answer(host, ParamAck(2, 0, 1, 1), now=0.01)  # another value: resent
+    events: list[Event] = []
+    while not any(isinstance(e, RequestFailed) for e in events):  # a new round, unanswered
+        now = host.get_timer() or 0.0
+        assert now < 1.0
+        host.receive_data(board_bytes(Alive()), now)  # the board heard all along
+        host.handle_timer(now)
+        events += drain(host)
+    assert sum(isinstance(e, RequestAskedAgain) for e in events) == 1
+    (failed,) = [e for e in events if isinstance(e, RequestFailed)]
+    assert isinstance(failed.error, RequestTimeout), failed.error

@@ -202,6 +202,7 @@ class Requests:
             request.rounds -= 1
             request.round += 1
             request.tries = 1
+            request.last_answer = None  # a round is judged by its own answers
             self._emit(RequestAskedAgain(request.request_id, request.param, request.channel,
                                          request.round))
             self._resend(request, now)
