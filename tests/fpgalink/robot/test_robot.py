@@ -711,3 +711,17 @@ async def test_sample_sets_are_stamped_by_each_boards_own_time() -> None:
         spacing = [b.stamp - a.stamp for a, b in itertools.pairwise(got)]
         assert min(spacing) > 0  # in order, at most one set per 10 ms of arrival
         assert [s.odometry_stamp for s in got] == sorted(s.odometry_stamp for s in got)
+
+
+async def test_a_stale_telemetry_limit_set_on_the_boards_is_their_connections_own() -> None:
+    # The ROS node's telemetry_timeout_periods reaches each board's connection through
+    # Boards.set_stale_periods: its settings, checked as every new value is (after the
+    # connection split the old attribute was one nothing read: the limit stayed 50).
+    async with emulated("surface=ideal") as robot:
+        robot.boards.set_stale_periods(1000)
+        assert {link.connection.settings.stale_periods
+                for link in robot.links.values()} == {1000}
+        with pytest.raises(ValueError, match="stale_periods"):
+            robot.boards.set_stale_periods(1)
+        assert {link.connection.settings.stale_periods
+                for link in robot.links.values()} == {1000}
