@@ -109,6 +109,21 @@ def test_bring_up_stands_beside_the_robot(where: str, path: Path) -> None:
                     if within(n, "fpgalink.aio", "fpgalink.robot.robot")}, where
 
 
+def status_events_named(path: Path) -> set[str]:
+    """The link's status events (:class:`fpgalink.events.StatusEvent` and its kinds) that
+    ``path`` imports by name."""
+    from fpgalink import events
+
+    kinds = {name for name in events.__all__
+             if isinstance(kind := getattr(events, name), type)
+             and issubclass(kind, events.StatusEvent)}
+    named: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module in ("fpgalink", "fpgalink.events"):
+            named.update(alias.name for alias in node.names if alias.name in kinds)
+    return named
+
+
 @pytest.mark.parametrize(("where", "path"),
                          [m for package in ("fpgalink.ros2", "fpgalink.campaign", "fpgalink.cli",
                                           "fpgalink.live")
@@ -124,7 +139,9 @@ def test_above_the_robot_link_events_are_the_robots(where: str, path: Path) -> N
     if where.endswith(one_board):
         return
     text = path.read_text(encoding="utf-8")
-    assert "LinkEvent" not in text, f"{where} reads link events: ask the robot (on_notice)"
+    read = status_events_named(path)
+    assert not read and ".watch(" not in text, \
+        f"{where} reads link events ({sorted(read)}): ask the robot (on_notice)"
     assert ".links[" not in text and ".links." not in text, \
         f"{where} reaches into the robot's links: use the robot's own methods"
 
@@ -226,3 +243,103 @@ def test_cffi_stays_in_the_emulators_c_build(where: str, path: Path) -> None:
     if where == "fpgaemu/cbuild.py":
         return
     assert "cffi" not in imports_of(path), where
+
+
+# --- the connection's parts, the link's parts, import circles, the lazy packages ----------
+
+
+@pytest.mark.parametrize(("where", "path"), [
+    m for m in modules("fpgalink.connection")
+    if not m[0].endswith(("connection/core.py", "connection/__init__.py"))])
+def test_the_connections_parts_stand_below_its_facade(where: str, path: Path) -> None:
+    # Each part has one concern and is handed what it needs: none reaches back into the
+    # Connection that holds it.
+    names = first_party(imports_of(path))
+    assert "fpgalink.connection" not in names and "fpgalink.connection.core" not in names, where
+
+
+@pytest.mark.parametrize(("where", "path"), [
+    m for m in modules("fpgalink.aio") if m[0].endswith(
+        ("aio/subscription.py", "aio/fanout.py", "aio/batching.py", "aio/clock.py",
+         "aio/backlog.py"))])
+def test_the_links_parts_stand_below_the_link(where: str, path: Path) -> None:
+    assert not {n for n in first_party(imports_of(path)) if within(n, "fpgalink.aio.link")}, where
+
+
+def runtime_imports(path: Path) -> set[str]:
+    """The modules ``path`` imports when it is imported: at its top level, not under ``if
+    TYPE_CHECKING:`` and not inside functions (those import later, when called)."""
+    found: set[str] = set()
+
+    def visit(body: list[ast.stmt]) -> None:
+        for node in body:
+            if isinstance(node, ast.Import):
+                found.update(alias.name for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+                found.add(node.module)
+                found.update(f"{node.module}.{alias.name}" for alias in node.names)
+            elif isinstance(node, ast.If) and "TYPE_CHECKING" not in ast.unparse(node.test):
+                visit(node.body)
+                visit(node.orelse)
+            elif isinstance(node, ast.Try):
+                visit(node.body)
+
+    visit(ast.parse(path.read_text(encoding="utf-8")).body)
+    return found
+
+
+def test_no_import_circle() -> None:
+    # A module's package runs its __init__ before it, so that edge is no circle; every other
+    # import at the top level of a module is.
+    graph: dict[str, set[str]] = {}
+    for package in ("fpgalink", "fpgaemu"):
+        for where, path in modules(package):
+            name = where.removesuffix(".py").removesuffix("/__init__").replace("/", ".")
+            graph[name] = set()
+            for imported in first_party(runtime_imports(path)):
+                if not name.startswith(imported + "."):
+                    graph[name].add(imported)
+    for name in graph:
+        graph[name] &= graph.keys()
+    done: set[str] = set()
+
+    def walk(name: str, trail: list[str]) -> None:
+        if name in trail:
+            raise AssertionError("import circle: " + " -> ".join([*trail, name]))
+        if name in done:
+            return
+        for imported in sorted(graph[name]):
+            walk(imported, [*trail, name])
+        done.add(name)
+
+    for name in sorted(graph):
+        walk(name, [])
+
+
+LAZY_PACKAGES = ["fpgalink", "fpgalink.protocol", "fpgalink.robot"]
+
+
+@pytest.mark.parametrize("package", LAZY_PACKAGES)
+def test_a_lazy_packages_names_agree_three_ways(package: str) -> None:
+    # Its table of homes (what it imports at run time), its imports under TYPE_CHECKING
+    # (what type checkers see) and __all__ name the same things, each from the same home.
+    tree = ast.parse((SRC / package.replace(".", "/") / "__init__.py").read_text())
+    homes: dict[str, str] = {}
+    typed: dict[str, str] = {}
+    listed: set[str] = set()
+    own: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Name):
+            target = node.targets[0].id
+            if target == "_HOMES":
+                homes = ast.literal_eval(node.value)
+            elif target == "__all__":
+                listed = set(ast.literal_eval(node.value))
+            elif not target.startswith("_") or target.startswith("__"):
+                own.add(target)
+        elif isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            for statement in node.body:
+                assert isinstance(statement, ast.ImportFrom) and statement.module
+                typed.update((alias.name, statement.module) for alias in statement.names)
+    assert homes == typed
+    assert listed == set(homes) | (own & listed) and own & listed <= {"__version__"}

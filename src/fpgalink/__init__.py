@@ -15,8 +15,9 @@ use (the asyncio layer, in particular, is not imported by the sans-I/O core).
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from fpgalink.protocol.exports import lazy_exports
 
 __version__ = "0.2.0"
 
@@ -26,6 +27,7 @@ _HOMES = {
     "LinkStats": "fpgalink.connection",
     "BoardLost": "fpgalink.errors",
     "FpgalinkError": "fpgalink.errors",
+    "LineBusy": "fpgalink.errors",
     "LinkClosed": "fpgalink.errors",
     "LocalProtocolError": "fpgalink.errors",
     "ParameterError": "fpgalink.errors",
@@ -34,20 +36,21 @@ _HOMES = {
     "RequestTimeout": "fpgalink.errors",
     "UnknownParameter": "fpgalink.errors",
     "ValueMismatch": "fpgalink.errors",
+    "WireCrcMismatchError": "fpgalink.errors",
     "Role": "fpgalink.protocol",
     "Telemetry": "fpgalink.protocol",
     "Link": "fpgalink.aio.link",
-    "LinkEvent": "fpgalink.aio.link",
-    "LinkEventKind": "fpgalink.aio.link",
+    "StatusEvent": "fpgalink.events",
     "open_link": "fpgalink.aio.link",
 }
 
 if TYPE_CHECKING:
-    from fpgalink.aio.link import Link, LinkEvent, LinkEventKind, open_link
+    from fpgalink.aio.link import Link, open_link
     from fpgalink.connection import Connection, LinkStats
     from fpgalink.errors import (
         BoardLost,
         FpgalinkError,
+        LineBusy,
         LinkClosed,
         LocalProtocolError,
         ParameterError,
@@ -56,27 +59,21 @@ if TYPE_CHECKING:
         RequestTimeout,
         UnknownParameter,
         ValueMismatch,
+        WireCrcMismatchError,
     )
+    from fpgalink.events import StatusEvent
     from fpgalink.protocol import Role, Telemetry
 
 
-def __getattr__(name: str) -> object:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'fpgalink' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value
-    return value
-
+__getattr__ = lazy_exports(__name__, _HOMES)
 
 __all__ = [
     "BoardLost",
     "Connection",
     "FpgalinkError",
+    "LineBusy",
     "Link",
     "LinkClosed",
-    "LinkEvent",
-    "LinkEventKind",
     "LinkStats",
     "LocalProtocolError",
     "ParameterError",
@@ -84,9 +81,11 @@ __all__ = [
     "PortError",
     "RequestTimeout",
     "Role",
+    "StatusEvent",
     "Telemetry",
     "UnknownParameter",
     "ValueMismatch",
+    "WireCrcMismatchError",
     "__version__",
     "open_link",
 ]

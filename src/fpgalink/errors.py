@@ -24,6 +24,7 @@ __all__ = [
     "RequestTimeout",
     "UnknownParameter",
     "ValueMismatch",
+    "WireCrcMismatchError",
     "exit_code",
 ]
 
@@ -49,13 +50,26 @@ class ParameterRefused(FpgalinkError):
 
 
 class RequestTimeout(FpgalinkError, TimeoutError):
-    """No answer at all after every allowed try."""
+    """No answer at all after every allowed try (``why``: what the link knows of it)."""
 
-    def __init__(self, what: str, tries: int, timeout_s: float) -> None:
+    def __init__(self, what: str, tries: int, timeout_s: float, why: str = "") -> None:
         self.what = what
         self.tries = tries
         self.timeout_s = timeout_s
-        super().__init__(f"{what}: no answer after {tries} tries ({timeout_s:g} s each)")
+        super().__init__(f"{what}: no answer after {tries} tries ({timeout_s:g} s each)"
+                         + (f": {why}" if why else ""))
+
+
+class WireCrcMismatchError(RequestTimeout):
+    """No answer, and the board's frames arrive in the other wire-CRC mode than this host's
+    (:class:`~fpgalink.events.WireCrcMismatch`): the board drops this host's requests (its
+    CRC on, ``board_crc``) or this host its answers (the reverse). Connect in its mode."""
+
+    def __init__(self, what: str, tries: int, timeout_s: float, board_crc: bool) -> None:
+        self.board_crc = board_crc
+        why = ("the board sends CRC-16 frames and this host has the wire CRC off" if board_crc
+               else "the board sends frames without the wire CRC and this host has it on")
+        super().__init__(what, tries, timeout_s, why)
 
 
 class ValueMismatch(FpgalinkError):

@@ -17,13 +17,22 @@ again; a board heard again after a silence or on a reconnected port is asked, an
 answer's counter says whether it restarted or is :class:`BoardBack`;
 :class:`WatchdogLapsed` (the board's 300 ms watchdog disabled it while the host meant it
 enabled); :class:`TelemetryStale` and :class:`TelemetryResumed` (telemetry configured on
-and none arriving).
+and none arriving); :class:`WireCrcMismatch` (its frames in the other wire-CRC mode).
+
+**Status events** (:class:`StatusEvent`) are what a link's watchers get
+(``Link.watch()``, ``Link.on_event()``): the board lost, found, back, restarted,
+resynced, its faults, a withdrawn set, and its port lost, restored and the link closed.
+Each has a stable :attr:`~StatusEvent.name` (``board_lost``, ``port_restored`` …: what the
+CLI prints, ROS diagnostics and recordings log), the time it happened on the connection's
+clock (``at``: the ``now`` the connection was told) and one line, :meth:`~StatusEvent.describe`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from dataclasses import dataclass, field
 from enum import Enum
+from typing import ClassVar
 
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import (
@@ -48,6 +57,7 @@ __all__ = [
     "BoardRestarted",
     "BoardResynced",
     "BoardSilent",
+    "Closed",
     "CountedMessage",
     "CounterDuplicate",
     "CounterGap",
@@ -60,13 +70,20 @@ __all__ = [
     "NoiseDropped",
     "ParamAck",
     "ParamNack",
+    "PortLost",
+    "PortRestored",
+    "RequestAskedAgain",
     "RequestDone",
     "RequestFailed",
     "RestartEvidence",
+    "SetWithdrawn",
+    "StatusEvent",
     "Telemetry",
     "TelemetryResumed",
     "TelemetryStale",
     "WatchdogLapsed",
+    "WireCrcMismatch",
+    "WithdrawnSetLanded",
 ]
 
 
@@ -91,15 +108,62 @@ class CounterLate(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class BoardSilent(Event):
-    """Nothing well-formed heard for longer than the liveness timeout: the board is lost."""
+class StatusEvent(Event):
+    """The base of what a link's watchers get: ``name`` (stable, for logs and lines), ``at``
+    (when, on the connection's clock; not compared) and :meth:`describe` (one line)."""
 
-    silent_for: float
+    name: ClassVar[str] = "status"
+    at: float = field(default=math.nan, compare=False, kw_only=True)
+
+    def describe(self) -> str:
+        return ""
 
 
 @dataclass(frozen=True, slots=True)
-class BoardFound(Event):
+class BoardSilent(StatusEvent):
+    """Nothing well-formed heard for longer than the liveness timeout: the board is lost."""
+
+    name: ClassVar[str] = "board_lost"
+    silent_for: float
+
+    def describe(self) -> str:
+        return f"silent for {self.silent_for:.3f} s"
+
+
+@dataclass(frozen=True, slots=True)
+class BoardFound(StatusEvent):
     """The board is heard for the first time, or again after it was lost."""
+
+    name: ClassVar[str] = "board_found"
+
+
+@dataclass(frozen=True, slots=True)
+class PortLost(StatusEvent):
+    """The device or socket went away (``reason``); the link reopens it if it may."""
+
+    name: ClassVar[str] = "port_lost"
+    reason: str
+
+    def describe(self) -> str:
+        return self.reason
+
+
+@dataclass(frozen=True, slots=True)
+class PortRestored(StatusEvent):
+    """A new port to the board: liveness judged anew; the board, heard, is judged too."""
+
+    name: ClassVar[str] = "port_restored"
+
+
+@dataclass(frozen=True, slots=True)
+class Closed(StatusEvent):
+    """The link closed (``reason``: why, when not asked to): the last status event."""
+
+    name: ClassVar[str] = "closed"
+    reason: str = ""
+
+    def describe(self) -> str:
+        return self.reason
 
 
 @dataclass(frozen=True, slots=True)
@@ -134,12 +198,20 @@ class RequestFailed(Event):
 
 
 @dataclass(frozen=True, slots=True)
-class BoardFault(Event):
-    """The base of the events about the board's real life: each says what happened in one
-    line (:meth:`describe`), for a log, a CLI message or ROS diagnostics."""
+class RequestAskedAgain(Event):
+    """A parameter request went unanswered through a round of tries while the board was
+    heard: it is asked again at once (its ``round``, from 2), so an answer that comes later
+    than the tries (a loaded machine, a slow line) confirms it."""
 
-    def describe(self) -> str:
-        raise NotImplementedError
+    request_id: int
+    param: Param
+    channel: int
+    round: int
+
+
+@dataclass(frozen=True, slots=True)
+class BoardFault(StatusEvent):
+    """The base of the status events about the board's real life."""
 
 
 class RestartEvidence(Enum):
@@ -159,6 +231,8 @@ class BoardRestarted(BoardFault):
     ``RD``): enable again when ready. It applies the configuration it holds again;
     :class:`BoardResynced` follows."""
 
+    name: ClassVar[str] = "board_restarted"
+
     evidence: RestartEvidence
     detail: str
 
@@ -171,6 +245,8 @@ class BoardBack(BoardFault):
     """The board, heard again after a silence or on a reconnected port, did not restart:
     its message counter went on from where it was (its configuration is as it was)."""
 
+    name: ClassVar[str] = "board_back"
+
     detail: str
 
     def describe(self) -> str:
@@ -182,6 +258,8 @@ class BoardResynced(BoardFault):
     """After a restart, every parameter this host had set on the board (confirmed) was
     set again: ``applied`` of them confirmed; ``failed`` names the others with the reason.
     Until this event the board runs its power-up configuration."""
+
+    name: ClassVar[str] = "board_resynced"
 
     applied: int
     failed: tuple[tuple[str, FpgalinkError], ...] = ()
@@ -205,6 +283,8 @@ class WatchdogLapsed(BoardFault):
     since its last ``RE``, e.g. a stalled process), or the board's telemetry showed it
     disabled after it had shown it enabled (``host_silent_for`` is ``None``)."""
 
+    name: ClassVar[str] = "watchdog_lapsed"
+
     host_silent_for: float | None
     detail: str
 
@@ -221,6 +301,8 @@ class TelemetryStale(BoardFault):
     for ``silent_for`` seconds: more than the connection's limit of periods of
     ``period`` seconds."""
 
+    name: ClassVar[str] = "telemetry_stale"
+
     silent_for: float
     period: float
 
@@ -230,11 +312,76 @@ class TelemetryStale(BoardFault):
 
 
 @dataclass(frozen=True, slots=True)
+class WireCrcMismatch(BoardFault):
+    """The board's frames arrive in the other wire-CRC mode than this host's
+    (docs/protocol.md §7): carrying the CRC while this host's is off (``board_crc``), or
+    without it while this host's is on. They are dropped, never messages, and counted
+    (:attr:`~fpgalink.connection.LinkStats.crc_mode_mismatches`); a request then unanswered
+    fails with :class:`~fpgalink.errors.WireCrcMismatchError`. Connect in the board's mode
+    (``open_link(…, wire_crc=True)``, ``fpgalink-cli --wire-crc``). Said once, until this
+    host's mode is settled again (the board's answer about ``WireCrc``, its restart)."""
+
+    name: ClassVar[str] = "wire_crc_mismatch"
+
+    board_crc: bool
+
+    def describe(self) -> str:
+        if self.board_crc:
+            return ("the board sends CRC-16 frames and this host has the wire CRC off: they "
+                    "are dropped; connect with the CRC on")
+        return ("the board sends frames without the wire CRC and this host has it on: they "
+                "are dropped; connect with the CRC off")
+
+
+@dataclass(frozen=True, slots=True)
 class TelemetryResumed(BoardFault):
     """Telemetry came again after :class:`TelemetryStale`, ``gap`` seconds after the last
     sample before it."""
+
+    name: ClassVar[str] = "telemetry_resumed"
 
     gap: float
 
     def describe(self) -> str:
         return f"telemetry resumed ({self.gap * 1000:.0f} ms after the last sample)"
+
+
+@dataclass(frozen=True, slots=True)
+class SetWithdrawn(StatusEvent):
+    """The caller gave up on a set (cancelled it) after it went out: it is never sent again,
+    but the board may have taken it. The parameter is read back:
+    :class:`WithdrawnSetLanded` follows when the board holds another value than the one last
+    confirmed."""
+
+    name: ClassVar[str] = "set_withdrawn"
+
+    request_id: int
+    param: Param
+    channel: int
+    value: int | float
+
+    def describe(self) -> str:
+        return (f"set {self.param.full_name(self.channel)} = {self.value} withdrawn after it "
+                f"went out: it may still land; reading it back")
+
+
+@dataclass(frozen=True, slots=True)
+class WithdrawnSetLanded(StatusEvent):
+    """A parameter read back after a withdrawn set holds ``found``, not the value last
+    confirmed to the caller: ``restored`` is that value, set again (``None``: none was
+    confirmed on this link, so nothing is set back)."""
+
+    name: ClassVar[str] = "withdrawn_set_landed"
+
+    param: Param
+    channel: int
+    found: int | float
+    restored: int | float | None
+
+    def describe(self) -> str:
+        name = self.param.full_name(self.channel)
+        if self.restored is None:
+            return (f"{name} reads {self.found} after a withdrawn set; no value was "
+                    f"confirmed on this link to set back")
+        return (f"{name} reads {self.found} after a withdrawn set: set back to "
+                f"{self.restored}, the value last confirmed")

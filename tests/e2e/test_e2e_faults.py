@@ -12,13 +12,14 @@ from typing import Any
 import pytest
 
 from fpgalink import BoardLost, Connection, Telemetry
-from fpgalink.aio import (
-    Link,
-    LinkEvent,
-    LinkEventKind,
-    LinkState,
-    Subscription,
-    open_link,
+from fpgalink.aio import Link, LinkState, Subscription, open_link
+from fpgalink.events import (
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    PortLost,
+    PortRestored,
+    StatusEvent,
 )
 from fpgalink.protocol import Disable, Enable, ParamGet, ParamNack, ParamSet, ParamType
 from tests.support.served import (
@@ -155,8 +156,9 @@ async def test_refusals_name_the_reason() -> None:
 
 
 async def _unplug_with_a_request_pending(
-    link: Link, server: Serve, loop: asyncio.AbstractEventLoop, kinds: set[LinkEventKind]
-) -> tuple[AsyncIterator[LinkEvent], Subscription[Telemetry]]:
+    link: Link, server: Serve, loop: asyncio.AbstractEventLoop,
+    kinds: tuple[type[StatusEvent], ...]
+) -> tuple[AsyncIterator[StatusEvent], Subscription[Telemetry]]:
     """Stream enabled with a PS pending (the board never answers it), kill the serve
     process, and check the link reports one of ``kinds`` and fails the request (the request
     fails by the port's loss or the board's silence, not by its own, longer timeout).
@@ -186,7 +188,7 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
         async with open_link(url, request_timeout=2.0, request_tries=5,
                              reconnect_backoff=(0.05, 0.2)) as link:
             events, samples = await _unplug_with_a_request_pending(
-                link, server, loop, {LinkEventKind.PORT_LOST, LinkEventKind.BOARD_LOST})
+                link, server, loop, (PortLost, BoardSilent))
             assert link.state is LinkState.RECONNECTING
             with pytest.raises(BoardLost, match="disconnected"):
                 await link.get_param("TsTimerPeriod")
@@ -194,14 +196,14 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
 
             restarted = await start_serve("--tcp", f"127.0.0.1:{port}", *STREAMING)
             assert restarted.url == url
-            await next_event(events, {LinkEventKind.PORT_RESTORED}, 5.0)
+            await next_event(events, (PortRestored,), 5.0)
             assert link.state is LinkState.CONNECTED  # type: ignore[comparison-overlap]
             samples.close()
             # The new server is a new board: the link reports it restarted (on the
             # reconnected port), and did not enable it by itself.
-            restart = await next_event(events, {LinkEventKind.BOARD_RESTARTED}, PATIENCE)
+            restart = await next_event(events, (BoardRestarted,), PATIENCE)
             assert "reconnected port" in restart.detail
-            await next_event(events, {LinkEventKind.BOARD_RESYNCED}, PATIENCE)
+            await next_event(events, (BoardResynced,), PATIENCE)
             assert not link.enabled
             # The probe that asked the board heard again is answered before this read, so
             # no answer takes a counter inside the stretch whose counters are checked.
@@ -250,7 +252,7 @@ async def _pty_vanishing(loop: asyncio.AbstractEventLoop, link_path: Path) -> No
                              reconnect_backoff=(0.02, 0.05)) as link:
             link_path.unlink()
             _events, _samples = await _unplug_with_a_request_pending(
-                link, server, loop, {LinkEventKind.PORT_LOST})
+                link, server, loop, (PortLost,))
             # Several reconnect attempts (backoff 20 → 50 ms) fail on the missing device;
             # the link keeps trying and stays usable.
             observe_until = loop.time() + 0.4

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from fpgalink.aio.link import LinkEvent
+from fpgalink.events import StatusEvent
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot
 from fpgalink.robot.supervision import State, StopReason
@@ -67,7 +67,7 @@ async def test_killing_one_boards_server_stops_the_other_board_at_once(tmp_path:
     async with serve("--pty", "--link", str(board_l)) as left, serve("--pty") as right:
         robot = Robot.open(seed_robot(), {"L": str(board_l), "R": right.url})
         async with robot:
-            noticed: list[LinkEvent] = []
+            noticed: list[StatusEvent] = []
             robot.links["L"].on_event(noticed.append)
             events = robot.events()
             robot.enable()

@@ -32,8 +32,12 @@ from fpgalink.events import (
     CounterDuplicate,
     CounterGap,
     EventsDropped,
+    PortRestored,
+    RequestAskedAgain,
     RequestDone,
     RequestFailed,
+    SetWithdrawn,
+    WithdrawnSetLanded,
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
@@ -471,8 +475,8 @@ def test_port_lost_then_reconnected_owns_what_a_replug_resets() -> None:
     liveness: Liveness = host.liveness
     assert host.stats.reconnects == 1 and liveness is Liveness.UNKNOWN
     host.receive_data(board_bytes(tm(0)), now=1.01)
-    assert [type(e) for e in drain(host)] == [BoardFound, BoardRestarted, BoardResynced,
-                                              Telemetry]
+    assert [type(e) for e in drain(host)] == [PortRestored, BoardFound, BoardRestarted,
+                                              BoardResynced, Telemetry]
     assert host.stats.lost == 0 and host.stats.duplicates == 0 and host.stats.restarts == 1
     # Silence on the new port is judged from the replug on: lost 0.5 s after the last
     # message, not at once for the time the port was gone.
@@ -500,3 +504,58 @@ def test_a_side_refuses_to_send_the_other_sides_messages(role: Role) -> None:
     other = ParamAck(1, 0, 1, 1) if role is Role.HOST else ParamSet(1, 0, 1, 1)
     with pytest.raises(LocalProtocolError, match="does not send"):
         Connection(role=role).send(other, 0.0)
+
+
+# --- a withdrawn request (issue 37, item 8) ----------------------------------------------------
+
+
+def test_a_withdrawn_set_is_read_back_and_a_newer_set_decides() -> None:
+    host, board = Connection(), Connection(role=Role.BOARD, baud=None)
+
+    def reply(message: Message, now: float) -> list[Event]:
+        host.receive_data(sent(message, board), now)
+        return drain(host)
+
+    kp = lookup("Kp_Wheel_Pid")
+    host.set_param(kp, 1, 300.0, now=0.0)
+    host.data_to_send()
+    reply(ParamAck(8, 1, 2, 300.0), 0.001)
+    withdrawn = host.set_param(kp, 1, 400.0, now=0.01)
+    host.data_to_send()
+    host.cancel_request(withdrawn, now=0.02)
+    assert drain(host) == [SetWithdrawn(withdrawn, kp, 1, 400.0)]
+    asked = host.data_to_send()
+    assert b"PG" in asked and b"PS" not in asked  # read back, never sent again
+    host.handle_timer(0.065)  # when its second try would have gone: none does, ever
+    assert b"PS" not in host.data_to_send()
+    # A newer set decides what the board holds: the read-back showing the withdrawn value
+    # sets nothing back.
+    host.set_param(kp, 1, 500.0, now=0.07)
+    host.data_to_send()
+    events = reply(ParamAck(8, 1, 2, 400.0), 0.08) + reply(ParamAck(8, 1, 2, 500.0), 0.09)
+    assert not [e for e in events if isinstance(e, WithdrawnSetLanded)]
+    assert host.held[(8, 1)][2] == 500.0 and host.pending_requests == 0
+    host.cancel_request(10_000, now=0.1)  # no such request: nothing happens
+    assert host.data_to_send() == b"" and drain(host) == []
+
+
+def test_each_round_of_a_request_is_judged_by_its_own_answers() -> None:
+    # Another value answered in a first round (a late answer to an older question, say),
+    # then nothing: the last round ends unanswered, "no answer" (RequestTimeout: the caller
+    # asks again), not "another value" from a round before, as when each round was a request
+    # of its own. (A robot quieting a board found streaming failed to start on the late 1.)
+    host = Connection(request_tries=2, unanswered_rounds=1)
+    host.start(0.0)
+    host.set_param(lookup("GetDataPeriodical"), 0, 0, now=0.0)
+    host.data_to_send()
+    answer(host, ParamAck(2, 0, 1, 1), now=0.01)  # another value: resent
+    events: list[Event] = []
+    while not any(isinstance(e, RequestFailed) for e in events):  # a new round, unanswered
+        now = host.get_timer() or 0.0
+        assert now < 1.0
+        host.receive_data(board_bytes(Alive()), now)  # the board heard all along
+        host.handle_timer(now)
+        events += drain(host)
+    assert sum(isinstance(e, RequestAskedAgain) for e in events) == 1
+    (failed,) = [e for e in events if isinstance(e, RequestFailed)]
+    assert isinstance(failed.error, RequestTimeout), failed.error

@@ -143,7 +143,7 @@ def sync_trial(seed: int, tries: int) -> tuple[int, int, int]:
     return confirmed, failed, wrong
 
 
-DEFAULT_TRIES = Connection().request_tries
+DEFAULT_TRIES = Connection().settings.request_tries
 
 
 @pytest.mark.parametrize("tries", [5, DEFAULT_TRIES])

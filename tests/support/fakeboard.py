@@ -33,10 +33,12 @@ Echo = Callable[[ParamSet], ParamAck]
 @dataclass
 class ScriptedBoard:
     """Answers ``PS``/``PG`` from a value table (``PA``), or refuses them all (``nack``), or
-    loses the first few ``PS`` (``drop_first_ps``), or answers every ``PS`` through ``echo``
-    (a wrong value, another type code …), or says nothing at all (``mute``)."""
+    loses the first few ``PS`` (``drop_first_ps``), or applies the next few and loses their
+    ``PA`` (``drop_first_pa``), or answers every ``PS`` through ``echo`` (a wrong value,
+    another type code …), or says nothing at all (``mute``)."""
 
     drop_first_ps: int = 0
+    drop_first_pa: int = 0
     nack: int | None = None
     mute: bool = False
     echo: Echo | None = None
@@ -80,6 +82,9 @@ class ScriptedBoard:
                 self.conn.send(self.echo(event), now)
                 return
             self.values[(event.param_id, event.channel)] = event.value
+            if self.drop_first_pa > 0:
+                self.drop_first_pa -= 1
+                return
             self.conn.send(
                 ParamAck(event.param_id, event.channel, event.value_type, event.value), now
             )

@@ -14,10 +14,11 @@ import signal
 import sys
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from fpgalink import PortError, Telemetry
-from fpgalink.aio import Link, LinkEvent, LinkEventKind, open_link
+from fpgalink.aio import Link, open_link
+from fpgalink.events import StatusEvent
 from fpgalink.protocol import Event, ParamAck, ParamNack
 from fpgalink.protocol.params import Param, ParamType, Scope
 from tests.support.waiting import wait_until
@@ -38,6 +39,7 @@ __all__ = [
     "wait_until",
 ]
 
+E = TypeVar("E", bound=StatusEvent)
 COUNTER_MODULUS = 100_000
 T_US_MODULUS = 1 << 32
 #: Starting a Python interpreter and the emulator takes well under a second; a loaded CI
@@ -133,20 +135,20 @@ async def serve(*args: str, boards: int = 1, **popen: Any) -> AsyncIterator[Serv
 
 
 async def next_event(
-    events: AsyncIterator[LinkEvent], kinds: set[LinkEventKind], timeout: float
-) -> LinkEvent:
-    """The next link event of one of ``kinds`` (others are skipped), within ``timeout``."""
+    events: AsyncIterator[StatusEvent], kinds: tuple[type[E], ...], timeout: float
+) -> E:
+    """The next status event of one of ``kinds`` (others are skipped), within ``timeout``."""
 
-    async def find() -> LinkEvent:
+    async def find() -> E:
         async for event in events:
-            if event.kind in kinds:
+            if isinstance(event, kinds):
                 return event
         raise AssertionError("the event stream ended")
 
     try:
         return await asyncio.wait_for(find(), timeout)
     except TimeoutError:
-        names = sorted(k.value for k in kinds)
+        names = sorted(k.name for k in kinds)
         raise AssertionError(f"no {names} event within {timeout} s") from None
 
 

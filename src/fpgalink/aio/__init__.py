@@ -3,8 +3,6 @@ scheme (``emu://`` comes from the emulator package)."""
 
 from fpgalink.aio.link import (
     Link,
-    LinkEvent,
-    LinkEventKind,
     LinkState,
     Subscription,
     SyncResult,
@@ -14,8 +12,6 @@ from fpgalink.aio.transport import open_transport, register_scheme
 
 __all__ = [
     "Link",
-    "LinkEvent",
-    "LinkEventKind",
     "LinkState",
     "Subscription",
     "SyncResult",

@@ -2,58 +2,39 @@
 
 Shaped like aioquic's protocol: a :class:`Link` is handed its connection and a transport.
 It feeds received bytes to the connection, writes what the connection produces, arms one
-loop timer at ``Connection.get_timer()``, and turns events into futures (one per pending
-request), telemetry subscriptions and link events. Every protocol decision and every count
-lives in the connection; the link only moves bytes and wakes waiters.
+loop timer at ``Connection.get_timer()``, and hands the connection's events on: request
+outcomes to their futures (one per request; a cancelled one withdraws its request), the
+rest to its subscribers (:mod:`.fanout`: telemetry, listeners, the status events). Every
+protocol decision, every retry and every count lives in the connection; the link only
+moves bytes, timers and futures. Read batching (:mod:`.batching`), the link's clock
+(:mod:`.clock`) and the bound on what waits unwritten in its transport (:mod:`.backlog`:
+a request refused with :class:`~fpgalink.errors.LineBusy` while the line is backed up)
+are its helpers.
 """
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
-import os
-from collections import deque
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
 from types import TracebackType
-from typing import Any, Generic, NamedTuple, TypeVar
+from typing import Any, Unpack
 
-from fpgalink.aio.transport import (
-    FAR_END_LAG_EXTRA,
-    READ_CHUNK,
-    ProtocolFactory,
-    open_transport,
-)
-from fpgalink.connection import Connection, LinkStats, Liveness
-from fpgalink.errors import (
-    BoardLost,
-    FpgalinkError,
-    LineBusy,
-    LinkClosed,
-    PortError,
-    RequestTimeout,
-)
-from fpgalink.events import (
-    BoardBack,
-    BoardFault,
-    BoardFound,
-    BoardRestarted,
-    BoardResynced,
-    BoardSilent,
-    RequestDone,
-    RequestFailed,
-    TelemetryResumed,
-    TelemetryStale,
-    WatchdogLapsed,
-)
+from fpgalink.aio.backlog import MAX_LINE_BACKLOG_S, check_line
+from fpgalink.aio.batching import ReadBatcher
+from fpgalink.aio.clock import LinkClock
+from fpgalink.aio.fanout import Stamped, Subscribers
+from fpgalink.aio.subscription import Subscription
+from fpgalink.aio.transport import ProtocolFactory, open_transport
+from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
+from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
+from fpgalink.events import RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
-    DEFAULT_FRAMING,
     CountedMessage,
     DirectCommand,
     Event,
-    Framing,
     Message,
     Param,
     References,
@@ -65,8 +46,6 @@ from fpgalink.protocol.params import iter_addresses
 __all__ = [
     "MAX_LINE_BACKLOG_S",
     "Link",
-    "LinkEvent",
-    "LinkEventKind",
     "LinkState",
     "Reopen",
     "Stamped",
@@ -75,29 +54,8 @@ __all__ = [
     "open_link",
 ]
 
-T = TypeVar("T")
-
-#: A timer armed against a far end that has fallen behind comes no sooner than this: the far
-#: end runs on this loop and needs the turn to catch up.
-_MIN_REARM_S = 0.0005
-#: While the far end trails, a timer is looked at again within this, its lag measured anew.
-_LAGGING_RECHECK_S = 0.002
-
-#: A counted message or parameter request is refused (:class:`~fpgalink.errors.LineBusy`)
-#: while more than this much line time (at the connection's baud) waits in the transport
-#: unwritten: what a caller can queue toward a board stays bounded, whatever it does. ``RE``,
-#: ``RD`` and references are never refused (references are superseded instead).
-MAX_LINE_BACKLOG_S = 0.25
-
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
-
-
-class Stamped(NamedTuple):
-    """A telemetry sample and when the link received it (the loop's clock, seconds)."""
-
-    at: float
-    sample: Telemetry
 
 
 class LinkState(Enum):
@@ -105,34 +63,6 @@ class LinkState(Enum):
     CONNECTED = "connected"
     RECONNECTING = "reconnecting"  #: the port vanished; retrying with backoff
     CLOSED = "closed"
-
-
-class LinkEventKind(Enum):
-    BOARD_LOST = "board_lost"  #: no well-formed message for ``liveness_timeout``
-    BOARD_FOUND = "board_found"
-    #: the board restarted (or may have); the link stopped enabling it and sets again what
-    #: it holds (:class:`~fpgalink.events.BoardRestarted`)
-    BOARD_RESTARTED = "board_restarted"
-    #: after a restart, what the link holds is set again (detail: what failed, if anything)
-    BOARD_RESYNCED = "board_resynced"
-    #: heard again after a silence (or on a reconnected port), it did not restart
-    BOARD_BACK = "board_back"
-    #: the board's watchdog disabled it; the link stopped enabling it
-    WATCHDOG_LAPSED = "watchdog_lapsed"
-    TELEMETRY_STALE = "telemetry_stale"  #: configured on, and not arriving
-    TELEMETRY_RESUMED = "telemetry_resumed"
-    PORT_LOST = "port_lost"  #: the device or socket went away
-    PORT_RESTORED = "port_restored"
-    CLOSED = "closed"  #: the link closed: the last event a watcher gets
-
-
-@dataclass(frozen=True, slots=True)
-class LinkEvent:
-    kind: LinkEventKind
-    at: float  #: loop time
-    detail: str = ""
-    #: the connection's event behind it, where there is one (BoardRestarted, …)
-    cause: Event | None = None
 
 
 @dataclass(frozen=True, slots=True)
@@ -149,70 +79,20 @@ class SyncResult:
         return self.error is None
 
 
-class Subscription(Generic[T]):
-    """``async for item in sub`` over a bounded queue that drops its oldest item when full
-    (counting the drop) and ends when the link closes or :meth:`close` is called. The link
-    never waits for a subscriber."""
-
-    def __init__(self, maxsize: int, on_close: Callable[[Subscription[T]], None]) -> None:
-        if maxsize < 1:
-            raise ValueError("maxsize must be at least 1")
-        self._items: deque[T] = deque(maxlen=maxsize)
-        self._ready = asyncio.Event()
-        self._closed = False
-        self._on_close = on_close
-        self.dropped = 0
-
-    def _push(self, item: T) -> bool:
-        """Queue ``item``; ``True`` when the oldest had to go to make room."""
-        dropped = len(self._items) == self._items.maxlen
-        if dropped:
-            self.dropped += 1
-        self._items.append(item)
-        self._ready.set()
-        return dropped
-
-    def _end(self) -> None:
-        self._closed = True
-        self._ready.set()
-
-    def close(self) -> None:
-        self._on_close(self)
-        self._end()
-
-    def __aiter__(self) -> Subscription[T]:
-        return self
-
-    async def __anext__(self) -> T:
-        while not self._items:
-            if self._closed:
-                raise StopAsyncIteration
-            self._ready.clear()
-            await self._ready.wait()
-        return self._items.popleft()
-
-    def __len__(self) -> int:
-        return len(self._items)
-
-    async def __aenter__(self) -> Subscription[T]:
-        return self
-
-    async def __aexit__(self, *exc: object) -> None:
-        self.close()
-
-
 class _PortProtocol(asyncio.Protocol):
     """The link's end of one transport. A new one per (re)connection, so a late callback
     from a transport already replaced is recognised and ignored."""
 
-    def __init__(self, link: Link) -> None:
-        self._link = link
+    def __init__(self, on_data: Callable[[_PortProtocol, bytes], None],
+                 on_lost: Callable[[_PortProtocol, Exception | None], None]) -> None:
+        self._on_data = on_data
+        self._on_lost = on_lost
 
     def data_received(self, data: bytes) -> None:
-        self._link._on_data(self, data)
+        self._on_data(self, data)
 
     def connection_lost(self, exc: Exception | None) -> None:
-        self._link._on_port_lost(self, exc)
+        self._on_lost(self, exc)
 
 
 class Link:
@@ -239,10 +119,6 @@ class Link:
         self.url = url  #: where the board is, for messages
         self.reconnect = reconnect and reopen is not None
         self.reconnect_backoff = reconnect_backoff
-        #: a parameter request left unanswered after its tries while the board is heard
-        #: is asked again at once this many more times (a late answer then confirms the
-        #: request asked after it: a loaded machine, a slow line); 0: it fails at once
-        self.unanswered_rounds = 0
         self.state = LinkState.CONNECTING
         self._reopen = reopen
         self._transport: asyncio.BaseTransport | None = None
@@ -250,26 +126,22 @@ class Link:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at: float | None = None  #: on the link's time (:meth:`_now`)
-        self._far_end_lag: Callable[[], float] | None = None
-        self._last_now = -math.inf
+        self._clock = LinkClock()
         self._futures: dict[int, asyncio.Future[int | float]] = {}
-        self._telemetry_subs: set[Subscription[Telemetry]] = set()
-        self._stamped_subs: set[Subscription[Stamped]] = set()
-        self._event_subs: set[Subscription[LinkEvent]] = set()
-        self._listeners: list[Callable[[Event], None]] = []
-        self._event_callbacks: list[Callable[[LinkEvent], None]] = []
+        self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
-        #: gather received bytes for up to this long (see :meth:`set_read_latency`)
-        self.read_latency: float | None = None
-        self._read_pause: asyncio.TimerHandle | None = None
+        self._batches = ReadBatcher(lambda data: self._on_data(self._protocol, data),
+                                    lambda: self._transport, lambda: bool(self._futures))
         if transport is not None:
             self._attach(transport)
 
     # --- lifecycle ------------------------------------------------------------------------
 
     def _protocol_factory(self) -> _PortProtocol:
-        self._protocol = _PortProtocol(self)
+        # Looked up at each call, not bound now: what the link does with a read is its own.
+        self._protocol = _PortProtocol(lambda protocol, data: self._on_data(protocol, data),
+                                       lambda protocol, exc: self._on_port_lost(protocol, exc))
         return self._protocol
 
     def _attach(self, transport: asyncio.BaseTransport) -> None:
@@ -284,13 +156,13 @@ class Link:
 
     def _set_transport(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
-        lag = transport.get_extra_info(FAR_END_LAG_EXTRA)
-        self._far_end_lag = lag if callable(lag) else None
-        self.connection.boards_time = self._far_end_lag is not None
+        self._clock.follow(transport)
+        self.connection.boards_time = self._clock.far_end_time
 
     async def open(self) -> Link:
         """Connect (unless a transport was given) and start expecting the board."""
         self._loop = asyncio.get_running_loop()
+        self._clock.start(self._loop)
         if self._transport is None:
             await self._connect()
         self.state = LinkState.CONNECTED
@@ -306,6 +178,7 @@ class Link:
             return
         if self._loop is None:
             self._loop = asyncio.get_running_loop()
+            self._clock.start(self._loop)
         connected = self.state is LinkState.CONNECTED
         self.state = LinkState.CLOSED
         self.connection.close(self._now())
@@ -318,11 +191,8 @@ class Link:
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
-        if self._read_pause is not None:
-            self._read_pause.cancel()
-            self._read_pause = None
+        self._batches.cancel()
         self._process()
-        self._emit(LinkEventKind.CLOSED)
         self._end_waiters()
         transport, self._transport = self._transport, None
         if transport is not None:
@@ -343,15 +213,7 @@ class Link:
             if not future.done():
                 future.set_exception(LinkClosed(f"{self.name}: link closed"))
         self._futures.clear()
-        for telemetry_sub in self._telemetry_subs:
-            telemetry_sub._end()
-        for stamped_sub in self._stamped_subs:
-            stamped_sub._end()
-        for event_sub in self._event_subs:
-            event_sub._end()
-        self._telemetry_subs.clear()
-        self._stamped_subs.clear()
-        self._event_subs.clear()
+        self._subscribers.end()
 
     async def __aenter__(self) -> Link:
         return await self.open()
@@ -402,9 +264,10 @@ class Link:
         waits for line room). A counted message other than ``RV`` raises
         :class:`~fpgalink.errors.LineBusy` while the line is backed up (see
         :data:`MAX_LINE_BACKLOG_S`)."""
-        self._ensure_connected()
-        if not isinstance(message, DirectCommand | References):
-            self._check_line(type(message).__name__)
+        if isinstance(message, DirectCommand | References):
+            self._ensure_connected()
+        else:
+            self._ensure_room(type(message).__name__)
         self.connection.send(message, self._now())
         wire = self.connection.data_to_send()
         self._write(wire)
@@ -422,28 +285,13 @@ class Link:
         :class:`~fpgalink.errors.RequestTimeout` when every try went unanswered."""
         param, code = resolve(name, channel)
         coerced = param.coerce(value)
-        self._ensure_connected()
-        self._check_line(f"setting {param.full_name(code)}")
-        return await self._patiently(
-            lambda: self.connection.set_param(param, code, coerced, self._now()))
+        self._ensure_room(f"setting {param.full_name(code)}")
+        return await self._request(self.connection.set_param(param, code, coerced, self._now()))
 
     async def get_param(self, name: str | int, channel: int | str | None = None) -> int | float:
         param, code = resolve(name, channel)
-        self._ensure_connected()
-        self._check_line(f"reading {param.full_name(code)}")
-        return await self._patiently(lambda: self.connection.get_param(param, code, self._now()))
-
-    async def _patiently(self, ask: Callable[[], int]) -> int | float:
-        rounds = self.unanswered_rounds
-        while True:
-            try:
-                return await self._request(ask())
-            except RequestTimeout:
-                if rounds <= 0 or not self.board_alive:
-                    raise
-                rounds -= 1
-                # Closed or lost meanwhile: say so, never ask a link that cannot answer.
-                self._ensure_connected()
+        self._ensure_room(f"reading {param.full_name(code)}")
+        return await self._request(self.connection.get_param(param, code, self._now()))
 
     async def read_params(self, *, hold: bool = False) -> dict[tuple[int, int], int | float]:
         """Every parameter address's value, ``{(param id, channel): value}``, in table order;
@@ -464,20 +312,11 @@ class Link:
         report each: keys are ``"Kp_Wheel_PidA"`` style names, or give
         ``(name, channel, value)`` triples. Host-side validation happens for all of them
         before the first byte is sent."""
-        items: list[tuple[Param, int, int | float]] = []
-        entries = (
-            [(k, None, v) for k, v in values.items()] if isinstance(values, Mapping)
-            else list(values)
-        )
-        for name, channel, value in entries:
-            param, code = resolve(name, channel)
-            items.append((param, code, param.coerce(value)))
         results: list[SyncResult] = []
-        for param, code, coerced in items:
+        for param, code, coerced in _checked(values):
             label = param.full_name(code)
             try:
-                self._ensure_connected()
-                self._check_line(f"setting {label}")
+                self._ensure_room(f"setting {label}")
                 confirmed = await self._request(
                     self.connection.set_param(param, code, coerced, self._now())
                 )
@@ -487,13 +326,20 @@ class Link:
         return results
 
     async def _request(self, request_id: int) -> int | float:
+        """One future per request. Cancelled (the caller gave up: ``wait_for`` ran out, a
+        task was cancelled), the request is withdrawn from the connection."""
         assert self._loop is not None
         future: asyncio.Future[int | float] = self._loop.create_future()
         self._futures[request_id] = future
-        self._resume_reading()  # its answer must not wait for a batch
+        self._batches.resume()  # its answer must not wait for a batch
         self._flush()
         try:
             return await future
+        except asyncio.CancelledError:
+            if self.state is LinkState.CONNECTED:
+                self.connection.cancel_request(request_id, self._now())
+                self._flush()
+            raise
         finally:
             self._futures.pop(request_id, None)
 
@@ -502,57 +348,32 @@ class Link:
     def telemetry(self, maxsize: int = 1024) -> Subscription[Telemetry]:
         """A new independent subscriber. When its queue is full the oldest sample is dropped
         and counted (``sub.dropped``, ``link.stats.subscriber_drops``); the link never waits."""
-        sub: Subscription[Telemetry] = Subscription(maxsize, self._telemetry_subs.discard)
-        if self.state is LinkState.CLOSED:
-            sub._end()
-        else:
-            self._telemetry_subs.add(sub)
-        return sub
+        return self._subscribers.telemetry(maxsize)
 
     def stamped_telemetry(self, maxsize: int = 1024) -> Subscription[Stamped]:
         """As :meth:`telemetry`, each sample with the loop time the link received it — the
         host's side of the clock, beside the board's ``t_us``."""
-        sub: Subscription[Stamped] = Subscription(maxsize, self._stamped_subs.discard)
-        if self.state is LinkState.CLOSED:
-            sub._end()
-        else:
-            self._stamped_subs.add(sub)
-        return sub
+        return self._subscribers.stamped(maxsize)
 
-    def watch(self, maxsize: int = 256) -> AsyncIterator[LinkEvent]:
-        """Link events (board lost/found, port lost/restored) as an async iterator; it ends
-        after the ``CLOSED`` event when the link closes, for whatever reason."""
-        sub: Subscription[LinkEvent] = Subscription(maxsize, self._event_subs.discard)
-        if self.state is LinkState.CLOSED:
-            sub._end()
-        else:
-            self._event_subs.add(sub)
-        return sub
+    def watch(self, maxsize: int = 256) -> AsyncIterator[StatusEvent]:
+        """The status events (:class:`~fpgalink.events.StatusEvent`: the board lost, found,
+        back, restarted, its faults, the port lost and restored …) as an async iterator; it
+        ends after :class:`~fpgalink.events.Closed` when the link closes, for whatever
+        reason."""
+        return self._subscribers.watch(maxsize)
 
-    def on_event(self, callback: Callable[[LinkEvent], None]) -> Callable[[], None]:
-        """Call ``callback(event)`` for every link event, synchronously, as it happens: for
+    def on_event(self, callback: Callable[[StatusEvent], None]) -> Callable[[], None]:
+        """Call ``callback(event)`` for every status event, synchronously, as it happens: for
         reactions that must not wait for a task to be scheduled (a robot stopping its other
         boards when one goes silent). Keep it quick and do not raise. Returns a remover."""
-        self._event_callbacks.append(callback)
-
-        def remove() -> None:
-            if callback in self._event_callbacks:
-                self._event_callbacks.remove(callback)
-
-        return remove
+        return self._subscribers.on_event(callback)
 
     def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]:
         """Call ``listener(event)`` with everything the connection reports, in order: every
         received message (catalogued, generic, direct commands), ``Malformed``, framing
         errors, counter gaps, request outcomes… Returns a function that removes it.
         Listeners run inside the receive path: keep them quick and do not raise."""
-        self._listeners.append(listener)
-
-        def remove() -> None:
-            if listener in self._listeners:
-                self._listeners.remove(listener)
-
-        return remove
+        return self._subscribers.add_listener(listener)
 
     @property
     def latest(self) -> Telemetry | None:
@@ -589,17 +410,8 @@ class Link:
     # --- plumbing -------------------------------------------------------------------------
 
     def _now(self) -> float:
-        """The link's time: the loop's clock, less how far an in-process far end trails it
-        (:data:`~fpgalink.aio.transport.FAR_END_LAG_EXTRA`); never going back."""
-        assert self._loop is not None
-        now = self._loop.time()
-        lag = self._far_end_lag
-        if lag is not None:
-            now -= lag()
-        if now < self._last_now:
-            return self._last_now
-        self._last_now = now
-        return now
+        """The link's time (:class:`~fpgalink.aio.clock.LinkClock`)."""
+        return self._clock.now()
 
     def _ensure_open(self) -> None:
         if self.state is LinkState.CLOSED:
@@ -612,97 +424,37 @@ class Link:
         if self.state is not LinkState.CONNECTED or self._transport is None:
             raise BoardLost(f"{self.name}: port is disconnected ({self.state.value})")
 
-    def _check_line(self, what: str) -> None:
-        """:class:`LineBusy` (counted in ``stats.line_busy``) while more than
-        :data:`MAX_LINE_BACKLOG_S` of line time waits in the transport."""
-        transport = self._transport
-        baud = self.connection.baud
-        if not baud or not isinstance(transport, asyncio.WriteTransport):
-            return
-        try:
-            waiting_s = transport.get_write_buffer_size() * 10 / baud
-        except NotImplementedError:  # a transport that does not say: nothing to bound
-            return
-        if waiting_s > MAX_LINE_BACKLOG_S:
-            self.connection.stats.line_busy += 1
-            raise LineBusy(f"{self.name}: {what} not sent: {waiting_s * 1000:.0f} ms of line "
-                           f"time already waits to be written (at most "
-                           f"{MAX_LINE_BACKLOG_S * 1000:.0f} ms)")
+    def _ensure_room(self, what: str) -> None:
+        """Connected, and the line not backed up (else :class:`~fpgalink.errors.LineBusy`:
+        :mod:`~fpgalink.aio.backlog`)."""
+        self._ensure_connected()
+        check_line(self._transport, self.connection.baud, self.connection.stats,
+                   f"{self.name}: {what}")
 
     def _write(self, data: bytes) -> None:
         if data and self._transport is not None and self.state is not LinkState.RECONNECTING:
             self._transport.write(data)  # type: ignore[attr-defined]
 
-    def _on_data(self, protocol: _PortProtocol, data: bytes) -> None:
+    def _on_data(self, protocol: _PortProtocol | None, data: bytes) -> None:
         if protocol is not self._protocol or self.state is not LinkState.CONNECTED:
             return
         self.connection.receive_data(data, self._now())
         self._process()
         self._flush()
-        if self.read_latency and not self._futures and self._read_pause is None:
-            self._pause_reading()
+        self._batches.read()
 
     # --- read batching --------------------------------------------------------------------
 
     def set_read_latency(self, seconds: float | None) -> None:
         """Let the link gather received bytes for up to ``seconds`` before handling them
-        (``None`` or 0: handle every read at once, the default). For a consumer that needs
-        samples at 100 Hz or less: at 1 kHz telemetry a 10 ms bound turns a thousand
-        wake-ups a second into about a hundred, losing nothing. A pending parameter request
-        is never held back: reading resumes at once while one is in flight."""
-        if seconds is not None and not (math.isfinite(seconds) and 0 <= seconds <= 1.0):
-            raise ValueError(f"read latency must be 0..1 s, got {seconds!r}")
-        self.read_latency = seconds or None
-        if self.read_latency is None:
-            self._resume_reading()
+        (``None`` or 0: handle every read at once, the default;
+        :mod:`~fpgalink.aio.batching`). A pending parameter request is never held back:
+        reading resumes at once while one is in flight."""
+        self._batches.set_latency(seconds)
 
-    def _pause_reading(self) -> None:
-        """Enter a batch: the loop stops watching the port; a timer collects what arrived
-        when the bound is up (one wake-up and one read per batch)."""
-        transport = self._transport
-        pause = getattr(transport, "pause_reading", None)
-        if pause is None or self._loop is None or self.read_latency is None:
-            return
-        try:
-            pause()
-        except (RuntimeError, AttributeError):  # closing, or not a reading transport
-            return
-        self._read_pause = self._loop.call_later(self.read_latency, self._collect_batch)
-
-    def _collect_batch(self) -> None:
-        self._read_pause = None
-        data = _read_waiting(self._transport)
-        if data is None:  # nothing to read it with, or the port has an error: let the
-            self._resume_transport()  # transport read and report as usual
-            return
-        if data and self._protocol is not None:
-            self._on_data(self._protocol, data)  # may start the next batch
-        elif self.read_latency and not self._futures and self._loop is not None:
-            self._read_pause = self._loop.call_later(self.read_latency, self._collect_batch)
-            return
-        if self._read_pause is None:
-            self._resume_transport()
-
-    def _resume_reading(self) -> None:
-        handle, self._read_pause = self._read_pause, None
-        if handle is None:
-            return
-        handle.cancel()
-        # Bytes that arrived during the batch go first, in order, before the transport
-        # reads again.
-        data = _read_waiting(self._transport)
-        if data and self._protocol is not None:
-            self._on_data(self._protocol, data)
-            handle, self._read_pause = self._read_pause, None
-            if handle is not None:
-                handle.cancel()
-        self._resume_transport()
-
-    def _resume_transport(self) -> None:
-        resume = getattr(self._transport, "resume_reading", None)
-        if resume is not None:
-            with contextlib.suppress(RuntimeError, AttributeError):
-                resume()
+    @property
+    def read_latency(self) -> float | None:
+        return self._batches.latency
 
     def _flush(self) -> None:
         self._write(self.connection.data_to_send())
@@ -723,19 +475,7 @@ class Link:
         if self._timer is not None:
             self._timer.cancel()
         self._timer_at = deadline
-        # The deadline is on the link's time; the loop's clock is ahead of it by the far
-        # end's lag. When the lag grows meanwhile the timer comes early, finds nothing due
-        # and is armed again.
-        at = deadline
-        if self._far_end_lag is not None:
-            now = self._loop.time()
-            lag = now - self._now()
-            at = max(deadline + lag, now + _MIN_REARM_S)
-            if lag > _MIN_REARM_S:
-                # The lag shrinks as the far end catches up (the deadline then comes sooner
-                # on the loop's clock than it looked): look again soon rather than late.
-                at = min(at, now + _LAGGING_RECHECK_S)
-        self._timer = self._loop.call_at(at, self._on_timer)
+        self._timer = self._loop.call_at(self._clock.loop_time(deadline), self._on_timer)
 
     def _on_timer(self) -> None:
         self._timer = None
@@ -744,44 +484,25 @@ class Link:
         self._process()
         self._flush()
 
-    def _emit(self, kind: LinkEventKind, detail: str = "", cause: Event | None = None) -> None:
-        event = LinkEvent(kind, self._now(), detail, cause)
-        for callback in list(self._event_callbacks):
-            callback(event)
-        for sub in self._event_subs:
-            sub._push(event)
-
     def _process(self) -> None:
-        stats = self.connection.stats
-        listeners = self._listeners
-        stamped = self._stamped_subs
-        now = self._now() if stamped else 0.0
+        """Hand out what the connection reported: every event to the listeners, telemetry
+        to its subscriptions, status events to the watchers, request outcomes to their
+        futures."""
+        subscribers, futures = self._subscribers, self._futures
+        now = self._now() if subscribers.stamping else 0.0
         for event in self.connection.events():
-            for listener in listeners:
-                listener(event)
+            subscribers.deliver(event, now)
             kind = type(event)
-            if kind is Telemetry:
-                assert isinstance(event, Telemetry)
-                for sub in self._telemetry_subs:
-                    if sub._push(event):
-                        stats.subscriber_drops += 1
-                for stamped_sub in stamped:
-                    if stamped_sub._push(Stamped(now, event)):
-                        stats.subscriber_drops += 1
-            elif kind is RequestDone or kind is RequestFailed:
-                future = self._futures.get(event.request_id)  # type: ignore[attr-defined]
+            if kind is RequestDone or kind is RequestFailed:
+                future = futures.get(event.request_id)  # type: ignore[attr-defined]
                 if future is not None and not future.done():
                     if isinstance(event, RequestDone):
                         future.set_result(event.value)
                     else:
                         assert isinstance(event, RequestFailed)
                         future.set_exception(event.error)
-            elif isinstance(event, BoardSilent):
-                self._emit(LinkEventKind.BOARD_LOST, f"silent for {event.silent_for:.3f} s")
-            elif kind is BoardFound:
-                self._emit(LinkEventKind.BOARD_FOUND)
-            elif isinstance(event, BoardFault):
-                self._emit(_REPORTED[kind], event.describe(), event)
+            elif isinstance(event, StatusEvent):
+                subscribers.status(event)
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -794,18 +515,18 @@ class Link:
         self._protocol = None
         cause = str(exc or "closed by the other end")
         reason = f"{self.name}: port lost ({cause})"
-        self.connection.port_lost(self._now(), reason)
-        self._process()
-        self._emit(LinkEventKind.PORT_LOST, cause)
+        self.connection.port_lost(self._now(), reason, cause)
         if self.reconnect:
             self.state = LinkState.RECONNECTING
+            self._process()
             self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())
         else:
             self.state = LinkState.CLOSED
             if self._timer is not None:
                 self._timer.cancel()
                 self._timer = None
-            self._emit(LinkEventKind.CLOSED, reason)
+            self.connection.close(self._now(), reason)
+            self._process()
             self._end_waiters()
 
     async def _reconnect_loop(self) -> None:
@@ -819,45 +540,22 @@ class Link:
                 continue
             self.state = LinkState.CONNECTED
             self.connection.reconnected(self._now())
+            self._process()
             self._flush()
-            self._emit(LinkEventKind.PORT_RESTORED)
             return
 
 
-#: The connection's events about the board's real life, and the link events they become.
-_REPORTED: dict[type[Event], LinkEventKind] = {
-    BoardRestarted: LinkEventKind.BOARD_RESTARTED,
-    BoardResynced: LinkEventKind.BOARD_RESYNCED,
-    BoardBack: LinkEventKind.BOARD_BACK,
-    WatchdogLapsed: LinkEventKind.WATCHDOG_LAPSED,
-    TelemetryStale: LinkEventKind.TELEMETRY_STALE,
-    TelemetryResumed: LinkEventKind.TELEMETRY_RESUMED,
-}
-
-
-def _read_waiting(transport: asyncio.BaseTransport | None) -> bytes | None:
-    """What a paused transport's port holds now, without blocking: a serial port's device
-    or a socket, read directly; ``None`` when there is no such thing to read or reading it
-    failed (the transport, resumed, then sees and reports the problem itself)."""
-    if transport is None:
-        return None
-    port = transport.get_extra_info("serial")
-    if port is not None:
-        try:
-            data: bytes = port.read(READ_CHUNK)
-        except Exception:  # pyserial raises its own kinds: the port is in trouble
-            return None
-        return data
-    sock = transport.get_extra_info("socket")
-    if sock is not None:
-        try:
-            data = os.read(sock.fileno(), READ_CHUNK)  # asyncio's sockets are non-blocking
-        except BlockingIOError:
-            return b""
-        except (OSError, ValueError):
-            return None
-        return data if data else None  # b"": the peer closed
-    return None
+def _checked(values: Mapping[str, object] | Iterable[tuple[str, str | None, object]]
+             ) -> list[tuple[Param, int, int | float]]:
+    """``values`` (as :meth:`Link.sync_params` takes them) resolved and coerced: every one
+    checked before the first byte is sent."""
+    entries = ([(k, None, v) for k, v in values.items()] if isinstance(values, Mapping)
+               else list(values))
+    checked: list[tuple[Param, int, int | float]] = []
+    for name, channel, value in entries:
+        param, code = resolve(name, channel)
+        checked.append((param, code, param.coerce(value)))
+    return checked
 
 
 def open_link(
@@ -865,33 +563,18 @@ def open_link(
     baud: int = 1_000_000,
     *,
     name: str | None = None,
-    framing: Framing = DEFAULT_FRAMING,
-    heartbeat_interval: float = 0.1,
-    liveness_timeout: float = 0.7,
-    request_timeout: float = 0.05,
-    request_tries: int = 8,
-    max_reference_delay: float = 0.005,
     reconnect: bool = True,
     reconnect_backoff: tuple[float, float] = (0.05, 2.0),
     read_latency: float | None = None,
-    heartbeat_give_up: float = 0.28,
-    stale_periods: int = 50,
-    unanswered_rounds: int = 0,
+    **options: Unpack[LinkOptions],
 ) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
     ``socket://host:port``, or ``emu://`` for an emulated board in this process (any scheme
-    a package registers). The connection settings go to :class:`~fpgalink.Connection`;
-    ``reconnect`` reopens the URL with backoff when the port vanishes; ``read_latency``
-    lets the link batch reads (:meth:`Link.set_read_latency`); ``heartbeat_give_up`` and
-    ``stale_periods``: when a late heartbeat is not sent, and how many timer periods
-    without telemetry are a fault (:class:`~fpgalink.Connection`); ``unanswered_rounds``:
-    :attr:`Link.unanswered_rounds`."""
-    connection = Connection(
-        framing=framing, baud=baud, heartbeat_interval=heartbeat_interval,
-        liveness_timeout=liveness_timeout, request_timeout=request_timeout,
-        request_tries=request_tries, max_reference_delay=max_reference_delay,
-        heartbeat_give_up=heartbeat_give_up, stale_periods=stale_periods,
-    )
+    a package registers). ``options`` are the connection's settings
+    (:class:`~fpgalink.connection.Settings`: ``request_tries``, ``liveness_timeout``,
+    ``unanswered_rounds`` …); ``reconnect`` reopens the URL with backoff when the port
+    vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`)."""
+    connection = Connection(baud=baud, **options)
 
     async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
         return await open_transport(url, baud, factory)
@@ -899,5 +582,4 @@ def open_link(
     link = Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
                 reconnect_backoff=reconnect_backoff)
     link.set_read_latency(read_latency)
-    link.unanswered_rounds = unanswered_rounds
     return link

@@ -24,11 +24,20 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
+from fpgalink.aio.link import Link
 from fpgalink.bringup.design import Gains
 from fpgalink.bringup.excitation import OPEN_LOOP_GAINS, Excitation
 from fpgalink.bringup.plant import Array
 from fpgalink.errors import FpgalinkError
+from fpgalink.events import (
+    BoardRestarted,
+    BoardSilent,
+    Closed,
+    PortLost,
+    StatusEvent,
+    TelemetryStale,
+    WatchdogLapsed,
+)
 from fpgalink.protocol import ChannelTelemetry, Telemetry
 
 __all__ = [
@@ -42,10 +51,8 @@ __all__ = [
     "step_channel",
 ]
 
-#: Link events that end an experiment.
-FAULTS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.BOARD_RESTARTED,
-                    LinkEventKind.WATCHDOG_LAPSED, LinkEventKind.TELEMETRY_STALE,
-                    LinkEventKind.PORT_LOST, LinkEventKind.CLOSED})
+#: Status events that end an experiment.
+FAULTS = (BoardSilent, BoardRestarted, WatchdogLapsed, TelemetryStale, PortLost, Closed)
 #: How long the board may take to show itself enabled after RE.
 ENABLE_TIMEOUT_S = 1.0
 _WRAP = 1 << 32
@@ -125,16 +132,17 @@ class _Watch:
     """Faults while an experiment runs, and the stop the caller may ask for."""
 
     def __init__(self, link: Link, stop: asyncio.Event | None) -> None:
-        self.faults: list[LinkEvent] = []
+        self.faults: list[StatusEvent] = []
         self.stop = stop
         self._remove = link.on_event(
-            lambda event: self.faults.append(event) if event.kind in FAULTS else None)
+            lambda event: self.faults.append(event) if isinstance(event, FAULTS) else None)
 
     def check(self) -> None:
         if self.faults:
             fault = self.faults[0]
-            raise ExperimentError(f"stopped: {fault.kind.value.replace('_', ' ')}"
-                                  + (f" ({fault.detail})" if fault.detail else ""))
+            detail = fault.describe()
+            raise ExperimentError(f"stopped: {fault.name.replace('_', ' ')}"
+                                  + (f" ({detail})" if detail else ""))
 
     @property
     def stopped(self) -> bool:

@@ -33,6 +33,7 @@ def settings_rows(settings: Settings) -> list[tuple[str, str, str]]:
         ("baud", f"{settings.baud}", src["baud"]),
         ("timeout", f"{settings.timeout:g} s", src["timeout"]),
         ("retries", f"{settings.retries}", src["retries"]),
+        ("wire crc", "on" if settings.wire_crc else "off", src["wire_crc"]),
         ("robot", str(settings.robot) if settings.robot else "-", src["robot"]),
     ]
 
@@ -47,6 +48,7 @@ def settings_values(settings: Settings) -> dict[str, dict[str, Any]]:
         "baud": {"value": settings.baud, "source": src["baud"]},
         "timeout_s": {"value": settings.timeout, "source": src["timeout"]},
         "retries": {"value": settings.retries, "source": src["retries"]},
+        "wire_crc": {"value": settings.wire_crc, "source": src["wire_crc"]},
         "robot": {"value": str(settings.robot) if settings.robot else None,
                   "source": src["robot"]},
     }

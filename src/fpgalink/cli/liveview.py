@@ -89,7 +89,7 @@ def add_live_boards(view: LiveView | None, links: dict[str, Link]) -> None:
     for name, link in links.items():
         def on_event(callback: Callable[[str, str], None], link: Link = link
                      ) -> Callable[[], None]:
-            return link.on_event(lambda event: callback(event.kind.value, event.detail))
+            return link.on_event(lambda event: callback(event.name, event.describe()))
 
         def stats(link: Link = link) -> LinkStats:
             return link.stats

@@ -1,7 +1,7 @@
 """The connection options every board command takes — ``--port``, ``--board``, ``--baud``,
-``--timeout``, ``--retries``, ``-v``, ``--config`` — accepted before the command (the usual
-place: ``fpgalink-cli --port /dev/ttyUSB0 param get …``) and after it, and the links they
-open. Values resolve as :mod:`fpgalink.cli.settings` describes."""
+``--timeout``, ``--retries``, ``--wire-crc``, ``-v``, ``--config`` — accepted before the
+command (the usual place: ``fpgalink-cli --port /dev/ttyUSB0 param get …``) and after it,
+and the links they open. Values resolve as :mod:`fpgalink.cli.settings` describes."""
 
 from __future__ import annotations
 
@@ -41,7 +41,8 @@ __all__ = [
 
 T = TypeVar("T")
 
-CONNECTION_OPTION_NAMES = ("ports", "board", "baud", "timeout", "retries", "verbose", "config")
+CONNECTION_OPTION_NAMES = ("ports", "board", "baud", "timeout", "retries", "wire_crc", "verbose",
+                           "config")
 
 
 def _board_names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
@@ -92,6 +93,9 @@ def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., A
                      help="Per-try request timeout, s  [default: 0.05]"),
         click.option("--retries", type=click.IntRange(1, 1000),
                      help="Tries per request, resends included  [default: 8]"),
+        click.option("--wire-crc/--no-wire-crc", default=None,
+                     help="Connect with the wire CRC on, for a board left with WireCrc = 1 "
+                          "(env FPGALINK_WIRE_CRC=1)  [default: off]"),
         click.option("-v", "--verbose", count=True,
                      help="Each message a board sends, as it arrives, with its bytes, on "
                           "stderr; -vv telemetry too."),
@@ -127,6 +131,10 @@ class ConnectionOptions:
     @property
     def retries(self) -> int:
         return self.settings.retries
+
+    @property
+    def wire_crc(self) -> bool:
+        return self.settings.wire_crc
 
     @property
     def verbose(self) -> int:
@@ -172,7 +180,7 @@ class ConnectionOptions:
         link = open_link(
             endpoint.url, self.baud, name=endpoint.name, request_timeout=self.timeout,
             request_tries=self.retries, liveness_timeout=liveness_timeout,
-            reconnect=reconnect,
+            reconnect=reconnect, wire_crc=self.wire_crc,
         )
         log_wire(endpoint.name, link, self.verbose)
         return link

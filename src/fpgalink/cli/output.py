@@ -37,6 +37,7 @@ __all__ = [
     "number",
     "quiet_stdout",
     "table_console",
+    "wire_crc_advice",
     "write_out",
 ]
 
@@ -83,8 +84,9 @@ class CliError(click.ClickException):
 
 def classify(exc: FpgalinkError, where: str = "") -> CliError:
     """Library error → the CLI's message and exit code (:func:`fpgalink.errors.exit_code`;
-    a recording's errors name their file)."""
-    from fpgalink.errors import ParameterRefused, exit_code
+    a recording's errors name their file); a request unanswered while the board's frames came
+    in the other wire-CRC mode says how to connect."""
+    from fpgalink.errors import ParameterRefused, WireCrcMismatchError, exit_code
     from fpgalink.protocol import NackReason
     from fpgalink.recording import OutputBusy, OutputRefused, RecordingError
 
@@ -96,6 +98,9 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
                         else ExitCode.FAILURE)
     code = exit_code(exc)
     prefix = f"{where}: " if where else ""
+    if isinstance(exc, WireCrcMismatchError):
+        return CliError(f"{prefix}{wire_crc_advice(exc.board_crc)} ({exc.what}: no answer)",
+                        code)
     if code is ExitCode.NO_ANSWER:
         return CliError(f"{prefix}board not answering: {exc}", code)
     if code in (ExitCode.REFUSED, ExitCode.FAILURE):
@@ -104,6 +109,15 @@ def classify(exc: FpgalinkError, where: str = "") -> CliError:
                 else "")
         return CliError(f"{prefix}{exc}{hint}", code)
     return CliError(str(exc), code)
+
+
+def wire_crc_advice(board_crc: bool) -> str:
+    """What to do about a board whose frames come in the other wire-CRC mode."""
+    if board_crc:
+        return ("the board sends CRC-16 frames; connect with the CRC on (--wire-crc, or "
+                "FPGALINK_WIRE_CRC=1), or switch the board's off (param set WireCrc 0)")
+    return ("the board sends frames without the wire CRC; connect with the CRC off (leave "
+            "out --wire-crc)")
 
 
 def format_value(value: int | float, kind: ParamType | None = None) -> str:

@@ -14,11 +14,20 @@ from collections.abc import Awaitable, Callable, Coroutine
 from dataclasses import dataclass, field
 from typing import Any, TypeVar
 
-from fpgalink.aio.link import Link, LinkEventKind, LinkState
+from fpgalink.aio.link import Link, LinkState
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
-from fpgalink.cli.output import CliError, ExitCode, classify, note
+from fpgalink.cli.output import CliError, ExitCode, classify, note, wire_crc_advice
 from fpgalink.errors import FpgalinkError
+from fpgalink.events import (
+    BoardFound,
+    BoardRestarted,
+    BoardSilent,
+    PortLost,
+    PortRestored,
+    TelemetryStale,
+    WatchdogLapsed,
+)
 from fpgalink.protocol import (
     ChannelTelemetry,
     CountedMessage,
@@ -200,18 +209,18 @@ class BoardSession:
         each event to ``report(kind, detail, epoch time)``."""
         async for event in self.link.watch():
             at = time.time()
-            if event.kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST):
+            if isinstance(event, BoardSilent | PortLost):
                 if self.lost_at is None:
                     self.lost_at = at
                     self.episodes.append((at, None))
-            elif (event.kind in (LinkEventKind.BOARD_FOUND, LinkEventKind.PORT_RESTORED)
+            elif (isinstance(event, BoardFound | PortRestored)
                   and self.lost_at is not None and self.link.board_alive):
                 self.episodes[-1] = (self.lost_at, at)
                 self.lost_at = None
-            elif event.kind in FAULT_KINDS:
-                self.faults.append((at, event.detail))
+            elif isinstance(event, FAULTS):
+                self.faults.append((at, event.describe()))
             if report is not None:
-                report(event.kind.value, event.detail, at)
+                report(event.name, event.describe(), at)
 
     def update_rate(self, now: float) -> None:
         received = self.link.stats.telemetry_received
@@ -244,17 +253,26 @@ async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOption
     return sessions
 
 
-#: The link events that are a board's faults (its restarts, watchdog lapses, telemetry
+#: The status events that are a board's faults (its restarts, watchdog lapses, telemetry
 #: stopping): said on stderr, never passed over.
-FAULT_KINDS = frozenset({LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
-                         LinkEventKind.TELEMETRY_STALE})
+FAULTS = (BoardRestarted, WatchdogLapsed, TelemetryStale)
 
 
 def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
     """A board lost and back during the command, or one that restarted, disabled itself or
     whose telemetry stopped, is told on stderr; a board not answering at the end ends the
-    command with "board not answering" (exit 4), saying since when."""
+    command with "board not answering" (exit 4), saying since when. A board whose frames
+    came in the other wire-CRC mode is told how to connect, and ends the command (exit 4)
+    when nothing usable came from it."""
+    unusable: list[str] = []
     for session in sessions:
+        link = session.link
+        if link.stats.crc_mode_mismatches:
+            advice = wire_crc_advice(board_crc=not link.connection.wire_crc.on)
+            if link.stats.telemetry_received == 0:
+                unusable.append(f"board {session.endpoint.name}: {advice}")
+            else:
+                note(f"board {session.endpoint.name}: {advice}")
         for at, what in session.faults:
             note(f"board {session.endpoint.name} {what} at {_clock(at)} "
                  f"({at - started:.1f} s into the run)")
@@ -263,6 +281,8 @@ def check_boards_answered(sessions: list[BoardSession], started: float) -> None:
                 note(f"board {session.endpoint.name} was not answering from "
                      f"{_clock(lost)} to {_clock(back)} ({back - lost:.1f} s; "
                      f"{lost - started:.1f} s into the run)")
+    if unusable:
+        raise CliError("; ".join(unusable), ExitCode.NO_ANSWER)
     gone = [s for s in sessions if s.lost_at is not None]
     if gone:
         first = gone[0]

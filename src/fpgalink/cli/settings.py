@@ -81,6 +81,7 @@ class Settings:
     baud: int
     timeout: float
     retries: int
+    wire_crc: bool
     verbose: int
     board: str | None
     robot: Path | None
@@ -150,6 +151,11 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
         sources[name] = DEFAULT
         return default
 
+    def env_switch(text: str, where: str) -> bool:
+        if text not in ("0", "1"):
+            raise CliError(f"{where}: {text!r} is not 0 or 1", ExitCode.BAD_INPUT)
+        return text == "1"
+
     def env_int(text: str, where: str) -> int:
         try:
             return int(text)
@@ -178,6 +184,7 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
     timeout = _seconds(pick("timeout", None, None, 0.05), "timeout", sources["timeout"],
                        1e-4, 60.0)
     retries = _whole(pick("retries", None, None, 8), "retries", sources["retries"], 1, 1000)
+    wire_crc = pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False)
     board = pick("board", "FPGALINK_BOARD", lambda text, _where: text, None)
     robot = pick("robot", None, None, None)
     for name, value in (("board", board), ("robot", robot)):
@@ -193,4 +200,5 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
             robot_path = path.parent / robot_path
         robot = robot_path
     verbose = max(int(given.get("verbose") or 0), int(before.get("verbose") or 0))
-    return Settings(ports, baud, timeout, retries, verbose, board, robot, path, sources)
+    return Settings(ports, baud, timeout, retries, bool(wire_crc), verbose, board, robot, path,
+                    sources)

@@ -13,7 +13,6 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from fpgalink.aio.link import LinkEvent
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.figures import check_plot_path, new_figure, save_figure
 from fpgalink.cli.files import force_option
@@ -31,7 +30,8 @@ from fpgalink.cli.output import (
     note,
     number,
 )
-from fpgalink.cli.session import FAULT_KINDS, Streaming, install_stop_signals, run, wait_or_stop
+from fpgalink.cli.session import FAULTS, Streaming, install_stop_signals, run, wait_or_stop
+from fpgalink.events import StatusEvent
 from fpgalink.protocol import FLOAT32_MAX, ChannelTelemetry, Telemetry, float32
 from fpgalink.robot.response import SETTLING_BAND, StepMetrics, step_metrics
 
@@ -304,8 +304,8 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
         collector = asyncio.ensure_future(collect())
         # A fault mid-step (the board restarted, its watchdog disabled it, its telemetry
         # stopped) ends the step: its figures would describe something else.
-        faults: list[LinkEvent] = []
-        remove = link.on_event(lambda e: faults.append(e) if e.kind in FAULT_KINDS else None)
+        faults: list[StatusEvent] = []
+        remove = link.on_event(lambda e: faults.append(e) if isinstance(e, FAULTS) else None)
         try:
             with _StepProgress(pre + hold, samples, stop) as progress:
                 link.enable()
@@ -324,8 +324,8 @@ async def _step(conn: ConnectionOptions, channel: str, start: float, target: flo
     fired = getattr(stop, "signal", None)
     if faults and fired is None:
         fault = faults[0]
-        raise CliError(f"the step was stopped: board {fault.kind.value.replace('_', ' ')} "
-                       f"({fault.detail}); no figures", ExitCode.STOPPED)
+        raise CliError(f"the step was stopped: board {fault.name.replace('_', ' ')} "
+                       f"({fault.describe()}); no figures", ExitCode.STOPPED)
     return StepOutcome(split_response(samples, channel, target, step_time), setup,
                        None if fired is None else int(fired))
 

@@ -19,8 +19,9 @@ wire arithmetic, say) does not import the rest.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from fpgalink.protocol.exports import lazy_exports
 
 #: public name → the submodule that defines it
 _HOMES = {
@@ -154,13 +155,7 @@ if TYPE_CHECKING:
     )
 
 
-def __getattr__(name: str) -> object:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'fpgalink.protocol' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value
-    return value
+__getattr__ = lazy_exports(__name__, _HOMES)
 
 __all__ = [
     "COUNTER_MODULUS",

@@ -29,9 +29,9 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from fpgalink.protocol.catalogue import ParamGet, ParamSet
+from fpgalink.protocol.catalogue import ParamGet, ParamSet, parse_content
 from fpgalink.protocol.framing import FramingError
-from fpgalink.protocol.messages import DIRECT_BY_CONTENT
+from fpgalink.protocol.messages import DIRECT_BY_CONTENT, DirectCommand, Malformed
 from fpgalink.protocol.params import lookup
 
 __all__ = [
@@ -44,8 +44,10 @@ __all__ = [
     "CrcSpec",
     "HostWireCrc",
     "append_crc",
+    "carries_crc",
     "crc16",
     "handshake_request",
+    "plain_counted",
     "strip_crc",
 ]
 
@@ -128,6 +130,19 @@ def strip_crc(content: bytes) -> bytes | None:
     if binascii.crc_hqx(body, 0xFFFF) != _U16.unpack_from(content, len(body))[0]:
         return None
     return body
+
+
+def plain_counted(content: bytes) -> bool:
+    """Whether ``content`` is a counted message as it is (no CRC after it)."""
+    return not isinstance(parse_content(content), Malformed | DirectCommand)
+
+
+def carries_crc(content: bytes) -> bool:
+    """Whether ``content`` is a counted message with a good CRC after it, which is no
+    message without the CRC stripped: what a side whose CRC is off receives from one whose
+    CRC is on."""
+    body = strip_crc(content)
+    return body is not None and plain_counted(body) and not plain_counted(content)
 
 
 # The handshake's plain contents: "PS" or "PG", five digits, "{" LEN, then the parameter id

@@ -15,7 +15,9 @@ class ExitCode(IntEnum):
     FAILURE = 1  #: anything not covered below (stdout unwritable, a full disk while recording)
     BAD_INPUT = 2  #: usage, a bad value, file, name or URL; nothing was sent
     REFUSED = 3  #: the board answered PN (or confirmed another value than the one sent)
-    NO_ANSWER = 4  #: the board did not answer after the configured tries, or went silent
+    #: the board did not answer after the configured tries, or went silent; or nothing
+    #: usable came from it (its frames in the other wire-CRC mode)
+    NO_ANSWER = 4
     #: a port is missing, busy or failed (or could not be served); or a file or directory
     #: to write is being written by another process now
     PORT = 5
@@ -37,7 +39,8 @@ _SHORT = {
     ExitCode.BAD_INPUT: "bad input (usage, a value out of range or of the wrong type, a bad "
                         "file, name or URL; nothing sent)",
     ExitCode.REFUSED: "board refused (PN) or confirmed another value",
-    ExitCode.NO_ANSWER: "board not answering",
+    ExitCode.NO_ANSWER: "board not answering (or nothing usable came: its frames in the "
+                        "other wire-CRC mode)",
     ExitCode.PORT: "port missing, busy or failed (or a file another process is writing "
                    "now)",
     ExitCode.TIMEOUT: "goal not reached in time",

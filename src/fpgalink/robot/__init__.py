@@ -18,8 +18,9 @@ in. Names load on first use.
 
 from __future__ import annotations
 
-import importlib
 from typing import TYPE_CHECKING
+
+from fpgalink.protocol.exports import lazy_exports
 
 _HOMES = {
     "DescriptionError": "fpgalink.protocol.robot",
@@ -75,14 +76,7 @@ if TYPE_CHECKING:
     from fpgalink.robot.supervision import NotReady, StopReason, SupervisionEvent, Supervisor
 
 
-def __getattr__(name: str) -> object:
-    home = _HOMES.get(name)
-    if home is None:
-        raise AttributeError(f"module 'fpgalink.robot' has no attribute {name!r}")
-    value = getattr(importlib.import_module(home), name)
-    globals()[name] = value
-    return value
-
+__getattr__ = lazy_exports(__name__, _HOMES)
 
 __all__ = [
     "AxisLimits",

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any
 
@@ -134,7 +135,8 @@ class Boards:
     def set_stale_periods(self, periods: int) -> None:
         """A board's telemetry missing for this many of its timer periods is a fault."""
         for link in self.links.values():
-            link.connection.stale_periods = periods
+            link.connection.settings = dataclasses.replace(link.connection.settings,
+                                                           stale_periods=periods)
 
     def status(self, name: str, now: float, latest: Telemetry | None, fault: str | None
                ) -> Status:

@@ -1,34 +1,21 @@
 """What the robot hands its readers as they come (supervision events, stamped sample sets):
-the link's bounded :class:`~fpgalink.aio.link.Subscription` (``async for``, its oldest item
-dropped and counted when full, ended when the robot closes or the reader closes it), with
-the writer's side public: the robot is another object than the link."""
+the bounded :class:`~fpgalink.aio.subscription.Subscription` (``async for``, its oldest item
+dropped and counted when full, ended when the robot closes or the reader closes it), whose
+producer's side (``put``/``finish``) is public: the robot is another object than the link."""
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import TypeVar
 
-from fpgalink.aio.link import Subscription
+from fpgalink.aio.subscription import Subscription
 from fpgalink.robot.stamping import SampleStamper, StampedSet
 
-__all__ = ["Feed", "SetFeed"]
-
-T = TypeVar("T")
+__all__ = ["SetFeed"]
 
 
-class Feed(Subscription[T]):
-    def put(self, item: T) -> None:
-        """Queue ``item`` (the writer's side)."""
-        self._push(item)
-
-    def end(self) -> None:
-        """No more items (the writer's side): the reader's loop ends once it has read
-        what is queued."""
-        self._end()
-
-
-class SetFeed(Feed[StampedSet]):
-    """A reader's stamped sample sets (:meth:`fpgalink.robot.Robot.sample_sets`)."""
+class SetFeed(Subscription[StampedSet]):
+    """A reader's stamped sample sets (:meth:`fpgalink.robot.Robot.sample_sets`), each made
+    by its own :class:`~fpgalink.robot.stamping.SampleStamper`."""
 
     def __init__(self, maxsize: int, on_close: Callable[[Subscription[StampedSet]], None],
                  stamper: SampleStamper) -> None:

@@ -14,9 +14,23 @@ import contextlib
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
+from fpgalink.aio.link import Link
 from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
-from fpgalink.events import BoardResynced, WatchdogLapsed
+from fpgalink.events import (
+    BoardBack,
+    BoardFound,
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    Closed,
+    PortLost,
+    PortRestored,
+    StatusEvent,
+    TelemetryResumed,
+    TelemetryStale,
+    WatchdogLapsed,
+    WireCrcMismatch,
+)
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot.supervision import Action, Fault, Supervisor
 
@@ -26,17 +40,17 @@ __all__ = ["BoardNotice", "BoardRecovery"]
 #: is heard: a late answer (a loaded machine) or a silence must not leave it blocked.
 READ_BACK_RETRY_S = 0.1
 
-#: Link events that are faults: a reader logs them as errors (and says so at once).
-_FAULTS = frozenset({LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST,
-                     LinkEventKind.BOARD_RESTARTED, LinkEventKind.WATCHDOG_LAPSED,
-                     LinkEventKind.TELEMETRY_STALE})
+#: Status events that are faults: a reader logs them as errors (and says so at once).
+_FAULTS = (BoardSilent, PortLost, BoardRestarted, WatchdogLapsed, TelemetryStale,
+           WireCrcMismatch)
 
 
 @dataclass(frozen=True, slots=True)
 class BoardNotice:
-    """Something a board's link noticed: ``kind`` as the link names it (``board_lost``,
-    ``board_restarted``, ``closed``…), ``fault`` when it is one (a resync that failed
-    included), ``at`` on the loop's clock."""
+    """Something a board's link noticed: ``kind`` as the link names it (the status event's
+    :attr:`~fpgalink.events.StatusEvent.name`: ``board_lost``, ``board_restarted``,
+    ``closed``…), ``detail`` its :meth:`~fpgalink.events.StatusEvent.describe`, ``fault``
+    when it is one (a resync that failed included), ``at`` on the loop's clock."""
 
     board: str
     at: float
@@ -89,51 +103,49 @@ class BoardRecovery:
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks.clear()
 
-    def on_link_event(self, name: str, link: Link, event: LinkEvent, react: bool = True
+    def on_link_event(self, name: str, link: Link, event: StatusEvent, react: bool = True
                       ) -> None:
         """Board ``name``'s link noticed ``event`` (synchronously, as it happened): the
         robot reacts (``react``: once started, until closed), then its readers hear of it."""
-        with self._guarded(f"board {name}'s {event.kind.value} event"):
+        with self._guarded(f"board {name}'s {event.name} event"):
             if react:
                 self._link_event(name, link, event)
+            detail = event.describe()
             self._notify(BoardNotice(
-                name, event.at, event.kind.value, event.detail, event.kind in _FAULTS or (
-                    event.kind is LinkEventKind.BOARD_RESYNCED and "failed" in event.detail)))
+                name, event.at, event.name, detail, isinstance(event, _FAULTS) or (
+                    isinstance(event, BoardResynced) and not event.ok)))
 
-    def _link_event(self, name: str, link: Link, event: LinkEvent) -> None:
+    def _link_event(self, name: str, link: Link, event: StatusEvent) -> None:
         # The robot reacts in the callback that noticed: its events carry that moment.
-        kind, now = event.kind, event.at
-        if kind in (LinkEventKind.BOARD_LOST, LinkEventKind.PORT_LOST, LinkEventKind.CLOSED):
-            what = kind.value.replace("_", " ")
-            detail = f"{what} ({event.detail})" if event.detail else what
+        now, detail = event.at, event.describe()
+        if isinstance(event, BoardSilent | PortLost | Closed):
+            what = event.name.replace("_", " ")
+            detail = f"{what} ({detail})" if detail else what
             self._carry_out(self.supervisor.board_alive(name, False, now, detail))
-        elif kind is LinkEventKind.BOARD_RESTARTED:
-            self._restarted(name, event.detail, now)
-        elif kind is LinkEventKind.BOARD_RESYNCED:
-            assert isinstance(event.cause, BoardResynced)
+        elif isinstance(event, BoardRestarted):
+            self._restarted(name, detail, now)
+        elif isinstance(event, BoardResynced):
             # The restart this resync answers is the one counted now: another restart may
             # be counted before the task first runs.
             task = asyncio.ensure_future(self._reconfigured(
-                name, link, event.cause, self.restarts.get(name, 0)))
+                name, link, event, self.restarts.get(name, 0)))
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
-        elif kind is LinkEventKind.WATCHDOG_LAPSED:
-            lapse = event.cause
-            assert isinstance(lapse, WatchdogLapsed)
-            why = (f"watchdog: host silent {lapse.host_silent_for * 1000:.0f} ms"
-                   if lapse.host_silent_for is not None else f"watchdog: {lapse.detail}")
+        elif isinstance(event, WatchdogLapsed):
+            why = (f"watchdog: host silent {event.host_silent_for * 1000:.0f} ms"
+                   if event.host_silent_for is not None else f"watchdog: {event.detail}")
             self._carry_out(self.supervisor.board_fault(name, Fault.WATCHDOG_LAPSED, now, why))
-        elif kind is LinkEventKind.TELEMETRY_STALE:
-            self.stale[name] = event.detail
+        elif isinstance(event, TelemetryStale):
+            self.stale[name] = detail
             self._carry_out(self.supervisor.board_fault(name, Fault.TELEMETRY_STALE, now,
-                                                        event.detail))
-        elif kind is LinkEventKind.TELEMETRY_RESUMED:
+                                                        detail))
+        elif isinstance(event, TelemetryResumed):
             if self.stale.pop(name, None) is not None:
                 self._board_recovered(name, "telemetry flowing again", now)
-        elif kind is LinkEventKind.BOARD_BACK:
+        elif isinstance(event, BoardBack):
             self.checking.discard(name)
-            self._board_recovered(name, event.detail, now)
-        elif link.board_alive:
+            self._board_recovered(name, detail, now)
+        elif isinstance(event, BoardFound | PortRestored) and link.board_alive:
             self.supervisor.board_alive(name, True, now)
             if link.connection.verifying:
                 # Heard again after a silence: whether it restarted meanwhile is being

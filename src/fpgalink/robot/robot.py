@@ -28,7 +28,7 @@ from typing import Any
 
 from fpgalink.aio.link import Link, Subscription, open_link
 from fpgalink.errors import FpgalinkError
-from fpgalink.events import Event, RequestDone
+from fpgalink.events import Event, RequestDone, StatusEvent
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot import goal, setup
@@ -36,7 +36,7 @@ from fpgalink.robot.arbiter import CommandArbiter, CommandNotice, Send, Source
 from fpgalink.robot.boards import TRUTH_EXTRA, Boards
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
-from fpgalink.robot.feed import Feed, SetFeed
+from fpgalink.robot.feed import SetFeed
 from fpgalink.robot.goto import GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, supervision_status
 from fpgalink.robot.joints import JointStates
@@ -64,7 +64,7 @@ RENEW_S = 0.1
 #: was not running (a blocked or starved process): one and a half renewal periods.
 DEADMAN_GRACE_S = 1.5 * RENEW_S
 #: A request a board that is heard leaves unanswered after its tries (8 × 50 ms) is asked
-#: again at once this many more times (Link.unanswered_rounds): on a loaded machine an
+#: again at once this many more times (Settings.unanswered_rounds): on a loaded machine an
 #: answer comes later than the tries, and a robot must not give up at start for it.
 UNANSWERED_ROUNDS = 4
 START_TIMEOUT_S = setup.START_TIMEOUT_S
@@ -114,7 +114,7 @@ class Robot:
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
         self._removers: list[Callable[[], None]] = []
-        self._feeds: set[Feed[SupervisionEvent]] = set()
+        self._feeds: set[Subscription[SupervisionEvent]] = set()
         self._set_feeds: set[SetFeed] = set()
         self._listeners: list[Callable[[Notice], None]] = []
         self._timers = LoopTimers()  #: "deadman" (the supervisor's), "commands" (arbiter's)
@@ -185,9 +185,9 @@ class Robot:
         await self.boards.restore(self._streaming_before)
         await self.boards.close()
         for feed in self._feeds:
-            feed.end()
+            feed.finish()
         for set_feed in self._set_feeds:
-            set_feed.end()
+            set_feed.finish()
         self._feeds.clear()
         self._set_feeds.clear()
 
@@ -263,9 +263,9 @@ class Robot:
     def last_stop(self) -> SupervisionEvent | None:
         return self.supervisor.last_stop
 
-    def events(self, maxsize: int = 64) -> Feed[SupervisionEvent]:
+    def events(self, maxsize: int = 64) -> Subscription[SupervisionEvent]:
         """Supervision events (enabled, stopped and why) as an async iterator."""
-        feed: Feed[SupervisionEvent] = Feed(maxsize, self._feeds.discard)
+        feed: Subscription[SupervisionEvent] = Subscription(maxsize, self._feeds.discard)
         self._feeds.add(feed)
         return feed
 
@@ -277,7 +277,7 @@ class Robot:
         return lambda: self._listeners.remove(callback) \
             if callback in self._listeners else None
 
-    def _on_link_event(self, name: str, link: Link, event: Any) -> None:
+    def _on_link_event(self, name: str, link: Link, event: StatusEvent) -> None:
         self.recovery.on_link_event(name, link, event, self._started and not self._closed)
 
     def _notify(self, notice: Notice) -> None:

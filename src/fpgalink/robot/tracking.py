@@ -18,7 +18,8 @@ __all__ = ["Tracking"]
 
 _WRAP_US, _HALF_US = 1 << 32, 1 << 31
 
-Reader = tuple[SampleStamper, Callable[[StampedSet], None], Callable[[float], int]]
+#: a reader: its stamper, its sink (what the sink returns is not looked at) and its clock
+Reader = tuple[SampleStamper, Callable[[StampedSet], object], Callable[[float], int]]
 
 
 class Tracking:
@@ -85,10 +86,10 @@ class Tracking:
             stamper.restart(name)
 
     def add_reader(self, stamper: SampleStamper, clock: Callable[[float], int],
-                   sink: Callable[[StampedSet], None]) -> None:
+                   sink: Callable[[StampedSet], object]) -> None:
         self._readers.append((stamper, sink, clock))
 
-    def remove_reader(self, sink: Callable[[StampedSet], None]) -> None:
+    def remove_reader(self, sink: Callable[[StampedSet], object]) -> None:
         self._readers[:] = [reader for reader in self._readers if reader[1] != sink]
 
     def joint_states(self, samples: Mapping[str, Telemetry] | None = None

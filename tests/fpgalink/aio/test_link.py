@@ -12,16 +12,25 @@ from fpgalink import (
     BoardLost,
     Connection,
     LinkClosed,
-    LinkEventKind,
     LocalProtocolError,
     ParameterError,
     ParameterRefused,
     RequestTimeout,
     ValueMismatch,
 )
-from fpgalink.aio.link import Link, LinkEvent, LinkState, open_link
-from fpgalink.events import RequestFailed
-from fpgalink.protocol import Disable, Enable, ParamAck, ParamSet, References
+from fpgalink.aio.link import Link, LinkState, open_link
+from fpgalink.events import (
+    BoardFound,
+    BoardSilent,
+    Closed,
+    PortLost,
+    PortRestored,
+    RequestAskedAgain,
+    SetWithdrawn,
+    StatusEvent,
+    WithdrawnSetLanded,
+)
+from fpgalink.protocol import Disable, Enable, ParamAck, ParamGet, ParamSet, References
 from fpgalink.testing import MemoryTransport
 from tests.support.fakeboard import ScriptedBoard, memory_pair
 from tests.support.interpose import LateReads, interpose
@@ -122,7 +131,7 @@ async def test_read_params_reads_every_address_in_table_order() -> None:
 
 
 async def test_heartbeat_and_disable() -> None:
-    link, board, _ = make_link(heartbeat_interval=0.02)
+    link, board, _ = make_link(heartbeat_interval=0.02, liveness_timeout=30.0)
     async with link:
         link.enable()
         await wait_until(lambda: sum(isinstance(e, Enable) for e in board.received) >= 4,
@@ -131,7 +140,8 @@ async def test_heartbeat_and_disable() -> None:
         assert isinstance(board.received[-1], Disable)
         count = sum(isinstance(e, Enable) for e in board.received)
         # No heartbeat is due any more: the link's only timer is the liveness deadline.
-        assert link.connection.get_timer() == link.connection._silence_deadline()
+        timer = link.connection.get_timer()
+        assert timer is not None and timer - asyncio.get_running_loop().time() > 1.0
         assert sum(isinstance(e, Enable) for e in board.received) == count
 
 
@@ -168,13 +178,13 @@ async def test_board_lost_and_found() -> None:
     async with link:
         events = link.watch()
         transport.feed(board.alive())
-        assert (await asyncio.wait_for(events.__anext__(), 2)).kind is LinkEventKind.BOARD_FOUND
+        assert type(await asyncio.wait_for(events.__anext__(), 2)) is BoardFound
         lost = await asyncio.wait_for(events.__anext__(), 2)  # nothing more arrives
-        assert lost.kind is LinkEventKind.BOARD_LOST
+        assert type(lost) is BoardSilent
         assert not link.board_alive and link.stats.heartbeat_misses == 1
         transport.feed(board.alive())
         found = await asyncio.wait_for(events.__anext__(), 2)
-        assert found.kind is LinkEventKind.BOARD_FOUND
+        assert type(found) is BoardFound
 
 
 async def test_port_lost_fails_pending_then_reconnects_counting_once() -> None:
@@ -202,10 +212,11 @@ async def test_port_lost_fails_pending_then_reconnects_counting_once() -> None:
             await link.set_param("TsTimerPeriod", 3)
         board.drop_first_ps = 0
         await wait_until(lambda: link.state is LinkState.CONNECTED, what="the reconnect")
-        kinds: list[LinkEventKind] = []
-        while LinkEventKind.PORT_RESTORED not in kinds:
-            kinds.append((await asyncio.wait_for(events.__anext__(), 2)).kind)
-        assert kinds.index(LinkEventKind.PORT_LOST) < kinds.index(LinkEventKind.PORT_RESTORED)
+        kinds: list[type[StatusEvent]] = []
+        while PortRestored not in kinds:
+            event: StatusEvent = await asyncio.wait_for(events.__anext__(), 2)
+            kinds.append(type(event))
+        assert kinds.index(PortLost) < kinds.index(PortRestored)
         # Nothing enabled the board again on the new port: the link was disabled when the
         # port went (the board's watchdog lapsed meanwhile); the caller enables again.
         assert not link.enabled and b"SREP" not in transports[1].written
@@ -236,7 +247,7 @@ async def test_a_late_callback_from_a_replaced_transport_is_ignored() -> None:
         assert link.state is LinkState.CONNECTED and link.stats.telemetry_received == 0
 
 
-async def watch_all(link: Link) -> list[LinkEvent]:
+async def watch_all(link: Link) -> list[StatusEvent]:
     return [event async for event in link.watch()]
 
 
@@ -247,7 +258,7 @@ async def test_watch_ends_when_the_port_is_lost_without_reconnect() -> None:
         await asyncio.sleep(0)
         transport.lose(OSError("gone"))
         events = await asyncio.wait_for(watcher, 2)
-        assert [e.kind for e in events] == [LinkEventKind.PORT_LOST, LinkEventKind.CLOSED]
+        assert [type(e) for e in events] == [PortLost, Closed]
         assert link.state is LinkState.CLOSED
         # A watcher started after the end ends at once.
         assert await asyncio.wait_for(watch_all(link), 1) == []
@@ -260,7 +271,7 @@ async def test_watch_ends_when_the_link_closes() -> None:
     await asyncio.sleep(0)
     await link.close()
     events = await asyncio.wait_for(watcher, 2)
-    assert [e.kind for e in events] == [LinkEventKind.CLOSED]
+    assert [type(e) for e in events] == [Closed]
 
 
 async def test_close_fails_pending_requests_and_sends_rd_when_enabled() -> None:
@@ -309,9 +320,9 @@ async def test_unanswered_rounds_let_a_late_answer_confirm_the_request_asked_aga
 
 
 async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> None:
-    # Its tries spent with the board heard, the request would be asked again: the link was
-    # closed meanwhile, so it fails at once (LinkClosed), never left waiting on a link that
-    # can no longer answer or time it out.
+    # Its tries spent with the board heard, the request is asked again: the link closed
+    # then, it fails at once (LinkClosed), never left waiting on a link that can no longer
+    # answer or time it out.
     async with open_link("emu://", unanswered_rounds=4, liveness_timeout=5.0) as link:
         await link.set_param("GetDataPeriodical", 1)
         await wait_until(lambda: link.board_alive, 5.0, "the board heard")
@@ -319,7 +330,7 @@ async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> Non
         closing: list[asyncio.Future[None]] = []
 
         def close_on_failure(event: object) -> None:
-            if isinstance(event, RequestFailed) and not closing:
+            if isinstance(event, RequestAskedAgain) and not closing:
                 closing.append(asyncio.ensure_future(link.close()))
 
         link.add_listener(close_on_failure)
@@ -327,3 +338,55 @@ async def test_a_request_asked_again_on_a_link_closed_meanwhile_says_so() -> Non
             await asyncio.wait_for(link.get_param("Kp_Wheel_PidA"), 10.0)
         assert link.board_alive  # what the request's retry went by
         await closing[0]
+
+
+# --- a cancelled request is withdrawn (issue 37, item 8) --------------------------------------
+
+
+async def test_a_cancelled_set_is_withdrawn_and_never_lands_later() -> None:
+    # The board loses the first PS; the caller gives up on it after 20 ms and sets another
+    # value, confirmed. The withdrawn set is never sent again: the board keeps the value it
+    # confirmed last. (It was resent at 50 ms and took over: the board read 400.)
+    link, board, _ = make_link(ScriptedBoard(drop_first_ps=1))
+    async with link:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.set_param("Kp_Wheel_PidA", 400), 0.02)
+        assert await link.set_param("Kp_Wheel_PidA", 500) == 500
+        await wait_until(lambda: link.connection.pending_requests == 0, what="the link quiet")
+        assert board.values[(8, 1)] == 500
+        assert await link.get_param("Kp_Wheel_PidA") == 500
+        assert sum(isinstance(e, ParamSet) and e.value == 400 for e in board.received) == 1
+
+
+async def test_a_cancelled_set_that_landed_is_said_and_set_back() -> None:
+    # 300 confirmed; the set of 400 lands but its PA is lost, and the caller gives up on it
+    # before the resend. The link says the withdrawn set may still land, reads the value
+    # back, finds 400, says so and sets 300 again: the board is left as last confirmed.
+    link, board, _ = make_link()
+    said: list[object] = []
+    async with link:
+        link.add_listener(lambda e: said.append(e) if isinstance(
+            e, SetWithdrawn | WithdrawnSetLanded) else None)
+        assert await link.set_param("Kp_Wheel_PidA", 300) == 300
+        board.drop_first_pa = 1
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.set_param("Kp_Wheel_PidA", 400), 0.02)
+        await wait_until(lambda: len(said) == 2 and link.connection.pending_requests == 0,
+                         what="the withdrawn set checked and undone")
+        assert board.values[(8, 1)] == 300
+        withdrawn, landed = said
+        assert isinstance(withdrawn, SetWithdrawn) and withdrawn.value == 400
+        assert isinstance(landed, WithdrawnSetLanded)
+        assert (landed.found, landed.restored) == (400, 300)
+        assert "set back to 300" in landed.describe()
+        assert link.held == {"Kp_Wheel_PidA": 300}
+
+
+async def test_a_cancelled_get_is_withdrawn() -> None:
+    # Nothing is left to ask again (it stayed pending for its 8 tries), nothing read back.
+    link, board, _ = make_link(ScriptedBoard(mute=True))
+    async with link:
+        with pytest.raises(TimeoutError):
+            await asyncio.wait_for(link.get_param("Kp_Wheel_PidA"), 0.02)
+        assert link.connection.pending_requests == 0
+        assert sum(isinstance(e, ParamGet) for e in board.received) == 1

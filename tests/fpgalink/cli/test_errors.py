@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import os
 import socket
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import serial
@@ -153,3 +154,53 @@ def test_help_documents_exit_codes() -> None:
                  "9 a recording read is damaged",
                  "130 interrupted"):
         assert code in text
+
+
+# --- the wire CRC's modes disagreeing (issue 37, item 7) ---------------------------------------
+
+CRC_ON_BOARD = "the board sends CRC-16 frames; connect with the CRC on (--wire-crc"
+PLAIN_BOARD = "the board sends frames without the wire CRC; connect with the CRC off"
+
+
+@pytest.fixture(params=["crc", "plain"])
+def streaming_board(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
+    """``fpgaemu serve --pty`` streaming telemetry, its wire CRC on or off."""
+    from tests.support.cli import serve_pty
+
+    crc = ["--set", "WireCrc=1"] if request.param == "crc" else []
+    proc, pty = serve_pty(*crc, "--set", "GetDataPeriodical=1")
+    try:
+        yield request.param, pty
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+def test_a_host_in_the_other_wire_crc_mode_says_how_to_connect_and_fails(
+        streaming_board: tuple[str, str], tmp_path: Path) -> None:
+    # Monitor and record only listening, a parameter asked: nothing usable comes (every TM
+    # dropped), so each says how to connect and exits 4. They exited 0 with nothing
+    # ("recorded 0 telemetry samples"), or said "board not answering" while the board's
+    # heartbeats arrived.
+    kind, pty = streaming_board
+    flip = ["--wire-crc"] if kind == "plain" else []
+    said = CRC_ON_BOARD if kind == "crc" else PLAIN_BOARD
+    runs = [run_cli("--port", pty, *flip, "monitor", "--passive", "--duration", "1",
+                    "--format", "csv"),
+            run_cli("--port", pty, *flip, "record", "--passive", "--duration", "1",
+                    str(tmp_path / "r.mcap")),
+            run_cli("--port", pty, *flip, "param", "get", "TsTimerPeriod")]
+    for done in runs:
+        assert done.returncode == 4, done.stdout + done.stderr
+        assert f"fpgalink-cli: error: {'board 0: ' if done is not runs[2] else ''}" in (
+            done.stderr), done.stderr
+        assert said in done.stderr and "Traceback" not in done.stderr, done.stderr
+    assert "recorded 0 telemetry samples" in runs[1].stderr
+    # In the board's mode the same commands get the telemetry and the value.
+    mode = ["--wire-crc"] if kind == "crc" else []
+    monitor = run_cli("--port", pty, *mode, "monitor", "--passive", "--duration", "1",
+                      "--format", "csv")
+    assert monitor.returncode == 0 and len(monitor.stdout.splitlines()) > 10, monitor.stderr
+    assert said not in monitor.stderr
+    get = run_cli("--port", pty, *mode, "param", "get", "TsTimerPeriod")
+    assert (get.returncode, get.stdout.strip()) == (0, "1"), get.stderr

@@ -217,8 +217,11 @@ def test_encoding_refuses_what_cannot_travel() -> None:
 def test_counter_is_five_digits_and_wraps() -> None:
     assert encode_counted(b"XY", 99_999, b"") == b"XY99999"
     assert encode_counted(b"XY", 100_000, b"") == b"XY00000"
-    conn = Connection()
-    conn._send_counter.value = 99_999
+    conn = Connection(baud=None)
+    for _ in range(99_999):  # the connection's own counter, through its public API
+        conn.send(References(0, 0), 0.0)
+    conn.data_to_send()
+    assert conn.next_counter == 99_999
     first = sent(References(0, 0), conn)
     second = sent(References(0, 0), conn)
     assert b"99999" in first and b"00000" in second

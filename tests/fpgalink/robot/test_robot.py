@@ -22,8 +22,16 @@ from fpgaemu.robot import EmulatedRobot
 from fpgaemu.serve import FAR_END_LAG_EXTRA
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
-from fpgalink.aio.link import Link, LinkEvent, LinkEventKind
+from fpgalink.aio.link import Link
 from fpgalink.errors import BoardLost
+from fpgalink.events import (
+    BoardBack,
+    BoardRestarted,
+    BoardResynced,
+    BoardSilent,
+    RestartEvidence,
+    StatusEvent,
+)
 from fpgalink.protocol import LocalProtocolError, float32
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
 from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
@@ -184,9 +192,9 @@ async def test_a_silent_board_stops_the_other_at_once_and_never_re_enables() -> 
     # every fault is an event whatever the state, so the cut's are looked for among them.
     async with emulated("surface=gravel&fault=L:disconnect=2:2") as robot:
         logs = {n: enable_log(robot, n) for n in ("L", "R")}
-        noticed: list[LinkEvent] = []
+        noticed: list[StatusEvent] = []
         robot.links["L"].on_event(lambda e: noticed.append(e)
-                                  if e.kind is LinkEventKind.BOARD_LOST else None)
+                                  if type(e) is BoardSilent else None)
         events = robot.events()
         cut = 2 * CLOCK_HZ
         async with robot.enabled():
@@ -351,20 +359,17 @@ async def test_a_resync_reported_with_a_new_restart_behind_it_does_not_make_the_
     # In one batch of events the link reports restart 1's resync done, then restart 2. The
     # task that reads back after restart 1's resync belongs to restart 1: it must not take
     # restart 2 for its own (whose resync has not been reported) and say the board ready.
-    from fpgalink.events import BoardResynced
-
     async with emulated("surface=ideal") as robot:
         link = robot.links["L"]
         loop = asyncio.get_running_loop()
 
-        def event(kind: LinkEventKind, cause: Any = None) -> LinkEvent:
-            return LinkEvent(kind, loop.time(), "synthetic", cause)
+        def restarted() -> BoardRestarted:
+            return BoardRestarted(RestartEvidence.COUNTER_RESET, "synthetic", at=loop.time())
 
         recovery = robot.recovery
-        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
-        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESYNCED,
-                                                BoardResynced(3, ())))
-        recovery.on_link_event("L", link, event(LinkEventKind.BOARD_RESTARTED))
+        recovery.on_link_event("L", link, restarted())
+        recovery.on_link_event("L", link, BoardResynced(3, (), at=loop.time()))
+        recovery.on_link_event("L", link, restarted())
         # Restart 1's read-back is answered (the board is there) and ends.
         await wait_until(lambda: recovery.reading_back == 0, PATIENCE,
                          "the read-back after restart 1's resync")
@@ -424,10 +429,10 @@ async def test_a_board_found_streaming_that_then_falls_silent_fails_the_start_sa
         await robot.close()
 
 
-@pytest.mark.parametrize("held_from", [LinkEventKind.BOARD_RESTARTED,
-                                       LinkEventKind.BOARD_RESYNCED])
+@pytest.mark.parametrize("held_from", [BoardRestarted,
+                                       BoardResynced])
 async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigured(
-        held_from: LinkEventKind) -> None:
+        held_from: type[StatusEvent]) -> None:
     # L restarts at 1.5 s; from the moment its link sets it up again (or reads it back), its
     # answers reach this host 1 s late: past the liveness timeout, so L is lost mid-way, then
     # heard going on (no second restart). What was interrupted goes on; the robot drives
@@ -436,24 +441,24 @@ async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigur
     async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
         link = robot.links["L"]
         held = interpose(link, HeldReads)
-        seen: list[LinkEventKind] = []
+        seen: list[type[StatusEvent]] = []
         loop = asyncio.get_running_loop()
 
-        def on_event(event: LinkEvent) -> None:
-            seen.append(event.kind)
-            if event.kind is held_from and not held.waiting and seen.count(held_from) == 1:
+        def on_event(event: StatusEvent) -> None:
+            seen.append(type(event))
+            if type(event) is held_from and not held.waiting and seen.count(held_from) == 1:
                 held.held = True
                 loop.call_later(1.0, held.release)
 
         link.on_event(on_event)
-        await drive_until(robot, lambda: LinkEventKind.BOARD_BACK in seen, "L lost and back")
-        assert seen.count(LinkEventKind.BOARD_RESTARTED) == 1
-        assert LinkEventKind.BOARD_LOST in seen
+        await drive_until(robot, lambda: BoardBack in seen, "L lost and back")
+        assert seen.count(BoardRestarted) == 1
+        assert BoardSilent in seen
         x = robot.pose.x
         await drive_until(robot, lambda: not robot.supervisor.blocked and robot.pose.x > x + 0.1,
                           "driving again after L's reconfiguration")
-        assert seen.count(LinkEventKind.BOARD_RESTARTED) == 1
-        assert seen.count(LinkEventKind.BOARD_RESYNCED) == 1  # a paused resync goes on
+        assert seen.count(BoardRestarted) == 1
+        assert seen.count(BoardResynced) == 1  # a paused resync goes on
         statuses = {s.name: s for s in robot.health()}
         assert statuses["board L"].level.name == "OK", statuses["board L"]
         assert firmware(robot, "L").value("GetDataPeriodical") == 1
@@ -468,22 +473,22 @@ async def test_a_restarted_board_answering_later_than_a_requests_tries_is_reconf
     # confirms the request asked again). The robot drives again.
     async with emulated("surface=ideal&fault=L:restart=1.5") as robot:
         link = robot.links["L"]
-        seen: list[LinkEvent] = []
+        seen: list[StatusEvent] = []
 
-        def on_event(event: LinkEvent) -> None:
+        def on_event(event: StatusEvent) -> None:
             seen.append(event)
-            if event.kind is LinkEventKind.BOARD_RESTARTED:
+            if type(event) is BoardRestarted:
                 interpose(link, lambda port: LateReads(port, 0.45))
 
         link.on_event(on_event)
         x = robot.pose.x
-        await drive_until(robot, lambda: any(e.kind is LinkEventKind.BOARD_RESYNCED
+        await drive_until(robot, lambda: any(type(e) is BoardResynced
                                              for e in seen)
                           and not robot.supervisor.blocked and robot.pose.x > x + 0.1,
                           "driving again after L's reconfiguration")
-        assert [e.kind for e in seen].count(LinkEventKind.BOARD_RESTARTED) == 1
-        (resynced,) = [e for e in seen if e.kind is LinkEventKind.BOARD_RESYNCED]
-        assert "confirmed" in resynced.detail, resynced.detail
+        assert [type(e) for e in seen].count(BoardRestarted) == 1
+        (resynced,) = [e for e in seen if type(e) is BoardResynced]
+        assert "confirmed" in resynced.describe(), resynced
         assert link.stats.retries > 8  # answers did come too late for a request's tries
         statuses = {s.name: s for s in robot.health()}
         assert statuses["board L"].level.name == "OK", statuses["board L"]
@@ -706,3 +711,17 @@ async def test_sample_sets_are_stamped_by_each_boards_own_time() -> None:
         spacing = [b.stamp - a.stamp for a, b in itertools.pairwise(got)]
         assert min(spacing) > 0  # in order, at most one set per 10 ms of arrival
         assert [s.odometry_stamp for s in got] == sorted(s.odometry_stamp for s in got)
+
+
+async def test_a_stale_telemetry_limit_set_on_the_boards_is_their_connections_own() -> None:
+    # The ROS node's telemetry_timeout_periods reaches each board's connection through
+    # Boards.set_stale_periods: its settings, checked as every new value is (after the
+    # connection split the old attribute was one nothing read: the limit stayed 50).
+    async with emulated("surface=ideal") as robot:
+        robot.boards.set_stale_periods(1000)
+        assert {link.connection.settings.stale_periods
+                for link in robot.links.values()} == {1000}
+        with pytest.raises(ValueError, match="stale_periods"):
+            robot.boards.set_stale_periods(1)
+        assert {link.connection.settings.stale_periods
+                for link in robot.links.values()} == {1000}

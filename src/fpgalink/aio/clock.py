@@ -1,0 +1,72 @@
+"""The link's clock: the time it passes to its connection, and the loop time at which a
+deadline on it falls.
+
+It is the loop's clock, except against a far end that runs in this process (an emulated
+board) and says how far its time trails the loop's through its transport's
+``get_extra_info(FAR_END_LAG_EXTRA)`` (:data:`~fpgalink.aio.transport.FAR_END_LAG_EXTRA`,
+the transport contract): then the link's time is the far end's, so a process starved as a
+whole, its board with it, sees neither stopped telemetry nor a lapsed heartbeat that the
+board itself never saw. It never goes back.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from collections.abc import Callable
+
+from fpgalink.aio.transport import FAR_END_LAG_EXTRA
+
+__all__ = ["LinkClock"]
+
+#: A timer armed against a far end that has fallen behind comes no sooner than this: the far
+#: end runs on this loop and needs the turn to catch up.
+_MIN_REARM_S = 0.0005
+#: While the far end trails, a timer is looked at again within this, its lag measured anew.
+_LAGGING_RECHECK_S = 0.002
+
+
+class LinkClock:
+    __slots__ = ("_lag", "_last", "_loop")
+
+    def __init__(self) -> None:
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._lag: Callable[[], float] | None = None
+        self._last = -math.inf
+
+    def start(self, loop: asyncio.AbstractEventLoop) -> None:
+        self._loop = loop
+
+    def follow(self, transport: asyncio.BaseTransport) -> None:
+        """Keep the time of ``transport``'s far end, if it offers it."""
+        lag = transport.get_extra_info(FAR_END_LAG_EXTRA)
+        self._lag = lag if callable(lag) else None
+
+    @property
+    def far_end_time(self) -> bool:
+        """The time is the far end's own (an in-process board's)."""
+        return self._lag is not None
+
+    def now(self) -> float:
+        assert self._loop is not None
+        now = self._loop.time()
+        if self._lag is not None:
+            now -= self._lag()
+        if now < self._last:
+            return self._last
+        self._last = now
+        return now
+
+    def loop_time(self, deadline: float) -> float:
+        """When, on the loop's clock, to look at ``deadline`` (on this clock). Against a
+        trailing far end the lag shrinks as it catches up, so the deadline then comes sooner
+        than it looked: a timer comes early, finds nothing due and is armed again."""
+        assert self._loop is not None
+        if self._lag is None:
+            return deadline
+        now = self._loop.time()
+        lag = now - self.now()
+        at = max(deadline + lag, now + _MIN_REARM_S)
+        if lag > _MIN_REARM_S:
+            at = min(at, now + _LAGGING_RECHECK_S)
+        return at

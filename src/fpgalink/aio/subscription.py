@@ -1,0 +1,70 @@
+"""Bounded subscriptions: the link (or the robot) puts, a consumer iterates, and neither ever
+waits for the other."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
+__all__ = ["Subscription"]
+
+T = TypeVar("T")
+
+
+class Subscription(Generic[T]):
+    """``async for item in sub`` over a bounded queue that drops its oldest item when full
+    (counting the drop) and ends when its producer finishes it or :meth:`close` is called.
+    The producer never waits for a subscriber."""
+
+    def __init__(self, maxsize: int, on_close: Callable[[Subscription[T]], None]) -> None:
+        if maxsize < 1:
+            raise ValueError("maxsize must be at least 1")
+        self._items: deque[T] = deque(maxlen=maxsize)
+        self._ready = asyncio.Event()
+        self._closed = False
+        self._on_close = on_close
+        self.dropped = 0
+
+    # --- the producer's side --------------------------------------------------------------
+
+    def put(self, item: T) -> bool:
+        """Queue ``item``; ``True`` when the oldest had to go to make room."""
+        dropped = len(self._items) == self._items.maxlen
+        if dropped:
+            self.dropped += 1
+        self._items.append(item)
+        self._ready.set()
+        return dropped
+
+    def finish(self) -> None:
+        """No more items: iteration ends once the queued ones are read."""
+        self._closed = True
+        self._ready.set()
+
+    # --- the consumer's side --------------------------------------------------------------
+
+    def close(self) -> None:
+        self._on_close(self)
+        self.finish()
+
+    def __aiter__(self) -> Subscription[T]:
+        return self
+
+    async def __anext__(self) -> T:
+        while not self._items:
+            if self._closed:
+                raise StopAsyncIteration
+            self._ready.clear()
+            await self._ready.wait()
+        return self._items.popleft()
+
+    def __len__(self) -> int:
+        return len(self._items)
+
+    async def __aenter__(self) -> Subscription[T]:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
