@@ -480,6 +480,7 @@ class Link:
     def _on_timer(self) -> None:
         self._timer = None
         self._timer_at = None
+        self._batches.read_now()  # what waits is the board's: read before any judgement
         self.connection.handle_timer(self._now())
         self._process()
         self._flush()
