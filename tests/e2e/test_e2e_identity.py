@@ -15,8 +15,9 @@ from fpgaemu.firmware import FIRMWARE_VERSION, emulated_serial
 from fpgalink.aio.identity import read_identity
 from fpgalink.aio.link import open_link
 from fpgalink.protocol.identity import BoardIdentity, declarations_hash
-from tests.support.cli import run_cli, served_pty
+from tests.support.cli import run_cli
 from tests.support.firmwares import require_c_firmware
+from tests.support.serving import served
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -25,8 +26,8 @@ pytestmark = pytest.mark.timeout(120)
 def board(request: pytest.FixtureRequest) -> Iterator[str]:
     if request.param == "c":
         require_c_firmware()
-    with served_pty("--firmware", request.param, "--seed", "3") as path:
-        yield path
+    with served("--pty", "--firmware", request.param, "--seed", "3") as server:
+        yield server.url
 
 
 def test_the_served_board_answers_iq_with_this_hosts_hash(board: str) -> None:
@@ -51,7 +52,8 @@ async def test_read_identity_over_the_pty(board: str) -> None:
 
 
 async def test_a_board_without_iq_is_seed_protocol_and_still_works() -> None:
-    with served_pty("--fault", "drop-frames=IQ:1000") as path:
+    with served("--pty", "--fault", "drop-frames=IQ:1000") as server:
+        path = server.url
         unanswered = run_cli("send", "IQ", "--hex", "01000000", "--reply", "IA", "--wait",
                              "0.5", "--port", path)
         assert unanswered.returncode == 4 and "no reply to IQ" in unanswered.stderr

@@ -14,7 +14,7 @@ from mcap.reader import make_reader
 
 from fpgalink.recording import RecordingReader
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import run_cli, run_driving
+from tests.support.cli import run_cli
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -50,7 +50,7 @@ def test_every_chunk_the_writers_write_carries_a_crc(recording: Path, tmp_path: 
     # The bags had none (rosbags writes 0): damage inside them could not be found.
     pytest.importorskip("rosbags")
     bag = tmp_path / "bag"
-    done = run_driving("drive", "--for", "0.5", "--rosbag2", str(bag), timeout=60)
+    done = run_cli("drive", "--for", "0.5", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     for path in (recording, *bag.glob("*.mcap")):
         with path.open("rb") as stream:
@@ -122,7 +122,7 @@ def test_plot_of_a_damaged_recording_names_the_chunk_and_exits_8(recording: Path
 def test_plot_of_a_damaged_bag_names_the_chunk_and_exits_8(tmp_path: Path) -> None:
     pytest.importorskip("rosbags")
     bag = tmp_path / "bag"
-    done = run_driving("drive", "--v", "0.1", "--for", "2", "--rosbag2", str(bag), timeout=60)
+    done = run_cli("drive", "--v", "0.1", "--for", "2", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     [storage] = bag.glob("*.mcap")
     offset, length = chunk_spans(storage)[0]

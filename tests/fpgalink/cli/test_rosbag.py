@@ -29,8 +29,7 @@ from tests.support.cli import (
     cli_env,
     cli_on_small_disk,
     run_cli,
-    run_driving,
-)
+    )
 
 _missing = next((f"{name} is not installed (the ros2 extra)" for name in ("rclpy", "rosbags")
                  if importlib.util.find_spec(name) is None), None)
@@ -70,7 +69,7 @@ def driven(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     bag = tmp_path_factory.mktemp("bags") / "drive"
     # On the ideal surface the emulated robot's body is the kinematic one, which odometry
     # describes exactly: the checks below compare odom with the truth to the centimetre.
-    done = run_driving("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--surface",
+    done = run_cli("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--surface",
                        "ideal", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     return bag, done.stdout + done.stderr
@@ -229,7 +228,7 @@ def test_plot_reads_the_bag_the_cli_wrote(driven: tuple[Path, str], tmp_path: Pa
 def test_record_and_rosbag2_together_write_both(tmp_path: Path) -> None:
     # The bag's tasks used to replace --record's telemetry tasks: both run side by side.
     bag, record = tmp_path / "bag", tmp_path / "run.mcap"
-    done = run_driving("drive", "--v", "0.1", "--for", "1", "--record", str(record),
+    done = run_cli("drive", "--v", "0.1", "--for", "1", "--record", str(record),
                        "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     with record.open("rb") as f:
