@@ -28,6 +28,8 @@ from fpgalink.cli.output import CliError, ExitCode, classify, echo_out, note
 from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA, RecordingError
 
 if TYPE_CHECKING:
+    from fpgalink.aio import Subscription
+    from fpgalink.aio.link import Stamped
     from fpgalink.cli.rosbag import RosbagWriter
     from fpgalink.live import LiveAddress
     from fpgalink.protocol.robot import RobotDescription
@@ -406,25 +408,43 @@ class RobotRun:
                 self.truth_frame.anchor(start)
             if self.record_path is not None:
                 self._open_sink()
-            tasks = []
+            # The recordings' writers read subscriptions; at the end each subscription is
+            # closed, and its writer writes what is still queued before it ends (cancelled,
+            # a writer behind on a loaded machine lost the samples it had not yet read).
+            # Only the periodic tasks are cancelled.
+            feeds: list[Subscription[Any]] = []
+            writers: list[asyncio.Task[None]] = []
+            periodic: list[asyncio.Task[None]] = []
             if self._sink is not None:
                 to_epoch = time.time() - asyncio.get_running_loop().time()
-                tasks += [asyncio.ensure_future(self._record_board(robot, name, to_epoch))
-                          for name in self.description.boards]
+                for name in self.description.boards:
+                    feed = robot.boards.stamped_telemetry(name, maxsize=65536)
+                    feeds.append(feed)
+                    writers.append(asyncio.ensure_future(
+                        self._record_board(feed, name, to_epoch)))
             if self.rosbag_path is not None:
                 self._open_bag(robot)
-                tasks += self._bag_tasks(robot)  # beside --record's, not instead of them
+                sets = self._bag_sets(robot)  # beside --record's, not instead of them
+                feeds.append(sets)
+                writers.append(asyncio.ensure_future(self._bag_telemetry(robot, sets)))
+                periodic.append(asyncio.ensure_future(self._bag_diagnostics(robot)))
             self._started = time.monotonic()
-            tasks.append(asyncio.ensure_future(self._sample()))
+            periodic.append(asyncio.ensure_future(self._sample()))
             try:
                 async with opened_live(self.foxglove, self.name) as view:
                     if view is not None:
                         view.add_robot(robot, self.truth)
                     yield robot
             finally:
-                for task in tasks:
+                for feed in feeds:
+                    feed.close()  # nothing more is put; the writer drains it and ends
+                for task in periodic:
                     task.cancel()
-                await asyncio.gather(*tasks, return_exceptions=True)
+                try:
+                    await asyncio.gather(*writers, *periodic, return_exceptions=True)
+                finally:
+                    for task in writers:  # only if this wait itself was interrupted
+                        task.cancel()
                 self._sample_once()
         finally:
             await robot.close()
@@ -496,13 +516,15 @@ class RobotRun:
             self._sink = None
         self.stop.set()
 
-    async def _record_board(self, robot: Robot, name: str, to_epoch: float) -> None:
+    async def _record_board(self, feed: Subscription[Stamped], name: str, to_epoch: float
+                            ) -> None:
         """Every sample of one board into ``/board/NAME/telemetry``, as ``record`` writes it
-        (so ``plot`` of a drive shows the wheels' speeds against their references)."""
+        (so ``plot`` of a drive shows the wheels' speeds against their references), until
+        ``feed`` is closed and drained."""
         from fpgalink.cli.session import compact, json_safe, telemetry_row
 
         clock = BoardClock()
-        async for received, sample in robot.boards.stamped_telemetry(name, maxsize=65536):
+        async for received, sample in feed:
             sink = self._sink
             if sink is None:
                 return
@@ -530,16 +552,14 @@ class RobotRun:
                                 "sample times on the host clock"},
             force=self.force)
 
-    def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:
+    def _bag_sets(self, robot: Robot) -> SetFeed:
         # One truth clock for the whole bag: /truth at most every BAG_TRUTH_PERIOD_S.
         self._bag_truth_at = -(1 << 62)
         # One mapping of the loop's clock onto epoch time for every board: bag times of
         # different boards are then on one clock.
         to_epoch_ns = time.time_ns() - round(asyncio.get_running_loop().time() * 1e9)
-        sets = robot.sample_sets(clock=lambda received: round(received * 1e9) + to_epoch_ns,
+        return robot.sample_sets(clock=lambda received: round(received * 1e9) + to_epoch_ns,
                                  maxsize=65536)
-        return [asyncio.ensure_future(self._bag_telemetry(robot, sets)),
-                asyncio.ensure_future(self._bag_diagnostics(robot))]
 
     async def _bag_telemetry(self, robot: Robot, sets: SetFeed) -> None:
         """Every set of samples (the robot's stamping: each sample on the host clock by its
