@@ -25,10 +25,7 @@ Cases:
 * ``robot``: the emulated robot (``fpgaemu.robot.EmulatedRobot``): boards L and R and the
   kinematic body their four wheels move, 1 kHz ``TM`` from both, ``RV`` to both every 10 ms
   (a gentle arc: 0.1 m/s, 10 deg/s), ``RE`` every 100 ms; the emulator's cost, as ``board``;
-* ``robot.mujoco``: the same robot with the physics body (MuJoCo, on gravel);
-* ``board.modules``, ``robot.modules``: ``board`` and ``robot`` with the fused paths off
-  (``fused=False``: every event through the modules, :mod:`fpgaemu.fastpath`), so the
-  fused paths' gain is a ratio measured in the same run.
+* ``robot.mujoco``: the same robot with the physics body (MuJoCo, on gravel).
 
 Reported per case: ``x_real_time`` (emulated s / wall s), ``events_per_s`` (timeline events
 per wall second: every event the board's ``Timeline`` scheduled, read from its sequence
@@ -110,10 +107,9 @@ class Outcome:
         }
 
 
-def scenario(seconds: float, *, decode: bool, rv_stream: bool, fused: bool = True
-             ) -> Callable[[], Outcome]:
+def scenario(seconds: float, *, decode: bool, rv_stream: bool) -> Callable[[], Outcome]:
     """A fresh board, built outside the timed call; the returned call runs ``seconds``."""
-    board = fpgaemu.build_board(baud=BAUD, fused=fused,
+    board = fpgaemu.build_board(baud=BAUD,
                                 settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
     firmware = board.peripherals["firmware"]
     assert isinstance(firmware, Firmware)
@@ -211,11 +207,10 @@ ROBOT_COMMAND = (0.1, 0.17453292519943295)  #: 0.1 m/s, 10 deg/s
 ROBOT_RV_EVERY_MS = 10
 
 
-def robot_scenario(seconds: float, body: str = "kinematic", fused: bool = True
-                   ) -> Callable[[], Outcome]:
+def robot_scenario(seconds: float, body: str = "kinematic") -> Callable[[], Outcome]:
     """Both boards of the emulated robot and its body; figures summed over the boards."""
     robot = EmulatedRobot(baud=BAUD, settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1},
-                          body=body, fused=fused)
+                          body=body)
     hosts = {name: Connection(baud=BAUD) for name in robot.boards}
     references = wheel_command(robot.description, *ROBOT_COMMAND).references
     end_ms = round(seconds * 1000)
@@ -348,12 +343,7 @@ CASES = (
     ("robot", "robot: boards L+R and the body, TM every 1 ms each, RV every 10 ms", False,
      True),
     ("robot.mujoco", "as robot, with the MuJoCo body (gravel)", False, True),
-    ("board.modules", "as board, the fused paths off (every event through the modules)",
-     False, True),
-    ("robot.modules", "as robot, the fused paths off", False, True),
 )
-#: fused-path gains reported as ratios of medians from the same run
-FUSED_RATIOS = (("board", "board.modules"), ("robot", "robot.modules"))
 TARGET_IDLE_X_REAL_TIME = 300.0
 #: the idle case runs this many times longer, so its wall time is measurable
 IDLE_STRETCH = 10
@@ -400,8 +390,6 @@ def _print_report(report: dict[str, Any], cases: list[Case], targets: list[dict[
                  "TM sent", "TM decoded"], rows)
     print("TM sent: finished on the wire by the end of the run (first repetition); "
           "TM decoded: by fpgalink.Connection, which lost none.")
-    for fused, modules in FUSED_RATIOS:
-        print(f"fused paths: {fused} {report['fused_ratios'][fused]:.2f}× {modules}")
     print()
     for t in targets:
         verdict = "PASS" if t["pass"] else "FAIL"
@@ -429,15 +417,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     # Reps interleave the cases, so a slow spell on the machine spreads over all of them.
     for rep in range(reps):
         for case in cases:
-            fused = not case.key.endswith(".modules")
             if case.robot:
                 run = robot_scenario(seconds, "mujoco" if case.key == "robot.mujoco"
-                                     else "kinematic", fused=fused)
+                                     else "kinematic")
             elif case.idle:
                 run = idle_scenario(seconds * IDLE_STRETCH)
             else:
-                run = scenario(seconds, decode=case.decode, rv_stream=case.rv_stream,
-                               fused=fused)
+                run = scenario(seconds, decode=case.decode, rv_stream=case.rv_stream)
             wall, outcome = time_once(run)
             case.check(outcome)
             case.seconds.append(wall)
@@ -463,10 +449,6 @@ def main(argv: Sequence[str] | None = None) -> int:
         },
         "cases": {c.key: c.result() for c in cases},
         "targets": targets,
-        "fused_ratios": {
-            fused: by_key[fused].summary()["x_real_time"]["median"]
-            / by_key[modules].summary()["x_real_time"]["median"]
-            for fused, modules in FUSED_RATIOS},
         "timing": {"total_s": elapsed},
     }
     path = write_results(NAME, payload, args.output)

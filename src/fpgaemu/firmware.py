@@ -42,7 +42,6 @@ from typing import Any
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
-from fpgaemu.fastpath import FusedTick
 from fpgaemu.hwcontrol import HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
@@ -151,8 +150,6 @@ class Firmware:
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
-        #: the fused tick (:mod:`fpgaemu.fastpath`), on a board configured with ``fused``
-        self._fused: FusedTick | None = None
         self.last_tick = 0  #: the cycle of the last timer interrupt
 
     def _gains(self, code: int) -> PidGains:
@@ -195,7 +192,6 @@ class Firmware:
         for code, ch in self.channels.items():
             ch.hardware = HardwareController(board, board.channels[code])
             self._configure_hardware(code)
-        self._fused = FusedTick(self, board) if board.config.fused else None
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.set_skippable(self.skippable_event)
@@ -456,8 +452,6 @@ class Firmware:
             self._book_finished(cycle)
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
-            return
-        if self._fused is not None and self._fused(cycle):
             return
         board = self._board
         assert board is not None

@@ -399,12 +399,8 @@ class Motors:
         for code, wheel in self.wheels.items():
             io = channels[code]
             pwm = io.pwm
-            # Pwm.applied_duty and WheelPlant.at_rest, written out: this runs for every wheel
-            # every emulated millisecond.
-            wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
-            x = wheel._x
-            if (duty == 0 and wheel.current == 0.0 and wheel.load_torque_nm == 0.0
-                    and not (x[0] or x[1] or x[2])):
+            wheel.duty = pwm.applied_duty
+            if wheel.at_rest:
                 pass  # advancing changes nothing (an idle robot's long quiet stretches)
             elif one_step:  # turn() in one step, the usual case
                 angle0 = wheel.angle_deg
@@ -635,21 +631,7 @@ class DrivenMotors:
             wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
             if duty or wheel.current or wheel.rotor_speed:
                 wheel.hold_current(cycle - start)
-            # WheelDrive.angle_at at both ends, written out: this runs for every wheel at
-            # every tick and every PWM change.
-            c0, c1, a0, a1 = wheel._c0, wheel._c1, wheel._a0, wheel._a1
-            if c1 == c0 or start >= c1:
-                begin = a1
-            elif start <= c0:
-                begin = a0
-            else:
-                begin = a0 + (a1 - a0) * (start - c0) / (c1 - c0)
-            if c1 == c0 or cycle >= c1:
-                end = a1
-            elif cycle <= c0:
-                end = a0
-            else:
-                end = a0 + (a1 - a0) * (cycle - c0) / (c1 - c0)
+            begin, end = wheel.angle_at(start), wheel.angle_at(cycle)
             if begin != end:
                 io.encoder.follow(start, begin, cycle, end)
             io.current_a = wheel.current if self._noise is None else (

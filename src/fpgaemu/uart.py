@@ -542,7 +542,7 @@ class _Line:
                     return self._send_bitwise(data, start, index, faults, plan, hits)
             if faults.windows_overlap(start, start + n * step):
                 return self._send_bitwise(data, start, index, faults, plan, hits)
-        if self.receiver._bursts or (start == self.line_free_at and not self._last_level):
+        if self.receiver.pending or (start == self.line_free_at and not self._last_level):
             # The receiver is mid-byte, or the line is still low from the last burst: the
             # first start bit is not a clean edge, so the slots decide.
             return self._send_bitwise(data, start, index, faults or _CLEAN, plan, hits)

@@ -164,10 +164,6 @@ class UartCommand:
         self._due: list[RxInterrupt | EnableChange] = []
         self._rx_listeners: list[Callable[[RxInterrupt], None]] = []
         self._enable_listeners: list[Callable[[EnableChange], None]] = []
-        #: ``fused(self, cycle)`` does the STOP candidate's work for the usual frame and
-        #: returns ``True``, or nothing (:func:`fpgaemu.fastpath.complete_frame`; set by the
-        #: board when configured ``fused``)
-        self.fused: Callable[[UartCommand, int], bool] | None = None
         self._configure(framing)
 
     # --- configuration and listeners ------------------------------------------------------
@@ -299,9 +295,6 @@ class UartCommand:
         self._candidate_cursor = None
 
     def _on_candidate(self, cycle: int) -> None:
-        fused = self.fused
-        if fused is not None and fused(self, cycle):
-            return
         target, end = self._candidate_cursor, self._candidate_index + 1
         self._candidate = None
         self._candidate_cursor = None

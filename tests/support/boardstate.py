@@ -12,8 +12,8 @@ from collections import deque
 from enum import Enum
 from typing import Any
 
-#: Switches that select the fast paths themselves (the thing compared), not board state.
-IGNORED = frozenset({"_fused", "fused"})
+#: Attributes that are not the board's state (none at present).
+IGNORED: frozenset[str] = frozenset()
 
 
 def board_state(root: object, ignored: frozenset[str] = IGNORED) -> dict[str, object]:
