@@ -154,8 +154,8 @@ class ContinuousModel:
 
     def step_response(self, times_s: list[float]) -> list[float]:
         residues = self.residues()
-        return [sum((r * (cmath.exp(p * t) - 1) / p).real
-                    for p, r in zip(self.poles, residues, strict=True)) for t in times_s]
+        return [sum(((r * (cmath.exp(p * t) - 1) / p).real
+                     for p, r in zip(self.poles, residues, strict=True)), 0.0) for t in times_s]
 
 
 def continuous_model(gear: str) -> ContinuousModel:
@@ -177,10 +177,12 @@ def continuous_model(gear: str) -> ContinuousModel:
     y0 = base.step_response(times)
     residues = base.residues()
     # With the zero, y(t) = y0(t) + (1/c)·Σ rᵢ(e^{sᵢt} − 1): linear in 1/c.
-    y1 = [sum((r * (cmath.exp(p * t) - 1)).real for p, r in zip(poles, residues, strict=True))
-          for t in times]
-    inv_c = (sum((a - b) * c for a, b, c in zip(target, y0, y1, strict=True))
-             / sum(c * c for c in y1))
+    # Sums from 0.0 (the same floats as from sum()'s int 0, which the compiled build cannot
+    # add floats to).
+    y1 = [sum(((r * (cmath.exp(p * t) - 1)).real
+               for p, r in zip(poles, residues, strict=True)), 0.0) for t in times]
+    inv_c = (sum(((a - b) * c for a, b, c in zip(target, y0, y1, strict=True)), 0.0)
+             / sum((c * c for c in y1), 0.0))
     return ContinuousModel(tuple(poles), 1.0 / inv_c, dc_gain)
 
 

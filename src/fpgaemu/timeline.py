@@ -66,9 +66,6 @@ def cycles_to_seconds(cycles: int) -> float:
     return cycles / CLOCK_HZ
 
 
-_new_object = object.__new__
-
-
 class EventHandle:
     """A scheduled event; ``cancel()`` makes it a no-op (it is dropped lazily from the heap,
     which keeps cancel O(1) — the watchdog is re-armed on every ``RE``)."""
@@ -111,12 +108,7 @@ class Timeline:
         timeline is running means later in this same cycle)."""
         if cycle < self.now:
             raise ValueError(f"cannot schedule at cycle {cycle}: the present is {self.now}")
-        # EventHandle(cycle, callback), without its __init__'s Python frame: a few events are
-        # scheduled every emulated millisecond.
-        handle = _new_object(EventHandle)
-        handle.cycle = cycle
-        handle.callback = callback
-        handle.cancelled = False
+        handle = EventHandle(cycle, callback)
         self._seq += 1
         heapq.heappush(self._heap, (cycle, _LATE if late else _EARLY, self._seq, handle))
         return handle

@@ -55,33 +55,38 @@ class UartSendStats:
 
 def frame_bytes(content: bytes, framing: Framing) -> bytes:
     """START + content with SKIP before every special + STOP (the module's byte order)."""
-    return _Escaper.get(framing).frame(content)
+    return _escaper(framing).frame(content)
 
 
 class _Escaper:
-    __slots__ = ("_escape", "_head", "_pattern", "_tail", "framing")
-    _cache: dict[Framing, _Escaper] = {}  # noqa: RUF012 - per-framing memo, class-wide
+    __slots__ = ("_head", "_pattern", "_skip", "_tail", "framing")
 
     def __init__(self, framing: Framing) -> None:
         self.framing = framing
         specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
         self._pattern = re.compile(b"[" + specials + b"]")
-        skip = bytes((framing.skip,))
-        # A function, not a template: a bytes template costs a Python-level expansion per
-        # call, the function only per escaped byte (a few per frame, often none).
-        self._escape: Callable[[re.Match[bytes]], bytes] = lambda m: skip + m[0]
+        self._skip = bytes((framing.skip,))
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
 
-    @classmethod
-    def get(cls, framing: Framing) -> _Escaper:
-        escaper = cls._cache.get(framing)
-        if escaper is None:
-            escaper = cls._cache[framing] = cls(framing)
-        return escaper
+    def _escape(self, match: re.Match[bytes]) -> bytes:
+        # A function, not a template: a bytes template costs a Python-level expansion per
+        # call, the function only per escaped byte (a few per frame, often none).
+        return self._skip + match[0]
 
     def frame(self, content: bytes) -> bytes:
         return self._head + self._pattern.sub(self._escape, content) + self._tail
+
+
+#: One escaper per framing, made on first use.
+_ESCAPERS: dict[Framing, _Escaper] = {}
+
+
+def _escaper(framing: Framing) -> _Escaper:
+    escaper = _ESCAPERS.get(framing)
+    if escaper is None:
+        escaper = _ESCAPERS[framing] = _Escaper(framing)
+    return escaper
 
 
 class UartSend:
@@ -98,7 +103,7 @@ class UartSend:
         self._timeline = timeline
         self.bram = bram
         self.uartwrite = uartwrite
-        self._escaper = _Escaper.get(framing)
+        self._escaper = _escaper(framing)
         self.length = 0
         self.stats = UartSendStats()
         #: cycle the current frame's last stop bit ends; idle from then on
@@ -125,7 +130,7 @@ class UartSend:
         return self._escaper.framing
 
     def set_framing(self, framing: Framing) -> None:
-        self._escaper = _Escaper.get(framing)
+        self._escaper = _escaper(framing)
 
     def set_length(self, length: int) -> None:
         if not 0 <= length <= self.bram.size:

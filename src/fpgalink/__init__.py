@@ -18,6 +18,9 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING
 
+# Before any module that may be compiled: which build runs (compiled or pure Python).
+import fpgalink.buildinfo  # noqa: F401
+
 __version__ = "0.2.0"
 
 #: public name → the module that defines it
