@@ -24,9 +24,10 @@ import sysconfig
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 #: The modules compiled: what runs every emulated millisecond (the board's blocks, its
-#: firmware, the wheels, the robot's lockstep) and the protocol's codec beside it. Not
+#: firmware, the wheels, the robot's lockstep) and the protocol's counters. Not
 #: serving/ (the event loop's code, which waits on I/O), __main__, the C co-simulation, the
 #: faults' parser or the physics body (MuJoCo's stepping is numpy calls).
 COMPILED = (
@@ -47,6 +48,7 @@ COMPILED = (
     "fpgaemu.firmware",
     "fpgaemu.body",
     "fpgaemu.robot",
+    "fpgalink.protocol.counter",
 )
 #: The shared library every compiled module's extension loads (mypyc names it
 #: ``GROUP__mypyc``): one library, so calls between the modules are C calls.
@@ -56,12 +58,47 @@ MANIFEST = Path("fpgalink") / "_compiled.txt"
 #: Set (to anything but ``0`` or empty) at build time: no compiled build, pure Python only.
 #: At run time: the compiled modules are not loaded (``fpgalink.buildinfo``).
 PURE_ENV = "FPGALINK_PURE"
-#: The C compiler's optimisation: -O2 builds in about two thirds of -O3's time, and ran as
-#: fast in the emulator's benchmark (docs/emulator.md, "The compiled build").
+#: The C compiler's optimisation (docs/emulator.md, "The compiled build", has what each
+#: level costs to build and to run).
 OPT_LEVEL = "2"
 
 __all__ = ["COMPILED", "GROUP", "MANIFEST", "PURE_ENV", "build", "compile_in_place",
            "missing_tools", "pure_requested", "remove_compiled"]
+
+
+def _parallel_build_ext() -> type:
+    """setuptools' ``build_ext`` compiling an extension's C files in parallel, one per core
+    (it compiles them one after another): the compiled build is one extension of many C
+    files, one per module (mypyc's ``multi_file``)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    from setuptools.command.build_ext import build_ext
+
+    class ParallelBuildExt(build_ext):  # type: ignore[misc]
+        def build_extensions(self) -> None:
+            compiler = self.compiler
+            serial = compiler._compile
+
+            def compile_all(sources: list[str], output_dir: str | None = None,
+                            macros: Any = None, include_dirs: Any = None, debug: bool = False,
+                            extra_preargs: Any = None, extra_postargs: Any = None,
+                            depends: Any = None) -> list[str]:
+                macros, objects, extra_postargs, pp_opts, build = compiler._setup_compile(
+                    output_dir, macros, include_dirs, sources, depends, extra_postargs)
+                cc_args = compiler._get_cc_args(pp_opts, debug, extra_preargs)
+
+                def one(obj: str) -> None:
+                    src, ext = build[obj]
+                    serial(obj, src, ext, cc_args, extra_postargs, pp_opts)
+
+                with ThreadPoolExecutor(os.cpu_count() or 1) as pool:
+                    list(pool.map(one, objects))
+                return list(objects)
+
+            compiler.compile = compile_all
+            super().build_extensions()
+
+    return ParallelBuildExt
 
 
 class BuildUnavailable(Exception):
@@ -130,13 +167,20 @@ def build(root: Path, work: Path, out: Path, *, quiet: bool = False) -> list[Pat
         "--follow-imports=silent",
     ]
     cwd = Path.cwd()
+    cflags = os.environ.get("CFLAGS")
     started = time.monotonic()
     try:
         os.chdir(root)  # mypyc names the modules from their paths relative to here
+        # No fused multiply-add: the compiled float arithmetic must round as Python's does,
+        # bit for bit (where the platform has FMA, a compiler may otherwise fuse a*b + c).
+        if sys.platform != "win32":  # gcc's and clang's flag (MSVC does not contract)
+            os.environ["CFLAGS"] = f"{cflags or ''} -ffp-contract=off".strip()
         extensions = mypycify([*paths, *options], opt_level=OPT_LEVEL, debug_level="0",
-                              group_name=GROUP, target_dir=str(work / "c"))
+                              group_name=GROUP, target_dir=str(work / "c"),
+                              multi_file=True)
         dist = Distribution({"name": "fpgalink-compiled", "ext_modules": extensions,
-                             "package_dir": {"": "src"}})
+                             "package_dir": {"": "src"},
+                             "cmdclass": {"build_ext": _parallel_build_ext()}})
         dist.verbose = 0 if quiet else 1
         command = dist.get_command_obj("build_ext")
         command.build_lib = str(lib)
@@ -149,6 +193,10 @@ def build(root: Path, work: Path, out: Path, *, quiet: bool = False) -> list[Pat
         raise BuildUnavailable(f"compiling failed: {exc}") from None
     finally:
         os.chdir(cwd)
+        if cflags is None:
+            os.environ.pop("CFLAGS", None)
+        else:
+            os.environ["CFLAGS"] = cflags
     made = sorted(Path(p).relative_to(lib) for p in command.get_outputs())
     out.mkdir(parents=True, exist_ok=True)
     for relative in made:

@@ -28,13 +28,14 @@ measured is one count per second (0.072 deg/s at the default 5000 counts per tur
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from fpgaemu.timeline import CLOCK_HZ
 
 __all__ = ["SPEED_TIMEOUT_CYCLES", "QuadratureEncoder", "SpeedReader"]
 
 #: An edge older than this is no reference for a speed measurement (1 s at 100 MHz).
-SPEED_TIMEOUT_CYCLES = CLOCK_HZ
+SPEED_TIMEOUT_CYCLES: Final = CLOCK_HZ
 
 
 class SpeedReader:

@@ -57,7 +57,7 @@ import cmath
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from fpgaemu.timeline import CLOCK_HZ, ms
 
@@ -84,25 +84,25 @@ __all__ = [
 ]
 
 #: The wheels are integrated at least this often, so encoder edges follow them closely.
-PHYSICS_STEP_CYCLES = ms(1)
+PHYSICS_STEP_CYCLES: Final = ms(1)
 
-SEED_TS = 0.05
+SEED_TS: Final = 0.05
 #: numerator (z⁻¹, z⁻²) and denominator (z⁻¹, z⁻², z⁻³) coefficients
 GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
     "high": ((-0.053, -0.07017), (-1.393, 0.7321, -0.2117)),
     "low": ((-0.009263, -0.0291), (-1.394, 0.7058, -0.198)),
 }
-MAX_DUTY = 32760
-MAX_SPEED_HIGH_DPS = 90.0
+MAX_DUTY: Final = 32760
+MAX_SPEED_HIGH_DPS: Final = 90.0
 #: Static friction's dead band: an unpowered, unloaded wheel whose motion can no longer
 #: exceed this speed (deg/s at the wheel; one encoder count, 0.072°, would take 72 s) is
 #: held by it and stops, having rolled out the rest of its decay at once. Without it the
 #: linear model's modes decay towards zero for minutes (until float underflow), and a board
 #: that has been driven never counts as at rest again.
-REST_SPEED_DPS = 1e-3
+REST_SPEED_DPS: Final = 1e-3
 #: Below this an unpowered winding's current is zero (the Hall sensor's noise is far above).
-REST_CURRENT_A = 1e-6
-GEAR_RATIO = 70.0
+REST_CURRENT_A: Final = 1e-6
+GEAR_RATIO: Final = 70.0
 _radians = math.radians
 
 

@@ -24,7 +24,6 @@ import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
@@ -35,9 +34,9 @@ from fpgalink.protocol import DEFAULT_FRAMING, Framing
 __all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
 
 
-class TxDone(NamedTuple):
-    """The last stop bit of a frame has ended; the module is idle again (a named tuple: one
-    per sent frame, cheaper to build than a frozen dataclass)."""
+@dataclass(frozen=True, slots=True)
+class TxDone:
+    """The last stop bit of a frame has ended; the module is idle again."""
 
     cycle: int
     wire_bytes: int
