@@ -222,15 +222,33 @@ class WheelPlant:
         self._s = list(model.poles)
         self._b = [complex(1.0)] * 3
         self._c = [r * scale for r in model.residues()]
-        self._x = [0j, 0j, 0j]
+        # The three modes' states, complex, each held as its real and imaginary parts (the
+        # compiled build's arithmetic on them is then on machine floats; the formulas are
+        # Python's own complex arithmetic, term for term, so both builds round alike).
+        self._x0_re = self._x0_im = self._x1_re = self._x1_im = self._x2_re = self._x2_im = 0.0
         self.max_speed_dps = MAX_SPEED_HIGH_DPS * dc_gain / high_dc
         self.duty = 0
         self.load_torque_nm = 0.0  #: at the wheel; positive opposes positive speed
         self.stalled = False
         self.angle_deg = 0.0
         self.current = 0.0  #: A, the winding current (the state)
-        self._cache: dict[float, list[tuple[complex, complex, complex, complex]]] = {}
+        self._steps: dict[float, _ModalStep] = {}
         self._decay: dict[float, float] = {}
+
+    @property
+    def _x(self) -> list[complex]:
+        """The three modes' states."""
+        return [complex(self._x0_re, self._x0_im), complex(self._x1_re, self._x1_im),
+                complex(self._x2_re, self._x2_im)]
+
+    def _rest_modes(self) -> None:
+        self._x0_re = self._x0_im = self._x1_re = self._x1_im = self._x2_re = self._x2_im = 0.0
+
+    @property
+    def _moving(self) -> bool:
+        """Any mode's state not zero."""
+        return bool(self._x0_re or self._x0_im or self._x1_re or self._x1_im
+                    or self._x2_re or self._x2_im)
 
     @property
     def speed_dps(self) -> float:
@@ -263,18 +281,19 @@ class WheelPlant:
         # A load torque is the duty it would take to hold it at stall.
         return self.duty / MAX_DUTY - self.load_torque_nm / self.motor.stall_torque_wheel_nm
 
-    def _coefficients(self, dt: float) -> list[tuple[complex, complex, complex, complex]]:
-        coefficients = self._cache.get(dt)
-        if coefficients is None:
+    def _step(self, dt: float) -> _ModalStep:
+        step = self._steps.get(dt)
+        if step is None:
             coefficients = []
             for s, b, c in zip(self._s, self._b, self._c, strict=True):
                 e = cmath.exp(s * dt)
                 phi = (e - 1) / s  # ∫ e^{sτ} dτ over the step
                 # state update (e, input gain) and the angle it adds (from state, from input)
                 coefficients.append((e, phi * b, c * phi, c * (phi - dt) / s * b))
-            if len(self._cache) < 64:
-                self._cache[dt] = coefficients
-        return coefficients
+            step = _ModalStep(coefficients)
+            if len(self._steps) < 64:
+                self._steps[dt] = step
+        return step
 
     def advance(self, dt: float) -> tuple[float, float]:
         """Hold the duty for ``dt`` seconds; returns (angle at start, speed at start) so a
@@ -294,15 +313,22 @@ class WheelPlant:
             return
         # Unloaded (the usual case) the input is the duty alone: the same value, no division.
         u = self._input() if self.load_torque_nm else self.duty / MAX_DUTY
-        x0, x1, x2 = self._x
-        # The three modes written out (this runs for every wheel every emulated millisecond);
-        # the sum is accumulated from 0.0 in mode order, as a loop would.
-        (e0, g0, s0, i0), (e1, g1, s1, i1), (e2, g2, s2, i2) = (
-            self._cache.get(dt) or self._coefficients(dt))
-        angle_gain = 0.0 + (s0 * x0 + i0 * u).real
-        angle_gain += (s1 * x1 + i1 * u).real
-        angle_gain += (s2 * x2 + i2 * u).real
-        self._x = [e0 * x0 + g0 * u, e1 * x1 + g1 * u, e2 * x2 + g2 * u]
+        k = self._step(dt)
+        # Per mode, the angle it adds, (s·x + i·u).real, and its next state, e·x + g·u, with
+        # u as the complex (u, 0.0), as Python multiplies a complex by a float; the angle
+        # summed from 0.0 in mode order, as a loop would.
+        x_re, x_im = self._x0_re, self._x0_im
+        angle_gain = 0.0 + ((k.s0_re * x_re - k.s0_im * x_im) + (k.i0_re * u - k.i0_im * 0.0))
+        self._x0_re = (k.e0_re * x_re - k.e0_im * x_im) + (k.g0_re * u - k.g0_im * 0.0)
+        self._x0_im = (k.e0_re * x_im + k.e0_im * x_re) + (k.g0_re * 0.0 + k.g0_im * u)
+        x_re, x_im = self._x1_re, self._x1_im
+        angle_gain += (k.s1_re * x_re - k.s1_im * x_im) + (k.i1_re * u - k.i1_im * 0.0)
+        self._x1_re = (k.e1_re * x_re - k.e1_im * x_im) + (k.g1_re * u - k.g1_im * 0.0)
+        self._x1_im = (k.e1_re * x_im + k.e1_im * x_re) + (k.g1_re * 0.0 + k.g1_im * u)
+        x_re, x_im = self._x2_re, self._x2_im
+        angle_gain += (k.s2_re * x_re - k.s2_im * x_im) + (k.i2_re * u - k.i2_im * 0.0)
+        self._x2_re = (k.e2_re * x_re - k.e2_im * x_im) + (k.g2_re * u - k.g2_im * 0.0)
+        self._x2_im = (k.e2_re * x_im + k.e2_im * x_re) + (k.g2_re * 0.0 + k.g2_im * u)
         self.angle_deg += angle_gain
         self._follow_current(dt, angle_gain / dt)
         if not u:
@@ -319,9 +345,8 @@ class WheelPlant:
             s = self._s
             self.angle_deg += (-(c[0] * x[0] / s[0] + c[1] * x[1] / s[1]
                                  + c[2] * x[2] / s[2])).real
-            self._x = [0j, 0j, 0j]
-        if (self.current and abs(self.current) < REST_CURRENT_A
-                and not (self._x[0] or self._x[1] or self._x[2])):
+            self._rest_modes()
+        if self.current and abs(self.current) < REST_CURRENT_A and not self._moving:
             self.current = 0.0
 
     @property
@@ -331,13 +356,29 @@ class WheelPlant:
         static friction's dead band, :data:`REST_SPEED_DPS`, a few seconds after the duty
         went to 0)."""
         return (self.duty == 0 and self.current == 0.0 and self.load_torque_nm == 0.0
-                and not (self._x[0] or self._x[1] or self._x[2]))
+                and not self._moving)
 
     def stall(self, stalled: bool = True) -> None:
         """Block the wheel (or free it): a blocked wheel's dynamics restart from rest."""
         self.stalled = stalled
         if stalled:
-            self._x = [0j, 0j, 0j]
+            self._rest_modes()
+
+
+class _ModalStep:
+    """What one step of a given length does to each of the three modes: its state update
+    ``e`` and input gain ``g``, and the angle it adds from its state ``s`` and from the
+    input ``i``; each complex, as its real and imaginary parts."""
+
+    def __init__(self, coefficients: list[tuple[complex, complex, complex, complex]]
+                 ) -> None:
+        (e0, g0, s0, i0), (e1, g1, s1, i1), (e2, g2, s2, i2) = coefficients
+        self.e0_re, self.e0_im, self.g0_re, self.g0_im = e0.real, e0.imag, g0.real, g0.imag
+        self.s0_re, self.s0_im, self.i0_re, self.i0_im = s0.real, s0.imag, i0.real, i0.imag
+        self.e1_re, self.e1_im, self.g1_re, self.g1_im = e1.real, e1.imag, g1.real, g1.imag
+        self.s1_re, self.s1_im, self.i1_re, self.i1_im = s1.real, s1.imag, i1.real, i1.imag
+        self.e2_re, self.e2_im, self.g2_re, self.g2_im = e2.real, e2.imag, g2.real, g2.imag
+        self.s2_re, self.s2_im, self.i2_re, self.i2_im = s2.real, s2.imag, i2.real, i2.imag
 
 
 def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) -> None:
