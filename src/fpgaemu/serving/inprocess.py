@@ -14,7 +14,7 @@ from fpgaemu.serving.loop import Pacer
 from fpgaemu.serving.pacing import PacedBoard, PacedRobot, RobotSide
 
 __all__ = ["FAR_END_LAG_EXTRA", "TRUTH_EXTRA", "WRITE_BUFFER_HIGH", "EmulatedTransport",
-           "open_emulated_transport"]
+           "FarEnd", "open_emulated_transport"]
 
 #: ``transport.get_extra_info(FAR_END_LAG_EXTRA)`` on an in-process emulated board: a
 #: function giving how far, in seconds, the board's time trails the host's clock
@@ -34,37 +34,99 @@ TRUTH_EXTRA = "fpgaemu.truth"
 WRITE_BUFFER_HIGH = 64 * 1024
 
 
+class FarEnd:
+    """What is at the far end of one or more in-process transports: a board, or a robot
+    whose boards each have a transport. One :class:`~fpgaemu.serving.loop.Pacer` for all of
+    them, so a robot wakes once per due deadline, not once per transport: each wake-up runs
+    the far end up to the present (``run``), then hands every transport what its board sent.
+    A transport whose reading is paused (batched reads) asks for no wake-up of its own: a
+    far end all of whose transports are paused is left until one reads or writes again, and
+    runs up to the present then (what it sent in between waits on its TX line, as in a
+    port's buffer)."""
+
+    def __init__(self, run: Callable[[], None],
+                 wake: Callable[[list[PacedBoard]], float | None]) -> None:
+        self._run = run
+        self._wake = wake  #: when to run next, for the boards whose transports read now
+        self.transports: list[EmulatedTransport] = []
+        self.pacer = Pacer(self._tick, self._next_wake)
+
+    def join(self, transport: EmulatedTransport) -> None:
+        self.transports.append(transport)
+        if len(self.transports) == 1:
+            self.pacer.start()
+        else:
+            self.pacer.poke()
+
+    def leave(self, transport: EmulatedTransport) -> None:
+        self.transports.remove(transport)
+        if not self.transports:
+            asyncio.get_running_loop().create_task(self.pacer.stop())
+
+    def _tick(self) -> None:
+        self._run()
+        for transport in list(self.transports):
+            transport.hand_out()
+
+    def _next_wake(self) -> float | None:
+        reading = [t.paced for t in self.transports if t.is_reading()]
+        wakes = [w for t in self.transports if (w := t.feed_wake()) is not None]
+        if reading and (run := self._wake(reading)) is not None:
+            wakes.append(run)
+        return min(wakes, default=None)
+
+
 class EmulatedTransport(asyncio.Transport):
     """An asyncio transport whose far end is a board in this process. What the host writes
     is never dropped: it waits in the transport's buffer and goes onto the RX line as the
     line makes room, as a serial transport's buffer drains into its port; the protocol's
     ``pause_writing()``/``resume_writing()`` are called at the buffer's limits, as asyncio's
-    own transports do (:meth:`set_write_buffer_limits`, :meth:`get_write_buffer_size`)."""
+    own transports do (:meth:`set_write_buffer_limits`, :meth:`get_write_buffer_size`).
+    ``pause_reading()``/``resume_reading()`` hold what the board sends back, as a paused
+    port's buffer does, and hand it over, all at once, on resuming: a host that reads in
+    batches (fpgalink's ``Link.set_read_latency``) is woken once per batch."""
 
-    def __init__(self, paced: PacedBoard, protocol: asyncio.Protocol) -> None:
+    def __init__(self, paced: PacedBoard, protocol: asyncio.Protocol, far_end: FarEnd) -> None:
         super().__init__()
         self.paced = paced
         self._protocol = protocol
+        self._far_end = far_end
         self._closing = False
+        self._reading = True
         self._buffer = bytearray()  #: written by the host, not yet on the RX line
         self._high = WRITE_BUFFER_HIGH
         self._low = WRITE_BUFFER_HIGH // 4
         self._protocol_paused = False
-        self.pacer = Pacer(self._tick, self._next_wake)
-        self.pacer.start()
+        far_end.join(self)
 
-    def _next_wake(self) -> float | None:
-        wake = self.paced.next_wake()
-        if self._buffer:
-            feed = self.paced.rx_resume_at()
-            wake = feed if wake is None else min(wake, feed)
-        return wake
+    @property
+    def pacer(self) -> Pacer:
+        """The pacer of this transport's far end (shared by a robot's boards' transports)."""
+        return self._far_end.pacer
 
-    def _tick(self) -> None:
-        out = self.paced.advance()
+    def feed_wake(self) -> float | None:
+        """When the host's buffered bytes can go on (the line has room again), if any wait."""
+        return self.paced.rx_resume_at() if self._buffer else None
+
+    def hand_out(self) -> None:
+        """After the far end ran: what its board sent, to the protocol (unless reading is
+        paused), and the host's buffered bytes onto the line as it has room."""
         self._feed()
-        if out and not self._closing:
-            self._protocol.data_received(out)
+        if self._reading and not self._closing:
+            out = self.paced.take_bytes()
+            if out:
+                self._protocol.data_received(out)
+
+    def pause_reading(self) -> None:
+        self._reading = False
+
+    def resume_reading(self) -> None:
+        if not self._reading and not self._closing:
+            self._reading = True
+            self.pacer.poke()
+
+    def is_reading(self) -> bool:
+        return self._reading and not self._closing
 
     def _feed(self, everything: bool = False) -> None:
         """Move buffered bytes onto the RX line as far as it has room (all of them when the
@@ -120,9 +182,8 @@ class EmulatedTransport(asyncio.Transport):
             return
         self._feed(everything=True)
         self._closing = True
-        loop = asyncio.get_running_loop()
-        self._stopping = loop.create_task(self.pacer.stop())
-        loop.call_soon(self._protocol.connection_lost, None)
+        self._far_end.leave(self)
+        asyncio.get_running_loop().call_soon(self._protocol.connection_lost, None)
         if isinstance(self.paced, RobotSide):
             self.paced.release()
 
@@ -153,30 +214,34 @@ async def open_emulated_transport(
     robot = robot_from_url(url)
     if robot is not None:
         key, side_name, options = robot
-        paced: PacedBoard = _shared_robot(key, options, baud).side(side_name)
+        shared, far_end = _shared_robot(key, options, baud)
+        paced: PacedBoard = shared.side(side_name)
     else:
         paced = PacedBoard(board_from_url(url, baud), clock=asyncio.get_running_loop().time)
+        far_end = FarEnd(paced.run, lambda _reading: paced.next_wake())
     protocol = protocol_factory()
-    transport = EmulatedTransport(paced, protocol)
+    transport = EmulatedTransport(paced, protocol, far_end)
     protocol.connection_made(transport)
     return transport, protocol
 
 
 #: In-process robots, by their URL options (without the board), shared by the links to
-#: their boards; dropped when the last of those closes.
-_ROBOTS: dict[tuple[str, int], PacedRobot] = {}
+#: their boards, with the far end their transports share; dropped when the last closes.
+_ROBOTS: dict[tuple[str, int], tuple[PacedRobot, FarEnd]] = {}
 
 
-def _shared_robot(key: str, options: dict[str, list[str]], baud: int) -> PacedRobot:
-    paced = _ROBOTS.get((key, baud))
-    if paced is None:
+def _shared_robot(key: str, options: dict[str, list[str]], baud: int
+                  ) -> tuple[PacedRobot, FarEnd]:
+    shared = _ROBOTS.get((key, baud))
+    if shared is None:
         # Paced by the loop's own clock: the wall clock on asyncio's loops, emulated time on
         # a campaign's (fpgalink.aio.virtual_time_loop), where the board runs as fast as it goes.
-        paced = _ROBOTS[(key, baud)] = PacedRobot(robot_from_options(options, baud),
-                                                  asyncio.get_running_loop().time)
+        paced = PacedRobot(robot_from_options(options, baud), asyncio.get_running_loop().time)
+        shared = _ROBOTS[(key, baud)] = (paced, FarEnd(
+            paced.advance, lambda reading: paced.next_wake(side.board for side in reading)))
 
         def forget() -> None:
             _ROBOTS.pop((key, baud), None)
 
         paced.on_release = forget
-    return paced
+    return shared

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -147,6 +147,15 @@ class PacedBoard:
     def advance(self, now: float | None = None) -> bytes:
         """Run the board up to ``now`` (in slices while catching up) and return the TX bytes
         whose stop bit ended by then."""
+        self.run(now)
+        return self.take_bytes()
+
+    def take_bytes(self) -> bytes:
+        """The TX bytes whose stop bit has ended by the board's present, not taken before."""
+        return self.board.read_host_bytes()
+
+    def run(self, now: float | None = None) -> None:
+        """Run the board up to ``now``, in slices while catching up."""
         target = self.target_cycle(now)
         if self._due is not None and target >= self._due:
             self.lag.observe((target - self._due) / CLOCK_HZ)
@@ -160,7 +169,6 @@ class PacedBoard:
                                       + int(CATCH_UP_SLICE_S * CLOCK_HZ)))
         if step_to > self.board.now:
             self.board.run_until(step_to)
-        return self.board.read_host_bytes()
 
     def next_wake(self) -> float | None:
         """When :meth:`advance` next has something to do (monotonic seconds): the board's
@@ -260,14 +268,17 @@ class PacedRobot:
             self.robot.run_until(step_to)
         self._catching_up = self.robot.now < target
 
-    def next_wake(self) -> float | None:
+    def next_wake(self, read: Iterable[Board] | None = None) -> float | None:
         """:meth:`PacedBoard.next_wake` over every board of the robot (the body moves
-        with them and needs no wake-up of its own)."""
+        with them and needs no wake-up of its own): each board's next deadline, and the end
+        of the frame on the TX pin of each board in ``read`` (default: every board; a board
+        whose host is not reading now has nothing to hand out)."""
         if self.robot.now < self.target_cycle() - int(CATCH_UP_SLICE_S * CLOCK_HZ):
             return self.clock()
-        cycles = [c for board in self.robot.boards.values()
-                  for c in (board.next_deadline(), board.uartwrite.next_completion)
-                  if c is not None]
+        boards = self.robot.boards.values()
+        cycles = [c for c in (b.next_deadline() for b in boards) if c is not None]
+        cycles += [c for c in (b.uartwrite.next_completion
+                               for b in (boards if read is None else read)) if c is not None]
         self._due = min(cycles, default=None)
         return None if self._due is None else self._origin + (self._due + 1) / CLOCK_HZ
 
@@ -308,8 +319,10 @@ class RobotSide(PacedBoard):
     def time_of(self, cycle: int) -> float:
         return self.robot.time_of(cycle)
 
-    def advance(self, now: float | None = None) -> bytes:
+    def run(self, now: float | None = None) -> None:
         self.robot.advance(now)
+
+    def take_bytes(self) -> bytes:
         self._handed_out_to = self.robot.robot.now
         return self.board.read_host_bytes()
 
