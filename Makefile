@@ -129,9 +129,10 @@ lint: $(STAMP)
 
 # As modules from the repository root, so they import benchmarks._common and the tests'
 # reference models by their package names.
-bench: $(STAMP)
+bench: $(STAMP) compile
 	$(PY) -m benchmarks.codec
 	$(PY) -m benchmarks.emulator
+	$(PY) -m benchmarks.instructions
 	$(PY) -m benchmarks.link
 	$(PY) -m benchmarks.throughput
 	$(PY) -m benchmarks.ros2

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -138,6 +139,22 @@ def test_emulator_quick(tmp_path: Path) -> None:
     assert [t["case"] for t in report["targets"]][:4] == ["board", "board.idle", "robot",
                                                           "robot.mujoco"]
     assert all(isinstance(t["pass"], bool) for t in report["targets"])
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_instructions_quick(tmp_path: Path) -> None:
+    if shutil.which("valgrind") is None or shutil.which("callgrind_control") is None:
+        pytest.skip("valgrind (callgrind) is not installed")
+    stdout, report = run_quick("instructions", tmp_path)
+    assert "instructions per emulated millisecond" in stdout
+    board = report["cases"]["board"]
+    # A count for each build, of the run alone: a millisecond of a board's work is tens of
+    # thousands of instructions at least, and the same work on either build.
+    for build in ("compiled", "pure"):
+        assert board[build]["per_emulated_ms"] > 10_000, build
+    if report["compiled_build_present"]:
+        assert board["pure_over_compiled"] > 1.0
+    assert report["cases"]["flat loop (+ RV)"]["pure"]["per_emulated_ms"] > 10_000
 
 
 @pytest.mark.timeout(TIMEOUT_S + 20)
