@@ -13,6 +13,7 @@ modules and the build itself; this hook only asks for its tools and packs what i
 from __future__ import annotations
 
 import importlib.util
+import shutil
 import sys
 import tempfile
 from pathlib import Path
@@ -36,6 +37,8 @@ def _builder(root: str) -> ModuleType:
 
 class CompiledBuildHook(BuildHookInterface):  # type: ignore[misc]
     PLUGIN_NAME = "custom"
+    #: where a wheel's compiled files wait until the wheel is written
+    scratch: str | None = None
 
     def dependencies(self) -> list[str]:
         if _builder(self.root).pure_requested():
@@ -54,9 +57,9 @@ class CompiledBuildHook(BuildHookInterface):  # type: ignore[misc]
             if version == "editable":
                 builder.compile_in_place(root)
                 return
-            scratch = tempfile.mkdtemp(prefix="fpgalink-wheel-")
-            out = Path(scratch) / "out"
-            made = builder.build(root, Path(scratch) / "work", out)
+            self.scratch = tempfile.mkdtemp(prefix="fpgalink-wheel-")
+            out = Path(self.scratch) / "out"
+            made = builder.build(root, Path(self.scratch) / "work", out)
         except builder.BuildUnavailable as exc:
             print(f"fpgalink: no compiled build ({exc}): pure Python", file=sys.stderr)
             return
@@ -64,3 +67,8 @@ class CompiledBuildHook(BuildHookInterface):  # type: ignore[misc]
             build_data["force_include"][str(out / relative)] = str(relative)
         build_data["pure_python"] = False
         build_data["infer_tag"] = True
+
+    def finalize(self, version: str, build_data: dict[str, Any], artifact_path: str) -> None:
+        if self.scratch is not None:
+            shutil.rmtree(self.scratch, ignore_errors=True)
+            self.scratch = None

@@ -114,6 +114,8 @@ class UartSend:
         #: loses the frame on the wire (it still takes its line time).
         self.frame_filter: FrameFilter | None = None
         self._done_listeners: list[Callable[[TxDone], None]] = []
+        #: ``listener(content, cycle)`` at each accepted strobe (:meth:`on_frame`)
+        self._frame_listeners: list[Callable[[bytes, int], None]] = []
         #: (end cycle, wire bytes) of each frame a done event is scheduled for, in order: a
         #: frame nobody listens for gets none
         self._ends: deque[tuple[int, int]] = deque()
@@ -137,6 +139,12 @@ class UartSend:
         if not 0 <= length <= self.bram.size:
             raise ValueError(f"TX length {length} does not fit the {self.bram.size}-byte RAM")
         self.length = length
+
+    def on_frame(self, listener: Callable[[bytes, int], None]) -> None:
+        """``listener(content, cycle)`` at every accepted strobe from now on, with the
+        frame's content as the TX RAM holds it (before framing and any fault on the line):
+        a logic analyser on the RAM, what a test checks the host received against."""
+        self._frame_listeners.append(listener)
 
     def on_done(self, listener: Callable[[TxDone], None]) -> None:
         """``listener`` runs at the end of every frame from now on (the frame on the wire
@@ -190,6 +198,8 @@ class UartSend:
 
     def _start_frame(self, content: bytes) -> bool:
         """The accepted strobe: ``content`` (the RAM's first ``length`` bytes) goes out."""
+        for frame_listener in self._frame_listeners:
+            frame_listener(content, self._timeline.now)
         wire = self._escaper.frame(content)
         wire_bytes = len(wire)
         stats = self.stats
