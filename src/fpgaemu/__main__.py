@@ -20,11 +20,13 @@ import signal
 import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from importlib.machinery import EXTENSION_SUFFIXES
 from pathlib import Path
 from typing import Any, NoReturn
 
 import click
 
+from fpgaemu import timeline
 from fpgaemu.build import UART_RX_MODES, build_board
 from fpgaemu.faults import FAULT_HELP, parse_faults
 from fpgaemu.liveview import INSTALL_HINT, EmulatorLiveView
@@ -70,6 +72,13 @@ class ServeError(click.ClickException):
 
     def show(self, file: Any = None) -> None:
         click.echo(f"fpgaemu: error: {self.format_message()}", err=True)
+
+
+def running_build() -> str:
+    """Which build of the emulator runs: its modules compiled (mypyc) or pure Python."""
+    compiled = timeline.__file__ is not None and timeline.__file__.endswith(
+        tuple(EXTENSION_SUFFIXES))
+    return "compiled (mypyc)" if compiled else "pure Python"
 
 
 def board_names(count: int) -> list[str]:
@@ -237,7 +246,8 @@ def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"],
                                "max_content_width": 100})
-@click.version_option(__version__, prog_name="fpgaemu")
+@click.version_option(__version__, prog_name="fpgaemu",
+                      message=f"%(prog)s, version %(version)s, {running_build()}")
 @with_serve_options
 @click.pass_context
 def cli(ctx: click.Context, /, **given: Any) -> None:

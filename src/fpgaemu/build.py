@@ -36,20 +36,17 @@ def build_board(
     firmware: str = "python",
     wheels: str = "identified",
     uart_rx: str = "edge",
-    fused: bool = True,
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
     are ``--fault`` specs (docs/reliability.md); ``tx_byte_gap`` the idle cycles after each
     byte ``uartwrite`` sends back to back (:class:`~fpgaemu.board.BoardConfig`);
-    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``fused`` runs
-    regular work through :mod:`fpgaemu.fastpath` (``False``: through the modules only, the
-    same state, slower); ``uart_rx`` how the
-    receiver finds a start bit (``edge`` or ``level``, :data:`UART_RX_MODES`); ``wheels`` what turns
-    the wheels: ``"identified"`` (the seed's identified plant, :class:`~fpgaemu.motor.Motors`)
-    or ``"driven"`` (motors as torque sources for a body's physics,
-    :class:`~fpgaemu.motor.DrivenMotors`); ``firmware`` the MicroBlaze software, ``"python"``
-    (the model) or ``"c"`` (the C core, built on first use;
+    ``current_noise_a`` the Hall sensors' Gaussian noise (A, seeded); ``uart_rx`` how the
+    receiver finds a start bit (``edge`` or ``level``, :data:`UART_RX_MODES`); ``wheels``
+    what turns the wheels: ``"identified"`` (the seed's identified plant,
+    :class:`~fpgaemu.motor.Motors`) or ``"driven"`` (motors as torque sources for a body's
+    physics, :class:`~fpgaemu.motor.DrivenMotors`); ``firmware`` the MicroBlaze software,
+    ``"python"`` (the model) or ``"c"`` (the C core, built on first use;
     :class:`~fpgaemu.cfirmware.CFirmwareUnavailable` without a C compiler). ``ValueError``
     for anything invalid."""
     if firmware not in FIRMWARES:
@@ -61,7 +58,7 @@ def build_board(
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap,
-                         uart_rx=uart_rx, fused=fused)
+                         uart_rx=uart_rx)
     board = Board(config)
     if wheels not in ("identified", "driven"):
         raise ValueError(f"wheels must be 'identified' or 'driven', got {wheels!r}")

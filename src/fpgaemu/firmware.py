@@ -43,11 +43,10 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass
 from math import isfinite
-from typing import Any
+from typing import Any, Final
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
-from fpgaemu.fastpath import FusedTick
 from fpgaemu.hwcontrol import HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
@@ -97,28 +96,34 @@ FIRMWARE_BUILD = 0
 #: device DNA).
 _EMULATED_SERIAL_BASE = 0x00E5_EED0_0000_0000
 
-ALIVE_PERIOD_CYCLES = ms(300)
-SPEED_SW, SPEED_HW, CURRENT_SW, CURRENT_HW = 0, 1, 2, 3  #: ActiveController values
-HARDWARE_MODES = (SPEED_HW, CURRENT_HW)
-_MOTOR = MotorConstants()
-_CYCLES_PER_US = us(1)
+ALIVE_PERIOD_CYCLES: Final = ms(300)
+#: ActiveController values
+SPEED_SW: Final = 0
+SPEED_HW: Final = 1
+CURRENT_SW: Final = 2
+CURRENT_HW: Final = 3
+HARDWARE_MODES: Final = (SPEED_HW, CURRENT_HW)
+_MOTOR: Final = MotorConstants()
+_CYCLES_PER_US: Final = us(1)
 # Plain ints: the flag word is built every tick, and IntFlag arithmetic is slow.
-_ENABLE, _END_STOP, _SATURATED = (int(f) for f in (
-    TelemetryFlags.ENABLE, TelemetryFlags.END_STOP, TelemetryFlags.SATURATED))
+_ENABLE: Final = int(TelemetryFlags.ENABLE)
+_END_STOP: Final = int(TelemetryFlags.END_STOP)
+_SATURATED: Final = int(TelemetryFlags.SATURATED)
 #: Duty (PWM counts) to current (A) at stall, the current loop's plant gain.
-_AMPS_PER_COUNT = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
-_ELECTRICAL_TAU = _MOTOR.inductance_h / _MOTOR.resistance_ohm
+_AMPS_PER_COUNT: Final = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
+_ELECTRICAL_TAU: Final = _MOTOR.inductance_h / _MOTOR.resistance_ohm
 #: Current-loop gains, PWM counts per A: a loop gain of 0.5 per tick in software (stable at
 #: any timer period), 2 in hardware (crossover ≈ 2,000 rad/s at 10 kHz).
-SW_CURRENT_KP = 0.5 / _AMPS_PER_COUNT
-HW_CURRENT_KP = 2.0 / _AMPS_PER_COUNT
+SW_CURRENT_KP: Final = 0.5 / _AMPS_PER_COUNT
+HW_CURRENT_KP: Final = 2.0 / _AMPS_PER_COUNT
 
 
 class Channel:
     """The software's state for one motor channel: its controllers, reference and the
     latest samples of its inputs (and, once attached, the FPGA controller module)."""
 
-    def __init__(self, gains: PidGains) -> None:
+    def __init__(self, gains: PidGains, mode: int) -> None:
+        self.mode = mode  #: the ActiveController in force (parameter 4)
         self.pid = Pid(gains)
         self.current_pid = Pid(PidGains(SW_CURRENT_KP, _ELECTRICAL_TAU, 0.0))
         self.hardware: HardwareController | None = None
@@ -163,7 +168,10 @@ class Firmware:
         for param in self.parameters.values():
             for channel in _channels_of(param):
                 self.values[(param.id, channel)] = _stored(param, param.default)
-        self.channels = {code: Channel(self._gains(code)) for code in (CHANNEL_A, CHANNEL_B)}
+        self.channels = {code: Channel(self._gains(code), int(self.values[(4, code)]))
+                         for code in (CHANNEL_A, CHANNEL_B)}
+        #: GetDataPeriodical = 1: a TM at every tick
+        self.telemetry_on = self.values[(2, BOARD)] == 1
         self.stats = FirmwareStats()
         self._timing = TimingReport()
         self.host_counter = CounterTracker()
@@ -177,8 +185,6 @@ class Firmware:
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
-        #: the fused tick (:mod:`fpgaemu.fastpath`), on a board configured with ``fused``
-        self._fused: FusedTick | None = None
         self.last_tick = 0  #: the cycle of the last timer interrupt
 
     def _gains(self, code: int) -> PidGains:
@@ -221,7 +227,6 @@ class Firmware:
         for code, ch in self.channels.items():
             ch.hardware = HardwareController(board, board.channels[code])
             self._configure_hardware(code)
-        self._fused = FusedTick(self, board) if board.config.fused else None
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.set_skippable(self.skippable_event)
@@ -302,12 +307,12 @@ class Firmware:
             if isfinite(ref_a) and isfinite(ref_b):
                 self.stats.references += 1
                 # Both channels written out: one of these arrives every millisecond.
-                channels, values = self.channels, self.values
-                channels[CHANNEL_A].reference = ref_a
-                channels[CHANNEL_B].reference = ref_b
-                if values[(4, CHANNEL_A)] in HARDWARE_MODES:
+                channel_a, channel_b = self.channels[CHANNEL_A], self.channels[CHANNEL_B]
+                channel_a.reference = ref_a
+                channel_b.reference = ref_b
+                if channel_a.mode in HARDWARE_MODES:
                     self._write_hardware_reference(CHANNEL_A)
-                if values[(4, CHANNEL_B)] in HARDWARE_MODES:
+                if channel_b.mode in HARDWARE_MODES:
                     self._write_hardware_reference(CHANNEL_B)
             else:
                 self.stats.invalid_references += 1
@@ -374,6 +379,10 @@ class Firmware:
     def _apply(self, param: Param, channel: int, value: int | float) -> None:
         """Store and recompute whatever depends on the parameter."""
         self.values[(param.id, channel)] = value
+        if param.id == 2:
+            self.telemetry_on = value == 1
+        elif param.id == 4:
+            self.channels[channel].mode = int(value)
         if self._board is None:
             return  # applied to the hardware at attach
         if param.id == 1:
@@ -404,7 +413,7 @@ class Firmware:
     # --- the control loop -----------------------------------------------------------------
 
     def mode(self, code: int) -> int:
-        return int(self.values[(4, code)])
+        return self.channels[code].mode
 
     def _current_reference(self, code: int) -> float:
         """The current (A) a torque reference (N·m) asks for."""
@@ -461,7 +470,7 @@ class Firmware:
         """A timer tick now would change nothing observable: disabled, no telemetry, no
         hardware loop, controllers reset, PWM at 0, readings settled, wheels exactly at
         rest. The tick then only counts itself, and a paced board need not wake for it."""
-        if self._enabled or self.values[(2, BOARD)] == 1:
+        if self._enabled or self.telemetry_on:
             return False
         board = self.board
         for code, ch in self.channels.items():
@@ -487,14 +496,12 @@ class Firmware:
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
             return
-        if self._fused is not None and self._fused(cycle):
-            return
         board = self._board
         assert board is not None
         board.settle(cycle)
         dt = board.timer.period_cycles / CLOCK_HZ
-        values, enabled = self.values, self._enabled
-        telemetry = values[(2, BOARD)] == 1
+        enabled = self._enabled
+        telemetry = self.telemetry_on
         io_channels = board.channels
         samples = []
         for code, ch in self.channels.items():
@@ -504,7 +511,7 @@ class Firmware:
             ch.speed = speed = encoder.firmware_reader.sample(cycle)
             ch.position = encoder.position
             ch.current = io.current_a
-            mode = values[(4, code)]
+            mode = ch.mode
             if not enabled:
                 ch.pid.reset()
                 ch.current_pid.reset()

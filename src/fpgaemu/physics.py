@@ -486,11 +486,9 @@ class PhysicsBody:
         angles, last_rotors = self._angles, self._rotors
         to_degrees = _DEGREES
         for i, drive in enumerate(drives):
-            # WheelDrive.follow_physics, written out
-            drive._c0, drive._a0 = cycle0, drive._a1
-            drive._c1, drive._a1 = cycle1, wheels[i] * to_degrees
-            drive.wheel_speed_dps = (wheels[i] - angles[i]) * to_degrees / dt
-            drive.rotor_speed = (rotors[i] - last_rotors[i]) / dt
+            drive.follow_physics(cycle0, cycle1, wheels[i] * to_degrees,
+                                 (wheels[i] - angles[i]) * to_degrees / dt,
+                                 (rotors[i] - last_rotors[i]) / dt)
         self._angles, self._rotors = wheels, rotors
         if not powered and all(held):
             self._maybe_sleep()
@@ -614,7 +612,8 @@ def render(body: PhysicsBody, width: int = 640, height: int = 480, *,
     """A picture of the body as it is (RGB, ``height`` × ``width`` × 3), the camera aimed at
     the chassis. Needs an OpenGL MuJoCo can use without a display: ``MUJOCO_GL=egl`` (Mesa's
     software EGL works on a machine without a GPU) or ``osmesa``."""
-    mujoco = body._mujoco
+    import mujoco
+
     renderer = mujoco.Renderer(body.model, height, width)
     try:
         camera = mujoco.MjvCamera()

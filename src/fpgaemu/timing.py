@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
     from fpgaemu.board import Board
@@ -21,7 +21,7 @@ __all__ = ["MISSED_LISTED", "TimingReport"]
 
 #: Missed periods listed individually (later ones are only counted), so a long run under
 #: overload keeps bounded memory.
-MISSED_LISTED = 10_000
+MISSED_LISTED: Final = 10_000
 
 
 @dataclass(slots=True)
