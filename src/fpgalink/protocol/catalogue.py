@@ -199,7 +199,8 @@ def _unpack_value(value_type: int, raw: bytes) -> int | float:
 class _Catalogued(Event):
     msg_id: ClassVar[MessageId]
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
+        """The values the wire body carries, in its layout's order (what the codec packs)."""
         raise NotImplementedError
 
 
@@ -213,7 +214,7 @@ class _ParamValue(_Catalogued):
     value: int | float
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel, self.value_type,
                 _pack_value(self.value_type, self.value))
 
@@ -241,7 +242,7 @@ class ParamGet(_Catalogued):
     channel: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel)
 
 
@@ -255,7 +256,7 @@ class ParamNack(_Catalogued):
     error: int  #: a :class:`NackReason` code
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel, self.error)
 
     @property
@@ -275,7 +276,7 @@ class References(_Catalogued):
     ref_b: float
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.ref_a, self.ref_b)
 
 
@@ -312,7 +313,7 @@ class Telemetry(_Catalogued):
     b: ChannelTelemetry
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.t_us, *self.a, *self.b)
 
 
@@ -326,7 +327,7 @@ class IdentityQuery(_Catalogued):
     nonce: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.nonce,)
 
 
@@ -344,7 +345,7 @@ class IdentityAnswer(_Catalogued):
     serial: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.nonce, self.declarations, self.firmware_major, self.firmware_minor,
                 self.firmware_patch, self.build, self.serial)
 
@@ -589,6 +590,6 @@ def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
     whole, msg_id, opener = encoder
     try:
         return whole.pack(msg_id, b"%05d" % (counter % COUNTER_MODULUS), opener,
-                          *message._body_values(), _CLOSE)
+                          *message.body_values(), _CLOSE)
     except (struct.error, OverflowError) as exc:
         raise LocalProtocolError(f"{type(message).__name__}: {exc}") from None
