@@ -209,7 +209,7 @@ def test_only_the_ros2_package_knows_ros(where: str, path: Path) -> None:
 
 
 @pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgalink.robot",
-                                     "fpgaemu"])
+                                     "fpgaemu", "fpgaemu.physics"])
 def test_every_public_name_of_a_package_resolves(package: str) -> None:
     # The packages load their names on first use: every name listed must be there.
     import importlib
@@ -217,6 +217,27 @@ def test_every_public_name_of_a_package_resolves(package: str) -> None:
     module = importlib.import_module(package)
     missing = [name for name in module.__all__ if not hasattr(module, name)]
     assert not missing, f"{package} lists {missing} but cannot give them"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
+def test_mujoco_stays_in_the_physics_body_and_loads_when_a_body_is_made(where: str,
+                                                                       path: Path) -> None:
+    # The physics extra is optional: fpgaemu serve, the surfaces and why_unavailable() work
+    # without it, so no module imports MuJoCo at import time, and only the physics body's
+    # modules import it at all.
+    assert "mujoco" not in runtime_imports(path), where
+    if not where.startswith("fpgaemu/physics/"):
+        assert not {n for n in imports_of(path) if within(n, "mujoco")}, where
+
+
+@pytest.mark.parametrize(("where", "path"), [
+    m for m in modules("fpgaemu.physics")
+    if not m[0].endswith(("physics/__init__.py", "physics/body.py", "physics/render.py"))])
+def test_the_physics_bodys_parts_stand_below_the_body(where: str, path: Path) -> None:
+    # Surfaces, the model, the drives, the tyres and the IMU are each handed what they
+    # need; none reaches back into the body that holds them.
+    assert not {n for n in first_party(imports_of(path))
+                if n == "fpgaemu.physics" or within(n, "fpgaemu.physics.body")}, where
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.codegen"))
@@ -282,15 +303,27 @@ def runtime_imports(path: Path) -> set[str]:
                 visit(node.body)
                 visit(node.orelse)
             elif isinstance(node, ast.Try):
-                visit(node.body)
+                for block in (node.body, *(h.body for h in node.handlers), node.orelse,
+                              node.finalbody):
+                    visit(block)
 
     visit(ast.parse(path.read_text(encoding="utf-8")).body)
     return found
 
 
+@pytest.mark.parametrize(("where", "path"), [*modules("fpgalink"), *modules("fpgaemu")])
+def test_imports_are_absolute(where: str, path: Path) -> None:
+    # The rules above and the circle below read absolute imports: a relative one would pass
+    # unseen.
+    relative = [node.lineno for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                if isinstance(node, ast.ImportFrom) and node.level]
+    assert not relative, f"{where}: relative imports on lines {relative}"
+
+
 def test_no_import_circle() -> None:
     # A module's package runs its __init__ before it, so that edge is no circle; every other
-    # import at the top level of a module is.
+    # import at the top level of a module is (in fpgalink and fpgaemu alike). Imports under
+    # ``if TYPE_CHECKING:`` are allowed to close a circle: they never run.
     graph: dict[str, set[str]] = {}
     for package in ("fpgalink", "fpgaemu"):
         for where, path in modules(package):

@@ -40,7 +40,6 @@ Power-up values come from the parameter table's ``default`` column.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from math import isfinite
 from typing import Any, Final
@@ -52,7 +51,7 @@ from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
 from fpgaemu.pwm import MAX_DUTY
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, ms, us
-from fpgaemu.timing import TimingReport
+from fpgaemu.timing import FrameBooking, TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgalink.protocol import (
     PARAMETERS,
@@ -173,14 +172,13 @@ class Firmware:
         #: GetDataPeriodical = 1: a TM at every tick
         self.telemetry_on = self.values[(2, BOARD)] == 1
         self.stats = FirmwareStats()
-        self._timing = TimingReport()
+        #: the frames on the wire, booked into the timing report once done
+        self._frames = FrameBooking()
+        self._timing = self._frames.report
         self.host_counter = CounterTracker()
         self._counter = SendCounter()
         self._pending_settings = dict(settings or {})
         self._powered_at = 0  #: the cycle the board powered up: t_us counts from it
-        #: (done cycle, wire bytes, tick or None) of each frame on the wire, oldest first:
-        #: booked into the timing report once done (no event at a frame's end)
-        self._in_flight: deque[tuple[int, int, int | None]] = deque()
         self._board: Board | None = None
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
@@ -212,7 +210,7 @@ class Firmware:
         axi = board.axi
         axi.on_rx_interrupt(self._on_rx)
         axi.on_global_enable(self._on_enable)
-        self.tx = TxQueue(axi, depth=8, on_start=self._on_tx_start)
+        self.tx = TxQueue(axi, depth=8, on_start=self._frames.started)
         now = board.now
         self._timing.started_cycle = now
         for param in self.parameters.values():
@@ -235,8 +233,7 @@ class Firmware:
     @property
     def timing(self) -> TimingReport:
         """How the output fitted the timer periods, up to now (SPEC §7)."""
-        self._book_finished(self.board.now)
-        return self._timing
+        return self._frames.report_at(self.board)
 
     def budget_report(self) -> dict[str, Any]:
         """SPEC §7 from this run (see :meth:`fpgaemu.timing.TimingReport.summary`)."""
@@ -256,23 +253,6 @@ class Firmware:
         if kind == "E":
             return self.tx.send(b"E")
         return self.tx.send(self.wire_crc.send(encode_message(message, self._counter.take())))
-
-    def _on_tx_start(self, tick: int | None, done: int, wire_bytes: int) -> None:
-        self._in_flight.append((done, wire_bytes, tick))
-
-    def _book_finished(self, now: int) -> None:
-        """Book every frame whose last stop bit has ended by ``now``: its wire bytes, and a
-        TM's slack to the next tick. Called before anything reads the report or changes the
-        timer period, so each is booked as it would have been at its end."""
-        in_flight = self._in_flight
-        timing = self._timing
-        assert self._board is not None
-        period = self._board.timer.period_cycles
-        while in_flight and in_flight[0][0] <= now:
-            done, wire_bytes, tick = in_flight.popleft()
-            timing.tx_wire_bytes += wire_bytes
-            if tick is not None:
-                timing.record_slack(tick, done, tick + period - done)
 
     def _on_alive(self, cycle: int) -> None:
         if self._send(None, "E"):
@@ -386,7 +366,7 @@ class Firmware:
         if self._board is None:
             return  # applied to the hardware at attach
         if param.id == 1:
-            self._book_finished(self.board.now)  # frames done so far against the old period
+            self._frames.report_at(self.board)  # frames done so far against the old period
             self.board.timer.set_period_ms(int(value))
         elif param.id == WIRE_CRC_PARAM:
             # Before the PA goes out: the confirmation is the first message in the new form.
@@ -491,8 +471,8 @@ class Firmware:
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
-        if self._in_flight and self._in_flight[0][0] <= cycle:
-            self._book_finished(cycle)
+        if self._frames.due(cycle):
+            self._frames.book(cycle, self.board.timer.period_cycles)
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
             return

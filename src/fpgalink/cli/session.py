@@ -17,7 +17,14 @@ from typing import Any, TypeVar
 from fpgalink.aio.link import Link, LinkState
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
-from fpgalink.cli.output import CliError, ExitCode, classify, note, wire_crc_advice
+from fpgalink.cli.output import (
+    CliError,
+    ExitCode,
+    classify,
+    note,
+    stdout_errors,
+    wire_crc_advice,
+)
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import (
     BoardFound,
@@ -145,15 +152,10 @@ def on_messages(link: Link | Callable[[Callable[[Event], None]], Callable[[], No
 
 
 def write_stdout(text: str) -> None:
-    """Write to stdout; a write error (a full disk behind a redirect) is one line, exit 1.
-    A reader that went away (``| head``) is not an error: BrokenPipeError goes up."""
-    try:
+    """Write to stdout, unflushed (a stream of rows), under
+    :func:`~fpgalink.cli.output.stdout_errors`."""
+    with stdout_errors():
         sys.stdout.write(text)
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
-                       ) from None
 
 
 def flag_letters(channel: ChannelTelemetry) -> str:
