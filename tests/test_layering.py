@@ -1,9 +1,11 @@
 """The house rules of docs/architecture.md, read from every module's imports: each layer
-imports only the layers below it, and the two packages meet only in fpgalink.protocol."""
+imports only the layers below it, and the two packages meet only in fpgalink.protocol (and
+fpgalink.ports, the operating system's side of serving a board, which both servers share)."""
 
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -43,9 +45,24 @@ def within(name: str, *allowed: str) -> bool:
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
 def test_the_emulator_imports_only_the_public_protocol_package(where: str, path: Path) -> None:
+    # And fpgalink.ports: the pty, its --link and the ready lines, which fpgaemu serve shares
+    # with fpgalink-cli router.
     crossing = {n for n in first_party(imports_of(path))
-                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol")}
+                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol",
+                                                           "fpgalink.ports")}
     assert not crossing, f"{where} imports {sorted(crossing)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.ports"))
+def test_the_ports_package_stands_on_the_standard_library_alone(where: str, path: Path
+                                                                ) -> None:
+    # Both servers import it, the emulator among them: it may lean on nothing of fpgalink
+    # that the emulator may not import, and on nothing outside the standard library.
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.ports")}, where
+    outside = {n for n in names if n.split(".")[0] not in sys.stdlib_module_names
+               and n.split(".")[0] not in ("__future__", "fpgalink")}
+    assert not outside, f"{where} imports {sorted(outside)}"
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink"))
