@@ -1,9 +1,11 @@
 """The house rules of docs/architecture.md, read from every module's imports: each layer
-imports only the layers below it, and the two packages meet only in fpgalink.protocol."""
+imports only the layers below it, and the two packages meet only in fpgalink.protocol (and
+fpgalink.ports, the operating system's side of serving a board, which both servers share)."""
 
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -43,9 +45,46 @@ def within(name: str, *allowed: str) -> bool:
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
 def test_the_emulator_imports_only_the_public_protocol_package(where: str, path: Path) -> None:
+    # And fpgalink.ports: the pty, its --link and the ready lines, which fpgaemu serve shares
+    # with fpgalink-cli router.
     crossing = {n for n in first_party(imports_of(path))
-                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol")}
+                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol",
+                                                           "fpgalink.ports")}
     assert not crossing, f"{where} imports {sorted(crossing)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.ports"))
+def test_the_ports_package_stands_on_the_standard_library_alone(where: str, path: Path
+                                                                ) -> None:
+    # Both servers import it, the emulator among them: it may lean on nothing of fpgalink
+    # that the emulator may not import, and on nothing outside the standard library.
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.ports")}, where
+    outside = {n for n in names if n.split(".")[0] not in sys.stdlib_module_names
+               and n.split(".")[0] not in ("__future__", "fpgalink")}
+    assert not outside, f"{where} imports {sorted(outside)}"
+
+
+#: The router's parts that decide without I/O or a clock: what waits for a line, a client's
+#: accounting, who controls the board.
+ROUTER_SANS_IO = ("router/linequeue.py", "router/stats.py", "router/arbitration.py")
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.router"))
+def test_the_router_stands_on_the_transports_beside_the_robot(where: str, path: Path) -> None:
+    # The router's daemon moves frames between a board's port (fpgalink.aio's transports)
+    # and its clients; the CLI's router command stands on it, never the reverse, and it
+    # needs neither the robot nor a link's connection.
+    names = imports_of(path)
+    allowed = ("fpgalink.protocol", "fpgalink.ports", "fpgalink.errors",
+               "fpgalink.aio.transport", "fpgalink.router")
+    assert not {n for n in first_party(names) if not within(n, *allowed)}, where
+    if where.endswith(ROUTER_SANS_IO):
+        assert not names & {"asyncio", "time", "socket", "select", "os", "threading"}, where
+        assert not {n for n in first_party(names)
+                    if not within(n, "fpgalink.protocol", *(
+                        "fpgalink." + m.removesuffix(".py").replace("/", ".")
+                        for m in ROUTER_SANS_IO))}, where
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink"))
@@ -75,7 +114,8 @@ def test_the_sans_io_layer_has_no_io_and_no_clock(where: str, path: Path) -> Non
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.aio"))
 def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -> None:
     above = {n for n in first_party(imports_of(path))
-             if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2")}
+             if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2",
+                       "fpgalink.router")}
     assert not above, f"{where} imports {sorted(above)}"
 
 
@@ -88,7 +128,8 @@ ROBOT_ON_ASYNCIO = ("robot.py", "boards.py", "setup.py", "recovery.py", "goal.py
 def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path) -> None:
     names = imports_of(path)
     above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2",
-                                                      "fpgalink.campaign", "fpgalink.live")}
+                                                      "fpgalink.campaign", "fpgalink.live",
+                                                      "fpgalink.router")}
     assert not above, f"{where} imports {sorted(above)}"
     if path.name not in ROBOT_ON_ASYNCIO:  # the sans-I/O parts: no I/O, no clock
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where

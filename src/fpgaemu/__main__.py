@@ -45,6 +45,8 @@ from fpgaemu.serve import (
     TruthEndpoint,
     serve_loop,
 )
+from fpgalink.ports import LinkError, LinkSpecError, make_link, pty_where, ready_line
+from fpgalink.ports import parse_links as link_specs
 from fpgalink.protocol import ParameterError
 from fpgalink.protocol.exitcodes import ExitCode, NotInstalled, exit_codes_help
 from fpgalink.protocol.paramfile import parse_parameter_table
@@ -135,19 +137,19 @@ def parse_settings(config: Path | None, assignments: tuple[str, ...]) -> dict[st
 
 
 def parse_links(values: tuple[str, ...], names: list[str]) -> dict[str, Path]:
-    """``--link PATH`` (one board) or ``--link NAME=PATH`` per board."""
+    """``--link PATH`` (one board) or ``--link NAME=PATH`` per board (the router's grammar,
+    :func:`fpgalink.ports.parse_links`); a board's one pty has one link."""
     links: dict[str, Path] = {}
-    for value in values:
-        name, sep, path = value.partition("=")
-        if not sep:
-            if len(names) != 1 or len(values) != 1:
-                raise ServeError(f"--link {value!r}: with several boards give NAME=PATH "
-                                 f"for each of {', '.join(names)}", EXIT_BAD_INPUT)
-            name, path = names[0], value
-        if name not in names:
-            raise ServeError(f"--link {value!r}: no board named {name!r} (boards: "
-                             f"{', '.join(names)})", EXIT_BAD_INPUT)
-        links[name] = Path(path)
+    try:
+        given = link_specs(values, names)
+    except LinkSpecError as exc:
+        raise ServeError(str(exc), EXIT_BAD_INPUT) from None
+    for name, path in given:
+        if name in links:
+            raise ServeError(f"--link {path}: board {name} has one pty, linked at "
+                             f"{links[name]} already; give each board one --link",
+                             EXIT_BAD_INPUT)
+        links[name] = path
     return links
 
 
@@ -398,23 +400,12 @@ def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, s
 
 
 def _make_link(path: Path, target: str) -> None:
-    """A symlink at ``path`` to ``target``; an older symlink there (from a board served
-    before, whose pty is gone or is now ours) is replaced. A symlink to a pty that is there
-    may be another serve's or a router's, live, and is not touched; nor is anything else."""
-    if path.is_symlink():
-        pointed = os.readlink(path)
-        if pointed != target and os.path.exists(path):
-            raise ServeError(f"--link {path}: a symlink to {pointed}, which exists (another "
-                             "fpgaemu serve or router may be serving it); not replacing it — "
-                             "remove it if it is stale", EXIT_CANNOT_SERVE)
-        path.unlink()
-    elif path.exists():
-        raise ServeError(f"--link {path}: exists and is not a symlink; not replacing it",
-                         EXIT_CANNOT_SERVE)
+    """:func:`fpgalink.ports.make_link`; a path that is not ours to take, or that the system
+    refuses, is a board that cannot be served (exit 5)."""
     try:
-        path.symlink_to(target)
-    except OSError as exc:
-        raise ServeError(f"--link {path}: {exc.strerror}", EXIT_CANNOT_SERVE) from None
+        make_link(path, target)
+    except LinkError as exc:
+        raise ServeError(str(exc), EXIT_CANNOT_SERVE) from None
 
 
 async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoard],
@@ -441,12 +432,10 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 pty = PtyEndpoint(board)
                 pty.start()
                 endpoints.append((name, pty))
-                where = pty.path
                 if name in links:
                     _make_link(links[name], pty.path)
                     pty.link = links[name]
-                    where = f"{links[name]} -> {pty.path}"
-                ready.append(f"ready {name} {where}")
+                ready.append(ready_line(name, pty_where(pty.path, pty.link)))
             else:
                 tcp = TcpEndpoint(board, host, port + index if port else 0,
                                   idle_timeout=idle_timeout)
@@ -458,7 +447,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 endpoints.append((name, tcp))
                 # One line per listening socket (IPv4 and IPv6 of a wildcard address), each
                 # an address a client can use.
-                ready += [f"ready {name} {url}" for url in tcp.urls]
+                ready += [ready_line(name, url) for url in tcp.urls]
         sides = [b for b in paced.values() if isinstance(b, RobotSide)]
         if truth is not None and sides:
             truth_endpoint = TruthEndpoint(sides[0].robot, *truth)
@@ -467,7 +456,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             except OSError as exc:
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
-            ready += [f"ready truth {url}" for url in truth_endpoint.urls]
+            ready += [ready_line("truth", url) for url in truth_endpoint.urls]
             if live is not None:
                 view = live(sides[0].robot.truth_record)
                 try:
@@ -476,7 +465,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                     raise ServeError(f"--foxglove: cannot listen: {exc}",
                                      EXIT_CANNOT_SERVE) from None
                 stack.push_async_callback(view.close)
-                ready.append(f"ready foxglove {view.url}")
+                ready.append(ready_line("foxglove", view.url))
         try:
             print("\n".join(ready), flush=True)
         except BrokenPipeError:
