@@ -4,23 +4,37 @@ board is (its ``IA`` answer), or ``None`` for a seed board that does not know ``
 :class:`~fpgalink.protocol.identity.IdentityProbe`'s: each ``IQ`` is followed by a ``PG`` of
 ``TsTimerPeriod`` (every board answers it, in order), so a board that did not answer is
 told from a lost answer by what arrives, not by a timeout — only a board that answers
-nothing at all fails, as any request to it would."""
+nothing at all fails, as any request to it would.
+
+A part of the link (it stands below :mod:`fpgalink.aio.link`, on what any asker offers:
+:class:`Asker`); :meth:`fpgalink.aio.link.Link.identify` runs it and keeps the answer."""
 
 from __future__ import annotations
 
 import random
+from collections.abc import Callable
+from typing import Protocol
 
-from fpgalink.aio.link import Link
-from fpgalink.protocol.event import Event
+from fpgalink.protocol import Event, IdentityQuery
 from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
 
-__all__ = ["FENCE_PARAMETER", "read_identity"]
+__all__ = ["FENCE_PARAMETER", "Asker", "read_identity"]
 
 #: The request that follows each ``IQ``: a board-wide parameter every board has.
 FENCE_PARAMETER = "TsTimerPeriod"
 
 
-async def read_identity(link: Link, *, rounds: int = 3) -> BoardIdentity | None:
+class Asker(Protocol):
+    """What asking takes of a link: send a message, read a parameter, hear every event."""
+
+    def send(self, message: IdentityQuery) -> bytes: ...
+
+    async def get_param(self, name: str, channel: None = None) -> int | float: ...
+
+    def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]: ...
+
+
+async def read_identity(link: Asker, *, rounds: int = 3) -> BoardIdentity | None:
     """The board's identity, or ``None`` when ``rounds`` queries in a row went unanswered
     while the board answered the request after each (a seed board). The link's request
     errors (:class:`~fpgalink.errors.RequestTimeout`, :class:`~fpgalink.errors.BoardLost`,
@@ -34,7 +48,7 @@ async def read_identity(link: Link, *, rounds: int = 3) -> BoardIdentity | None:
     remove = link.add_listener(observe)
     try:
         while True:
-            link.send(probe.query_message())
+            link.send(probe.query())
             await link.get_param(FENCE_PARAMETER)
             if probe.fence_answered():
                 return probe.identity

@@ -9,7 +9,9 @@ protocol decision, every retry and every count lives in the connection; the link
 moves bytes, timers and futures. Read batching (:mod:`.batching`), the link's clock
 (:mod:`.clock`) and the bound on what waits unwritten in its transport (:mod:`.backlog`:
 a request refused with :class:`~fpgalink.errors.LineBusy` while the line is backed up)
-are its helpers.
+are its helpers. Asked (``open_link(…, identify=True)`` or :meth:`Link.identify`), it
+finds out who the board is (:mod:`.identity`: docs/protocol.md §8), refuses a board built
+from another protocol declaration, and asks again after each restart.
 """
 
 from __future__ import annotations
@@ -26,12 +28,14 @@ from fpgalink.aio.backlog import MAX_LINE_BACKLOG_S, check_line
 from fpgalink.aio.batching import ReadBatcher
 from fpgalink.aio.clock import LinkClock
 from fpgalink.aio.fanout import Stamped, Subscribers
+from fpgalink.aio.identity import read_identity
 from fpgalink.aio.subscription import Subscription
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
-from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.events import RequestDone, RequestFailed, StatusEvent
+from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError, RequestTimeout
+from fpgalink.events import BoardRestarted, RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
+    BoardIdentity,
     CountedMessage,
     DirectCommand,
     Event,
@@ -39,6 +43,7 @@ from fpgalink.protocol import (
     Param,
     References,
     Telemetry,
+    require_identity,
     resolve,
 )
 from fpgalink.protocol.params import iter_addresses
@@ -53,6 +58,9 @@ __all__ = [
     "SyncResult",
     "open_link",
 ]
+
+#: How often a restarted board's identity is asked again while it does not answer (s).
+IDENTIFY_RETRY_S = 0.1
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
@@ -101,7 +109,9 @@ class Link:
     ``Link(connection, transport)`` attaches to a transport already open (a test's
     :class:`~fpgalink.testing.MemoryTransport`, say). With ``reopen`` and no transport,
     :meth:`open` opens one, and with ``reconnect`` the link reopens it with backoff when the
-    port vanishes; :func:`open_link` builds all of that from a URL."""
+    port vanishes; :func:`open_link` builds all of that from a URL. With ``identify``,
+    :meth:`open` asks the board who it is (:meth:`identify`) before it returns, and refuses
+    one built from another protocol declaration unless ``allow_mismatch``."""
 
     def __init__(
         self,
@@ -113,6 +123,8 @@ class Link:
         reopen: Reopen | None = None,
         reconnect: bool = True,
         reconnect_backoff: tuple[float, float] = (0.05, 2.0),
+        identify: bool = False,
+        allow_mismatch: bool = False,
     ) -> None:
         self.connection = connection
         self.name = name
@@ -131,6 +143,11 @@ class Link:
         self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
+        #: ask who the board is at open (and refuse a mismatch unless allowed)
+        self.identify_at_open = identify
+        self.allow_mismatch = allow_mismatch
+        self._asked_identity = False  #: asked once: asked again after each restart
+        self._identifying: asyncio.Task[None] | None = None
         self._batches = ReadBatcher(lambda data: self._on_data(self._protocol, data),
                                     lambda: self._transport, lambda: bool(self._futures))
         if transport is not None:
@@ -168,6 +185,12 @@ class Link:
         self.state = LinkState.CONNECTED
         self.connection.start(self._now())
         self._arm_timer()
+        if self.identify_at_open:
+            try:
+                await self.identify()
+            except BaseException:
+                await self.close()
+                raise
         return self
 
     async def close(self) -> None:
@@ -184,10 +207,11 @@ class Link:
         self.connection.close(self._now())
         if connected:
             self._write(self.connection.data_to_send())
-        if self._reconnect_task is not None:
-            self._reconnect_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._reconnect_task
+        for task in (self._reconnect_task, self._identifying):
+            if task is not None:
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await task
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -342,6 +366,55 @@ class Link:
             raise
         finally:
             self._futures.pop(request_id, None)
+
+    # --- who the board is ----------------------------------------------------------------
+
+    async def identify(self, *, allow_mismatch: bool | None = None, rounds: int = 3
+                       ) -> BoardIdentity | None:
+        """Ask the board who it is (docs/protocol.md §8): one ``IQ`` and a ``PG`` a round,
+        one round for a board that answers, ``rounds`` for a seed board (``None``:
+        :data:`~fpgalink.protocol.SEED_PROTOCOL`). Kept (:attr:`identity`), said
+        (:class:`~fpgalink.events.BoardIdentified`), and asked again by the link after each
+        restart from now on. A board built from another protocol declaration raises
+        :class:`~fpgalink.protocol.IdentityMismatch` (one line naming both hashes) unless
+        ``allow_mismatch`` (default: the link's); the request errors of a board that answers
+        nothing come through."""
+        identity = await read_identity(self, rounds=rounds)
+        self._asked_identity = True
+        self.connection.identified(identity, self._now())
+        self._process()
+        allowed = self.allow_mismatch if allow_mismatch is None else allow_mismatch
+        if not allowed:
+            require_identity(identity, self.name)
+        return identity
+
+    @property
+    def identity(self) -> BoardIdentity | None:
+        """What the board said of itself when last asked (see
+        :attr:`~fpgalink.connection.Connection.identity_known`)."""
+        return self.connection.identity
+
+    @property
+    def identity_known(self) -> bool:
+        return self.connection.identity_known
+
+    def _restarted(self) -> None:
+        """A board that was asked who it is is asked again after a restart (a re-flash
+        changes it); what it says is a :class:`~fpgalink.events.BoardIdentified` event."""
+        if self._asked_identity and (self._identifying is None or self._identifying.done()):
+            self._identifying = asyncio.ensure_future(self._identify_again())
+
+    async def _identify_again(self) -> None:
+        while self.state is not LinkState.CLOSED and not self.connection.identity_known:
+            if not self.board_alive or self.state is not LinkState.CONNECTED:
+                await asyncio.sleep(IDENTIFY_RETRY_S)
+                continue
+            try:
+                await self.identify(allow_mismatch=True)
+            except (RequestTimeout, BoardLost):
+                await asyncio.sleep(IDENTIFY_RETRY_S)
+            except FpgalinkError:
+                return  # closed, or refused (a router's observer): nothing more to ask
 
     # --- telemetry and events -------------------------------------------------------------
 
@@ -503,6 +576,8 @@ class Link:
                         future.set_exception(event.error)
             elif isinstance(event, StatusEvent):
                 subscribers.status(event)
+                if kind is BoardRestarted:
+                    self._restarted()
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -566,6 +641,8 @@ def open_link(
     reconnect: bool = True,
     reconnect_backoff: tuple[float, float] = (0.05, 2.0),
     read_latency: float | None = None,
+    identify: bool = False,
+    allow_mismatch: bool = False,
     **options: Unpack[LinkOptions],
 ) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
@@ -573,13 +650,17 @@ def open_link(
     a package registers). ``options`` are the connection's settings
     (:class:`~fpgalink.connection.Settings`: ``request_tries``, ``liveness_timeout``,
     ``unanswered_rounds`` …); ``reconnect`` reopens the URL with backoff when the port
-    vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`)."""
+    vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`);
+    ``identify`` asks the board who it is as it opens (:meth:`Link.identify`: one extra round
+    trip, three for a seed board) and refuses one built from another protocol declaration
+    unless ``allow_mismatch``."""
     connection = Connection(baud=baud, **options)
 
     async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
         return await open_transport(url, baud, factory)
 
     link = Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
-                reconnect_backoff=reconnect_backoff)
+                reconnect_backoff=reconnect_backoff, identify=identify,
+                allow_mismatch=allow_mismatch)
     link.set_read_latency(read_latency)
     return link

@@ -45,6 +45,7 @@ from fpgalink.connection.stats import LinkStats
 from fpgalink.errors import BoardLost, LinkClosed, LocalProtocolError
 from fpgalink.events import (
     BoardFound,
+    BoardIdentified,
     BoardSilent,
     Closed,
     PortLost,
@@ -55,8 +56,10 @@ from fpgalink.events import (
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
+    MESSAGE_TYPES,
     TELEMETRY_RUN_MIN,
     Alive,
+    BoardIdentity,
     CountedMessage,
     CounterTracker,
     DirectCommand,
@@ -68,12 +71,12 @@ from fpgalink.protocol import (
     Message,
     Param,
     ParamAck,
-    ParamGet,
     ParamNack,
-    ParamSet,
     References,
     Role,
     Telemetry,
+    compare_identity,
+    declarations_hash,
     parse_content,
     parse_telemetry_run,
 )
@@ -83,11 +86,10 @@ __all__ = ["Connection"]
 
 
 def _sendable(role: Role) -> frozenset[type]:
-    """The message types ``role`` sends, by their wire IDs (a generic counted message is
-    anyone's)."""
-    typed = (ParamSet, ParamGet, References, ParamAck, ParamNack, Telemetry)
+    """The message types ``role`` sends, by their wire IDs: every catalogued one whose ID
+    says this side sends it (a generic counted message is anyone's)."""
     direct = (Enable(), Disable(), Alive())
-    return frozenset({*(cls for cls in typed if cls.msg_id.sender is role),
+    return frozenset({*(cls for cls in MESSAGE_TYPES if cls.msg_id.sender is role),
                       *(type(cmd) for cmd in direct if cmd.msg_id.sender is role),
                       CountedMessage})
 
@@ -129,6 +131,8 @@ class Connection:
         self._continuity = Continuity(self._requests, self.stats, emit=emit,
                                       restart=self._restarted)
         self._settings = settings
+        self._identity: BoardIdentity | None = None
+        self._identity_known = False
 
     @property
     def settings(self) -> Settings:
@@ -535,11 +539,36 @@ class Connection:
             self._stream.confirmed(request.param, result.value, now)
         self._continuity.settled(request, outcome, result, now)
 
+    # --- the board's identity (docs/protocol.md §8) ---------------------------------------
+
+    @property
+    def identity(self) -> BoardIdentity | None:
+        """What the board said of itself when last asked (``None``: not asked since it
+        started or restarted, or a seed board: :attr:`identity_known` tells which)."""
+        return self._identity
+
+    @property
+    def identity_known(self) -> bool:
+        """The board was asked who it is since it was found or last restarted, and that
+        was decided: answered, or a seed board that does not know ``IQ``."""
+        return self._identity_known
+
+    def identified(self, identity: BoardIdentity | None, now: float) -> BoardIdentified:
+        """The asker (:class:`~fpgalink.protocol.IdentityProbe`, run by the link) decided
+        who the board is: kept, and said (:class:`~fpgalink.events.BoardIdentified`,
+        returned too). A restart forgets it: a re-flash changes it."""
+        self._identity, self._identity_known = identity, True
+        event = BoardIdentified(identity, compare_identity(identity), declarations_hash(),
+                                at=now)
+        self._events.append(event)
+        return event
+
     def _restarted(self, evidence: RestartEvidence, detail: str, now: float) -> None:
         """The board restarted (or may have): it runs its power-up state — disabled,
         telemetry off, parameters at their power-up values, counters from 0, the plain wire.
         Stop keeping it enabled, follow its new counter sequence, set again what is held."""
         self.stats.restarts += 1
+        self._identity, self._identity_known = None, False
         self._continuity.restarted(evidence, detail, now)
         self._counting.restarted()
         self._heartbeat.board_restarted(now)

@@ -32,19 +32,11 @@ from fpgalink.protocol.catalogue import (
     IdentityQuery,
     NackReason,
     TelemetryFlags,
-    encode_message,
 )
 from fpgalink.protocol.crc import CRC16, WIRE_CRC_PARAM
 from fpgalink.protocol.errors import FpgalinkError
 from fpgalink.protocol.framing import DEFAULT_FRAMING
-from fpgalink.protocol.messages import (
-    COUNTER_MODULUS,
-    CountedMessage,
-    Malformed,
-    MalformedReason,
-    MessageId,
-    parse_body,
-)
+from fpgalink.protocol.messages import COUNTER_MODULUS, MalformedReason, MessageId
 from fpgalink.protocol.params import PARAMETERS
 
 __all__ = [
@@ -184,15 +176,6 @@ class IdentityProbe:
         self._next = (nonce + 1) % NONCE_MODULUS
         self._sent.add(nonce)
         return IdentityQuery(nonce)
-
-    def query_message(self) -> CountedMessage:
-        """:meth:`query` as a generic counted message: the same bytes on the wire, for a
-        sender that only sends the catalogued messages it was written for (the counter is
-        the sender's)."""
-        query = self.query()
-        items = parse_body(encode_message(query, 0))
-        assert not isinstance(items, Malformed)
-        return CountedMessage(query.msg_id.decode(), items)
 
     def observe(self, message: object) -> bool:
         """A received message; True when it is the answer."""

@@ -12,7 +12,9 @@ from fpgaemu.firmware import FIRMWARE_BUILD, FIRMWARE_VERSION, emulated_serial
 from fpgalink import Connection, RequestTimeout
 from fpgalink.aio.identity import read_identity
 from fpgalink.aio.link import Link, open_link
-from fpgalink.protocol import CountedMessage, Event, encode_message
+from fpgalink.errors import LocalProtocolError
+from fpgalink.events import BoardIdentified, BoardRestarted
+from fpgalink.protocol import Event, ParamSet, Role
 from fpgalink.protocol.catalogue import IdentityAnswer, IdentityQuery
 from fpgalink.protocol.identity import (
     SEED_PROTOCOL,
@@ -25,9 +27,9 @@ from fpgalink.protocol.identity import (
     declarations_hash,
     require_identity,
 )
-from fpgalink.protocol.messages import parse_body
 from tests.support.fakeboard import ScriptedBoard, memory_pair
 from tests.support.firmwares import require_c_firmware
+from tests.support.waiting import wait_until
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -44,11 +46,10 @@ class IdentifiedBoard(ScriptedBoard):
 
     def _answer(self, event: Event, now: float) -> None:
         if isinstance(event, IdentityQuery):
-            answer = IdentityAnswer((event.nonce + self.nonce_offset) % 2**32,
-                                    self.declarations, 2, 0, 1, 0x1A2B3C4D, 42)
-            items = parse_body(encode_message(answer, 0))
-            assert isinstance(items, tuple)
-            self.conn.send(CountedMessage("IA", items), now)
+            # A board's connection sends the typed answer as it does PA: the catalogue says
+            # who sends what (it took a generic message with the same bytes before).
+            self.conn.send(IdentityAnswer((event.nonce + self.nonce_offset) % 2**32,
+                                          self.declarations, 2, 0, 1, 0x1A2B3C4D, 42), now)
             return
         super()._answer(event, now)
 
@@ -122,3 +123,77 @@ def test_the_probe_takes_a_late_answer_to_an_earlier_round() -> None:
     assert probe.fence_answered() and probe.identity == BoardIdentity(1, (1, 1, 0), 0, 9)
     with pytest.raises(ValueError):
         IdentityProbe(rounds=0)
+
+
+# --- the sendable set from the catalogue; the link asking at open and after a restart ------
+
+
+def test_each_side_sends_its_catalogued_messages_as_themselves() -> None:
+    # The connection's sendable set hard-coded six typed messages: IQ went out as a generic
+    # message with the same bytes, and a board could not send IA typed at all.
+    host, board = Connection(baud=None), Connection(role=Role.BOARD, baud=None)
+    host.send(IdentityQuery(0x0A0B0C0D), 0.0)
+    board.receive_data(host.data_to_send(), 0.0)
+    (query,) = [e for e in board.events() if isinstance(e, IdentityQuery)]
+    assert query.nonce == 0x0A0B0C0D
+    board.send(IdentityAnswer(query.nonce, 1, 1, 1, 0, 0, 7), 0.0)
+    host.receive_data(board.data_to_send(), 0.0)
+    assert [e.serial for e in host.events() if isinstance(e, IdentityAnswer)] == [7]
+    with pytest.raises(LocalProtocolError):
+        host.send(IdentityAnswer(1, 1, 1, 1, 0, 0, 0), 0.0)  # a board's message
+    with pytest.raises(LocalProtocolError):
+        board.send(ParamSet(1, 0, 1, 1), 0.0)  # a host's
+
+
+async def test_a_link_opened_to_identify_knows_the_board_before_it_returns() -> None:
+    link = open_link("emu://?seed=2", identify=True)
+    said: list[BoardIdentified] = []
+    link.on_event(lambda e: said.append(e) if isinstance(e, BoardIdentified) else None)
+    async with link:
+        assert link.identity_known
+        assert link.identity == BoardIdentity(declarations_hash(), FIRMWARE_VERSION,
+                                              FIRMWARE_BUILD, emulated_serial(2))
+        (event,) = said
+        assert event.match is IdentityMatch.MATCH and event.mismatch is None
+        assert event.describe() == link.identity.describe()
+    plain = open_link("emu://")  # not asked unless asked: no extra round trip
+    async with plain:
+        assert not plain.identity_known and plain.stats.bytes_sent == 0
+
+
+async def test_a_link_opened_to_identify_refuses_another_declaration_and_closes() -> None:
+    board = IdentifiedBoard(OTHER)
+    link = Link(Connection(request_timeout=0.05, request_tries=3), memory_pair(board),
+                identify=True)
+    with pytest.raises(IdentityMismatch) as caught:
+        await link.open()
+    assert f"{OTHER:016x}" in str(caught.value) and declarations_digest() in str(caught.value)
+    assert link.state.value == "closed"
+    allowed = Link(Connection(request_timeout=0.05, request_tries=3),
+                   memory_pair(IdentifiedBoard(OTHER)), identify=True, allow_mismatch=True)
+    async with allowed:
+        assert allowed.identity is not None and allowed.identity.declarations == OTHER
+        assert compare_identity(allowed.identity) is IdentityMatch.MISMATCH
+
+
+async def test_a_seed_board_opens_as_seed_protocol() -> None:
+    async with Link(Connection(request_timeout=0.05, request_tries=3),
+                    memory_pair(ScriptedBoard()), identify=True) as link:
+        assert link.identity_known and link.identity is None
+
+
+async def test_a_restarted_board_is_asked_again() -> None:
+    # A re-flash changes who the board is: after a restart the link asks again by itself
+    # and says what the board answered.
+    link = open_link("emu://?seed=4&fault=restart=1.0", identify=True)
+    seen: list[Event] = []
+    link.on_event(seen.append)
+    async with link:
+        assert link.identity_known
+        await link.set_param("GetDataPeriodical", 1)  # its stopping shows the restart
+        await wait_until(lambda: sum(isinstance(e, BoardIdentified) for e in seen) == 2,
+                         timeout=20, what="the board asked again after its restart")
+        kinds = [type(e) for e in seen if isinstance(e, BoardRestarted | BoardIdentified)]
+        assert kinds[:3] == [BoardIdentified, BoardRestarted, BoardIdentified]
+        assert link.identity_known and link.identity is not None
+        assert link.identity.serial == emulated_serial(4)
