@@ -37,6 +37,7 @@ def build_board(
     wheels: str = "identified",
     uart_rx: str = "edge",
     fused: bool = True,
+    identity: bool = True,
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
@@ -58,6 +59,9 @@ def build_board(
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     if uart_rx not in UART_RX_MODES:
         raise ValueError(f"uart_rx must be {' or '.join(UART_RX_MODES)}, got {uart_rx!r}")
+    if not identity and firmware == "c":
+        raise ValueError("the C core is this project's firmware, which answers IQ: a seed "
+                         "board (no identity) is the Python model")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap,
@@ -70,7 +74,7 @@ def build_board(
 
         attach_c_firmware(board, settings or {})
     else:
-        attach_firmware(board, settings or {})
+        attach_firmware(board, settings or {}, identity=identity)
     motors = Motors if wheels == "identified" else DrivenMotors
     board.add_peripheral("motors", motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())

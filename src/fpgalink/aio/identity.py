@@ -4,7 +4,9 @@ board is (its ``IA`` answer), or ``None`` for a seed board that does not know ``
 :class:`~fpgalink.protocol.identity.IdentityProbe`'s: each ``IQ`` is followed by a ``PG`` of
 ``TsTimerPeriod`` (every board answers it, in order), so a board that did not answer is
 told from a lost answer by what arrives, not by a timeout — only a board that answers
-nothing at all fails, as any request to it would.
+nothing at all fails, as any request to it would. A refusal (``PN``) of that ``PG`` is an
+answer in order too; one from ``fpgalink-cli router`` (``PN`` 5: this client is an
+observer) is not the board's, and comes through as the error it is.
 
 A part of the link (it stands below :mod:`fpgalink.aio.link`, on what any asker offers:
 :class:`Asker`); :meth:`fpgalink.aio.link.Link.identify` runs it and keeps the answer."""
@@ -15,7 +17,8 @@ import random
 from collections.abc import Callable
 from typing import Protocol
 
-from fpgalink.protocol import Event, IdentityQuery
+from fpgalink.errors import ParameterRefused
+from fpgalink.protocol import Event, IdentityQuery, NackReason
 from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
 
 __all__ = ["FENCE_PARAMETER", "Asker", "read_identity"]
@@ -49,7 +52,11 @@ async def read_identity(link: Asker, *, rounds: int = 3) -> BoardIdentity | None
     try:
         while True:
             link.send(probe.query())
-            await link.get_param(FENCE_PARAMETER)
+            try:
+                await link.get_param(FENCE_PARAMETER)
+            except ParameterRefused as exc:
+                if exc.code == NackReason.NOT_CONTROLLER:
+                    raise
             if probe.fence_answered():
                 return probe.identity
     finally:

@@ -32,7 +32,15 @@ from fpgalink.aio.identity import read_identity
 from fpgalink.aio.subscription import Subscription
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
-from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError, RequestTimeout
+from fpgalink.errors import (
+    BoardLost,
+    FpgalinkError,
+    LinkClosed,
+    ParameterRefused,
+    PortError,
+    RequestTimeout,
+    WireCrcMismatchError,
+)
 from fpgalink.events import BoardRestarted, RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
     BoardIdentity,
@@ -40,6 +48,7 @@ from fpgalink.protocol import (
     DirectCommand,
     Event,
     Message,
+    NackReason,
     Param,
     References,
     Telemetry,
@@ -188,6 +197,12 @@ class Link:
         if self.identify_at_open:
             try:
                 await self.identify()
+            except ParameterRefused as exc:
+                # An observer behind fpgalink-cli router may not read the board: not known,
+                # and its own first request says why (PN 5), as it did before it asked.
+                if exc.code != NackReason.NOT_CONTROLLER:
+                    await self.close()
+                    raise
             except BaseException:
                 await self.close()
                 raise
@@ -379,13 +394,19 @@ class Link:
         :class:`~fpgalink.protocol.IdentityMismatch` (one line naming both hashes) unless
         ``allow_mismatch`` (default: the link's); the request errors of a board that answers
         nothing come through."""
-        identity = await read_identity(self, rounds=rounds)
+        try:
+            identity = await read_identity(self, rounds=rounds)
+        except WireCrcMismatchError:
+            raise  # its own advice: connect in the board's mode
+        except RequestTimeout as exc:
+            raise RequestTimeout(f"asking who the board is ({exc.what})", exc.tries,
+                                 exc.timeout_s) from exc
         self._asked_identity = True
         self.connection.identified(identity, self._now())
         self._process()
         allowed = self.allow_mismatch if allow_mismatch is None else allow_mismatch
         if not allowed:
-            require_identity(identity, self.name)
+            require_identity(identity, self.url or self.name)
         return identity
 
     @property

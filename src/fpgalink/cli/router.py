@@ -12,8 +12,9 @@ behind a stable symlink. Arbitration (docs/cli.md, ``router``):
   board; the others are **observers**: every frame they send is refused (not passed on) and
   counted, and the router says so on stderr the first time; a refused ``PS`` or ``PG`` is
   answered ``PN`` 5 (another client controls the board), which the client's link raises as
-  ``ParameterRefused``. When the controller leaves, the router sends ``RD`` at once, ahead
-  of whatever of its frames still waits for the line (dropped, counted), so a motor is never
+  ``ParameterRefused``; an observer's ``IQ`` (who is the board?) is the one frame passed
+  on: it changes nothing, and its ``IA`` reaches every client. When the controller leaves,
+  the router sends ``RD`` at once, ahead of whatever of its frames still waits for the line (dropped, counted), so a motor is never
   left driven by a client that went away; the next client to send becomes the controller;
 * what waits for the board is bounded by line time: the controller's frames are handed to
   the port at the line's pace (:class:`LineQueue`), at most :data:`BOARD_QUEUE_S` of line
@@ -54,6 +55,7 @@ from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out, n
 from fpgalink.cli.session import install_stop_signals, run
 from fpgalink.errors import PortError
 from fpgalink.protocol.catalogue import (
+    IdentityQuery,
     NackReason,
     ParamGet,
     ParamNack,
@@ -674,7 +676,13 @@ class BoardRoute:
             self.to_board(stats, contents)
             return
         for content in contents:
-            self._refuse(client, self.controller.stats.client, content)
+            if _identity_query(content):
+                # A question that changes nothing on the board: passed on, its IA goes to
+                # every client as every frame does (another client's link ignores an answer
+                # to a nonce it did not send).
+                self.to_board(stats, [content])
+            else:
+                self._refuse(client, self.controller.stats.client, content)
 
     def _refuse(self, client: _Client | _PtyClient, controller: int, content: bytes) -> None:
         stats = client.stats
@@ -744,6 +752,14 @@ def _parameter_request(content: bytes) -> tuple[ParamSet | ParamGet | None, bool
         if isinstance(message, ParamSet | ParamGet):
             return message, True
     return None, False
+
+
+def _identity_query(content: bytes) -> bool:
+    """An ``IQ`` (docs/protocol.md §8), plain or with a good wire CRC."""
+    if isinstance(parse_content(content), IdentityQuery):
+        return True
+    body = strip_crc(content)
+    return body is not None and isinstance(parse_content(body), IdentityQuery)
 
 
 def _message_id(content: bytes) -> str:

@@ -96,6 +96,9 @@ _HOMES = {
     "declarations_digest": "fpgalink.protocol.identity",
     "declarations_hash": "fpgalink.protocol.identity",
     "require_identity": "fpgalink.protocol.identity",
+    "NOT_ASKED": "fpgalink.protocol.identity",
+    "describe_identity": "fpgalink.protocol.identity",
+    "identity_metadata": "fpgalink.protocol.identity",
     "IdentityAnswer": "fpgalink.protocol.catalogue",
     "IdentityQuery": "fpgalink.protocol.catalogue",
     "MESSAGE_TYPES": "fpgalink.protocol.catalogue",
@@ -147,6 +150,7 @@ if TYPE_CHECKING:
         encode_frame,
     )
     from fpgalink.protocol.identity import (
+        NOT_ASKED,
         SEED_PROTOCOL,
         BoardIdentity,
         IdentityMatch,
@@ -155,6 +159,8 @@ if TYPE_CHECKING:
         compare_identity,
         declarations_digest,
         declarations_hash,
+        describe_identity,
+        identity_metadata,
         require_identity,
     )
     from fpgalink.protocol.messages import (
@@ -192,6 +198,7 @@ __all__ = [
     "DEFAULT_FRAMING",
     "FLOAT32_MAX",
     "MESSAGE_TYPES",
+    "NOT_ASKED",
     "PARAMETERS",
     "SEED_PROTOCOL",
     "TELEMETRY_RUN_MIN",
@@ -248,10 +255,12 @@ __all__ = [
     "content_length",
     "declarations_digest",
     "declarations_hash",
+    "describe_identity",
     "encode_frame",
     "encode_message",
     "encode_telemetry",
     "float32",
+    "identity_metadata",
     "lookup",
     "parse_content",
     "parse_contents",

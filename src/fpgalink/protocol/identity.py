@@ -40,6 +40,7 @@ from fpgalink.protocol.messages import COUNTER_MODULUS, MalformedReason, Message
 from fpgalink.protocol.params import PARAMETERS
 
 __all__ = [
+    "NOT_ASKED",
     "SEED_PROTOCOL",
     "BoardIdentity",
     "IdentityMatch",
@@ -48,11 +49,15 @@ __all__ = [
     "compare_identity",
     "declarations_digest",
     "declarations_hash",
+    "describe_identity",
+    "identity_metadata",
     "require_identity",
 ]
 
 #: What a board that does not answer ``IQ`` is shown as: it speaks the seed's protocol.
 SEED_PROTOCOL = "seed protocol, identity unknown"
+#: What a board that was not asked is shown as (a passive watcher sends nothing).
+NOT_ASKED = "identity not asked"
 #: A nonce is a u32.
 NONCE_MODULUS = 1 << 32
 
@@ -153,6 +158,40 @@ def require_identity(identity: BoardIdentity | None, where: str = "",
         raise IdentityMismatch(where, identity.declarations,
                                declarations_hash() if host is None else host)
     return match
+
+
+def describe_identity(identity: BoardIdentity | None, known: bool = True,
+                      host: int | None = None) -> str:
+    """One line for people: the board's :meth:`BoardIdentity.describe`, marked when its
+    declaration is not this host's; :data:`SEED_PROTOCOL`; or :data:`NOT_ASKED` (``known``
+    false: the board was not asked, or not since it restarted)."""
+    if not known:
+        return NOT_ASKED
+    if identity is None:
+        return SEED_PROTOCOL
+    if compare_identity(identity, host) is IdentityMatch.MISMATCH:
+        expected = declarations_hash() if host is None else host
+        return f"{identity.describe()} — NOT this host's protocol {expected:016x}"
+    return identity.describe()
+
+
+def identity_metadata(boards: dict[str, tuple[BoardIdentity | None, bool]]
+                      ) -> dict[str, str]:
+    """What a recording's metadata says of who made it: this host's declaration hash
+    (``host_protocol``) and, per board name, ``board.NAME.identity`` (one line:
+    :func:`describe_identity`), ``.protocol`` (its hash, or empty), ``.firmware``,
+    ``.build``, ``.serial`` and ``.match`` (``match``, ``mismatch``, ``unknown`` for a seed
+    board, ``not asked``). ``boards``: name → (identity, known)."""
+    out = {"host_protocol": declarations_digest()}
+    for name, (identity, known) in boards.items():
+        prefix = f"board.{name}."
+        out[prefix + "identity"] = describe_identity(identity, known)
+        out[prefix + "match"] = compare_identity(identity).value if known else "not asked"
+        out[prefix + "protocol"] = identity.digest if identity is not None else ""
+        out[prefix + "firmware"] = identity.version if identity is not None else ""
+        out[prefix + "build"] = f"{identity.build:08x}" if identity is not None else ""
+        out[prefix + "serial"] = f"0x{identity.serial:x}" if identity is not None else ""
+    return out
 
 
 class IdentityProbe:
