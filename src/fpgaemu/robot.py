@@ -103,6 +103,7 @@ class EmulatedRobot:
         physics_step_cycles: int = physics.STEP_CYCLES,
         fused: bool = True,
         identity: bool = True,
+        declarations: int | None = None,
     ) -> None:
         self.description = description or seed_robot()
         surface = surface or self.description.surface
@@ -121,7 +122,7 @@ class EmulatedRobot:
                               faults=list(faults.get(name, [])), firmware=firmware,
                               wheels="driven" if body == "mujoco" else "identified",
                               uart_rx=uart_rx, tx_byte_gap=tx_byte_gap, fused=fused,
-                              identity=identity)
+                              identity=identity, declarations=declarations)
             for index, name in enumerate(self.description.boards)
         }
         self._motors = {name: self._motors_of(board) for name, board in self.boards.items()}

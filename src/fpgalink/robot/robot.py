@@ -80,7 +80,8 @@ class Robot:
 
     def __init__(self, description: RobotDescription, links: Mapping[str, Link], *,
                  deadman_s: float = DEADMAN_S, control_period: float = 0.02,
-                 goto_settings: GoToSettings | None = None) -> None:
+                 goto_settings: GoToSettings | None = None,
+                 allow_mismatch: bool = False) -> None:
         missing = sorted(set(description.boards) - set(links))
         extra = sorted(set(links) - set(description.boards))
         if missing or extra:
@@ -89,6 +90,10 @@ class Robot:
         if not (math.isfinite(control_period) and 0 < control_period <= 1):
             raise ValueError(f"control_period must be in (0, 1] s, got {control_period!r}")
         self.description = description
+        #: go on with boards whose firmware speaks another protocol declaration (said, and
+        #: shown in their health); refused at start otherwise, and a board that restarts
+        #: into one is not ready again
+        self.allow_mismatch = allow_mismatch
         #: the boards over their links (``links``: the same links, by board name)
         self.boards = Boards(links)
         self.links = self.boards.links
@@ -106,7 +111,8 @@ class Robot:
         self.recovery = BoardRecovery(
             description, self.supervisor, carry_out=self._carry_out, now=self._now,
             guarded=self._guarded, restarted=self.tracking.restarted,
-            read_back=self.tracking.read_back, notify=self._notify)
+            read_back=self.tracking.read_back, notify=self._notify,
+            allow_mismatch=allow_mismatch)
         #: pulses per turn, TorqueCoef (by board, channel), each board's latest sample
         self.resolution, self.torque_coef = self.tracking.resolution, self.tracking.torque_coef
         self.latest = self.tracking.latest
@@ -134,7 +140,7 @@ class Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
         ``stale_periods``: timer periods without a board's telemetry that stop the robot
         (:class:`~fpgalink.Connection`); ``options`` go to the robot (deadman_s,
-        control_period, goto_settings)."""
+        control_period, goto_settings, allow_mismatch)."""
         links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
                                  unanswered_rounds=UNANSWERED_ROUNDS)
                  for name, url in ports.items()}
@@ -143,14 +149,16 @@ class Robot:
     # --- lifecycle ------------------------------------------------------------------------
 
     async def start(self) -> Robot:
-        """Open the links, wait for every board, load the description's parameters, read
+        """Open the links, wait for every board, ask each who it is (docs/protocol.md §8:
+        :class:`~fpgalink.protocol.IdentityMismatch` for a board built from another protocol
+        declaration, unless ``allow_mismatch``), load the description's parameters, read
         each wheel's encoder resolution back from its board, and turn telemetry on."""
         self._timers.start(asyncio.get_running_loop())
         try:
             await self.boards.open()
             await self._wait_for_boards()
-            self._streaming_before, readings = await setup.set_up(self.links,
-                                                                  self.description)
+            self._streaming_before, readings = await setup.set_up(
+                self.links, self.description, self.allow_mismatch)
         except BaseException:
             await self.boards.close()
             raise
