@@ -82,7 +82,8 @@ def test_param_list_and_ports_say_who_the_board_is(board: str) -> None:
 def test_a_board_of_another_declaration_is_refused_at_connect_naming_both_hashes() -> None:
     with served_pty("--declarations", OTHER, "--set", "Kp_Wheel_PidA=9") as path:
         refused = run_cli("param", "set", "Kp_Wheel_PidA", "500", "--port", path)
-        assert refused.returncode == ExitCode.MISMATCH == 10, refused.stderr
+        assert refused.returncode == ExitCode.MISMATCH, refused.stderr
+        assert int(ExitCode.MISMATCH) == 10
         assert_one_line_error(refused.stderr, f"{path}: the board's protocol declaration is "
                               f"{OTHER}, this host's is {declarations_digest()}")
         # Refused before anything was set: send (which asks nothing) reads the value back.
