@@ -106,6 +106,11 @@ class Identification:
     offset: bool
 
     @property
+    def where(self) -> str:
+        """Where the wheels are, in words."""
+        return "in the air" if self.wheels == "air" else "on the ground"
+
+    @property
     def limit(self) -> int:
         return max(1, round(self.max_duty / 100.0 * MAX_DUTY))
 
@@ -200,7 +205,7 @@ async def identify_on(link: Link, board: str, channel: str, options: Identificat
 
     excitation = Excitation.for_wheels(options.wheels, options.limit,
                                        duration_s=options.duration, bit_s=options.bit_s)
-    note(f"identifying board {board} channel {channel}: wheels in the {options.wheels}, duty "
+    note(f"identifying board {board} channel {channel}: wheels {options.where}, duty "
          f"up to {options.max_duty:g} % for {options.duration:g} s")
     try:
         return await identify_channel(

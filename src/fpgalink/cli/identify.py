@@ -126,8 +126,8 @@ def _save_model(path: Path, fit: object, where: str, channel: str,
 
     assert isinstance(fit, PlantFit)
     when = datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC")
-    text = model_to_toml(fit.model, f"{where} channel {channel}, wheels in the "
-                         f"{options.wheels}, fpgalink-cli identify, {when}",
+    text = model_to_toml(fit.model, f"{where} channel {channel}, wheels {options.where}, "
+                         f"fpgalink-cli identify, {when}",
                          {"fit_percent": fit.fit_percent, "residual_dps": fit.residual,
                           "wheels": options.wheels, "channel": channel})
     write_text(path, text, force=force)
