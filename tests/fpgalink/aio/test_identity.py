@@ -14,7 +14,14 @@ from fpgalink.aio.identity import read_identity
 from fpgalink.aio.link import Link, open_link
 from fpgalink.errors import LocalProtocolError
 from fpgalink.events import BoardIdentified, BoardRestarted
-from fpgalink.protocol import Event, ParamSet, Role
+from fpgalink.protocol import (
+    DEFAULT_FRAMING,
+    Event,
+    ParamSet,
+    Role,
+    encode_frame,
+    encode_message,
+)
 from fpgalink.protocol.catalogue import IdentityAnswer, IdentityQuery
 from fpgalink.protocol.identity import (
     SEED_PROTOCOL,
@@ -197,3 +204,56 @@ async def test_a_restarted_board_is_asked_again() -> None:
         assert kinds[:3] == [BoardIdentified, BoardRestarted, BoardIdentified]
         assert link.identity_known and link.identity is not None
         assert link.identity.serial == emulated_serial(4)
+
+
+# --- hostile answers (docs/reliability.md, identity rows) ------------------------------------
+
+
+class HostileBoard(ScriptedBoard):
+    """Answers each ``IQ`` as told: ``torn`` (its ``IA`` frame one byte short, the section's
+    LEN left as it was), or ``flood`` answers to nonces it was not asked before the right
+    one."""
+
+    def __init__(self, *, torn: bool = False, flood: int = 0) -> None:
+        super().__init__()
+        self.torn = torn
+        self.flood = flood
+        self._raw: list[bytes] = []
+
+    def receive(self, data: bytes, now: float = 0.0) -> bytes:
+        reply = super().receive(data, now)
+        raw, self._raw = b"".join(self._raw), []
+        return reply + raw
+
+    def _answer(self, event: Event, now: float) -> None:
+        if not isinstance(event, IdentityQuery):
+            super()._answer(event, now)
+            return
+        for n in range(self.flood):
+            self.conn.send(IdentityAnswer((event.nonce + 1 + n) % 2**32, OTHER, 9, 9, 9, 9,
+                                          9), now)
+        answer = IdentityAnswer(event.nonce, declarations_hash(), 1, 1, 0, 0, 1)
+        if self.torn:
+            whole = encode_message(answer, 99)
+            self._raw.append(encode_frame(whole[:-2] + whole[-1:], DEFAULT_FRAMING))
+            return
+        self.conn.send(answer, now)
+
+
+async def test_a_torn_answer_is_counted_and_never_taken_for_one() -> None:
+    async with scripted(HostileBoard(torn=True)) as link:
+        assert await link.identify(rounds=3) is None  # unknown: nothing it said is an IA
+        assert link.stats.malformed == 3 and link.identity_known  # each counted
+        assert link.identity is None
+        assert await link.set_param("TsTimerPeriod", 4) == 4  # and it works
+
+
+async def test_a_flood_of_answers_to_other_nonces_is_read_past() -> None:
+    board = HostileBoard(flood=5_000)
+    async with scripted(board) as link:
+        identity = await link.identify()
+        assert identity is not None and identity.declarations == declarations_hash()
+        assert link.connection.pending_events == 0  # nothing piled up
+        # Five thousand answers with another declaration's hash and nonces never asked:
+        # none of them is this board's answer, none refused the board.
+        assert link.stats.messages_received > 5_000
