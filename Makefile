@@ -115,6 +115,7 @@ bench: $(STAMP)
 	$(PY) -m benchmarks.recording
 	$(PY) -m benchmarks.campaign
 	$(PY) -m benchmarks.ceiling
+	$(PY) -m benchmarks.identity
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

@@ -203,7 +203,9 @@ class ConnectionOptions:
         )
         log_wire(endpoint.name, link, self.verbose)
         if identify and self.allow_mismatch:
-            link.on_event(functools.partial(_say_mismatch, endpoint.name))
+            # An unnamed port (called 0, 1 …) is said by its URL.
+            label = endpoint.url if endpoint.name.isdigit() else f"board {endpoint.name}"
+            link.on_event(functools.partial(_say_mismatch, label))
         return link
 
     def note_ephemeral(self) -> None:
@@ -219,7 +221,7 @@ def _say_mismatch(board: str, event: StatusEvent) -> None:
     from fpgalink.events import BoardIdentified
 
     if isinstance(event, BoardIdentified) and event.mismatch is not None:
-        note(f"board {board}: {event.mismatch}; going on (--allow-mismatch)")
+        note(f"{board}: {event.mismatch}; going on (--allow-mismatch)")
 
 
 def announce_emulator(conn: ConnectionOptions) -> None:
