@@ -1,4 +1,4 @@
-"""What asking a board who it is costs at connect (docs/protocol.md §8): ``link.identify()``
+"""What asking a board who it is costs at connect (docs/protocol.md §8): ``link.identification.identify()``
 over ``fpgaemu serve --pty`` against a board that answers ``IQ`` and against a seed board
 (``--seed-protocol``: three rounds of ``IQ`` and its ``PG`` fence), beside one ``PG`` round
 trip on the same link, each the median of the repetitions.
@@ -55,7 +55,7 @@ async def _case(options: tuple[str, ...], repeats: int) -> dict[str, Any]:
             asked, fence = [], []
             for _ in range(repeats):
                 start = time.perf_counter()
-                identity = await link.identify(allow_mismatch=True)
+                identity = await link.identification.identify(allow_mismatch=True)
                 asked.append(time.perf_counter() - start)
                 start = time.perf_counter()
                 await link.get_param("TsTimerPeriod")

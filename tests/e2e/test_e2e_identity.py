@@ -144,7 +144,8 @@ async def test_a_seed_board_is_seed_protocol_and_keeps_working(tmp_path: Path) -
                            "--port", path)
         assert recorded.returncode == 0, recorded.stderr
         async with open_link(path, identify=True) as link:
-            assert link.identity_known and link.identity is None  # SEED_PROTOCOL
+            known = link.identification
+            assert known.known and known.identity is None  # SEED_PROTOCOL
             assert await link.set_param("TsTimerPeriod", 3) == 3
     metadata = _metadata(tmp_path / "seed.mcap")
     assert metadata["board.0.identity"] == SEED_PROTOCOL

@@ -9,9 +9,9 @@ protocol decision, every retry and every count lives in the connection; the link
 moves bytes, timers and futures. Read batching (:mod:`.batching`), the link's clock
 (:mod:`.clock`) and the bound on what waits unwritten in its transport (:mod:`.backlog`:
 a request refused with :class:`~fpgalink.errors.LineBusy` while the line is backed up)
-are its helpers. Asked (``open_link(…, identify=True)`` or :meth:`Link.identify`), it
-finds out who the board is (:mod:`.identity`: docs/protocol.md §8), refuses a board built
-from another protocol declaration, and asks again after each restart.
+are its helpers; so is :mod:`.identity` (``link.identification``: who the board is, asked
+with ``open_link(…, identify=True)`` or ``await link.identification.identify()``, a board
+of another protocol declaration refused, asked again after each restart).
 """
 
 from __future__ import annotations
@@ -21,26 +21,17 @@ import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
-from types import TracebackType
 from typing import Any, Unpack
 
 from fpgalink.aio.backlog import MAX_LINE_BACKLOG_S, check_line
 from fpgalink.aio.batching import ReadBatcher
 from fpgalink.aio.clock import LinkClock
 from fpgalink.aio.fanout import Stamped, Subscribers
-from fpgalink.aio.identity import read_identity
+from fpgalink.aio.identity import Identification
 from fpgalink.aio.subscription import Subscription
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
-from fpgalink.errors import (
-    BoardLost,
-    FpgalinkError,
-    LinkClosed,
-    ParameterRefused,
-    PortError,
-    RequestTimeout,
-    WireCrcMismatchError,
-)
+from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
 from fpgalink.events import BoardRestarted, RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
     BoardIdentity,
@@ -48,11 +39,9 @@ from fpgalink.protocol import (
     DirectCommand,
     Event,
     Message,
-    NackReason,
     Param,
     References,
     Telemetry,
-    require_identity,
     resolve,
 )
 from fpgalink.protocol.params import iter_addresses
@@ -67,9 +56,6 @@ __all__ = [
     "SyncResult",
     "open_link",
 ]
-
-#: How often a restarted board's identity is asked again while it does not answer (s).
-IDENTIFY_RETRY_S = 0.1
 
 #: Opens a transport to the board (again, after the port vanished), given the protocol.
 Reopen = Callable[[ProtocolFactory], Awaitable[tuple[asyncio.BaseTransport, asyncio.Protocol]]]
@@ -118,23 +104,14 @@ class Link:
     ``Link(connection, transport)`` attaches to a transport already open (a test's
     :class:`~fpgalink.testing.MemoryTransport`, say). With ``reopen`` and no transport,
     :meth:`open` opens one, and with ``reconnect`` the link reopens it with backoff when the
-    port vanishes; :func:`open_link` builds all of that from a URL. With ``identify``,
-    :meth:`open` asks the board who it is (:meth:`identify`) before it returns, and refuses
-    one built from another protocol declaration unless ``allow_mismatch``."""
+    port vanishes; :func:`open_link` builds all of that from a URL. Who the board is:
+    :attr:`identification` (asked at open with ``identify``; a mismatch refused unless
+    ``allow_mismatch``)."""
 
-    def __init__(
-        self,
-        connection: Connection,
-        transport: asyncio.BaseTransport | None = None,
-        *,
-        name: str = "board",
-        url: str = "",
-        reopen: Reopen | None = None,
-        reconnect: bool = True,
-        reconnect_backoff: tuple[float, float] = (0.05, 2.0),
-        identify: bool = False,
-        allow_mismatch: bool = False,
-    ) -> None:
+    def __init__(self, connection: Connection, transport: asyncio.BaseTransport | None = None,
+                 *, name: str = "board", url: str = "", reopen: Reopen | None = None,
+                 reconnect: bool = True, reconnect_backoff: tuple[float, float] = (0.05, 2.0),
+                 identify: bool = False, allow_mismatch: bool = False) -> None:
         self.connection = connection
         self.name = name
         self.url = url  #: where the board is, for messages
@@ -152,11 +129,9 @@ class Link:
         self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
-        #: ask who the board is at open (and refuse a mismatch unless allowed)
-        self.identify_at_open = identify
-        self.allow_mismatch = allow_mismatch
-        self._asked_identity = False  #: asked once: asked again after each restart
-        self._identifying: asyncio.Task[None] | None = None
+        self.identification = Identification(  #: who the board is (docs/protocol.md §8)
+            self, connection.identity, self._identified, where=url or name,
+            at_open=identify, allow_mismatch=allow_mismatch)
         self._batches = ReadBatcher(lambda data: self._on_data(self._protocol, data),
                                     lambda: self._transport, lambda: bool(self._futures))
         if transport is not None:
@@ -194,18 +169,7 @@ class Link:
         self.state = LinkState.CONNECTED
         self.connection.start(self._now())
         self._arm_timer()
-        if self.identify_at_open:
-            try:
-                await self.identify()
-            except ParameterRefused as exc:
-                # An observer behind fpgalink-cli router may not read the board: not known,
-                # and its own first request says why (PN 5), as it did before it asked.
-                if exc.code != NackReason.NOT_CONTROLLER:
-                    await self.close()
-                    raise
-            except BaseException:
-                await self.close()
-                raise
+        await self.identification.opened()
         return self
 
     async def close(self) -> None:
@@ -222,11 +186,11 @@ class Link:
         self.connection.close(self._now())
         if connected:
             self._write(self.connection.data_to_send())
-        for task in (self._reconnect_task, self._identifying):
-            if task is not None:
-                task.cancel()
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await task
+        if self._reconnect_task is not None:
+            self._reconnect_task.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._reconnect_task
+        await self.identification.close()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -257,12 +221,7 @@ class Link:
     async def __aenter__(self) -> Link:
         return await self.open()
 
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         await self.close()
 
     # --- commands -------------------------------------------------------------------------
@@ -381,61 +340,6 @@ class Link:
             raise
         finally:
             self._futures.pop(request_id, None)
-
-    # --- who the board is ----------------------------------------------------------------
-
-    async def identify(self, *, allow_mismatch: bool | None = None, rounds: int = 3
-                       ) -> BoardIdentity | None:
-        """Ask the board who it is (docs/protocol.md §8): one ``IQ`` and a ``PG`` a round,
-        one round for a board that answers, ``rounds`` for a seed board (``None``:
-        :data:`~fpgalink.protocol.SEED_PROTOCOL`). Kept (:attr:`identity`), said
-        (:class:`~fpgalink.events.BoardIdentified`), and asked again by the link after each
-        restart from now on. A board built from another protocol declaration raises
-        :class:`~fpgalink.protocol.IdentityMismatch` (one line naming both hashes) unless
-        ``allow_mismatch`` (default: the link's); the request errors of a board that answers
-        nothing come through."""
-        try:
-            identity = await read_identity(self, rounds=rounds)
-        except WireCrcMismatchError:
-            raise  # its own advice: connect in the board's mode
-        except RequestTimeout as exc:
-            raise RequestTimeout(f"asking who the board is ({exc.what})", exc.tries,
-                                 exc.timeout_s) from exc
-        self._asked_identity = True
-        self.connection.identified(identity, self._now())
-        self._process()
-        allowed = self.allow_mismatch if allow_mismatch is None else allow_mismatch
-        if not allowed:
-            require_identity(identity, self.url or self.name)
-        return identity
-
-    @property
-    def identity(self) -> BoardIdentity | None:
-        """What the board said of itself when last asked (see
-        :attr:`~fpgalink.connection.Connection.identity_known`)."""
-        return self.connection.identity
-
-    @property
-    def identity_known(self) -> bool:
-        return self.connection.identity_known
-
-    def _restarted(self) -> None:
-        """A board that was asked who it is is asked again after a restart (a re-flash
-        changes it); what it says is a :class:`~fpgalink.events.BoardIdentified` event."""
-        if self._asked_identity and (self._identifying is None or self._identifying.done()):
-            self._identifying = asyncio.ensure_future(self._identify_again())
-
-    async def _identify_again(self) -> None:
-        while self.state is not LinkState.CLOSED and not self.connection.identity_known:
-            if not self.board_alive or self.state is not LinkState.CONNECTED:
-                await asyncio.sleep(IDENTIFY_RETRY_S)
-                continue
-            try:
-                await self.identify(allow_mismatch=True)
-            except (RequestTimeout, BoardLost):
-                await asyncio.sleep(IDENTIFY_RETRY_S)
-            except FpgalinkError:
-                return  # closed, or refused (a router's observer): nothing more to ask
 
     # --- telemetry and events -------------------------------------------------------------
 
@@ -598,7 +502,11 @@ class Link:
             elif isinstance(event, StatusEvent):
                 subscribers.status(event)
                 if kind is BoardRestarted:
-                    self._restarted()
+                    self.identification.restarted()
+
+    def _identified(self, identity: BoardIdentity | None) -> None:
+        self.connection.identity.identified(identity, self._now())
+        self._process()
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -672,7 +580,7 @@ def open_link(
     (:class:`~fpgalink.connection.Settings`: ``request_tries``, ``liveness_timeout``,
     ``unanswered_rounds`` …); ``reconnect`` reopens the URL with backoff when the port
     vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`);
-    ``identify`` asks the board who it is as it opens (:meth:`Link.identify`: one extra round
+    ``identify`` asks the board who it is as it opens (``link.identification``: one extra round
     trip, three for a seed board) and refuses one built from another protocol declaration
     unless ``allow_mismatch``."""
     connection = Connection(baud=baud, **options)

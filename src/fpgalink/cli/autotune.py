@@ -176,7 +176,7 @@ async def _autotune(conn: ConnectionOptions, channels: list[str], options: Ident
             record, list(links), {
                 "command": "autotune", "wheels": options.wheels,
                 "max_duty_percent": f"{options.max_duty:g}",
-                **identity_metadata({name: (link.identity, link.identity_known)
+                **identity_metadata({name: (link.identification.identity, link.identification.known)
                                      for name, link in links.items()})},
             stop, force=force)
         with recording(recorder):

@@ -149,7 +149,8 @@ async def _identify(conn: ConnectionOptions, channel: str, options: Identificati
                 "command": "identify", "channel": channel, "wheels": options.wheels,
                 "max_duty_percent": f"{options.max_duty:g}",
                 "period_ms": str(options.period_ms),
-                **identity_metadata({endpoint.name: (link.identity, link.identity_known)})},
+                **identity_metadata({endpoint.name: (link.identification.identity,
+                                                     link.identification.known)})},
             stop, force=force)
         with recording(recorder):
             result = await identify_on(link, endpoint.name, channel, options, stop, recorder)

@@ -297,8 +297,8 @@ async def _read(conn: ConnectionOptions, endpoint: Endpoint | None = None
                 ) -> BoardParameters:
     async with conn.link(endpoint or conn.single) as link:
         values = await link.read_params()
-        identity = link.identity
-        return BoardParameters(values, describe_identity(identity, link.identity_known),
+        identity = link.identification.identity
+        return BoardParameters(values, describe_identity(identity, link.identification.known),
                                None if identity is None else identity.digest)
 
 

@@ -269,7 +269,7 @@ async def _ask(conn: ConnectionOptions, endpoint: Endpoint) -> tuple[str, str | 
 
     try:
         async with conn.link(endpoint, identify=False) as link:
-            identity = await link.identify(allow_mismatch=True)
+            identity = await link.identification.identify(allow_mismatch=True)
     except FpgalinkError as exc:
         return f"not asked: {classify(exc).message}", None
     return describe_identity(identity), None if identity is None else identity.digest

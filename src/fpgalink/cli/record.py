@@ -123,8 +123,8 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
                     "baud": str(conn.baud), "started": f"{started:.6f}",
                     "clocks": "log_time: host receive time; publish_time: the board's t_us "
                               "mapped onto the host clock (anchored at the first sample)",
-                    **identity_metadata({s.endpoint.name: (s.link.identity,
-                                                           s.link.identity_known)
+                    **identity_metadata({s.endpoint.name: (s.link.identification.identity,
+                                                           s.link.identification.known)
                                          for s in sessions})}
         sink: Sink = (CsvSink(path, force=force) if as_csv else
                       McapSink(path, boards, metadata, force=force))

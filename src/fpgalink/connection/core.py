@@ -35,6 +35,7 @@ from typing import Any, Unpack
 
 from fpgalink.connection.counting import Counting, from_router
 from fpgalink.connection.frames import FrameLayer, telemetry_runs
+from fpgalink.connection.identity import KnownIdentity
 from fpgalink.connection.liveness import Hearing, Heartbeat, Liveness, TelemetryWatch
 from fpgalink.connection.pacing import LinePacing
 from fpgalink.connection.queue import EventQueue
@@ -45,7 +46,6 @@ from fpgalink.connection.stats import LinkStats
 from fpgalink.errors import BoardLost, LinkClosed, LocalProtocolError
 from fpgalink.events import (
     BoardFound,
-    BoardIdentified,
     BoardSilent,
     Closed,
     PortLost,
@@ -59,7 +59,6 @@ from fpgalink.protocol import (
     MESSAGE_TYPES,
     TELEMETRY_RUN_MIN,
     Alive,
-    BoardIdentity,
     CountedMessage,
     CounterTracker,
     DirectCommand,
@@ -75,8 +74,6 @@ from fpgalink.protocol import (
     References,
     Role,
     Telemetry,
-    compare_identity,
-    declarations_hash,
     parse_content,
     parse_telemetry_run,
 )
@@ -101,10 +98,8 @@ _RECEIVE_SLICE = 1 << 16
 
 class Connection:
     """One link to one board (or, with ``role=Role.BOARD``, the board's side of it).
-
     Settings (:class:`~fpgalink.connection.Settings`) are given whole (``settings=``) or as
-    keywords (``Connection(baud=None, request_tries=3)``); references are paced to the line
-    (:mod:`.pacing`)."""
+    keywords (``Connection(baud=None, request_tries=3)``); references are paced (:mod:`.pacing`)."""
 
     def __init__(self, role: Role = Role.HOST, settings: Settings | None = None,
                  **options: Unpack[Options]) -> None:
@@ -131,8 +126,7 @@ class Connection:
         self._continuity = Continuity(self._requests, self.stats, emit=emit,
                                       restart=self._restarted)
         self._settings = settings
-        self._identity: BoardIdentity | None = None
-        self._identity_known = False
+        self.identity = KnownIdentity(emit)  #: who the board said it is (its part)
 
     @property
     def settings(self) -> Settings:
@@ -539,36 +533,12 @@ class Connection:
             self._stream.confirmed(request.param, result.value, now)
         self._continuity.settled(request, outcome, result, now)
 
-    # --- the board's identity (docs/protocol.md §8) ---------------------------------------
-
-    @property
-    def identity(self) -> BoardIdentity | None:
-        """What the board said of itself when last asked (``None``: not asked since it
-        started or restarted, or a seed board: :attr:`identity_known` tells which)."""
-        return self._identity
-
-    @property
-    def identity_known(self) -> bool:
-        """The board was asked who it is since it was found or last restarted, and that
-        was decided: answered, or a seed board that does not know ``IQ``."""
-        return self._identity_known
-
-    def identified(self, identity: BoardIdentity | None, now: float) -> BoardIdentified:
-        """The asker (:class:`~fpgalink.protocol.IdentityProbe`, run by the link) decided
-        who the board is: kept, and said (:class:`~fpgalink.events.BoardIdentified`,
-        returned too). A restart forgets it: a re-flash changes it."""
-        self._identity, self._identity_known = identity, True
-        event = BoardIdentified(identity, compare_identity(identity), declarations_hash(),
-                                at=now)
-        self._events.append(event)
-        return event
-
     def _restarted(self, evidence: RestartEvidence, detail: str, now: float) -> None:
         """The board restarted (or may have): it runs its power-up state — disabled,
         telemetry off, parameters at their power-up values, counters from 0, the plain wire.
         Stop keeping it enabled, follow its new counter sequence, set again what is held."""
         self.stats.restarts += 1
-        self._identity, self._identity_known = None, False
+        self.identity.forget()
         self._continuity.restarted(evidence, detail, now)
         self._counting.restarted()
         self._heartbeat.board_restarted(now)

@@ -124,7 +124,7 @@ class Boards:
         """Who board ``board`` said it is (``None``: a seed board), and whether that is
         known: asked at start, and again after each restart (docs/protocol.md §8)."""
         link = self.links[board]
-        return link.identity, link.identity_known
+        return link.identification.identity, link.identification.known
 
     async def read_parameters(self, board: str, *, hold: bool = False
                               ) -> dict[tuple[int, int], int | float]:

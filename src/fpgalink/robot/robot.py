@@ -80,8 +80,7 @@ class Robot:
 
     def __init__(self, description: RobotDescription, links: Mapping[str, Link], *,
                  deadman_s: float = DEADMAN_S, control_period: float = 0.02,
-                 goto_settings: GoToSettings | None = None,
-                 allow_mismatch: bool = False) -> None:
+                 goto_settings: GoToSettings | None = None, allow_mismatch: bool = False) -> None:
         missing = sorted(set(description.boards) - set(links))
         extra = sorted(set(links) - set(description.boards))
         if missing or extra:
@@ -90,10 +89,6 @@ class Robot:
         if not (math.isfinite(control_period) and 0 < control_period <= 1):
             raise ValueError(f"control_period must be in (0, 1] s, got {control_period!r}")
         self.description = description
-        #: go on with boards whose firmware speaks another protocol declaration (said, and
-        #: shown in their health); refused at start otherwise, and a board that restarts
-        #: into one is not ready again
-        self.allow_mismatch = allow_mismatch
         #: the boards over their links (``links``: the same links, by board name)
         self.boards = Boards(links)
         self.links = self.boards.links
@@ -150,15 +145,14 @@ class Robot:
 
     async def start(self) -> Robot:
         """Open the links, wait for every board, ask each who it is (docs/protocol.md §8:
-        :class:`~fpgalink.protocol.IdentityMismatch` for a board built from another protocol
-        declaration, unless ``allow_mismatch``), load the description's parameters, read
-        each wheel's encoder resolution back from its board, and turn telemetry on."""
+        ``IdentityMismatch`` unless ``allow_mismatch``), load the description's parameters,
+        read each wheel's encoder resolution back from its board, turn telemetry on."""
         self._timers.start(asyncio.get_running_loop())
         try:
             await self.boards.open()
             await self._wait_for_boards()
             self._streaming_before, readings = await setup.set_up(
-                self.links, self.description, self.allow_mismatch)
+                self.links, self.description, self.recovery.allow_mismatch)
         except BaseException:
             await self.boards.close()
             raise

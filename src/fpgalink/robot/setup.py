@@ -70,7 +70,7 @@ async def identify(name: str, link: Link, allow_mismatch: bool) -> None:
     """Ask board ``name`` who it is; :class:`~fpgalink.protocol.IdentityMismatch` naming the
     board and both hashes when its firmware was built from another protocol declaration
     (unless ``allow_mismatch``). Its link asks again after each restart."""
-    identity = await link.identify(allow_mismatch=True)
+    identity = await link.identification.identify(allow_mismatch=True)
     if not allow_mismatch:
         require_identity(identity, f"board {name} ({link.url})")
 

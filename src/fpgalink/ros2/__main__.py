@@ -263,9 +263,8 @@ def main(argv: list[str] | None = None) -> None:
     rclpy.init(args=argv)
     code = 0
     try:
-        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live, argv,
-                                allow_mismatch=options.allow_mismatch))
+        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"], bag,
+                                options.lifecycle, live, argv, options.allow_mismatch))
     finally:
         if bag is not None:
             try:
@@ -283,7 +282,7 @@ def main(argv: list[str] | None = None) -> None:
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
                bag: Any = None, lifecycle: bool = False, live: Any = None,
-               argv: list[str] | None = None, *, allow_mismatch: bool = False) -> int:
+               argv: list[str] | None = None, allow_mismatch: bool = False) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 

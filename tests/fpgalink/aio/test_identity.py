@@ -157,15 +157,15 @@ async def test_a_link_opened_to_identify_knows_the_board_before_it_returns() -> 
     said: list[BoardIdentified] = []
     link.on_event(lambda e: said.append(e) if isinstance(e, BoardIdentified) else None)
     async with link:
-        assert link.identity_known
-        assert link.identity == BoardIdentity(declarations_hash(), FIRMWARE_VERSION,
+        assert link.identification.known
+        assert link.identification.identity == BoardIdentity(declarations_hash(), FIRMWARE_VERSION,
                                               FIRMWARE_BUILD, emulated_serial(2))
         (event,) = said
         assert event.match is IdentityMatch.MATCH and event.mismatch is None
-        assert event.describe() == link.identity.describe()
+        assert event.describe() == link.identification.identity.describe()
     plain = open_link("emu://")  # not asked unless asked: no extra round trip
     async with plain:
-        assert not plain.identity_known and plain.stats.bytes_sent == 0
+        assert not plain.identification.known and plain.stats.bytes_sent == 0
 
 
 async def test_a_link_opened_to_identify_refuses_another_declaration_and_closes() -> None:
@@ -179,14 +179,15 @@ async def test_a_link_opened_to_identify_refuses_another_declaration_and_closes(
     allowed = Link(Connection(request_timeout=0.05, request_tries=3),
                    memory_pair(IdentifiedBoard(OTHER)), identify=True, allow_mismatch=True)
     async with allowed:
-        assert allowed.identity is not None and allowed.identity.declarations == OTHER
-        assert compare_identity(allowed.identity) is IdentityMatch.MISMATCH
+        identity = allowed.identification.identity
+        assert identity is not None and identity.declarations == OTHER
+        assert compare_identity(identity) is IdentityMatch.MISMATCH
 
 
 async def test_a_seed_board_opens_as_seed_protocol() -> None:
     async with Link(Connection(request_timeout=0.05, request_tries=3),
                     memory_pair(ScriptedBoard()), identify=True) as link:
-        assert link.identity_known and link.identity is None
+        assert link.identification.known and link.identification.identity is None
 
 
 async def test_a_restarted_board_is_asked_again() -> None:
@@ -196,14 +197,14 @@ async def test_a_restarted_board_is_asked_again() -> None:
     seen: list[Event] = []
     link.on_event(seen.append)
     async with link:
-        assert link.identity_known
+        assert link.identification.known
         await link.set_param("GetDataPeriodical", 1)  # its stopping shows the restart
         await wait_until(lambda: sum(isinstance(e, BoardIdentified) for e in seen) == 2,
                          timeout=20, what="the board asked again after its restart")
         kinds = [type(e) for e in seen if isinstance(e, BoardRestarted | BoardIdentified)]
         assert kinds[:3] == [BoardIdentified, BoardRestarted, BoardIdentified]
-        assert link.identity_known and link.identity is not None
-        assert link.identity.serial == emulated_serial(4)
+        assert link.identification.known and link.identification.identity is not None
+        assert link.identification.identity.serial == emulated_serial(4)
 
 
 # --- hostile answers (docs/reliability.md, identity rows) ------------------------------------
@@ -242,16 +243,17 @@ class HostileBoard(ScriptedBoard):
 
 async def test_a_torn_answer_is_counted_and_never_taken_for_one() -> None:
     async with scripted(HostileBoard(torn=True)) as link:
-        assert await link.identify(rounds=3) is None  # unknown: nothing it said is an IA
-        assert link.stats.malformed == 3 and link.identity_known  # each counted
-        assert link.identity is None
+        # unknown: nothing it said is an IA
+        assert await link.identification.identify(rounds=3) is None
+        assert link.stats.malformed == 3 and link.identification.known  # each counted
+        assert link.identification.identity is None
         assert await link.set_param("TsTimerPeriod", 4) == 4  # and it works
 
 
 async def test_a_flood_of_answers_to_other_nonces_is_read_past() -> None:
     board = HostileBoard(flood=5_000)
     async with scripted(board) as link:
-        identity = await link.identify()
+        identity = await link.identification.identify()
         assert identity is not None and identity.declarations == declarations_hash()
         assert link.connection.pending_events == 0  # nothing piled up
         # Five thousand answers with another declaration's hash and nonces never asked:
