@@ -323,7 +323,7 @@ def test_the_connections_parts_stand_below_its_facade(where: str, path: Path) ->
 @pytest.mark.parametrize(("where", "path"), [
     m for m in modules("fpgalink.aio") if m[0].endswith(
         ("aio/subscription.py", "aio/fanout.py", "aio/batching.py", "aio/clock.py",
-         "aio/backlog.py"))])
+         "aio/backlog.py", "aio/identity.py"))])
 def test_the_links_parts_stand_below_the_link(where: str, path: Path) -> None:
     assert not {n for n in first_party(imports_of(path)) if within(n, "fpgalink.aio.link")}, where
 

@@ -227,6 +227,15 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
                  help="The MicroBlaze software: the Python model, or the C core of firmware/ "
                       "(built on first use with the system C compiler; docs/firmware.md)  "
                       "[default: python]"),
+    click.option("--seed-protocol", "seed_protocol", is_flag=True, default=None,
+                 help="Serve boards as the seed's firmware was: IQ is not known (counted, "
+                      "unanswered), so a host sees \"seed protocol, identity unknown\" "
+                      "(docs/protocol.md §8); the Python firmware only."),
+    click.option("--declarations", "declarations", metavar="HEX",
+                 help="Answer IQ with this protocol declaration hash (16 hex digits), as a "
+                      "firmware generated from another declaration would: to try a host's "
+                      "refusal (the wire it speaks is still this one); the Python firmware "
+                      "only."),
     click.option("--idle-timeout", "idle_timeout", type=float, metavar="SECONDS",
                  help="With --tcp: disconnect a host that has sent nothing this long after "
                       "connecting; 0: never  [default: "
@@ -237,7 +246,8 @@ DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 
                             "assignments": (), "links": (), "faults": (), "robot": False,
                             "robot_file": None, "surface": None, "truth": None,
                             "firmware": "python", "idle_timeout": None,
-                            "body": None, "uart_rx": "edge", "tx_gap": 0, "foxglove": None}
+                            "body": None, "uart_rx": "edge", "tx_gap": 0, "foxglove": None,
+                            "seed_protocol": False, "declarations": None}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -288,6 +298,14 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     if value["uart_rx"] not in UART_RX_MODES:
         raise ServeError(f"--uart-rx {value['uart_rx']!r}: choose "
                          f"{' or '.join(UART_RX_MODES)}", EXIT_BAD_INPUT)
+    declarations = _declarations(value["declarations"])
+    if value["seed_protocol"] and declarations is not None:
+        raise ServeError("--seed-protocol and --declarations: a seed board does not answer "
+                         "IQ at all", EXIT_BAD_INPUT)
+    if (value["seed_protocol"] or declarations is not None) and value["firmware"] == "c":
+        raise ServeError("--seed-protocol and --declarations serve the Python firmware; the "
+                         "C core (--firmware c) answers IQ with the hash it was generated "
+                         "from", EXIT_BAD_INPUT)
     body = _body(value, robot) if robot is not None else None
     names = list(robot.boards) if robot else board_names(value["boards"])
     links = parse_links(value["links"], names)
@@ -310,7 +328,9 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
                               settings, faults, value["firmware"], body=body,
                               uart_rx=value["uart_rx"], tx_gap=value["tx_gap"],
-                              surface=value["surface"])
+                              surface=value["surface"],
+                              identity=not value["seed_protocol"],
+                              declarations=declarations)
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], ExitCode.NOT_INSTALLED if isinstance(
             exc, NotInstalled) else EXIT_BAD_INPUT) from None
@@ -323,6 +343,17 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout,
                                  live))
     sys.exit(code)
+
+
+def _declarations(text: str | None) -> int | None:
+    """``--declarations HEX``: a declaration hash as ``IA`` carries it (u64)."""
+    if text is None:
+        return None
+    digits = text.strip().lower().removeprefix("0x")
+    if not (1 <= len(digits) <= 16 and all(c in "0123456789abcdef" for c in digits)):
+        raise ServeError(f"--declarations {text!r}: expected a hash of up to 16 hex digits "
+                         "(as fpgalink-cli ports --identify shows one)", EXIT_BAD_INPUT)
+    return int(digits, 16)
 
 
 def _robot(value: dict[str, Any]) -> RobotDescription:
@@ -385,17 +416,20 @@ def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, s
                   gear: str, settings: dict[str, int | float],
                   faults: dict[str, list[str]], firmware: str = "python", *,
                   body: str | None = None, uart_rx: str = "edge", tx_gap: int = 0,
-                  surface: str | None = None) -> dict[str, PacedBoard]:
+                  surface: str | None = None, identity: bool = True,
+                  declarations: int | None = None) -> dict[str, PacedBoard]:
     if robot is not None:
         emulated = EmulatedRobot(robot, surface, baud=baud, seed=seed, gear=gear,
                                  faults=faults, settings=settings, body=body,
-                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware)
+                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware,
+                                 identity=identity, declarations=declarations)
         paced_robot = PacedRobot(emulated)
         return {name: paced_robot.side(name) for name in names}
     return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
                                          settings=settings, faults=faults[name],
                                          firmware=firmware, uart_rx=uart_rx,
-                                         tx_byte_gap=tx_gap))
+                                         tx_byte_gap=tx_gap, identity=identity,
+                                         declarations=declarations))
             for index, name in enumerate(names)}
 
 

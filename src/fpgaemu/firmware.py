@@ -16,7 +16,10 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
   query's nonce, the hash of the declaration this firmware runs (this package's), the
   firmware's version (:data:`FIRMWARE_VERSION`, the C core's ``FW_VERSION_*``) and build,
   and the board's serial (:func:`emulated_serial` of the board's seed). ``Firmware(
-  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered.
+  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered;
+  ``Firmware(declarations=H)`` answers with the hash ``H`` instead, as a firmware generated
+  from another declaration would (for a host's refusal to be tried; the wire it speaks is
+  still this one).
 
 Controller modes (parameter 4, per channel):
 
@@ -156,9 +159,11 @@ def emulated_serial(seed: int) -> int:
 
 class Firmware:
     def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True,
-                 identity: bool = True) -> None:
+                 identity: bool = True, declarations: int | None = None) -> None:
         #: answers ``IQ`` (False: a seed board, which does not know the message)
         self.identity = identity
+        #: the declaration hash ``IA`` says (``None``: this package's, the one it runs)
+        self.declarations = declarations
         #: the parameters this firmware knows (without WireCrc: a board older than the CRC)
         self.parameters = {p.id: p for p in PARAMETERS
                            if wire_crc or p.id != WIRE_CRC_PARAM}
@@ -200,7 +205,8 @@ class Firmware:
     def power_cycled(self) -> Firmware:
         """The software after a power cycle: started afresh with the same power-up
         settings (what was flashed), nothing of this run's state."""
-        firmware = Firmware(self._pending_settings, identity=self.identity)
+        firmware = Firmware(self._pending_settings, identity=self.identity,
+                            declarations=self.declarations)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
         return firmware
 
@@ -303,7 +309,9 @@ class Firmware:
             self.stats.param_gets += 1
             self._handle_get(message)
         elif isinstance(message, IdentityQuery) and self.identity:
-            self._send(IdentityAnswer(message.nonce, declarations_hash(), *FIRMWARE_VERSION,
+            declarations = declarations_hash() if self.declarations is None \
+                else self.declarations
+            self._send(IdentityAnswer(message.nonce, declarations, *FIRMWARE_VERSION,
                                       FIRMWARE_BUILD, emulated_serial(self.board.config.seed)),
                        "IA")
         elif isinstance(message, Malformed):
@@ -548,7 +556,9 @@ def _stored(param: Param, value: int | float) -> int | float:
 
 
 def attach_firmware(board: Board, settings: dict[str, Any] | None = None, *,
-                    wire_crc: bool = True, identity: bool = True) -> Firmware:
-    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity)
+                    wire_crc: bool = True, identity: bool = True,
+                    declarations: int | None = None) -> Firmware:
+    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity,
+                        declarations=declarations)
     board.add_peripheral("firmware", firmware)
     return firmware

@@ -243,13 +243,15 @@ class BoardSession:
         return "waiting" if self.link.stats.messages_received == 0 else "SILENT"
 
 
-async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions
-                        ) -> list[BoardSession]:
+async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions, *,
+                        identify: bool = True) -> list[BoardSession]:
     """Open every board's link (closed by ``stack``). Long-running commands keep reconnecting
-    after a lost port and use the library's liveness timeout, so their view shows the truth."""
+    after a lost port and use the library's liveness timeout, so their view shows the truth.
+    ``identify``: each board is asked who it is as it opens (``--passive`` sends nothing,
+    so it does not ask)."""
     sessions = []
     for endpoint in conn.endpoints:
-        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7)
+        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7, identify=identify)
         await stack.enter_async_context(link)
         sessions.append(BoardSession(endpoint, link, Streaming(link)))
     return sessions

@@ -42,6 +42,7 @@ from fpgalink.protocol.params import ParamType
 
 __all__ = [
     "BODIES",
+    "MESSAGE_TYPES",
     "ChannelTelemetry",
     "IdentityAnswer",
     "IdentityQuery",
@@ -352,6 +353,11 @@ class IdentityAnswer(_Catalogued):
 
 Message = (ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry | IdentityQuery
            | IdentityAnswer)
+#: Every typed message, once: what a sender may send as itself (each class's ``msg_id``
+#: says who sends it), and what :func:`encode_message` encodes.
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry, IdentityQuery,
+    IdentityAnswer)
 
 
 # --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
@@ -552,8 +558,7 @@ def _whole(msg_id: MessageId) -> struct.Struct:
 _ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
     cls: (_whole(cls.msg_id), bytes(cls.msg_id),
           bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
-    for cls in (ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry,
-                IdentityQuery, IdentityAnswer)
+    for cls in MESSAGE_TYPES
 }
 
 

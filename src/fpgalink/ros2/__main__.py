@@ -45,7 +45,7 @@ def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> NoReturn:
 #: by SIGINT or SIGTERM, the robot stopped and the boards disabled; docs/ros2.md).
 EXIT_CODES_TABLE = exit_codes_help((
     ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.NO_ANSWER, ExitCode.PORT,
-    ExitCode.NOT_INSTALLED))
+    ExitCode.NOT_INSTALLED, ExitCode.MISMATCH))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -83,6 +83,10 @@ def _parser() -> argparse.ArgumentParser:
                         "pose, path, truth, URDF and supervision; docs/live.md")
     parser.add_argument("--force", action="store_true",
                         help="replace the --bag DIR if it exists")
+    parser.add_argument("--allow-mismatch", action="store_true",
+                        help="go on with boards whose firmware was built from another "
+                        "protocol declaration than this host's (refused otherwise, exit 10; "
+                        "shown in /diagnostics either way)")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -206,7 +210,7 @@ def main(argv: list[str] | None = None) -> None:
     code = 0
     try:
         code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live, argv))
+                                bag, options.lifecycle, live, argv, options.allow_mismatch))
     finally:
         if bag is not None:
             code = _close_bag(bag, code)
@@ -325,7 +329,7 @@ def _close_bag(bag: NodeBag, code: int) -> int:
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
                bag: Any = None, lifecycle: bool = False, live: Any = None,
-               argv: list[str] | None = None) -> int:
+               argv: list[str] | None = None, allow_mismatch: bool = False) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -344,8 +348,9 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     if lifecycle:
         from fpgalink.ros2.managed import run_managed
 
-        return await run_managed(description, ports, baud, bag, stop, overrides)
-    robot = Robot.open(description, ports, baud=baud)
+        return await run_managed(description, ports, baud, bag, stop, overrides,
+                                 allow_mismatch)
+    robot = Robot.open(description, ports, baud=baud, allow_mismatch=allow_mismatch)
     try:
         await robot.start()
     except (RobotError, FpgalinkError) as exc:

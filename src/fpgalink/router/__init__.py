@@ -12,9 +12,11 @@ connected while it has the pty open), some behind a stable symlink. The arbitrat
   board; the others are **observers**: every frame they send is refused (not passed on) and
   counted, and the router says so the first time; a refused ``PS`` or ``PG`` is answered
   ``PN`` 5 (another client controls the board), which the client's link raises as
-  ``ParameterRefused``. When the controller leaves, the router sends ``RD`` at once, ahead
-  of whatever of its frames still waits for the line (dropped, counted), so a motor is never
-  left driven by a client that went away; the next client to send becomes the controller;
+  ``ParameterRefused``; an observer's ``IQ`` (who is the board?) is the one frame passed
+  on: it changes nothing, and its ``IA`` reaches every client. When the controller leaves,
+  the router sends ``RD`` at once, ahead of whatever of its frames still waits for the line
+  (dropped, counted), so a motor is never left driven by a client that went away; the next
+  client to send becomes the controller;
 * what waits for the board is bounded by line time: the controller's frames are handed to
   the port at the line's pace (:class:`LineQueue`), at most :data:`BOARD_QUEUE_S` of line
   time waiting; a frame beyond that is refused and counted, and said;

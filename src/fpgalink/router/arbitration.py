@@ -2,13 +2,17 @@
 **controller** until it leaves; every other client is an **observer**, whose frames are
 refused. A refused ``PS`` or ``PG`` is answered ``PN`` 5 (another client controls the
 board) in the form it came in, so the client's link fails the request at once with the
-reason instead of resending it to no one."""
+reason instead of resending it to no one. An observer's ``IQ`` (who is the board?) is the
+one frame passed on: it changes nothing on the board, and its ``IA`` reaches every client
+as every frame does (another client's link reads past an answer to a nonce it did not
+send)."""
 
 from __future__ import annotations
 
 from typing import Generic, TypeVar
 
 from fpgalink.protocol.catalogue import (
+    IdentityQuery,
     NackReason,
     ParamGet,
     ParamNack,
@@ -20,7 +24,7 @@ from fpgalink.protocol.counter import SendCounter
 from fpgalink.protocol.crc import append_crc, strip_crc
 from fpgalink.router.stats import Client
 
-__all__ = ["Arbitration", "parameter_request"]
+__all__ = ["Arbitration", "identity_query", "parameter_request"]
 
 C = TypeVar("C", bound=Client)
 
@@ -77,3 +81,11 @@ def parameter_request(content: bytes) -> tuple[ParamSet | ParamGet | None, bool]
         if isinstance(message, ParamSet | ParamGet):
             return message, True
     return None, False
+
+
+def identity_query(content: bytes) -> bool:
+    """An ``IQ`` (docs/protocol.md §8) in ``content``, plain or with a good wire CRC."""
+    if isinstance(parse_content(content), IdentityQuery):
+        return True
+    body = strip_crc(content)
+    return body is not None and isinstance(parse_content(body), IdentityQuery)

@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from fpgalink.aio.transport import open_transport
 from fpgalink.errors import PortError
 from fpgalink.protocol.framing import DEFAULT_FRAMING, FrameDecoder, Framing, encode_frame
-from fpgalink.router.arbitration import Arbitration
+from fpgalink.router.arbitration import Arbitration, identity_query
 from fpgalink.router.linequeue import LineQueue
 from fpgalink.router.stats import Client, ClientStats, message_id
 
@@ -314,7 +314,10 @@ class BoardRoute:
             self.to_board(stats, contents)
             return
         for content in contents:
-            self._refuse(client, content)
+            if identity_query(content):
+                self.to_board(stats, [content])
+            else:
+                self._refuse(client, content)
 
     def _refuse(self, client: Client, content: bytes) -> None:
         """An observer's frame, not passed on: counted, answered when the protocol has an

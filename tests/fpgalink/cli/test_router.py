@@ -160,7 +160,10 @@ def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
     clients = {c["client"]: c for c in summary["clients"]}
     assert clients[1]["role"] == "controller" and clients[1]["refused_frames"] == 0
     assert clients[2]["refused_by_id"] == {"RE": 1} and clients[2]["frames_to_board"] == 0
-    assert clients[3]["refused_by_id"] == {"PS": 1}  # the PN is final: not sent again
+    # The PN is final: not sent again. Before it, the command asked who the board is: its
+    # IQ passed to the board (a question), the PG after it refused as every read is.
+    assert clients[3]["refused_by_id"] == {"PG": 1, "PS": 1}
+    assert clients[3]["to_board_by_id"] == {"IQ": 1}
 
 
 def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
@@ -709,7 +712,8 @@ def test_a_refused_parameter_set_says_the_router_refused_it(tmp_path: Path) -> N
     assert untouched.returncode == 0 and float(untouched.stdout.split()[-1]) != 500, (
         untouched.stdout, untouched.stderr)
     clients = {c["client"]: c for c in summary["clients"]}
-    assert clients[2]["role"] == "observer" and clients[2]["refused_by_id"] == {"PS": 1}
+    assert clients[2]["role"] == "observer"
+    assert clients[2]["refused_by_id"] == {"PG": 1, "PS": 1}  # the identity's PG too
     # A client with the wire CRC on is answered with it (docs/protocol.md §7), else its
     # link would drop the answer as a CRC failure.
     from fpgalink.protocol import NackReason, ParamNack, parse_content
