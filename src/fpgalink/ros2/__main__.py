@@ -285,19 +285,28 @@ def _live_address(options: argparse.Namespace) -> Any:
     """``--foxglove``'s address (``None`` without it), the SDK checked before ROS starts."""
     if options.foxglove is None:
         return None
+    if options.lifecycle:
+        _fail("--foxglove does not go with --lifecycle yet")
+    live, error = _parse_live("--foxglove", options.foxglove)
+    if error is not None:
+        _fail(*error)
+    return live
+
+
+def _parse_live(what: str, text: str) -> tuple[Any, tuple[str, int] | None]:
+    """A live view's ``[HOST:]PORT`` and the SDK there to serve it; else the error's line and
+    exit code."""
     from fpgalink.live import parse_address, require_sdk
     from fpgalink.protocol.exitcodes import NotInstalled
 
-    if options.lifecycle:
-        _fail("--foxglove does not go with --lifecycle yet")
     try:
-        live = parse_address(options.foxglove)
+        live = parse_address(text)
         require_sdk()
     except ValueError as exc:
-        _fail(f"--foxglove {exc}")
+        return None, (f"{what} {exc}", ExitCode.BAD_INPUT)
     except NotInstalled as exc:
-        _fail(str(exc), ExitCode.NOT_INSTALLED)
-    return live
+        return None, (str(exc), ExitCode.NOT_INSTALLED)
+    return live, None
 
 
 def _open_bag(options: argparse.Namespace, ports: dict[str, str],
@@ -366,6 +375,11 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
                   flush=True)
             return EXIT_USAGE
         bridge.serve_parameters()
+        if live is None and bridge.params.foxglove:  # the node parameter's route
+            live, error = _parse_live("-p foxglove:=", bridge.params.foxglove)
+            if error is not None:
+                print(f"{PROG}: error: {error[0]}", file=sys.stderr, flush=True)
+                return error[1]
         executor, thread = spin_in_thread(node)
         bridge.executor = executor
         node.get_logger().info(

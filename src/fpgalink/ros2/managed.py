@@ -148,6 +148,9 @@ class _ManagedNode(LifecycleNode):
                 log.error(f"configure: {exc}")
                 return TransitionCallbackReturn.FAILURE
             bridge.serve_parameters()
+            if bridge.params.foxglove:
+                log.warning(f"foxglove {bridge.params.foxglove!r}: no live view with "
+                            "--lifecycle yet: ignored")
             configured = True
         finally:
             if not configured:  # failed, or out of time: as before it, to be tried again
