@@ -1,6 +1,7 @@
 """The ROS-less route to Foxglove: ``fpgalink-ros2 --foxglove PORT`` (or ``-p
-foxglove:=PORT``) serves the live view beside its ROS topics (inside a loopback-only network namespace, as every DDS participant
-in the suite runs; the client speaks Foxglove's protocol from the same namespace)."""
+foxglove:=PORT``) serves the live view beside its ROS topics (inside a loopback-only
+network namespace, as every DDS participant in the suite runs; the client speaks
+Foxglove's protocol from the same namespace)."""
 
 from __future__ import annotations
 
