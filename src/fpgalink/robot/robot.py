@@ -131,13 +131,15 @@ class Robot:
 
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
-             baud: int = 1_000_000, stale_periods: int = 50, **options: Any) -> Robot:
+             baud: int = 1_000_000, stale_periods: int = 50, wire_crc: bool = False,
+             **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
         ``stale_periods``: timer periods without a board's telemetry that stop the robot
-        (:class:`~fpgalink.Connection`); ``options`` go to the robot (deadman_s,
-        control_period, goto_settings, allow_mismatch)."""
+        (:class:`~fpgalink.Connection`); ``wire_crc``: the boards' frames carry the wire CRC
+        (docs/protocol.md §7); ``options`` go to the robot (deadman_s, control_period,
+        goto_settings, allow_mismatch)."""
         links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
-                                 unanswered_rounds=UNANSWERED_ROUNDS)
+                                 unanswered_rounds=UNANSWERED_ROUNDS, wire_crc=wire_crc)
                  for name, url in ports.items()}
         return cls(description, links, **options)
 
