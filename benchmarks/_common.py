@@ -31,8 +31,10 @@ from typing import Any, TextIO, TypeVar
 from tests.support.serving import Served, start_serve
 
 __all__ = [
+    "BUILDS",
     "RESULTS_DIR",
     "Summary",
+    "build_env",
     "chunked",
     "common_parser",
     "environment_line",
@@ -171,6 +173,21 @@ def time_once(fn: Callable[[], T]) -> tuple[float, T]:
 def chunked(wire: bytes, size: int) -> list[bytes]:
     # Sliced up front, so the timed loops measure the code under test and not the slicing.
     return [wire[i : i + size] for i in range(0, len(wire), size)]
+
+
+# --- the two builds ----------------------------------------------------------------------------
+
+#: The builds a benchmark compares: the compiled one (mypyc, where it is installed) and pure
+#: Python (``FPGALINK_PURE=1``), each run in processes of its own.
+BUILDS = ("compiled", "pure")
+
+
+def build_env(build: str) -> dict[str, str]:
+    """The environment for a child process on ``build`` (``compiled`` or ``pure``)."""
+    env = {k: v for k, v in os.environ.items() if k != "FPGALINK_PURE"}
+    if build == "pure":
+        env["FPGALINK_PURE"] = "1"
+    return env
 
 
 # --- showing and keeping the results ----------------------------------------------------------

@@ -25,17 +25,21 @@ Cases:
 * ``robot``: the emulated robot (``fpgaemu.robot.EmulatedRobot``): boards L and R and the
   kinematic body their four wheels move, 1 kHz ``TM`` from both, ``RV`` to both every 10 ms
   (a gentle arc: 0.1 m/s, 10 deg/s), ``RE`` every 100 ms; the emulator's cost, as ``board``;
-* ``robot.mujoco``: the same robot with the physics body (MuJoCo, on gravel);
-* ``board.modules``, ``robot.modules``: ``board`` and ``robot`` with the fused paths off
-  (``fused=False``: every event through the modules, :mod:`fpgaemu.fastpath`), so the
-  fused paths' gain is a ratio measured in the same run.
+* ``robot.mujoco``: the same robot with the physics body (MuJoCo, on gravel).
 
-Reported per case: ``x_real_time`` (emulated s / wall s), ``events_per_s`` (timeline events
-per wall second: every event the board's ``Timeline`` scheduled, read from its sequence
-counter, so counting costs nothing; the ~10/s cancelled watchdog re-arms are included) and
-the wall time. Targets (reported, not asserted): ``board`` ≥ 40×, ``board.idle`` ≥ 300×,
-``robot`` ≥ 20×, ``robot.mujoco`` ≥ 15× real time.
-Every run is checked: 10,000 periods, no missed ``TM``, both wheels at their references.
+Each case runs on both builds, the compiled one (mypyc) and pure Python
+(``FPGALINK_PURE=1``), every repetition a fresh process per build, the repetitions
+interleaving cases and builds; beside them, ``benchmarks.ceiling``'s flat loop of one
+millisecond's arithmetic with ``TM`` and ``RV`` in pure Python. Reported per case and build:
+``x_real_time`` (emulated s / wall s), ``events_per_s`` (timeline events per wall second:
+every event the board's ``Timeline`` scheduled, read from its sequence counter, so counting
+costs nothing; the ~10/s cancelled watchdog re-arms are included), the wall and CPU time,
+and the compiled build's speed over pure Python's (the medians' ratio, wall and CPU).
+Targets (reported, not asserted): ``board`` ≥ 40×, ``board.idle`` ≥ 300×, ``robot`` ≥ 20×,
+``robot.mujoco`` ≥ 15× real time; compiled over pure (issue 39) ``board``, ``robot``,
+``board+host`` and ``board.idle`` ≥ 3×, ``robot.mujoco`` ≥ 2×; the compiled board's
+millisecond within 2× of the flat loop's. Every run is checked: 10,000 periods, no missed
+``TM``, both wheels at their references. ``--builds pure`` measures one build.
 
 Run ``python -m benchmarks.emulator`` from the repository root; ``--quick`` is one
 repetition of 1 s emulated.
@@ -43,6 +47,12 @@ repetition of 1 s emulated.
 
 from __future__ import annotations
 
+import argparse
+import dataclasses
+import gc
+import json
+import statistics
+import subprocess
 import sys
 import time
 from collections.abc import Callable, Sequence
@@ -51,13 +61,14 @@ from typing import Any
 
 import fpgaemu
 from benchmarks._common import (
+    BUILDS,
     Summary,
+    build_env,
     common_parser,
     environment_line,
     print_table,
     report_header,
     summarize,
-    time_once,
     write_results,
 )
 from fpgaemu import CLOCK_HZ, Board, Firmware
@@ -110,10 +121,9 @@ class Outcome:
         }
 
 
-def scenario(seconds: float, *, decode: bool, rv_stream: bool, fused: bool = True
-             ) -> Callable[[], Outcome]:
+def scenario(seconds: float, *, decode: bool, rv_stream: bool) -> Callable[[], Outcome]:
     """A fresh board, built outside the timed call; the returned call runs ``seconds``."""
-    board = fpgaemu.build_board(baud=BAUD, fused=fused,
+    board = fpgaemu.build_board(baud=BAUD,
                                 settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
     firmware = board.peripherals["firmware"]
     assert isinstance(firmware, Firmware)
@@ -211,11 +221,10 @@ ROBOT_COMMAND = (0.1, 0.17453292519943295)  #: 0.1 m/s, 10 deg/s
 ROBOT_RV_EVERY_MS = 10
 
 
-def robot_scenario(seconds: float, body: str = "kinematic", fused: bool = True
-                   ) -> Callable[[], Outcome]:
+def robot_scenario(seconds: float, body: str = "kinematic") -> Callable[[], Outcome]:
     """Both boards of the emulated robot and its body; figures summed over the boards."""
     robot = EmulatedRobot(baud=BAUD, settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1},
-                          body=body, fused=fused)
+                          body=body)
     hosts = {name: Connection(baud=BAUD) for name in robot.boards}
     references = wheel_command(robot.description, *ROBOT_COMMAND).references
     end_ms = round(seconds * 1000)
@@ -270,6 +279,82 @@ def robot_scenario(seconds: float, body: str = "kinematic", fused: bool = True
     return run
 
 
+CASES = (
+    ("board", "board alone, RV every 1 ms + RE every 100 ms, TM every 1 ms", False, True),
+    ("board+host", "as board, every frame decoded by fpgalink.Connection", True, True),
+    ("board.tm_only", "as board without the RV stream (references set once)", False, False),
+    ("board.idle", "board left alone: telemetry off, nothing received", False, False),
+    ("robot", "robot: boards L+R and the body, TM every 1 ms each, RV every 10 ms", False,
+     True),
+    ("robot.mujoco", "as robot, with the MuJoCo body (gravel)", False, True),
+)
+CASE_KEYS = tuple(key for key, *_ in CASES)
+TARGET_IDLE_X_REAL_TIME = 300.0
+#: the idle case runs this many times longer, so its wall time is measurable
+IDLE_STRETCH = 10
+TARGET_ROBOT_X_REAL_TIME = 20.0  #: the robot case (two boards and the body)
+TARGET_MUJOCO_X_REAL_TIME = 15.0  #: the robot with the MuJoCo body
+#: Issue 39: the compiled build against pure Python, in the same run (medians' ratio).
+TARGET_COMPILED_RATIOS = {"board": 3.0, "robot": 3.0, "board+host": 3.0, "robot.mujoco": 2.0,
+                          "board.idle": 3.0}
+#: Issue 39: the compiled board within this factor of the pure-Python flat loop's
+#: millisecond (benchmarks.ceiling's ``+ RV``), measured beside it.
+TARGET_CEILING_FACTOR = 2.0
+CEILING = "ceiling (+ RV)"
+
+
+def run_case(key: str, seconds: float) -> tuple[float, float, Outcome]:
+    """One repetition of a case in this process: wall and CPU seconds, and what it did."""
+    if key.startswith("robot"):
+        run = robot_scenario(seconds, "mujoco" if key == "robot.mujoco" else "kinematic")
+    elif key == "board.idle":
+        run = idle_scenario(seconds * IDLE_STRETCH)
+    else:
+        decode, rv_stream = {"board": (False, True), "board+host": (True, True),
+                             "board.tm_only": (False, False)}[key]
+        run = scenario(seconds, decode=decode, rv_stream=rv_stream)
+    gc.collect()  # what building the scenario left is not the run's
+    cpu, started = time.process_time(), time.perf_counter()
+    outcome = run()
+    return time.perf_counter() - started, time.process_time() - cpu, outcome
+
+
+def run_ceiling(seconds: float) -> tuple[float, float]:
+    """The pure-Python flat loop of one millisecond's work with TM and RV
+    (``benchmarks.ceiling``): wall and CPU seconds for ``seconds`` emulated."""
+    from benchmarks.ceiling import arithmetic_loop
+
+    run = arithmetic_loop(round(seconds * 1000), True, True)
+    gc.collect()
+    cpu, started = time.process_time(), time.perf_counter()
+    run()
+    return time.perf_counter() - started, time.process_time() - cpu
+
+
+def child(key: str, seconds: float) -> int:
+    """The child process's side: one repetition, its figures as one JSON line."""
+    from fpgalink.buildinfo import BUILD
+
+    if key == CEILING:
+        wall, cpu = run_ceiling(seconds)
+        print(json.dumps({"build": BUILD, "wall": wall, "cpu": cpu}))
+        return 0
+    wall, cpu, outcome = run_case(key, seconds)
+    print(json.dumps({"build": BUILD, "wall": wall, "cpu": cpu,
+                      "outcome": dataclasses.asdict(outcome)}))
+    return 0
+
+
+def in_child(key: str, seconds: float, build: str) -> dict[str, Any]:
+    done = subprocess.run([sys.executable, "-m", "benchmarks.emulator", "--child", key,
+                           "--seconds", repr(seconds)], capture_output=True, text=True,
+                          env=build_env(build), check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"{key} on the {build} build failed: {done.stderr.strip()}")
+    result: dict[str, Any] = json.loads(done.stdout.strip().splitlines()[-1])
+    return result
+
+
 @dataclass
 class Case:
     key: str
@@ -278,8 +363,16 @@ class Case:
     rv_stream: bool
     robot: bool = False
     idle: bool = False
-    seconds: list[float] = field(default_factory=list)
-    outcomes: list[Outcome] = field(default_factory=list)
+    #: per build: wall and CPU seconds and the outcome of each repetition
+    walls: dict[str, list[float]] = field(default_factory=dict)
+    cpus: dict[str, list[float]] = field(default_factory=dict)
+    outcomes: dict[str, list[Outcome]] = field(default_factory=dict)
+
+    def add(self, build: str, wall: float, cpu: float, outcome: Outcome) -> None:
+        self.check(outcome)
+        self.walls.setdefault(build, []).append(wall)
+        self.cpus.setdefault(build, []).append(cpu)
+        self.outcomes.setdefault(build, []).append(outcome)
 
     def check(self, outcome: Outcome) -> None:
         expected = round(outcome.emulated_s * 1000)
@@ -310,103 +403,102 @@ class Case:
         if problems:
             raise AssertionError(f"{self.key}: " + "; ".join(problems))
 
-    def rates(self) -> dict[str, list[float]]:
-        return {
-            "x_real_time": [o.emulated_s / s for o, s in zip(self.outcomes, self.seconds,
-                                                              strict=True)],
-            "events_per_s": [o.events / s for o, s in zip(self.outcomes, self.seconds,
-                                                          strict=True)],
-            "seconds": list(self.seconds),
-        }
+    def emulated_s(self) -> float:
+        return next(iter(self.outcomes.values()))[0].emulated_s
 
-    def summary(self) -> dict[str, Summary]:
-        return {name: summarize(values) for name, values in self.rates().items()}
+    def x_real_time(self, build: str) -> Summary:
+        return summarize([self.emulated_s() / w for w in self.walls[build]])
+
+    def ratio(self, numerator: str = "compiled", denominator: str = "pure",
+              times: str = "walls") -> float | None:
+        """How many times faster ``numerator`` ran than ``denominator``: the ratio of their
+        median times (wall, or ``cpus``), in this run."""
+        got: dict[str, list[float]] = self.cpus if times == "cpus" else self.walls
+        if numerator not in got or denominator not in got:
+            return None
+        return statistics.median(got[denominator]) / statistics.median(got[numerator])
 
     def result(self) -> dict[str, Any]:
-        first = self.outcomes[0]
-        return {
-            "description": self.description,
-            "emulated_s": first.emulated_s,
-            "events": first.events,
-            "periods": first.periods,
-            "missed": first.missed,
-            "tm_wire_bytes_per_period": first.tm_wire_bytes / max(1, first.periods),
-            "repetitions": [
-                {"seconds": s, "x_real_time": o.emulated_s / s, "events_per_s": o.events / s,
-                 **o.counts()}
-                for o, s in zip(self.outcomes, self.seconds, strict=True)
-            ],
-            "summary": self.summary(),
-        }
+        out: dict[str, Any] = {"description": self.description,
+                               "emulated_s": self.emulated_s(),
+                               "compiled_over_pure": self.ratio(),
+                               "compiled_over_pure_cpu": self.ratio(times="cpus")}
+        for build, walls in self.walls.items():
+            first = self.outcomes[build][0]
+            out[build] = {
+                "x_real_time": self.x_real_time(build),
+                "events_per_s": summarize([o.events / w for o, w in
+                                           zip(self.outcomes[build], walls, strict=True)]),
+                "periods": first.periods, "missed": first.missed,
+                "tm_wire_bytes_per_period": first.tm_wire_bytes / max(1, first.periods),
+                "repetitions": [{"wall_s": w, "cpu_s": c, **o.counts()} for w, c, o in zip(
+                    walls, self.cpus[build], self.outcomes[build], strict=True)],
+            }
+        return out
 
 
-CASES = (
-    ("board", "board alone, RV every 1 ms + RE every 100 ms, TM every 1 ms", False, True),
-    ("board+host", "as board, every frame decoded by fpgalink.Connection", True, True),
-    ("board.tm_only", "as board without the RV stream (references set once)", False, False),
-    ("board.idle", "board left alone: telemetry off, nothing received", False, False),
-    ("robot", "robot: boards L+R and the body, TM every 1 ms each, RV every 10 ms", False,
-     True),
-    ("robot.mujoco", "as robot, with the MuJoCo body (gravel)", False, True),
-    ("board.modules", "as board, the fused paths off (every event through the modules)",
-     False, True),
-    ("robot.modules", "as robot, the fused paths off", False, True),
-)
-#: fused-path gains reported as ratios of medians from the same run
-FUSED_RATIOS = (("board", "board.modules"), ("robot", "robot.modules"))
-TARGET_IDLE_X_REAL_TIME = 300.0
-#: the idle case runs this many times longer, so its wall time is measurable
-IDLE_STRETCH = 10
-TARGET_ROBOT_X_REAL_TIME = 20.0  #: the robot case (two boards and the body)
-TARGET_MUJOCO_X_REAL_TIME = 15.0  #: the robot with the MuJoCo body
-
-
-def _targets(cases: dict[str, Case]) -> list[dict[str, Any]]:
+def _targets(cases: dict[str, Case], ceiling: dict[str, list[float]]) -> list[dict[str, Any]]:
     targets = []
     for key, threshold in (("board", TARGET_X_REAL_TIME), ("board.idle", TARGET_IDLE_X_REAL_TIME),
                            ("robot", TARGET_ROBOT_X_REAL_TIME),
                            ("robot.mujoco", TARGET_MUJOCO_X_REAL_TIME)):
-        measured = cases[key].summary()["x_real_time"]["median"]
-        targets.append({
-            "case": key,
-            "metric": "x_real_time (median)",
-            "threshold": threshold,
-            "measured": measured,
-            "pass": measured >= threshold,
-            "required": True,
-        })
+        build = "compiled" if "compiled" in cases[key].walls else "pure"
+        measured = cases[key].x_real_time(build)["median"]
+        targets.append({"case": key, "metric": f"x_real_time (median, {build})",
+                        "threshold": threshold, "measured": measured,
+                        "pass": measured >= threshold, "required": True})
+    for key, threshold in TARGET_COMPILED_RATIOS.items():
+        ratio = cases[key].ratio()
+        targets.append({"case": key, "metric": "× compiled over pure (medians' ratio)",
+                        "threshold": threshold, "measured": ratio,
+                        "pass": ratio is not None and ratio >= threshold, "required": True})
+    board = cases["board"]
+    if "compiled" in board.walls and ceiling:
+        factor = statistics.median(board.walls["compiled"]) / statistics.median(
+            ceiling["walls"])
+        targets.append({"case": "board", "metric": "compiled board's time / the flat loop's",
+                        "threshold": TARGET_CEILING_FACTOR, "measured": factor,
+                        "pass": factor <= TARGET_CEILING_FACTOR, "required": True,
+                        "at_most": True})
     return targets
 
 
-def _print_report(report: dict[str, Any], cases: list[Case], targets: list[dict[str, Any]],
-                  reps: int) -> None:
+def _print_report(report: dict[str, Any], cases: list[Case], ceiling: dict[str, list[float]],
+                  targets: list[dict[str, Any]], reps: int, seconds: float) -> None:
     rows = []
     for case in cases:
-        summary = case.summary()
-        x = summary["x_real_time"]
-        rows.append([
-            case.key,
-            f"{case.outcomes[0].emulated_s:g}",
-            f"{summary['seconds']['median']:.3f}",
-            f"{x['median']:.1f}×",
-            f"{x['min']:.1f}–{x['max']:.1f}",
-            f"{summary['events_per_s']['median']:,.0f}",
-            f"{case.outcomes[0].tm_finished:,}",
-            "" if case.outcomes[0].tm_received is None else f"{case.outcomes[0].tm_received:,}",
-        ])
-    print(f"emulator speed, median of {reps} repetition(s)")
+        cells = [case.key, f"{case.emulated_s():g}"]
+        for build in BUILDS:
+            if build in case.walls:
+                x = case.x_real_time(build)
+                cells += [f"{x['median']:.1f}×", f"{x['min']:.1f}–{x['max']:.1f}"]
+            else:
+                cells += ["–", ""]
+        wall, cpu = case.ratio(), case.ratio(times="cpus")
+        cells += ["–" if wall is None else f"{wall:.2f}×", "–" if cpu is None else f"{cpu:.2f}×"]
+        first = next(iter(case.outcomes.values()))[0]
+        cells += [f"{first.tm_finished:,}",
+                  "" if first.tm_received is None else f"{first.tm_received:,}"]
+        rows.append(cells)
+    print(f"emulator speed, compiled (mypyc) and pure Python, each case a fresh process per "
+          f"build and repetition, median of {reps}")
     print(environment_line(report))
-    print_table(["case", "emulated s", "wall s", "× real time", "range", "events/s",
-                 "TM sent", "TM decoded"], rows)
-    print("TM sent: finished on the wire by the end of the run (first repetition); "
-          "TM decoded: by fpgalink.Connection, which lost none.")
-    for fused, modules in FUSED_RATIOS:
-        print(f"fused paths: {fused} {report['fused_ratios'][fused]:.2f}× {modules}")
+    print_table(["case", "emulated s", "compiled", "range", "pure", "range",
+                 "compiled/pure", "(CPU)", "TM sent", "TM decoded"], rows)
+    print("compiled, pure: × real time; compiled/pure: the medians' ratio of wall time (CPU "
+          "time beside it); TM sent: finished on the wire by the end of the run; TM decoded: "
+          "by fpgalink.Connection, which lost none.")
+    if ceiling:
+        flat = statistics.median(ceiling["walls"])
+        print(f"the flat loop (benchmarks.ceiling, + RV, pure Python): "
+              f"{flat / seconds * 1e3:.1f} µs per emulated ms, {seconds / flat:.1f}× real time")
     print()
     for t in targets:
         verdict = "PASS" if t["pass"] else "FAIL"
-        print(f"target {t['case']}: {t['metric']} ≥ {t['threshold']:g}: "
-              f"{t['measured']:.1f} — {verdict}")
+        sign = "≤" if t.get("at_most") else "≥"
+        measured = "n/a" if t["measured"] is None else f"{t['measured']:.2f}"
+        print(f"target {t['case']}: {t['metric']} {sign} {t['threshold']:g}: {measured} — "
+              f"{verdict}")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -416,43 +508,53 @@ def main(argv: Sequence[str] | None = None) -> int:
                         help=f"repetitions (default {DEFAULT_REPS})")
     parser.add_argument("--seconds", type=float, default=None,
                         help=f"emulated seconds per run (default {DEFAULT_SECONDS:g})")
+    parser.add_argument("--builds", default=",".join(BUILDS),
+                        help="the builds to run, of compiled,pure (default both)")
+    parser.add_argument("--child", default=None, help=argparse.SUPPRESS)
     args = parser.parse_args(argv)
     reps = args.reps if args.reps is not None else (1 if args.quick else DEFAULT_REPS)
     seconds = args.seconds if args.seconds is not None else (
         QUICK_SECONDS if args.quick else DEFAULT_SECONDS)
     if reps < 1 or seconds < 0.01:
         parser.error("--reps must be ≥ 1 and --seconds ≥ 0.01")
+    if args.child is not None:
+        return child(args.child, seconds)
+    builds = [b for b in args.builds.split(",") if b]
+    if not builds or any(b not in BUILDS for b in builds):
+        parser.error(f"--builds takes {','.join(BUILDS)}")
+    said = {build: in_child("board.idle", 0.01, build)["build"] for build in builds}
+    if "compiled" in builds and not said["compiled"].startswith("compiled"):
+        print(f"no compiled build to measure (the default build runs {said['compiled']}): "
+              "pure Python only; `make compile` builds it", file=sys.stderr)
+        builds = ["pure"]
 
     started = time.perf_counter()
     cases = [Case(key, text, decode, rv, robot=key.startswith("robot"),
                   idle=key == "board.idle") for key, text, decode, rv in CASES]
-    # Reps interleave the cases, so a slow spell on the machine spreads over all of them.
+    ceiling: dict[str, list[float]] = {}
+    # Repetitions interleave the cases and the builds, so a slow spell on the machine spreads
+    # over all of them.
     for rep in range(reps):
         for case in cases:
-            fused = not case.key.endswith(".modules")
-            if case.robot:
-                run = robot_scenario(seconds, "mujoco" if case.key == "robot.mujoco"
-                                     else "kinematic", fused=fused)
-            elif case.idle:
-                run = idle_scenario(seconds * IDLE_STRETCH)
-            else:
-                run = scenario(seconds, decode=case.decode, rv_stream=case.rv_stream,
-                               fused=fused)
-            wall, outcome = time_once(run)
-            case.check(outcome)
-            case.seconds.append(wall)
-            case.outcomes.append(outcome)
+            for build in builds:
+                figures = in_child(case.key, seconds, build)
+                outcome = Outcome(**figures["outcome"])
+                case.add(build, figures["wall"], figures["cpu"], outcome)
+        flat = in_child(CEILING, seconds, "pure")
+        ceiling.setdefault("walls", []).append(flat["wall"])
+        ceiling.setdefault("cpus", []).append(flat["cpu"])
         print(f"repetition {rep + 1}/{reps} done", file=sys.stderr)
 
     by_key = {c.key: c for c in cases}
-    targets = _targets(by_key)
+    targets = _targets(by_key, ceiling)
     elapsed = time.perf_counter() - started
     payload: dict[str, Any] = {
-        **report_header(NAME, ["numpy", "construct"]),
+        **report_header(NAME, ["numpy", "construct", "mypy"]),
         "config": {
             "emulated_s": seconds,
             "reps": reps,
             "quick": args.quick,
+            "builds": builds,
             "baud": BAUD,
             "ts_timer_period_ms": 1,
             "references_dps": list(REFS),
@@ -462,16 +564,15 @@ def main(argv: Sequence[str] | None = None) -> int:
             "argv": sys.argv[1:] if argv is None else list(argv),
         },
         "cases": {c.key: c.result() for c in cases},
+        "ceiling": {**ceiling, "us_per_ms": statistics.median(ceiling["walls"])
+                    / seconds * 1e3} if ceiling else None,
         "targets": targets,
-        "fused_ratios": {
-            fused: by_key[fused].summary()["x_real_time"]["median"]
-            / by_key[modules].summary()["x_real_time"]["median"]
-            for fused, modules in FUSED_RATIOS},
         "timing": {"total_s": elapsed},
     }
     path = write_results(NAME, payload, args.output)
-    _print_report(payload, cases, targets, reps)
-    print(f"\n{len(cases)} cases × {reps} rep(s) in {elapsed:.1f} s; results in {path}")
+    _print_report(payload, cases, ceiling, targets, reps, seconds)
+    print(f"\n{len(cases)} cases × {len(builds)} build(s) × {reps} rep(s) in {elapsed:.1f} s; "
+          f"results in {path}")
     return 0
 
 

@@ -7,6 +7,10 @@ integer-cycle ``timeline``; :func:`build_board` puts a complete board together a
 ``serve`` paces it to the wall clock behind a pty, a TCP port or ``emu://``.
 """
 
+# Before any module of this package: fpgalink's package decides which build runs, compiled
+# or pure Python, for both packages (fpgalink.buildinfo), and importing the protocol
+# imports it.
+import fpgalink.protocol  # noqa: F401
 from fpgaemu.board import Board, BoardConfig, ChannelIo
 from fpgaemu.build import board_from_url, build_board
 from fpgaemu.firmware import Firmware

@@ -171,9 +171,7 @@ class TxQueue:
 
     def send(self, content: bytes, tag: int | None = None) -> bool:
         """Send or queue ``content``; ``False`` if the queue was full and it was dropped."""
-        axi = self._axi
-        # tx_busy, read directly: a property costs more than this test on every message.
-        if not self._queue and axi._timeline.now >= axi.uartsend.busy_until:
+        if not self._queue and not self._axi.tx_busy:
             self._start(content, tag)
             return True
         if len(self._queue) >= self.depth:

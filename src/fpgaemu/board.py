@@ -24,7 +24,6 @@ from typing import Any, Protocol
 from fpgaemu.axi import AxiBus
 from fpgaemu.bram import BRAM_BYTES, BlockRam
 from fpgaemu.encoder import QuadratureEncoder
-from fpgaemu.fastpath import complete_frame, receive_idle
 from fpgaemu.pwm import Pwm
 from fpgaemu.timeline import EventHandle, Timeline, seconds_to_cycles
 from fpgaemu.timer import Timer
@@ -66,10 +65,6 @@ class BoardConfig:
     #: how ``uartread`` finds a start bit: ``edge`` (LiteX's) or ``level`` (a 16550's,
     #: verilog-uart's): :data:`fpgaemu.uart.UART_RX_MODES`
     uart_rx: str = "edge"
-    #: run the regular work through the fused paths (:mod:`fpgaemu.fastpath`): the same
-    #: state to the last bit, faster; ``False`` runs every event through the modules (the
-    #: reference the fused paths are tested against)
-    fused: bool = True
 
 
 class Peripheral(Protocol):
@@ -108,7 +103,6 @@ class Board:
         self.uartcommand = UartCommand(
             self.timeline, self.blk_mem_gen_rx, config.framing, config.watchdog_cycles
         )
-        self.uartcommand.fused = complete_frame if config.fused else None
         self.uartread = UartRead(
             self.timeline, self.uartcommand.receive, config.baud, config.rx_faults,
             config.uart_rx,
@@ -245,10 +239,6 @@ class Board:
     def host_write(self, data: bytes | bytearray | memoryview, cycle: int | None = None) -> int:
         """The host starts sending ``data`` on the RX pin at ``cycle`` (default now), queued
         behind bytes still on the line. Returns the cycle the last stop bit ends."""
-        if self.config.fused:
-            done = receive_idle(self, data, cycle)
-            if done is not None:
-                return done
         return self.uartread.transmit(data, cycle)
 
     def host_unplugged(self, cycle: int | None = None) -> int:

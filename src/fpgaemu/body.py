@@ -82,22 +82,23 @@ class Body:
         self.v = 0.0
         self.omega = 0.0
         self.distance = 0.0
+        self.steps = 0  #: times the body has followed the wheels
         self._angles: dict[str, float] | None = None
 
     def follow(self, t: float, angles: Mapping[str, float]) -> None:
         """The wheels stand at ``angles`` (deg, physical) at emulated time ``t`` (s)."""
+        self.steps += 1
         last, self._angles = self._angles, dict(angles)
         dt, self.t = t - self.t, t
         if last is None:
             return
         radius, mount, radians = self.radius, self.mount, math.radians
-        # Each side's mean arc, summed from 0 in wheel order as sum() would (written out:
-        # this runs every emulated millisecond).
-        left: float = 0
+        # Each side's mean arc, summed from 0.0 in wheel order.
+        left = 0.0
         for n in LEFT_WHEELS:
             left += radians(angles[n] - last[n]) * radius * mount[n]
         left /= len(LEFT_WHEELS)
-        right: float = 0
+        right = 0.0
         for n in RIGHT_WHEELS:
             right += radians(angles[n] - last[n]) * radius * mount[n]
         right /= len(RIGHT_WHEELS)

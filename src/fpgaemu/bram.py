@@ -9,10 +9,12 @@ order, which *is* that packing, so byte and word accesses need no conversion tab
 
 from __future__ import annotations
 
+from typing import Final
+
 __all__ = ["BRAM_BYTES", "BlockRam"]
 
 #: Both message RAMs of the seed's design: two 200-byte halves.
-BRAM_BYTES = 400
+BRAM_BYTES: Final = 400
 
 
 class BlockRam:

@@ -28,13 +28,14 @@ measured is one count per second (0.072 deg/s at the default 5000 counts per tur
 from __future__ import annotations
 
 import math
+from typing import Final
 
 from fpgaemu.timeline import CLOCK_HZ
 
 __all__ = ["SPEED_TIMEOUT_CYCLES", "QuadratureEncoder", "SpeedReader"]
 
 #: An edge older than this is no reference for a speed measurement (1 s at 100 MHz).
-SPEED_TIMEOUT_CYCLES = CLOCK_HZ
+SPEED_TIMEOUT_CYCLES: Final = CLOCK_HZ
 
 
 class SpeedReader:
@@ -57,11 +58,11 @@ class SpeedReader:
         if counts <= 0:
             return 0.0
         deg_per_count = 360.0 / counts
-        last = encoder._last_edge_cycle
+        last = encoder.last_edge_cycle
         if last is None or self.cycle is None:
             self.speed = 0.0
         elif last > self.cycle:
-            count = encoder._count
+            count = encoder.physical_count
             self.speed = (count - self.count) * deg_per_count * CLOCK_HZ / (last - self.cycle)
             self.count = count
             self.cycle = last
@@ -81,9 +82,10 @@ class QuadratureEncoder:
         self.counts_per_turn = 10 * pulses_per_turn
         self.direction = direction
         self.end_stop = False  #: the end-stop switch input
-        self._count = 0  #: physical count (before the direction setting)
+        #: the counter before the direction setting (``position`` applies it)
+        self.physical_count = 0
         self._angle_offset = self._half_count()
-        self._last_edge_cycle: int | None = None
+        self.last_edge_cycle: int | None = None
         self._angle = 0.0  #: the wheel angle last followed, deg
         self.edges = 0  #: every edge seen (unsigned)
         #: the firmware's window (sampled at the timer tick) first; a hardware controller may
@@ -103,8 +105,8 @@ class QuadratureEncoder:
         self.counts_per_turn = 10 * pulses_per_turn
         self.direction = direction
         self._angle_offset = self._angle + self._half_count()
-        self._count = 0
-        self._last_edge_cycle = None
+        self.physical_count = 0
+        self.last_edge_cycle = None
         for reader in self._readers:
             reader.count, reader.cycle, reader.speed = 0, None, 0.0
 
@@ -142,7 +144,7 @@ class QuadratureEncoder:
         # first boundary crossed, then (below) the last.
         fraction = (offset + (n0 + 1 if up else n0) * step - angle0) / moved
         first = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
-        previous = self._last_edge_cycle
+        previous = self.last_edge_cycle
         stale = previous is None or first - previous > SPEED_TIMEOUT_CYCLES
         for reader in self._readers:
             if reader.cycle is None or stale:
@@ -152,13 +154,13 @@ class QuadratureEncoder:
         # The last boundary crossed: moving up it is where the count became n1, moving down
         # where it left n1 + 1.
         fraction = (offset + (n1 if up else n1 + 1) * step - angle0) / moved
-        self._last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
-        self._count = n1
+        self.last_edge_cycle = cycle0 + round(min(1.0, max(0.0, fraction)) * span)
+        self.physical_count = n1
 
     @property
     def position(self) -> int:
         """The counter register, as a signed 32-bit value."""
-        value = (self._count * self.direction) & 0xFFFF_FFFF
+        value = (self.physical_count * self.direction) & 0xFFFF_FFFF
         return value - (1 << 32) if value & 0x8000_0000 else value
 
     @property
@@ -166,9 +168,9 @@ class QuadratureEncoder:
         """The firmware's reading is 0 and stays 0 while no edge comes: sampling again
         would change nothing."""
         reader = self.firmware_reader
-        return reader.speed == 0.0 and (self._last_edge_cycle is None
+        return reader.speed == 0.0 and (self.last_edge_cycle is None
                                         or reader.cycle is None
-                                        or self._last_edge_cycle <= reader.cycle)
+                                        or self.last_edge_cycle <= reader.cycle)
 
     def sample_speed(self, now: int) -> float:
         """The M/T speed reading at ``now`` (deg/s, in the counting direction): the

@@ -16,7 +16,10 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
   query's nonce, the hash of the declaration this firmware runs (this package's), the
   firmware's version (:data:`FIRMWARE_VERSION`, the C core's ``FW_VERSION_*``) and build,
   and the board's serial (:func:`emulated_serial` of the board's seed). ``Firmware(
-  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered.
+  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered;
+  ``Firmware(declarations=H)`` answers with the hash ``H`` instead, as a firmware generated
+  from another declaration would (for a host's refusal to be tried; the wire it speaks is
+  still this one).
 
 Controller modes (parameter 4, per channel):
 
@@ -40,20 +43,18 @@ Power-up values come from the parameter table's ``default`` column.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from math import isfinite
-from typing import Any
+from typing import Any, Final
 
 from fpgaemu.axi import TxQueue
 from fpgaemu.board import Board
-from fpgaemu.fastpath import FusedTick
 from fpgaemu.hwcontrol import HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
 from fpgaemu.pwm import MAX_DUTY
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, ms, us
-from fpgaemu.timing import TimingReport
+from fpgaemu.timing import FrameBooking, TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgalink.protocol import (
     PARAMETERS,
@@ -97,28 +98,34 @@ FIRMWARE_BUILD = 0
 #: device DNA).
 _EMULATED_SERIAL_BASE = 0x00E5_EED0_0000_0000
 
-ALIVE_PERIOD_CYCLES = ms(300)
-SPEED_SW, SPEED_HW, CURRENT_SW, CURRENT_HW = 0, 1, 2, 3  #: ActiveController values
-HARDWARE_MODES = (SPEED_HW, CURRENT_HW)
-_MOTOR = MotorConstants()
-_CYCLES_PER_US = us(1)
+ALIVE_PERIOD_CYCLES: Final = ms(300)
+#: ActiveController values
+SPEED_SW: Final = 0
+SPEED_HW: Final = 1
+CURRENT_SW: Final = 2
+CURRENT_HW: Final = 3
+HARDWARE_MODES: Final = (SPEED_HW, CURRENT_HW)
+_MOTOR: Final = MotorConstants()
+_CYCLES_PER_US: Final = us(1)
 # Plain ints: the flag word is built every tick, and IntFlag arithmetic is slow.
-_ENABLE, _END_STOP, _SATURATED = (int(f) for f in (
-    TelemetryFlags.ENABLE, TelemetryFlags.END_STOP, TelemetryFlags.SATURATED))
+_ENABLE: Final = int(TelemetryFlags.ENABLE)
+_END_STOP: Final = int(TelemetryFlags.END_STOP)
+_SATURATED: Final = int(TelemetryFlags.SATURATED)
 #: Duty (PWM counts) to current (A) at stall, the current loop's plant gain.
-_AMPS_PER_COUNT = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
-_ELECTRICAL_TAU = _MOTOR.inductance_h / _MOTOR.resistance_ohm
+_AMPS_PER_COUNT: Final = _MOTOR.supply_v / _MOTOR.resistance_ohm / MAX_DUTY
+_ELECTRICAL_TAU: Final = _MOTOR.inductance_h / _MOTOR.resistance_ohm
 #: Current-loop gains, PWM counts per A: a loop gain of 0.5 per tick in software (stable at
 #: any timer period), 2 in hardware (crossover ≈ 2,000 rad/s at 10 kHz).
-SW_CURRENT_KP = 0.5 / _AMPS_PER_COUNT
-HW_CURRENT_KP = 2.0 / _AMPS_PER_COUNT
+SW_CURRENT_KP: Final = 0.5 / _AMPS_PER_COUNT
+HW_CURRENT_KP: Final = 2.0 / _AMPS_PER_COUNT
 
 
 class Channel:
     """The software's state for one motor channel: its controllers, reference and the
     latest samples of its inputs (and, once attached, the FPGA controller module)."""
 
-    def __init__(self, gains: PidGains) -> None:
+    def __init__(self, gains: PidGains, mode: int) -> None:
+        self.mode = mode  #: the ActiveController in force (parameter 4)
         self.pid = Pid(gains)
         self.current_pid = Pid(PidGains(SW_CURRENT_KP, _ELECTRICAL_TAU, 0.0))
         self.hardware: HardwareController | None = None
@@ -152,9 +159,11 @@ def emulated_serial(seed: int) -> int:
 
 class Firmware:
     def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True,
-                 identity: bool = True) -> None:
+                 identity: bool = True, declarations: int | None = None) -> None:
         #: answers ``IQ`` (False: a seed board, which does not know the message)
         self.identity = identity
+        #: the declaration hash ``IA`` says (``None``: this package's, the one it runs)
+        self.declarations = declarations
         #: the parameters this firmware knows (without WireCrc: a board older than the CRC)
         self.parameters = {p.id: p for p in PARAMETERS
                            if wire_crc or p.id != WIRE_CRC_PARAM}
@@ -163,22 +172,22 @@ class Firmware:
         for param in self.parameters.values():
             for channel in _channels_of(param):
                 self.values[(param.id, channel)] = _stored(param, param.default)
-        self.channels = {code: Channel(self._gains(code)) for code in (CHANNEL_A, CHANNEL_B)}
+        self.channels = {code: Channel(self._gains(code), int(self.values[(4, code)]))
+                         for code in (CHANNEL_A, CHANNEL_B)}
+        #: GetDataPeriodical = 1: a TM at every tick
+        self.telemetry_on = self.values[(2, BOARD)] == 1
         self.stats = FirmwareStats()
-        self._timing = TimingReport()
+        #: the frames on the wire, booked into the timing report once done
+        self._frames = FrameBooking()
+        self._timing = self._frames.report
         self.host_counter = CounterTracker()
         self._counter = SendCounter()
         self._pending_settings = dict(settings or {})
         self._powered_at = 0  #: the cycle the board powered up: t_us counts from it
-        #: (done cycle, wire bytes, tick or None) of each frame on the wire, oldest first:
-        #: booked into the timing report once done (no event at a frame's end)
-        self._in_flight: deque[tuple[int, int, int | None]] = deque()
         self._board: Board | None = None
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
         self.skip_quiescent_ticks = True
-        #: the fused tick (:mod:`fpgaemu.fastpath`), on a board configured with ``fused``
-        self._fused: FusedTick | None = None
         self.last_tick = 0  #: the cycle of the last timer interrupt
 
     def _gains(self, code: int) -> PidGains:
@@ -196,7 +205,8 @@ class Firmware:
     def power_cycled(self) -> Firmware:
         """The software after a power cycle: started afresh with the same power-up
         settings (what was flashed), nothing of this run's state."""
-        firmware = Firmware(self._pending_settings, identity=self.identity)
+        firmware = Firmware(self._pending_settings, identity=self.identity,
+                            declarations=self.declarations)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
         return firmware
 
@@ -206,7 +216,7 @@ class Firmware:
         axi = board.axi
         axi.on_rx_interrupt(self._on_rx)
         axi.on_global_enable(self._on_enable)
-        self.tx = TxQueue(axi, depth=8, on_start=self._on_tx_start)
+        self.tx = TxQueue(axi, depth=8, on_start=self._frames.started)
         now = board.now
         self._timing.started_cycle = now
         for param in self.parameters.values():
@@ -221,7 +231,6 @@ class Firmware:
         for code, ch in self.channels.items():
             ch.hardware = HardwareController(board, board.channels[code])
             self._configure_hardware(code)
-        self._fused = FusedTick(self, board) if board.config.fused else None
         board.timer.on_interrupt(self._on_tick)
         board.timer.start(now)
         board.set_skippable(self.skippable_event)
@@ -230,8 +239,7 @@ class Firmware:
     @property
     def timing(self) -> TimingReport:
         """How the output fitted the timer periods, up to now (SPEC §7)."""
-        self._book_finished(self.board.now)
-        return self._timing
+        return self._frames.report_at(self.board)
 
     def budget_report(self) -> dict[str, Any]:
         """SPEC §7 from this run (see :meth:`fpgaemu.timing.TimingReport.summary`)."""
@@ -251,23 +259,6 @@ class Firmware:
         if kind == "E":
             return self.tx.send(b"E")
         return self.tx.send(self.wire_crc.send(encode_message(message, self._counter.take())))
-
-    def _on_tx_start(self, tick: int | None, done: int, wire_bytes: int) -> None:
-        self._in_flight.append((done, wire_bytes, tick))
-
-    def _book_finished(self, now: int) -> None:
-        """Book every frame whose last stop bit has ended by ``now``: its wire bytes, and a
-        TM's slack to the next tick. Called before anything reads the report or changes the
-        timer period, so each is booked as it would have been at its end."""
-        in_flight = self._in_flight
-        timing = self._timing
-        assert self._board is not None
-        period = self._board.timer.period_cycles
-        while in_flight and in_flight[0][0] <= now:
-            done, wire_bytes, tick = in_flight.popleft()
-            timing.tx_wire_bytes += wire_bytes
-            if tick is not None:
-                timing.record_slack(tick, done, tick + period - done)
 
     def _on_alive(self, cycle: int) -> None:
         if self._send(None, "E"):
@@ -302,12 +293,12 @@ class Firmware:
             if isfinite(ref_a) and isfinite(ref_b):
                 self.stats.references += 1
                 # Both channels written out: one of these arrives every millisecond.
-                channels, values = self.channels, self.values
-                channels[CHANNEL_A].reference = ref_a
-                channels[CHANNEL_B].reference = ref_b
-                if values[(4, CHANNEL_A)] in HARDWARE_MODES:
+                channel_a, channel_b = self.channels[CHANNEL_A], self.channels[CHANNEL_B]
+                channel_a.reference = ref_a
+                channel_b.reference = ref_b
+                if channel_a.mode in HARDWARE_MODES:
                     self._write_hardware_reference(CHANNEL_A)
-                if values[(4, CHANNEL_B)] in HARDWARE_MODES:
+                if channel_b.mode in HARDWARE_MODES:
                     self._write_hardware_reference(CHANNEL_B)
             else:
                 self.stats.invalid_references += 1
@@ -318,7 +309,9 @@ class Firmware:
             self.stats.param_gets += 1
             self._handle_get(message)
         elif isinstance(message, IdentityQuery) and self.identity:
-            self._send(IdentityAnswer(message.nonce, declarations_hash(), *FIRMWARE_VERSION,
+            declarations = declarations_hash() if self.declarations is None \
+                else self.declarations
+            self._send(IdentityAnswer(message.nonce, declarations, *FIRMWARE_VERSION,
                                       FIRMWARE_BUILD, emulated_serial(self.board.config.seed)),
                        "IA")
         elif isinstance(message, Malformed):
@@ -374,10 +367,14 @@ class Firmware:
     def _apply(self, param: Param, channel: int, value: int | float) -> None:
         """Store and recompute whatever depends on the parameter."""
         self.values[(param.id, channel)] = value
+        if param.id == 2:
+            self.telemetry_on = value == 1
+        elif param.id == 4:
+            self.channels[channel].mode = int(value)
         if self._board is None:
             return  # applied to the hardware at attach
         if param.id == 1:
-            self._book_finished(self.board.now)  # frames done so far against the old period
+            self._frames.report_at(self.board)  # frames done so far against the old period
             self.board.timer.set_period_ms(int(value))
         elif param.id == WIRE_CRC_PARAM:
             # Before the PA goes out: the confirmation is the first message in the new form.
@@ -404,7 +401,7 @@ class Firmware:
     # --- the control loop -----------------------------------------------------------------
 
     def mode(self, code: int) -> int:
-        return int(self.values[(4, code)])
+        return self.channels[code].mode
 
     def _current_reference(self, code: int) -> float:
         """The current (A) a torque reference (N·m) asks for."""
@@ -461,7 +458,7 @@ class Firmware:
         """A timer tick now would change nothing observable: disabled, no telemetry, no
         hardware loop, controllers reset, PWM at 0, readings settled, wheels exactly at
         rest. The tick then only counts itself, and a paced board need not wake for it."""
-        if self._enabled or self.values[(2, BOARD)] == 1:
+        if self._enabled or self.telemetry_on:
             return False
         board = self.board
         for code, ch in self.channels.items():
@@ -482,19 +479,17 @@ class Firmware:
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
-        if self._in_flight and self._in_flight[0][0] <= cycle:
-            self._book_finished(cycle)
+        if self._frames.due(cycle):
+            self._frames.book(cycle, self.board.timer.period_cycles)
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
-            return
-        if self._fused is not None and self._fused(cycle):
             return
         board = self._board
         assert board is not None
         board.settle(cycle)
         dt = board.timer.period_cycles / CLOCK_HZ
-        values, enabled = self.values, self._enabled
-        telemetry = values[(2, BOARD)] == 1
+        enabled = self._enabled
+        telemetry = self.telemetry_on
         io_channels = board.channels
         samples = []
         for code, ch in self.channels.items():
@@ -504,7 +499,7 @@ class Firmware:
             ch.speed = speed = encoder.firmware_reader.sample(cycle)
             ch.position = encoder.position
             ch.current = io.current_a
-            mode = values[(4, code)]
+            mode = ch.mode
             if not enabled:
                 ch.pid.reset()
                 ch.current_pid.reset()
@@ -561,7 +556,9 @@ def _stored(param: Param, value: int | float) -> int | float:
 
 
 def attach_firmware(board: Board, settings: dict[str, Any] | None = None, *,
-                    wire_crc: bool = True, identity: bool = True) -> Firmware:
-    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity)
+                    wire_crc: bool = True, identity: bool = True,
+                    declarations: int | None = None) -> Firmware:
+    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity,
+                        declarations=declarations)
     board.add_peripheral("firmware", firmware)
     return firmware

@@ -28,7 +28,7 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 from fpgaemu.pid import DERIVATIVE_FILTER_N, PidGains
 from fpgaemu.timeline import CLOCK_HZ, EventHandle
@@ -41,12 +41,12 @@ __all__ = ["FRACTION_BITS", "HW_PERIOD_CYCLES", "Coefficients", "HardwareControl
            "LoopInput"]
 
 #: 10 kHz: ten times the fastest timer period, a hundredth of the wheel's time constant
-HW_PERIOD_CYCLES = 10_000
-FRACTION_BITS = 16
-COEFFICIENT_BITS = 48
+HW_PERIOD_CYCLES: Final = 10_000
+FRACTION_BITS: Final = 16
+COEFFICIENT_BITS: Final = 48
 #: the derivative path: Kp·Td·Δspeed/dt is far beyond the output range before the filter
-WIDE_BITS = 48
-ONE = 1 << FRACTION_BITS
+WIDE_BITS: Final = 48
+ONE: Final = 1 << FRACTION_BITS
 
 
 class LoopInput(Enum):

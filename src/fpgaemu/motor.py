@@ -57,12 +57,12 @@ import cmath
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Final
 
 from fpgaemu.timeline import CLOCK_HZ, ms
 
 if TYPE_CHECKING:
-    from fpgaemu.board import Board
+    from fpgaemu.board import Board, ChannelIo
     from fpgaemu.encoder import QuadratureEncoder
 
 __all__ = [
@@ -84,25 +84,25 @@ __all__ = [
 ]
 
 #: The wheels are integrated at least this often, so encoder edges follow them closely.
-PHYSICS_STEP_CYCLES = ms(1)
+PHYSICS_STEP_CYCLES: Final = ms(1)
 
-SEED_TS = 0.05
+SEED_TS: Final = 0.05
 #: numerator (z⁻¹, z⁻²) and denominator (z⁻¹, z⁻², z⁻³) coefficients
 GEARS: dict[str, tuple[tuple[float, float], tuple[float, float, float]]] = {
     "high": ((-0.053, -0.07017), (-1.393, 0.7321, -0.2117)),
     "low": ((-0.009263, -0.0291), (-1.394, 0.7058, -0.198)),
 }
-MAX_DUTY = 32760
-MAX_SPEED_HIGH_DPS = 90.0
+MAX_DUTY: Final = 32760
+MAX_SPEED_HIGH_DPS: Final = 90.0
 #: Static friction's dead band: an unpowered, unloaded wheel whose motion can no longer
 #: exceed this speed (deg/s at the wheel; one encoder count, 0.072°, would take 72 s) is
 #: held by it and stops, having rolled out the rest of its decay at once. Without it the
 #: linear model's modes decay towards zero for minutes (until float underflow), and a board
 #: that has been driven never counts as at rest again.
-REST_SPEED_DPS = 1e-3
+REST_SPEED_DPS: Final = 1e-3
 #: Below this an unpowered winding's current is zero (the Hall sensor's noise is far above).
-REST_CURRENT_A = 1e-6
-GEAR_RATIO = 70.0
+REST_CURRENT_A: Final = 1e-6
+GEAR_RATIO: Final = 70.0
 _radians = math.radians
 
 
@@ -154,8 +154,8 @@ class ContinuousModel:
 
     def step_response(self, times_s: list[float]) -> list[float]:
         residues = self.residues()
-        return [sum((r * (cmath.exp(p * t) - 1) / p).real
-                    for p, r in zip(self.poles, residues, strict=True)) for t in times_s]
+        return [sum(((r * (cmath.exp(p * t) - 1) / p).real
+                     for p, r in zip(self.poles, residues, strict=True)), 0.0) for t in times_s]
 
 
 def continuous_model(gear: str) -> ContinuousModel:
@@ -177,10 +177,12 @@ def continuous_model(gear: str) -> ContinuousModel:
     y0 = base.step_response(times)
     residues = base.residues()
     # With the zero, y(t) = y0(t) + (1/c)·Σ rᵢ(e^{sᵢt} − 1): linear in 1/c.
-    y1 = [sum((r * (cmath.exp(p * t) - 1)).real for p, r in zip(poles, residues, strict=True))
-          for t in times]
-    inv_c = (sum((a - b) * c for a, b, c in zip(target, y0, y1, strict=True))
-             / sum(c * c for c in y1))
+    # Sums from 0.0 (the same floats as from sum()'s int 0, which the compiled build cannot
+    # add floats to).
+    y1 = [sum(((r * (cmath.exp(p * t) - 1)).real
+               for p, r in zip(poles, residues, strict=True)), 0.0) for t in times]
+    inv_c = (sum(((a - b) * c for a, b, c in zip(target, y0, y1, strict=True)), 0.0)
+             / sum((c * c for c in y1), 0.0))
     return ContinuousModel(tuple(poles), 1.0 / inv_c, dc_gain)
 
 
@@ -220,15 +222,33 @@ class WheelPlant:
         self._s = list(model.poles)
         self._b = [complex(1.0)] * 3
         self._c = [r * scale for r in model.residues()]
-        self._x = [0j, 0j, 0j]
+        # The three modes' states, complex, each held as its real and imaginary parts (the
+        # compiled build's arithmetic on them is then on machine floats; the formulas are
+        # Python's own complex arithmetic, term for term, so both builds round alike).
+        self._x0_re = self._x0_im = self._x1_re = self._x1_im = self._x2_re = self._x2_im = 0.0
         self.max_speed_dps = MAX_SPEED_HIGH_DPS * dc_gain / high_dc
         self.duty = 0
         self.load_torque_nm = 0.0  #: at the wheel; positive opposes positive speed
         self.stalled = False
         self.angle_deg = 0.0
         self.current = 0.0  #: A, the winding current (the state)
-        self._cache: dict[float, list[tuple[complex, complex, complex, complex]]] = {}
+        self._steps: dict[float, _ModalStep] = {}
         self._decay: dict[float, float] = {}
+
+    @property
+    def _x(self) -> list[complex]:
+        """The three modes' states."""
+        return [complex(self._x0_re, self._x0_im), complex(self._x1_re, self._x1_im),
+                complex(self._x2_re, self._x2_im)]
+
+    def _rest_modes(self) -> None:
+        self._x0_re = self._x0_im = self._x1_re = self._x1_im = self._x2_re = self._x2_im = 0.0
+
+    @property
+    def _moving(self) -> bool:
+        """Any mode's state not zero."""
+        return bool(self._x0_re or self._x0_im or self._x1_re or self._x1_im
+                    or self._x2_re or self._x2_im)
 
     @property
     def speed_dps(self) -> float:
@@ -261,18 +281,19 @@ class WheelPlant:
         # A load torque is the duty it would take to hold it at stall.
         return self.duty / MAX_DUTY - self.load_torque_nm / self.motor.stall_torque_wheel_nm
 
-    def _coefficients(self, dt: float) -> list[tuple[complex, complex, complex, complex]]:
-        coefficients = self._cache.get(dt)
-        if coefficients is None:
+    def _step(self, dt: float) -> _ModalStep:
+        step = self._steps.get(dt)
+        if step is None:
             coefficients = []
             for s, b, c in zip(self._s, self._b, self._c, strict=True):
                 e = cmath.exp(s * dt)
                 phi = (e - 1) / s  # ∫ e^{sτ} dτ over the step
                 # state update (e, input gain) and the angle it adds (from state, from input)
                 coefficients.append((e, phi * b, c * phi, c * (phi - dt) / s * b))
-            if len(self._cache) < 64:
-                self._cache[dt] = coefficients
-        return coefficients
+            step = _ModalStep(coefficients)
+            if len(self._steps) < 64:
+                self._steps[dt] = step
+        return step
 
     def advance(self, dt: float) -> tuple[float, float]:
         """Hold the duty for ``dt`` seconds; returns (angle at start, speed at start) so a
@@ -292,15 +313,22 @@ class WheelPlant:
             return
         # Unloaded (the usual case) the input is the duty alone: the same value, no division.
         u = self._input() if self.load_torque_nm else self.duty / MAX_DUTY
-        x0, x1, x2 = self._x
-        # The three modes written out (this runs for every wheel every emulated millisecond);
-        # the sum is accumulated from 0.0 in mode order, as a loop would.
-        (e0, g0, s0, i0), (e1, g1, s1, i1), (e2, g2, s2, i2) = (
-            self._cache.get(dt) or self._coefficients(dt))
-        angle_gain = 0.0 + (s0 * x0 + i0 * u).real
-        angle_gain += (s1 * x1 + i1 * u).real
-        angle_gain += (s2 * x2 + i2 * u).real
-        self._x = [e0 * x0 + g0 * u, e1 * x1 + g1 * u, e2 * x2 + g2 * u]
+        k = self._step(dt)
+        # Per mode, the angle it adds, (s·x + i·u).real, and its next state, e·x + g·u, with
+        # u as the complex (u, 0.0), as Python multiplies a complex by a float; the angle
+        # summed from 0.0 in mode order, as a loop would.
+        x_re, x_im = self._x0_re, self._x0_im
+        angle_gain = 0.0 + ((k.s0_re * x_re - k.s0_im * x_im) + (k.i0_re * u - k.i0_im * 0.0))
+        self._x0_re = (k.e0_re * x_re - k.e0_im * x_im) + (k.g0_re * u - k.g0_im * 0.0)
+        self._x0_im = (k.e0_re * x_im + k.e0_im * x_re) + (k.g0_re * 0.0 + k.g0_im * u)
+        x_re, x_im = self._x1_re, self._x1_im
+        angle_gain += (k.s1_re * x_re - k.s1_im * x_im) + (k.i1_re * u - k.i1_im * 0.0)
+        self._x1_re = (k.e1_re * x_re - k.e1_im * x_im) + (k.g1_re * u - k.g1_im * 0.0)
+        self._x1_im = (k.e1_re * x_im + k.e1_im * x_re) + (k.g1_re * 0.0 + k.g1_im * u)
+        x_re, x_im = self._x2_re, self._x2_im
+        angle_gain += (k.s2_re * x_re - k.s2_im * x_im) + (k.i2_re * u - k.i2_im * 0.0)
+        self._x2_re = (k.e2_re * x_re - k.e2_im * x_im) + (k.g2_re * u - k.g2_im * 0.0)
+        self._x2_im = (k.e2_re * x_im + k.e2_im * x_re) + (k.g2_re * 0.0 + k.g2_im * u)
         self.angle_deg += angle_gain
         self._follow_current(dt, angle_gain / dt)
         if not u:
@@ -317,9 +345,8 @@ class WheelPlant:
             s = self._s
             self.angle_deg += (-(c[0] * x[0] / s[0] + c[1] * x[1] / s[1]
                                  + c[2] * x[2] / s[2])).real
-            self._x = [0j, 0j, 0j]
-        if (self.current and abs(self.current) < REST_CURRENT_A
-                and not (self._x[0] or self._x[1] or self._x[2])):
+            self._rest_modes()
+        if self.current and abs(self.current) < REST_CURRENT_A and not self._moving:
             self.current = 0.0
 
     @property
@@ -329,13 +356,29 @@ class WheelPlant:
         static friction's dead band, :data:`REST_SPEED_DPS`, a few seconds after the duty
         went to 0)."""
         return (self.duty == 0 and self.current == 0.0 and self.load_torque_nm == 0.0
-                and not (self._x[0] or self._x[1] or self._x[2]))
+                and not self._moving)
 
     def stall(self, stalled: bool = True) -> None:
         """Block the wheel (or free it): a blocked wheel's dynamics restart from rest."""
         self.stalled = stalled
         if stalled:
-            self._x = [0j, 0j, 0j]
+            self._rest_modes()
+
+
+class _ModalStep:
+    """What one step of a given length does to each of the three modes: its state update
+    ``e`` and input gain ``g``, and the angle it adds from its state ``s`` and from the
+    input ``i``; each complex, as its real and imaginary parts."""
+
+    def __init__(self, coefficients: list[tuple[complex, complex, complex, complex]]
+                 ) -> None:
+        (e0, g0, s0, i0), (e1, g1, s1, i1), (e2, g2, s2, i2) = coefficients
+        self.e0_re, self.e0_im, self.g0_re, self.g0_im = e0.real, e0.imag, g0.real, g0.imag
+        self.s0_re, self.s0_im, self.i0_re, self.i0_im = s0.real, s0.imag, i0.real, i0.imag
+        self.e1_re, self.e1_im, self.g1_re, self.g1_im = e1.real, e1.imag, g1.real, g1.imag
+        self.s1_re, self.s1_im, self.i1_re, self.i1_im = s1.real, s1.imag, i1.real, i1.imag
+        self.e2_re, self.e2_im, self.g2_re, self.g2_im = e2.real, e2.imag, g2.real, g2.imag
+        self.s2_re, self.s2_im, self.i2_re, self.i2_im = s2.real, s2.imag, i2.real, i2.imag
 
 
 def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) -> None:
@@ -350,16 +393,17 @@ def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) ->
         c0 = c1
 
 
-class Motors:
-    """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
-    current sensors (a board peripheral)."""
+class BoardMotors:
+    """A board's two channels' motors and wheels as one peripheral, wired to its PWM stages,
+    encoders and current (Hall) sensors: what :class:`Motors` and :class:`DrivenMotors`
+    share. A subclass has its wheels, wires each channel's (:meth:`wire`) and integrates
+    them (:meth:`advance_to`, called at every PWM change and whenever the board settles)."""
 
     def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
         if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
             raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
         self.gear = gear
         self.current_noise_a = current_noise_a
-        self.wheels: dict[int, WheelPlant] = {}
         self._board: Board | None = None
         self._cycle = 0
         self._noise: Any = None
@@ -368,20 +412,40 @@ class Motors:
         """Wire the wheels to ``board``'s PWM stages and encoders. Attached again after a
         power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the wheels are the same
         ones, turning on: only the board's counters start again, from their present
-        angles."""
+        angles (:meth:`wire`)."""
         self._board = board
         self._cycle = board.now
         if self.current_noise_a > 0 and self._noise is None:
             self._noise = board.timeline.rng("hall")
         for code, io in board.channels.items():
-            wheel = self.wheels.get(code)
-            if wheel is None:
-                self.wheels[code] = WheelPlant(self.gear)
-            else:
-                io.encoder.power_up(wheel.angle_deg)
-                io.current_a = wheel.current
+            self.wire(code, io)
             io.pwm.on_change(self.advance_to)
         board.on_settle(self.advance_to)
+
+    def wire(self, code: int, io: ChannelIo) -> None:
+        """Channel ``code``'s wheel: made at the first attach, its encoder and current
+        sensor powered up from where it is at the next."""
+        raise NotImplementedError
+
+    def advance_to(self, cycle: int) -> None:
+        raise NotImplementedError
+
+
+class Motors(BoardMotors):
+    """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
+    current sensors (a board peripheral)."""
+
+    def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
+        super().__init__(gear, current_noise_a)
+        self.wheels: dict[int, WheelPlant] = {}
+
+    def wire(self, code: int, io: ChannelIo) -> None:
+        wheel = self.wheels.get(code)
+        if wheel is None:
+            self.wheels[code] = WheelPlant(self.gear)
+        else:
+            io.encoder.power_up(wheel.angle_deg)
+            io.current_a = wheel.current
 
     @property
     def at_rest(self) -> bool:
@@ -399,12 +463,8 @@ class Motors:
         for code, wheel in self.wheels.items():
             io = channels[code]
             pwm = io.pwm
-            # Pwm.applied_duty and WheelPlant.at_rest, written out: this runs for every wheel
-            # every emulated millisecond.
-            wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
-            x = wheel._x
-            if (duty == 0 and wheel.current == 0.0 and wheel.load_torque_nm == 0.0
-                    and not (x[0] or x[1] or x[2])):
+            wheel.duty = pwm.applied_duty
+            if wheel.at_rest:
                 pass  # advancing changes nothing (an idle robot's long quiet stretches)
             elif one_step:  # turn() in one step, the usual case
                 angle0 = wheel.angle_deg
@@ -579,7 +639,7 @@ class WheelDrive:
             self.on_stall(self)
 
 
-class DrivenMotors:
+class DrivenMotors(BoardMotors):
     """:class:`Motors` for a board whose wheels a body's physics turns (a board peripheral):
     each channel's PWM drives a :class:`WheelDrive`, whose current the Hall sensor reads and
     whose wheel (moved by the physics) turns the channel's encoder. The physics is stepped
@@ -587,38 +647,24 @@ class DrivenMotors:
     motion over a step before the board runs through it."""
 
     def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
-        if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
-            raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
-        self.gear = gear
+        super().__init__(gear, current_noise_a)
         self.train = drive_train(gear)
-        self.current_noise_a = current_noise_a
         self.wheels: dict[int, WheelDrive] = {}
-        self._board: Board | None = None
-        self._cycle = 0
-        self._noise: Any = None
 
-    def attach(self, board: Board) -> None:
-        """Wire the drives to ``board``'s PWM stages and encoders. Attached again after a
-        power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the drives are the same
-        ones, which the body's physics holds: their wheels turn on, the power-up board's
-        PWM (0) drives them from now on, and only its counters start again, from the
-        wheels' present angles. (New drives here left the physics driving the old ones at
-        the duty they had when the power went, and the board counting wheels that never
-        turned: odometry saw half the motion.)"""
-        self._board = board
-        self._cycle = board.now
-        if self.current_noise_a > 0 and self._noise is None:
-            self._noise = board.timeline.rng("hall")
-        for code, io in board.channels.items():
-            wheel = self.wheels.get(code)
-            if wheel is None:
-                self.wheels[code] = WheelDrive(self.train)
-            else:
-                wheel.duty = 0  # the power-up PWM, until the board's next write
-                io.encoder.power_up(wheel.angle_deg)
-                io.current_a = wheel.current
-            io.pwm.on_change(self.advance_to)
-        board.on_settle(self.advance_to)
+    def wire(self, code: int, io: ChannelIo) -> None:
+        """After a power cycle the drives are the same ones, which the body's physics
+        holds: their wheels turn on, the power-up board's PWM (0) drives them from now on,
+        and only its counters start again, from the wheels' present angles. (New drives
+        here left the physics driving the old ones at the duty they had when the power
+        went, and the board counting wheels that never turned: odometry saw half the
+        motion.)"""
+        wheel = self.wheels.get(code)
+        if wheel is None:
+            self.wheels[code] = WheelDrive(self.train)
+        else:
+            wheel.duty = 0  # the power-up PWM, until the board's next write
+            io.encoder.power_up(wheel.angle_deg)
+            io.current_a = wheel.current
 
     @property
     def at_rest(self) -> bool:
@@ -648,21 +694,7 @@ class DrivenMotors:
             wheel.duty = duty = pwm.duty_register if pwm.global_enable else 0
             if duty or wheel.current or wheel.rotor_speed:
                 wheel.hold_current(cycle - start)
-            # WheelDrive.angle_at at both ends, written out: this runs for every wheel at
-            # every tick and every PWM change.
-            c0, c1, a0, a1 = wheel._c0, wheel._c1, wheel._a0, wheel._a1
-            if c1 == c0 or start >= c1:
-                begin = a1
-            elif start <= c0:
-                begin = a0
-            else:
-                begin = a0 + (a1 - a0) * (start - c0) / (c1 - c0)
-            if c1 == c0 or cycle >= c1:
-                end = a1
-            elif cycle <= c0:
-                end = a0
-            else:
-                end = a0 + (a1 - a0) * (cycle - c0) / (c1 - c0)
+            begin, end = wheel.angle_at(start), wheel.angle_at(cycle)
             if begin != end:
                 io.encoder.follow(start, begin, cycle, end)
             io.current_a = wheel.current if self._noise is None else (

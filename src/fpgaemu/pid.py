@@ -19,10 +19,11 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from math import isfinite
+from typing import Final
 
 __all__ = ["Pid", "PidGains"]
 
-DERIVATIVE_FILTER_N = 10.0
+DERIVATIVE_FILTER_N: Final = 10.0
 
 
 @dataclass(frozen=True, slots=True)

@@ -12,10 +12,11 @@ duty.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Final
 
 __all__ = ["MAX_DUTY", "Pwm"]
 
-MAX_DUTY = 32760
+MAX_DUTY: Final = 32760
 
 
 class Pwm:

@@ -16,7 +16,7 @@ from __future__ import annotations
 import heapq
 import zlib
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Final
 
 if TYPE_CHECKING:  # numpy loads only when a consumer asks for randomness
     import numpy as np
@@ -33,9 +33,9 @@ __all__ = [
 ]
 
 #: The CmodA7 oscillator the whole design is clocked from.
-CLOCK_HZ = 100_000_000
-_CYCLES_PER_MS = CLOCK_HZ // 1000
-_CYCLES_PER_US = CLOCK_HZ // 1_000_000
+CLOCK_HZ: Final = 100_000_000
+_CYCLES_PER_MS: Final = CLOCK_HZ // 1000
+_CYCLES_PER_US: Final = CLOCK_HZ // 1_000_000
 
 
 def ms(milliseconds: int | float) -> int:
@@ -54,7 +54,8 @@ def us(microseconds: int | float) -> int:
 #: An event callback receives the cycle it runs at.
 Callback = Callable[[int], None]
 
-_EARLY, _LATE = 0, 1
+_EARLY: Final = 0
+_LATE: Final = 1
 
 
 def seconds_to_cycles(seconds: float) -> int:
@@ -64,9 +65,6 @@ def seconds_to_cycles(seconds: float) -> int:
 
 def cycles_to_seconds(cycles: int) -> float:
     return cycles / CLOCK_HZ
-
-
-_new_object = object.__new__
 
 
 class EventHandle:
@@ -111,12 +109,7 @@ class Timeline:
         timeline is running means later in this same cycle)."""
         if cycle < self.now:
             raise ValueError(f"cannot schedule at cycle {cycle}: the present is {self.now}")
-        # EventHandle(cycle, callback), without its __init__'s Python frame: a few events are
-        # scheduled every emulated millisecond.
-        handle = _new_object(EventHandle)
-        handle.cycle = cycle
-        handle.callback = callback
-        handle.cancelled = False
+        handle = EventHandle(cycle, callback)
         self._seq += 1
         heapq.heappush(self._heap, (cycle, _LATE if late else _EARLY, self._seq, handle))
         return handle

@@ -43,7 +43,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, NamedTuple
+from typing import TYPE_CHECKING, Any, Final
 
 from fpgaemu.timeline import CLOCK_HZ, Timeline
 from fpgalink.protocol.faults import MAX_NOISE_LEN
@@ -69,12 +69,12 @@ __all__ = [
     "litex_sample_points",
 ]
 
-DEFAULT_BAUD = 1_000_000
+DEFAULT_BAUD: Final = 1_000_000
 #: 8N1: start + 8 data + stop.
-BITS_PER_BYTE = 10
+BITS_PER_BYTE: Final = 10
 #: Bit indexes within a byte's 10 slots, for :class:`LineFaults` (data bit k is slot k + 1).
-BIT_START = 0
-BIT_STOP = 9
+BIT_START: Final = 0
+BIT_STOP: Final = 9
 
 
 #: How a receiver finds a start bit: ``edge`` (LiteX's ``RS232PHYRX``: a falling edge,
@@ -82,9 +82,9 @@ BIT_STOP = 9
 #: a low level, checked again at mid-bit, :class:`LevelReceiver`).
 UART_RX_MODES = ("edge", "level")
 #: The level receiver's input synchroniser (two flip-flops, as OpenTitan's ``uart_core``).
-LEVEL_SYNC_CYCLES = 2
+LEVEL_SYNC_CYCLES: Final = 2
 #: The level receiver's sampling clock: this many ticks per bit (a 16550's 16× clock).
-LEVEL_OVERSAMPLING = 16
+LEVEL_OVERSAMPLING: Final = 16
 
 
 def cycles_per_bit(baud: int) -> int:
@@ -94,14 +94,20 @@ def cycles_per_bit(baud: int) -> int:
     return round(CLOCK_HZ / baud)
 
 
-class ByteRun(NamedTuple):
+class ByteRun:
     """Bytes received back to back: byte ``i`` completed (stop bit ended) at cycle
-    ``first + i * step``. A named tuple, not a frozen dataclass: one is built for every frame
-    in each direction, and a frozen dataclass's ``__init__`` costs three times as much."""
+    ``first + i * step``. A plain class (not a dataclass, whose ``__init__`` is Python code
+    in either build): one is made for every frame in each direction."""
 
-    data: bytes
-    first: int
-    step: int
+    __slots__ = ("data", "first", "step")
+
+    def __init__(self, data: bytes, first: int, step: int) -> None:
+        self.data = data
+        self.first = first
+        self.step = step
+
+    def __repr__(self) -> str:
+        return f"ByteRun(data={self.data!r}, first={self.first}, step={self.step})"
 
     def cycle_of(self, index: int) -> int:
         return self.first + index * self.step
@@ -440,9 +446,9 @@ class LevelReceiver(SlotReceiver):
                    self._sample_cycles(start)[-1] - LEVEL_SYNC_CYCLES + 1)
 
 
-_NO_PLAN = _Plan(set(), set(), {})
+_NO_PLAN: Final = _Plan(set(), set(), {})
 #: a line with no faults, for a clean burst that must go through the slots
-_CLEAN = LineFaults()
+_CLEAN: Final = LineFaults()
 
 
 class _Line:
@@ -545,15 +551,14 @@ class _Line:
                     return self._send_bitwise(data, start, index, faults, plan, hits)
             if faults.windows_overlap(start, start + n * step):
                 return self._send_bitwise(data, start, index, faults, plan, hits)
-        if self.receiver._bursts or (start == self.line_free_at and not self._last_level):
+        if self.receiver.pending or (start == self.line_free_at and not self._last_level):
             # The receiver is mid-byte, or the line is still low from the last burst: the
             # first start bit is not a clean edge, so the slots decide.
             return self._send_bitwise(data, start, index, faults or _CLEAN, plan, hits)
         self.line_free_at = start + n * step - self.byte_gap
         self._last_level = 1
         stats.bytes_received += n
-        # The C constructor: a named tuple's own __new__ is a Python call (one per frame).
-        return [tuple.__new__(ByteRun, (data, start + self.cycles_per_byte, step))]
+        return [ByteRun(data, start + self.cycles_per_byte, step)]
 
     def _idle_until(self, start: int) -> list[ByteRun]:
         """The line idles (high) from ``start``: whatever the receiver held is decided."""

@@ -42,7 +42,7 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from enum import Enum
-from typing import NamedTuple
+from typing import Final
 
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, Timeline
@@ -62,11 +62,13 @@ __all__ = [
 ]
 
 #: 300 ms of the 100 MHz clock: the enable watchdog (SPEC §6).
-WATCHDOG_CYCLES = CLOCK_HZ * 300 // 1000
-DIRECT_ENABLE = b"RE"
-DIRECT_DISABLE = b"RD"
+WATCHDOG_CYCLES: Final = CLOCK_HZ * 300 // 1000
+DIRECT_ENABLE: Final = b"RE"
+DIRECT_DISABLE: Final = b"RD"
 
-_HUNT, _FRAME, _ESCAPE = 0, 1, 2
+_HUNT: Final = 0
+_FRAME: Final = 1
+_ESCAPE: Final = 2
 
 #: ``(content, cycle) -> keep?``: a fault-injection hook on complete frames.
 FrameFilter = Callable[[bytes, int], bool]
@@ -78,13 +80,20 @@ class EnableCause(Enum):
     WATCHDOG = "watchdog"
 
 
-class RxInterrupt(NamedTuple):
+class RxInterrupt:
     """A message frame is in the RX RAM: ``length`` content bytes at byte ``start_address``
-    (a named tuple: one per received frame, cheaper to build than a frozen dataclass)."""
+    (a plain class: one is made for every frame received)."""
 
-    cycle: int
-    start_address: int
-    length: int
+    __slots__ = ("cycle", "length", "start_address")
+
+    def __init__(self, cycle: int, start_address: int, length: int) -> None:
+        self.cycle = cycle
+        self.start_address = start_address
+        self.length = length
+
+    def __repr__(self) -> str:
+        return (f"RxInterrupt(cycle={self.cycle}, start_address={self.start_address}, "
+                f"length={self.length})")
 
 
 @dataclass(frozen=True, slots=True)
@@ -164,10 +173,6 @@ class UartCommand:
         self._due: list[RxInterrupt | EnableChange] = []
         self._rx_listeners: list[Callable[[RxInterrupt], None]] = []
         self._enable_listeners: list[Callable[[EnableChange], None]] = []
-        #: ``fused(self, cycle)`` does the STOP candidate's work for the usual frame and
-        #: returns ``True``, or nothing (:func:`fpgaemu.fastpath.complete_frame`; set by the
-        #: board when configured ``fused``)
-        self.fused: Callable[[UartCommand, int], bool] | None = None
         self._configure(framing)
 
     # --- configuration and listeners ------------------------------------------------------
@@ -299,9 +304,6 @@ class UartCommand:
         self._candidate_cursor = None
 
     def _on_candidate(self, cycle: int) -> None:
-        fused = self.fused
-        if fused is not None and fused(self, cycle):
-            return
         target, end = self._candidate_cursor, self._candidate_index + 1
         self._candidate = None
         self._candidate_cursor = None
@@ -432,8 +434,7 @@ class UartCommand:
         self.start_address = base
         self.length = length
         self._stats.frames += 1
-        # The C constructor: a named tuple's own __new__ is a Python call (one per frame).
-        self._due.append(tuple.__new__(RxInterrupt, (cycle, base, length)))
+        self._due.append(RxInterrupt(cycle, base, length))
 
     # --- global_enable --------------------------------------------------------------------
 

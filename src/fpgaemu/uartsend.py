@@ -20,11 +20,9 @@ Decisions (see ``docs/emulator.md``):
 
 from __future__ import annotations
 
-import re
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import NamedTuple
 
 from fpgaemu.bram import BlockRam
 from fpgaemu.timeline import Timeline
@@ -35,9 +33,9 @@ from fpgalink.protocol import DEFAULT_FRAMING, Framing
 __all__ = ["TxDone", "UartSend", "UartSendStats", "frame_bytes"]
 
 
-class TxDone(NamedTuple):
-    """The last stop bit of a frame has ended; the module is idle again (a named tuple: one
-    per sent frame, cheaper to build than a frozen dataclass)."""
+@dataclass(frozen=True, slots=True)
+class TxDone:
+    """The last stop bit of a frame has ended; the module is idle again."""
 
     cycle: int
     wire_bytes: int
@@ -55,33 +53,41 @@ class UartSendStats:
 
 def frame_bytes(content: bytes, framing: Framing) -> bytes:
     """START + content with SKIP before every special + STOP (the module's byte order)."""
-    return _Escaper.get(framing).frame(content)
+    return _escaper(framing).frame(content)
 
 
 class _Escaper:
-    __slots__ = ("_escape", "_head", "_pattern", "_tail", "framing")
-    _cache: dict[Framing, _Escaper] = {}  # noqa: RUF012 - per-framing memo, class-wide
+    """START, the content with SKIP before every special byte, STOP: SKIP itself doubled
+    first, then START and STOP each preceded by SKIP (three replacements, no regular
+    expression; SKIP differs from both, so none escapes another's)."""
+
+    __slots__ = ("_head", "_skip", "_skip_skip", "_skip_start", "_skip_stop", "_tail",
+                 "framing")
 
     def __init__(self, framing: Framing) -> None:
         self.framing = framing
-        specials = b"".join(re.escape(bytes((b,))) for b in framing.specials)
-        self._pattern = re.compile(b"[" + specials + b"]")
-        skip = bytes((framing.skip,))
-        # A function, not a template: a bytes template costs a Python-level expansion per
-        # call, the function only per escaped byte (a few per frame, often none).
-        self._escape: Callable[[re.Match[bytes]], bytes] = lambda m: skip + m[0]
+        self._skip = bytes((framing.skip,))
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
-
-    @classmethod
-    def get(cls, framing: Framing) -> _Escaper:
-        escaper = cls._cache.get(framing)
-        if escaper is None:
-            escaper = cls._cache[framing] = cls(framing)
-        return escaper
+        self._skip_skip = self._skip + self._skip
+        self._skip_start = self._skip + self._head
+        self._skip_stop = self._skip + self._tail
 
     def frame(self, content: bytes) -> bytes:
-        return self._head + self._pattern.sub(self._escape, content) + self._tail
+        escaped = content.replace(self._skip, self._skip_skip).replace(
+            self._head, self._skip_start).replace(self._tail, self._skip_stop)
+        return self._head + escaped + self._tail
+
+
+#: One escaper per framing, made on first use.
+_ESCAPERS: dict[Framing, _Escaper] = {}
+
+
+def _escaper(framing: Framing) -> _Escaper:
+    escaper = _ESCAPERS.get(framing)
+    if escaper is None:
+        escaper = _ESCAPERS[framing] = _Escaper(framing)
+    return escaper
 
 
 class UartSend:
@@ -98,7 +104,7 @@ class UartSend:
         self._timeline = timeline
         self.bram = bram
         self.uartwrite = uartwrite
-        self._escaper = _Escaper.get(framing)
+        self._escaper = _escaper(framing)
         self.length = 0
         self.stats = UartSendStats()
         #: cycle the current frame's last stop bit ends; idle from then on
@@ -108,6 +114,8 @@ class UartSend:
         #: loses the frame on the wire (it still takes its line time).
         self.frame_filter: FrameFilter | None = None
         self._done_listeners: list[Callable[[TxDone], None]] = []
+        #: ``listener(content, cycle)`` at each accepted strobe (:meth:`on_frame`)
+        self._frame_listeners: list[Callable[[bytes, int], None]] = []
         #: (end cycle, wire bytes) of each frame a done event is scheduled for, in order: a
         #: frame nobody listens for gets none
         self._ends: deque[tuple[int, int]] = deque()
@@ -125,12 +133,18 @@ class UartSend:
         return self._escaper.framing
 
     def set_framing(self, framing: Framing) -> None:
-        self._escaper = _Escaper.get(framing)
+        self._escaper = _escaper(framing)
 
     def set_length(self, length: int) -> None:
         if not 0 <= length <= self.bram.size:
             raise ValueError(f"TX length {length} does not fit the {self.bram.size}-byte RAM")
         self.length = length
+
+    def on_frame(self, listener: Callable[[bytes, int], None]) -> None:
+        """``listener(content, cycle)`` at every accepted strobe from now on, with the
+        frame's content as the TX RAM holds it (before framing and any fault on the line):
+        a logic analyser on the RAM, what a test checks the host received against."""
+        self._frame_listeners.append(listener)
 
     def on_done(self, listener: Callable[[TxDone], None]) -> None:
         """``listener`` runs at the end of every frame from now on (the frame on the wire
@@ -184,6 +198,8 @@ class UartSend:
 
     def _start_frame(self, content: bytes) -> bool:
         """The accepted strobe: ``content`` (the RAM's first ``length`` bytes) goes out."""
+        for frame_listener in self._frame_listeners:
+            frame_listener(content, self._timeline.now)
         wire = self._escaper.frame(content)
         wire_bytes = len(wire)
         stats = self.stats

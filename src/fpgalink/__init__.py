@@ -17,6 +17,8 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
+# Before any module that may be compiled: which build runs (compiled or pure Python).
+import fpgalink.buildinfo  # noqa: F401
 from fpgalink.protocol.exports import lazy_exports
 
 __version__ = "0.2.0"

@@ -15,6 +15,7 @@ from fpgaemu.cfirmware import CFirmware
 from fpgaemu.firmware import HW_CURRENT_KP, SW_CURRENT_KP, Firmware
 from fpgaemu.motor import MotorConstants
 from fpgaemu.timeline import ms
+from tests.fpgaemu.test_golden_trace import rv
 from tests.support.firmwares import require_c_firmware
 
 
@@ -72,21 +73,20 @@ def test_a_board_at_rest_skips_its_ticks_as_the_python_model_does() -> None:
     assert fast.read_host_bytes_timed() == full.read_host_bytes_timed()  # the E frames
 
 
-class _BrokenEncoder:
-    """An encoder model whose speed reading fails (a bug in a model, not in the C)."""
-
-    @property
-    def firmware_reader(self) -> object:
-        raise RuntimeError("the encoder model broke")
-
-
 def test_a_python_error_inside_a_hal_call_surfaces() -> None:
     # It cannot unwind through the C frames: it is kept and raised when the call returns,
-    # never swallowed with a default value.
+    # never swallowed with a default value. The PWM stage's model (what the HAL's duty
+    # write drives) fails once the board is enabled (a bug in a model, not in the C).
     board = build_board(firmware="c")
-    board.channels[1].encoder = _BrokenEncoder()  # type: ignore[assignment]
-    board.host_write(b"SREP")
-    with pytest.raises(RuntimeError, match="the encoder model broke"):
+    pwm = board.channels[1].pwm
+
+    def broken(cycle: int) -> None:
+        if pwm.global_enable:
+            raise RuntimeError("the PWM stage's model broke")
+
+    pwm.on_change(broken)
+    board.host_write(b"SREP" + rv(1, 40.0, 40.0))
+    with pytest.raises(RuntimeError, match="the PWM stage's model broke"):
         board.run_for(0.01)
 
 

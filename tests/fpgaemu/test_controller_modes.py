@@ -11,11 +11,13 @@ import random
 
 import pytest
 
+from fpgaemu.build import build_board
 from fpgaemu.hwcontrol import (
     FRACTION_BITS,
     HW_PERIOD_CYCLES,
     Coefficients,
     HardwareController,
+    LoopInput,
     to_fixed,
 )
 from fpgaemu.pid import Pid, PidGains
@@ -153,11 +155,11 @@ def test_the_fixed_point_law_follows_the_floating_point_pid(td: float) -> None:
     gains = PidGains(kp=520.0, ti=0.24, td=td)
     dt = HW_PERIOD_CYCLES / 100e6
     reference_model = Pid(gains, limit=32760)
-    module = HardwareController.__new__(HardwareController)
-    module.coefficients = Coefficients.from_gains(gains, dt)
-    module.limit = 32760
-    module.reference = to_fixed(30.0)
-    module.reset()
+    board = build_board()
+    module = HardwareController(board, board.channels[1])
+    module.configure(LoopInput.SPEED, gains, 32760)
+    assert module.coefficients == Coefficients.from_gains(gains, dt)
+    module.write_reference(30.0)
     rng = random.Random(5)
     speed = 0.0
     for _ in range(3000):

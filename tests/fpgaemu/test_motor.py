@@ -355,11 +355,9 @@ def test_an_unpowered_wheel_comes_to_exact_rest_where_its_decay_would_end() -> N
     for _ in range(2000):
         plant.hold(0.001)
     plant.duty = 0
-    reference = WheelPlant("high")  # the same motion without the dead band: its limit
-    reference._x, reference.angle_deg = list(plant._x), plant.angle_deg
-    limit = reference.angle_deg + sum(
-        (-(c * x / s)).real for c, x, s in zip(reference._c, reference._x, reference._s,
-                                               strict=True))
+    # Where the same motion would end without the dead band: its limit.
+    limit = plant.angle_deg + sum(
+        (-(c * x / s)).real for c, x, s in zip(plant._c, plant._x, plant._s, strict=True))
     steps = 0
     while not plant.at_rest:
         plant.hold(0.001)

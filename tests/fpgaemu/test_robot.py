@@ -24,15 +24,6 @@ def idle_then_drive(skip_quiet: bool) -> tuple[EmulatedRobot, dict[str, Any], in
     robot drives for 0.5 s; returns the robot, what each board sent, and how many times the
     body was moved."""
     robot = EmulatedRobot(body="kinematic")
-    follows = 0
-    body_follow = robot.body.follow
-
-    def counted(t: float, angles: Any) -> None:
-        nonlocal follows
-        follows += 1
-        body_follow(t, angles)
-
-    robot.body.follow = counted  # type: ignore[method-assign]
     for name in robot.boards:
         _firmware(robot, name).skip_quiescent_ticks = skip_quiet
     robot.run_until(ms(2000))
@@ -53,7 +44,7 @@ def idle_then_drive(skip_quiet: bool) -> tuple[EmulatedRobot, dict[str, Any], in
     robot.run_until(ms(2500))
     for name, board in robot.boards.items():
         sent[name] = board.read_host_bytes_timed()
-    return robot, sent, follows
+    return robot, sent, robot.body.steps
 
 
 def test_an_idle_robot_crosses_its_quiet_stretches_in_one_step_with_the_same_outcome(

@@ -2,7 +2,10 @@
 RAM byte, float, pending event and queued wire byte of every block and peripheral, walked
 from the :class:`~fpgaemu.board.Board` through attributes, containers and slots (never
 through properties, which may change what they read). Two boards that should be in the same
-state compare equal here, or the first differing path says where they part."""
+state compare equal here, or the first differing path says where they part. The walk is the
+same on both builds: an object's attributes are found in its ``__dict__``, its slots, or
+(compiled by mypyc) its class's ``__mypyc_attrs__``, and walked in name order, so a state
+from the compiled build compares with one from pure Python."""
 
 from __future__ import annotations
 
@@ -12,8 +15,8 @@ from collections import deque
 from enum import Enum
 from typing import Any
 
-#: Switches that select the fast paths themselves (the thing compared), not board state.
-IGNORED = frozenset({"_fused", "fused"})
+#: Attributes that are not the board's state (none at present).
+IGNORED: frozenset[str] = frozenset()
 
 
 def board_state(root: object, ignored: frozenset[str] = IGNORED) -> dict[str, object]:
@@ -65,13 +68,12 @@ def board_state(root: object, ignored: frozenset[str] = IGNORED) -> dict[str, ob
 
 
 def _attributes(value: object) -> list[str]:
-    names: list[str] = []
+    names: set[str] = set(getattr(value, "__dict__", {}))
     for klass in type(value).__mro__:
-        for name in getattr(klass, "__slots__", ()):
-            if name not in names and name != "__weakref__" and hasattr(value, name):
-                names.append(name)
-    names += [name for name in getattr(value, "__dict__", {}) if name not in names]
-    return names
+        for name in (*getattr(klass, "__slots__", ()), *getattr(klass, "__mypyc_attrs__", ())):
+            if name not in ("__weakref__", "__dict__") and hasattr(value, name):
+                names.add(name)
+    return sorted(names)
 
 
 def first_difference(a: dict[str, object], b: dict[str, object]) -> str | None:

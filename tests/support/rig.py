@@ -94,16 +94,12 @@ def make_rig(
     assert isinstance(firmware, Firmware)
     rig = Rig(board, firmware, Connection(**conn_options))
     if record_tm:
-        queue = firmware.tx
-        send = queue.send
 
-        def recording_send(content: bytes, tag: int | None = None) -> bool:
-            accepted = send(content, tag)
-            if accepted and content[:2] == b"TM":
+        def recording(content: bytes, cycle: int) -> None:
+            if content[:2] == b"TM":
                 rig.sent_tm[int(content[2:7])] = content
-            return accepted
 
-        queue.send = recording_send  # type: ignore[method-assign]
+        board.uartsend.on_frame(recording)
     return rig
 
 

@@ -185,10 +185,13 @@ class Served:
 
 def start_serve(*args: str, log_dir: Path | None = None, env: dict[str, str] | None = None,
                 command: Sequence[str] = PYTHON_M_FPGAEMU, cwd: Path | None = None,
-                ready_timeout: float = READY_TIMEOUT_S, **popen: Any) -> Served:
+                ready_timeout: float = READY_TIMEOUT_S, shared: bool = False,
+                **popen: Any) -> Served:
     """Start ``fpgaemu serve ARGS`` and return once it printed its ready lines.
     ``log_dir``: where its log goes (a directory of its own otherwise); ``command``: how serve
-    is run (the environment's console script, say); ``popen``: more for the subprocess
+    is run (the environment's console script, say); ``shared``: a module's or a session's
+    fixture owns it, so it outlives the test that started it (neither stopped after that
+    test nor its log in that test's report); ``popen``: more for the subprocess
     (``preexec_fn``, say). :class:`ServeExited` with its log if it ends first."""
     directory = log_dir if log_dir is not None else Path(
         tempfile.mkdtemp(prefix="fpgaemu-serve-"))
@@ -200,7 +203,8 @@ def start_serve(*args: str, log_dir: Path | None = None, env: dict[str, str] | N
                                 stdout=subprocess.PIPE, stderr=err, env=env, cwd=cwd,
                                 **popen)
     server = Served(tuple(args), proc, log, own_dir=None if log_dir is not None else directory)
-    _STARTED.append(server)
+    if not shared:
+        _STARTED.append(server)
     try:
         _read_ready(server, ready_timeout)
     except BaseException:

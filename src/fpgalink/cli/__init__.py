@@ -14,6 +14,7 @@ from typing import Any
 import click
 
 from fpgalink import __version__
+from fpgalink.buildinfo import BUILD
 from fpgalink.cli.options import global_connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, classify, quiet_stdout
 from fpgalink.protocol.errors import FpgalinkError
@@ -103,7 +104,8 @@ class LazyGroup(click.Group):
     context_settings={"help_option_names": ["-h", "--help"], "max_content_width": 100},
     epilog=EXIT_CODES_HELP,
 )
-@click.version_option(__version__, prog_name="fpgalink-cli")
+@click.version_option(__version__, prog_name="fpgalink-cli",
+                      message=f"%(prog)s, version %(version)s, {BUILD}")
 @global_connection_options
 @click.pass_context
 def cli(ctx: click.Context, /, **options: Any) -> None:

@@ -25,6 +25,12 @@ from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.liveview import foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import CliError, ExitCode, classify, echo_out, note
+from fpgalink.protocol import (
+    IdentityMatch,
+    compare_identity,
+    describe_identity,
+    identity_metadata,
+)
 from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA, RecordingError
 
 if TYPE_CHECKING:
@@ -388,7 +394,8 @@ class RobotRun:
         from fpgalink.robot.robot import Robot, RobotError
 
         install_stop_signals(self.stop)
-        robot = Robot.open(self.description, self.ports, baud=self.conn.baud)
+        robot = Robot.open(self.description, self.ports, baud=self.conn.baud,
+                           wire_crc=self.conn.wire_crc, allow_mismatch=self.conn.allow_mismatch)
         for name in self.description.boards:
             log_wire(name, functools.partial(robot.boards.add_listener, name),
                      self.conn.verbose)
@@ -398,6 +405,11 @@ class RobotRun:
             raise CliError(str(exc), ExitCode.NO_ANSWER if "not answering" in str(exc)
                            else ExitCode.FAILURE) from None
         self.robot = robot
+        for name in self.description.boards:
+            identity, known = robot.boards.identity(name)
+            if known and compare_identity(identity) is IdentityMatch.MISMATCH:
+                note(f"board {name}: {describe_identity(identity)}; going on "
+                     "(--allow-mismatch)")
         try:
             if self._truth_reader is not None:
                 await self._truth_reader.start()
@@ -408,43 +420,14 @@ class RobotRun:
                 self.truth_frame.anchor(start)
             if self.record_path is not None:
                 self._open_sink()
-            # The recordings' writers read subscriptions; at the end each subscription is
-            # closed, and its writer writes what is still queued before it ends (cancelled,
-            # a writer behind on a loaded machine lost the samples it had not yet read).
-            # Only the periodic tasks are cancelled.
-            feeds: list[Subscription[Any]] = []
-            writers: list[asyncio.Task[None]] = []
-            periodic: list[asyncio.Task[None]] = []
-            if self._sink is not None:
-                to_epoch = time.time() - asyncio.get_running_loop().time()
-                for name in self.description.boards:
-                    feed = robot.boards.stamped_telemetry(name, maxsize=65536)
-                    feeds.append(feed)
-                    writers.append(asyncio.ensure_future(
-                        self._record_board(feed, name, to_epoch)))
-            if self.rosbag_path is not None:
-                self._open_bag(robot)
-                sets = self._bag_sets(robot)  # beside --record's, not instead of them
-                feeds.append(sets)
-                writers.append(asyncio.ensure_future(self._bag_telemetry(robot, sets)))
-                periodic.append(asyncio.ensure_future(self._bag_diagnostics(robot)))
-            self._started = time.monotonic()
-            periodic.append(asyncio.ensure_future(self._sample()))
+            feeds, writers, periodic = self._start_recorders(robot)
             try:
                 async with opened_live(self.foxglove, self.name) as view:
                     if view is not None:
                         view.add_robot(robot, self.truth)
                     yield robot
             finally:
-                for feed in feeds:
-                    feed.close()  # nothing more is put; the writer drains it and ends
-                for task in periodic:
-                    task.cancel()
-                try:
-                    await asyncio.gather(*writers, *periodic, return_exceptions=True)
-                finally:
-                    for task in writers:  # only if this wait itself was interrupted
-                        task.cancel()
+                await _drained(feeds, writers, periodic)
                 self._sample_once()
         finally:
             await robot.close()
@@ -452,6 +435,29 @@ class RobotRun:
                 await self._truth_reader.close()
                 self._report_truth(self._truth_reader)
             self._close_recordings()
+
+    def _start_recorders(self, robot: Robot) -> tuple[
+            list[Subscription[Any]], list[asyncio.Task[None]], list[asyncio.Task[None]]]:
+        """The recordings' writers, each reading a subscription of its own (closed at the
+        end: see :func:`_drained`), and the periodic tasks (cancelled at the end)."""
+        feeds: list[Subscription[Any]] = []
+        writers: list[asyncio.Task[None]] = []
+        periodic: list[asyncio.Task[None]] = []
+        if self._sink is not None:
+            to_epoch = time.time() - asyncio.get_running_loop().time()
+            for name in self.description.boards:
+                feed = robot.boards.stamped_telemetry(name, maxsize=65536)
+                feeds.append(feed)
+                writers.append(asyncio.ensure_future(self._record_board(feed, name, to_epoch)))
+        if self.rosbag_path is not None:
+            self._open_bag(robot)
+            sets = self._bag_sets(robot)  # beside --record's, not instead of them
+            feeds.append(sets)
+            writers.append(asyncio.ensure_future(self._bag_telemetry(robot, sets)))
+            periodic.append(asyncio.ensure_future(self._bag_diagnostics(robot)))
+        self._started = time.monotonic()
+        periodic.append(asyncio.ensure_future(self._sample()))
+        return feeds, writers, periodic
 
     def _close_recordings(self) -> None:
         """Close the recordings: each put in place, complete up to where it got. A
@@ -506,8 +512,15 @@ class RobotRun:
                   "/robot/command": COMMAND_SCHEMA}
         self._sink = self._sink_opened = McapSink(
             self.record_path, list(self.description.boards),
-            {"robot": self.description.name, "surface": self.description.surface}, topics,
-            force=self.force)
+            {"robot": self.description.name, "surface": self.description.surface,
+             **self.identity_metadata()}, topics, force=self.force)
+
+    def identity_metadata(self) -> dict[str, str]:
+        """Who the robot's boards said they are, and this host's declaration, for a
+        recording's metadata (docs/protocol.md §8)."""
+        assert self.robot is not None
+        return identity_metadata({name: self.robot.boards.identity(name)
+                                  for name in self.description.boards})
 
     def _recording_failed(self, *, sink: bool = False) -> None:
         """A recording stopped (its write raised; ``sink``: the ``--record`` one, written no
@@ -549,7 +562,8 @@ class RobotRun:
             metadata={"robot": self.description.name, "surface": self.description.surface,
                       "ports": " ".join(f"{b}={u}" for b, u in self.ports.items()),
                       "clocks": "bag time: host receive time; header stamps: the boards' "
-                                "sample times on the host clock"},
+                                "sample times on the host clock",
+                      **self.identity_metadata()},
             force=self.force)
 
     def _bag_sets(self, robot: Robot) -> SetFeed:
@@ -731,6 +745,22 @@ class RobotRun:
             note(f"recorded the path to {self.record_path}")
         if self.bag is not None and self.bag.path in self.recorded:
             note(f"recorded {self.bag.messages} ROS messages to the bag {self.rosbag_path}")
+
+
+async def _drained(feeds: list[Subscription[Any]], writers: list[asyncio.Task[None]],
+                   periodic: list[asyncio.Task[None]]) -> None:
+    """The recordings' writers end once they wrote what their closed subscriptions still
+    hold (cancelled, a writer one turn behind lost the samples it had not yet read); the
+    periodic tasks are cancelled. A writer is cancelled only if this wait itself is."""
+    for feed in feeds:
+        feed.close()  # nothing more is put; the writer drains it and ends
+    for task in periodic:
+        task.cancel()
+    try:
+        await asyncio.gather(*writers, *periodic, return_exceptions=True)
+    finally:
+        for task in writers:
+            task.cancel()
 
 
 @contextlib.contextmanager

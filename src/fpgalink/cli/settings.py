@@ -39,6 +39,7 @@ from fpgalink.config import check_name as _check_name
 from fpgalink.config import config_ports as _config_ports
 from fpgalink.config import load_config as _load_config
 from fpgalink.config import seconds as _seconds
+from fpgalink.config import switch as _switch
 from fpgalink.config import whole as _whole
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
@@ -87,6 +88,9 @@ class Settings:
     robot: Path | None
     config_file: Path | None
     sources: dict[str, str] = field(default_factory=dict)
+    #: go on with a board whose firmware speaks another protocol declaration (the command
+    #: line only: a file or an environment that always allows it would hide it)
+    allow_mismatch: bool = False
 
     @property
     def emulated(self) -> bool:
@@ -184,7 +188,8 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
     timeout = _seconds(pick("timeout", None, None, 0.05), "timeout", sources["timeout"],
                        1e-4, 60.0)
     retries = _whole(pick("retries", None, None, 8), "retries", sources["retries"], 1, 1000)
-    wire_crc = pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False)
+    wire_crc = _switch(pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False), "wire_crc",
+                       sources["wire_crc"])
     board = pick("board", "FPGALINK_BOARD", lambda text, _where: text, None)
     robot = pick("robot", None, None, None)
     for name, value in (("board", board), ("robot", robot)):
@@ -200,5 +205,6 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
             robot_path = path.parent / robot_path
         robot = robot_path
     verbose = max(int(given.get("verbose") or 0), int(before.get("verbose") or 0))
+    allow_mismatch = bool(given.get("allow_mismatch") or before.get("allow_mismatch"))
     return Settings(ports, baud, timeout, retries, bool(wire_crc), verbose, board, robot, path,
-                    sources)
+                    sources, allow_mismatch)

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import Enum
+from typing import Final
 
 from fpgalink.protocol.messages import COUNTER_MODULUS
 
@@ -12,14 +13,14 @@ __all__ = ["CounterTracker", "Observation", "SendCounter"]
 
 #: How far back a counter is still "recent": older ones are judged duplicates of something
 #: long gone. Half the counter space, so the wrap never looks like a jump backwards.
-_HALF = COUNTER_MODULUS // 2
+_HALF: Final = COUNTER_MODULUS // 2
 #: How far behind the expected counter a missing one is still remembered, so its late
 #: arrival is recognised as reordering rather than a duplicate.
-_MISSING_WINDOW = 4096
+_MISSING_WINDOW: Final = 4096
 #: A jump ahead by more than this is only believed once the next counter follows it: a
 #: single corrupted counter (there is no checksum) must not make every later message look
 #: old. At 1 kHz this is a one-second outage.
-_TRUSTED_JUMP = 1000
+_TRUSTED_JUMP: Final = 1000
 
 
 class SendCounter:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import Enum
+from typing import Final
 
 from fpgalink.protocol.errors import LocalProtocolError
 from fpgalink.protocol.event import Event
@@ -33,7 +34,7 @@ __all__ = [
     "validate_id",
 ]
 
-COUNTER_MODULUS = 100_000  #: five decimal digits, 99999 wraps to 00000
+COUNTER_MODULUS: Final = 100_000  #: five decimal digits, 99999 wraps to 00000
 SECTION_OPEN = 0x7B  #: ``{``
 SECTION_CLOSE = 0x7D  #: ``}``
 LEN_RESERVED = 255  #: a section length the spec keeps for later

@@ -23,16 +23,20 @@ import sys
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NoReturn
 from urllib.parse import quote
 
 from fpgalink.protocol.exitcodes import ExitCode, exit_codes_help
 from fpgalink.ros2 import ROS2_INSTALL_HINT, available
 
+if TYPE_CHECKING:
+    from fpgalink.protocol.robot import RobotDescription
+    from fpgalink.ros2.bag import NodeBag
+
 PROG = "fpgalink-ros2"
 
 
-def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> None:
+def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> NoReturn:
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
     sys.exit(code)
 
@@ -41,7 +45,7 @@ def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> None:
 #: by SIGINT or SIGTERM, the robot stopped and the boards disabled; docs/ros2.md).
 EXIT_CODES_TABLE = exit_codes_help((
     ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.NO_ANSWER, ExitCode.PORT,
-    ExitCode.NOT_INSTALLED))
+    ExitCode.NOT_INSTALLED, ExitCode.MISMATCH))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -69,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--baud", type=int, default=None,
                         help="the boards' line rate (default: FPGALINK_BAUD, the config "
                         "file's baud, else 1000000)")
+    parser.add_argument("--wire-crc", action="store_true", default=None,
+                        help="the boards' frames carry the wire CRC (docs/protocol.md §7; "
+                        "default: FPGALINK_WIRE_CRC, the config file's wire_crc, else off)")
     parser.add_argument("--bag", metavar="DIR", type=Path,
                         help="record the node's inputs and outputs into a new rosbag2 DIR "
                         "(MCAP, CDR; with the rosbags library)")
@@ -79,6 +86,10 @@ def _parser() -> argparse.ArgumentParser:
                         "pose, path, truth, URDF and supervision; docs/live.md")
     parser.add_argument("--force", action="store_true",
                         help="replace the --bag DIR if it exists")
+    parser.add_argument("--allow-mismatch", action="store_true",
+                        help="go on with boards whose firmware was built from another "
+                        "protocol declaration than this host's (refused otherwise, exit 10; "
+                        "shown in /diagnostics either way)")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -101,8 +112,9 @@ class Startup:
     robot: str | None
     ports: dict[str, str]
     baud: int
+    wire_crc: bool
     #: where the ports came from (``command line``, ``environment FPGALINK_PORT``,
-    #: ``config file PATH``, ``default``), and the same for baud and robot
+    #: ``config file PATH``, ``default``), and the same for baud, wire_crc and robot
     sources: dict[str, str] = field(default_factory=dict)
 
 
@@ -151,6 +163,7 @@ def resolve(options: argparse.Namespace) -> Startup:
     else:
         baud, sources["baud"] = 1_000_000, "default"
     baud = whole(baud, "baud", sources["baud"], MIN_BAUD, MAX_BAUD)
+    wire_crc = _wire_crc(options, config, where, sources)
     robot: str | None = options.robot
     sources["robot"] = "command line" if robot else "default"
     if robot is None and config.get("robot") is not None:
@@ -162,7 +175,28 @@ def resolve(options: argparse.Namespace) -> Startup:
         robot = str(robot_path if robot_path.is_absolute() or path is None
                     else path.parent / robot_path)
         sources["robot"] = where
-    return Startup(robot, {e.name: e.url for e in endpoints}, baud, sources)
+    return Startup(robot, {e.name: e.url for e in endpoints}, baud, wire_crc, sources)
+
+
+def _wire_crc(options: argparse.Namespace, config: dict[str, Any], where: str,
+              sources: dict[str, str]) -> bool:
+    """``--wire-crc``, else ``FPGALINK_WIRE_CRC`` (0 or 1), else the file's ``wire_crc``."""
+    from fpgalink.config import ConfigError, switch
+
+    text = os.environ.get("FPGALINK_WIRE_CRC", "").strip()
+    if options.wire_crc:
+        sources["wire_crc"] = "command line"
+        return True
+    if text:
+        if text not in ("0", "1"):
+            raise ConfigError(f"environment FPGALINK_WIRE_CRC: {text!r} is not 0 or 1")
+        sources["wire_crc"] = "environment FPGALINK_WIRE_CRC"
+        return text == "1"
+    if "wire_crc" in config:
+        sources["wire_crc"] = where
+        return switch(config["wire_crc"], "wire_crc", where)
+    sources["wire_crc"] = "default"
+    return False
 
 
 EXIT_USAGE = ExitCode.BAD_INPUT
@@ -188,6 +222,34 @@ def _say(text: str) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv if argv is None else argv)
+    _answer_without_ros(argv)
+    if not available():
+        _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
+    import rclpy
+
+    options = _own_options(argv)
+    startup, description = _robot(options)
+    ports = _ports(startup, description)
+    live = _live_address(options)
+    bag = _open_bag(options, ports, description)
+    rclpy.init(args=argv)
+    code = 0
+    try:
+        opening = {"baud": startup.baud, "wire_crc": startup.wire_crc,
+                   "allow_mismatch": options.allow_mismatch}
+        code = asyncio.run(_run(description, ports, opening, startup.sources["port"], bag,
+                                options.lifecycle, live, argv))
+    finally:
+        if bag is not None:
+            code = _close_bag(bag, code)
+        with contextlib.suppress(Exception):
+            rclpy.shutdown()
+    sys.exit(code)
+
+
+def _answer_without_ros(argv: list[str]) -> None:
+    """``--help``, ``--install-tf2`` and ``--version`` (before any ``--ros-args``): answered,
+    then exit, whether ROS 2 is there or not."""
     before_ros = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
     if "-h" in before_ros or "--help" in before_ros:
         _say(f"{_parser().format_help()}\nROS 2: {ROS2_INSTALL_HINT}.\n")
@@ -201,16 +263,22 @@ def main(argv: list[str] | None = None) -> None:
         from fpgalink import __version__
 
         _say(f"{PROG} {__version__}\n")
-    if not available():
-        _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
-    import rclpy
+
+
+def _own_options(argv: list[str]) -> argparse.Namespace:
+    """This command's options: ``argv`` without the ROS arguments."""
     from rclpy.utilities import remove_ros_args
 
     try:
         own = remove_ros_args(argv)[1:]
     except Exception as exc:  # rclpy's own error for unknown ROS arguments
         _fail(f"{exc} (this command's options go before --ros-args, or after a --)")
-    options = _parser().parse_args(own)
+    return _parser().parse_args(own)
+
+
+def _robot(options: argparse.Namespace) -> tuple[Startup, RobotDescription]:
+    """Where the boards are, and the robot on its surface; a bad config file or robot file
+    is one line, exit 2."""
     from fpgalink.config import ConfigError
     from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
 
@@ -224,61 +292,83 @@ def main(argv: list[str] | None = None) -> None:
             description = description.on_surface(options.surface)
     except DescriptionError as exc:
         _fail(str(exc))
+    return startup, description
+
+
+def _ports(startup: Startup, description: RobotDescription) -> dict[str, str]:
+    """Board name → URL: one for each of the robot's boards, or the emulated robot's."""
     ports = startup.ports
     if not ports:
         query = f"surface={quote(description.surface)}" + (
             f"&robot={quote(startup.robot)}" if startup.robot else "")
-        ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
-    elif set(ports) != set(description.boards):
+        return {b: f"emu://robot/{b}?{query}" for b in description.boards}
+    if set(ports) != set(description.boards):
         _fail(f"the robot's boards are {', '.join(description.boards)}; give a port for "
               f"each, --port NAME=URL or [ports] NAME = URL (got "
               f"{', '.join(sorted(ports))} from {startup.sources['port']})")
-    live = None
-    if options.foxglove is not None:
-        from fpgalink.live import parse_address, require_sdk
-        from fpgalink.protocol.exitcodes import NotInstalled
+    return ports
 
-        if options.lifecycle:
-            _fail("--foxglove does not go with --lifecycle yet")
-        try:
-            live = parse_address(options.foxglove)
-            require_sdk()
-        except ValueError as exc:
-            _fail(f"--foxglove {exc}")
-        except NotInstalled as exc:
-            _fail(str(exc), ExitCode.NOT_INSTALLED)
-    bag = None
-    if options.bag is not None:
-        from fpgalink.ros2.bag import BagError, NodeBag
 
-        try:
-            bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
-                                        "robot": description.name}, force=options.force)
-        except BagError as exc:
-            _fail(str(exc), exc.code)
-    rclpy.init(args=argv)
-    code = 0
+def _live_address(options: argparse.Namespace) -> Any:
+    """``--foxglove``'s address (``None`` without it), the SDK checked before ROS starts."""
+    if options.foxglove is None:
+        return None
+    if options.lifecycle:
+        _fail("--foxglove does not go with --lifecycle yet")
+    live, error = _parse_live("--foxglove", options.foxglove)
+    if error is not None:
+        _fail(*error)
+    return live
+
+
+def _parse_live(what: str, text: str) -> tuple[Any, tuple[str, int] | None]:
+    """A live view's ``[HOST:]PORT`` and the SDK there to serve it; else the error's line and
+    exit code."""
+    from fpgalink.live import parse_address, require_sdk
+    from fpgalink.protocol.exitcodes import NotInstalled
+
     try:
-        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live, argv))
-    finally:
-        if bag is not None:
-            try:
-                bag.close()
-            except BagError as exc:  # stopped early: complete up to there, or not finished
-                print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
-                code = code or exc.code
-            else:
-                print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
-                      flush=True)
-        with contextlib.suppress(Exception):
-            rclpy.shutdown()
-    sys.exit(code)
+        live = parse_address(text)
+        require_sdk()
+    except ValueError as exc:
+        return None, (f"{what} {exc}", ExitCode.BAD_INPUT)
+    except NotInstalled as exc:
+        return None, (str(exc), ExitCode.NOT_INSTALLED)
+    return live, None
 
 
-async def _run(description: object, ports: dict[str, str], baud: int, source: str,
-               bag: Any = None, lifecycle: bool = False, live: Any = None,
+def _open_bag(options: argparse.Namespace, ports: dict[str, str],
+              description: RobotDescription) -> NodeBag | None:
+    """``--bag DIR``'s recording, opened before the node starts (``None`` without it)."""
+    if options.bag is None:
+        return None
+    from fpgalink.ros2.bag import BagError, NodeBag
+
+    try:
+        return NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
+                                     "robot": description.name}, force=options.force)
+    except BagError as exc:
+        _fail(str(exc), exc.code)
+
+
+def _close_bag(bag: NodeBag, code: int) -> int:
+    """The bag closed and said in one line; the exit code, a failure to close it included."""
+    from fpgalink.ros2.bag import BagError
+
+    try:
+        bag.close()
+    except BagError as exc:  # stopped early: complete up to there, or not finished
+        print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+        return code or exc.code
+    print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr, flush=True)
+    return code
+
+
+async def _run(description: object, ports: dict[str, str], opening: dict[str, Any],
+               source: str, bag: Any = None, lifecycle: bool = False, live: Any = None,
                argv: list[str] | None = None) -> int:
+    """The node until SIGINT/SIGTERM; ``opening``: how ``Robot.open`` takes the boards
+    (``baud``, ``wire_crc``, ``allow_mismatch``)."""
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -297,8 +387,8 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     if lifecycle:
         from fpgalink.ros2.managed import run_managed
 
-        return await run_managed(description, ports, baud, bag, stop, overrides)
-    robot = Robot.open(description, ports, baud=baud)
+        return await run_managed(description, ports, opening, bag, stop, overrides)
+    robot = Robot.open(description, ports, **opening)
     try:
         await robot.start()
     except (RobotError, FpgalinkError) as exc:
@@ -314,6 +404,11 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
                   flush=True)
             return EXIT_USAGE
         bridge.serve_parameters()
+        if live is None and bridge.params.foxglove:  # the node parameter's route
+            live, error = _parse_live("-p foxglove:=", bridge.params.foxglove)
+            if error is not None:
+                print(f"{PROG}: error: {error[0]}", file=sys.stderr, flush=True)
+                return error[1]
         executor, thread = spin_in_thread(node)
         bridge.executor = executor
         node.get_logger().info(

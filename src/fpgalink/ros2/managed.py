@@ -21,13 +21,14 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-from collections.abc import Coroutine
+from collections.abc import Coroutine, Mapping
 from typing import Any
 
 from rclpy.exceptions import ParameterException, ParameterImmutableException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import IdentityMismatch
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot import Robot, RobotError
 from fpgalink.ros2.bag import NodeBag
@@ -69,13 +70,14 @@ class _NodeMark:
 
 class _ManagedNode(LifecycleNode):
     def __init__(self, loop: asyncio.AbstractEventLoop, description: RobotDescription,
-                 ports: dict[str, str], baud: int, bag: NodeBag | None,
+                 ports: dict[str, str], opening: Mapping[str, Any], bag: NodeBag | None,
                  stop: asyncio.Event, overrides: set[str]) -> None:
         super().__init__(NODE_NAME, start_parameter_services=False)
         self.loop = loop
         self.description = description
         self.ports = ports
-        self.baud = baud
+        #: how Robot.open takes the boards (baud, wire_crc, allow_mismatch)
+        self.opening = dict(opening)
         self.bag = bag
         self.stop = stop
         self.overrides = overrides
@@ -124,12 +126,15 @@ class _ManagedNode(LifecycleNode):
     async def _configure(self) -> TransitionCallbackReturn:
         log = self.get_logger()
         mark = _NodeMark(self)
-        robot = Robot.open(self.description, self.ports, baud=self.baud)
+        robot = Robot.open(self.description, self.ports, **self.opening)
         configured = False
         bridge: RosBridge | None = None
         try:
             try:
                 await robot.start()
+            except IdentityMismatch as exc:
+                log.error(f"configure: {exc} (--allow-mismatch goes on)")
+                return TransitionCallbackReturn.FAILURE
             except (RobotError, FpgalinkError) as exc:
                 log.error(f"configure: boards not reached: {exc}")
                 return TransitionCallbackReturn.FAILURE
@@ -141,6 +146,9 @@ class _ManagedNode(LifecycleNode):
                 log.error(f"configure: {exc}")
                 return TransitionCallbackReturn.FAILURE
             bridge.serve_parameters()
+            if bridge.params.foxglove:
+                log.warning(f"foxglove {bridge.params.foxglove!r}: no live view with "
+                            "--lifecycle yet: ignored")
             configured = True
         finally:
             if not configured:  # failed, or out of time: as before it, to be tried again
@@ -206,11 +214,12 @@ class _ManagedNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
 
-async def run_managed(description: RobotDescription, ports: dict[str, str], baud: int,
-                      bag: NodeBag | None, stop: asyncio.Event, overrides: set[str]) -> int:
+async def run_managed(description: RobotDescription, ports: dict[str, str],
+                      opening: Mapping[str, Any], bag: NodeBag | None,
+                      stop: asyncio.Event, overrides: set[str]) -> int:
     """The managed node until SIGINT/SIGTERM (``stop``) or its shutdown transition."""
     loop = asyncio.get_running_loop()
-    node = _ManagedNode(loop, description, ports, baud, bag, stop, overrides)
+    node = _ManagedNode(loop, description, ports, opening, bag, stop, overrides)
     executor, thread = spin_in_thread(node)
     node.executor_ref = executor
     node.get_logger().info("up, unconfigured (--lifecycle): configure opens the boards")
