@@ -456,6 +456,11 @@ class Link:
     def read_latency(self) -> float | None:
         return self._batches.latency
 
+    def read_now(self) -> None:
+        """Handle at once what the port holds: a batch under way ends now (reading goes on
+        as set). For a reader about to compare what the link says with the present."""
+        self._batches.resume()
+
     def _flush(self) -> None:
         self._write(self.connection.data_to_send())
         self._arm_timer()

@@ -26,7 +26,7 @@ import math
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, Subscription, open_link
+from fpgalink.aio.link import Link, Stamped, Subscription, open_link
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event, RequestDone, StatusEvent
 from fpgalink.protocol import Telemetry
@@ -113,6 +113,8 @@ class Robot:
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
+        #: each board's telemetry as the robot follows it, and the task that does
+        self._following: list[tuple[Subscription[Stamped], asyncio.Task[None]]] = []
         self._removers: list[Callable[[], None]] = []
         self._feeds: set[Subscription[SupervisionEvent]] = set()
         self._set_feeds: set[SetFeed] = set()
@@ -130,13 +132,18 @@ class Robot:
 
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
-             baud: int = 1_000_000, stale_periods: int = 50, **options: Any) -> Robot:
+             baud: int = 1_000_000, stale_periods: int = 50,
+             read_latency: float | None = None, **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
         ``stale_periods``: timer periods without a board's telemetry that stop the robot
-        (:class:`~fpgalink.Connection`); ``options`` go to the robot (deadman_s,
+        (:class:`~fpgalink.Connection`); ``read_latency``: the links read in batches under
+        this bound (:meth:`~fpgalink.aio.Link.set_read_latency`: the robot then hears its
+        boards up to that much later, so only where nothing reacts to them faster;
+        :meth:`read_now` takes what waits); ``options`` go to the robot (deadman_s,
         control_period, goto_settings)."""
         links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
-                                 unanswered_rounds=UNANSWERED_ROUNDS)
+                                 unanswered_rounds=UNANSWERED_ROUNDS,
+                                 read_latency=read_latency)
                  for name, url in ports.items()}
         return cls(description, links, **options)
 
@@ -158,7 +165,10 @@ class Robot:
             self.tracking.read_back(name, channel, param, value)
         for name, link in self.links.items():
             self.supervisor.board_alive(name, link.board_alive, self._now())
-            self._tasks.append(asyncio.ensure_future(self._follow_telemetry(name, link)))
+            samples = link.stamped_telemetry(maxsize=4096)
+            task = asyncio.ensure_future(self._follow_telemetry(name, samples))
+            self._tasks.append(task)
+            self._following.append((samples, task))
             self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
                                                                       name)))
         self._started = True
@@ -181,6 +191,7 @@ class Robot:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks.clear()
+        self._following.clear()
         await self.recovery.close()
         await self.boards.restore(self._streaming_before)
         await self.boards.close()
@@ -361,10 +372,22 @@ class Robot:
 
     # --- the boards' telemetry, their restarts and confirmed changes -----------------------
 
-    async def _follow_telemetry(self, name: str, link: Link) -> None:
+    async def _follow_telemetry(self, name: str, samples: Subscription[Stamped]) -> None:
         with self._guarded(f"board {name}'s telemetry (odometry)"):
-            async for received, sample in link.stamped_telemetry(maxsize=4096):
+            async for received, sample in samples:
                 self._on_telemetry(name, received, sample)
+
+    async def read_now(self) -> None:
+        """Take at once what the boards have sent, whatever the links' read latency, and
+        let the robot follow it: its odometry, latest samples and counts are then as of
+        the boards' present (for a reader comparing them with something taken now)."""
+        self._ensure_started()
+        for link in self.links.values():
+            link.read_now()
+        # The robot's followers take what was queued at their next turn (they queue no
+        # more meanwhile: the links were read up to now).
+        while any(len(samples) and not task.done() for samples, task in self._following):
+            await asyncio.sleep(0)
 
     def _on_telemetry(self, name: str, received: float, sample: Telemetry) -> None:
         self.tracking.add(name, received, sample)
