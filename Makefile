@@ -150,6 +150,7 @@ bench: $(STAMP) compile
 	$(PY) -m benchmarks.recording
 	$(PY) -m benchmarks.campaign
 	$(PY) -m benchmarks.ceiling
+	$(PY) -m benchmarks.identity
 
 clean:
 	rm -rf $(VENV) .pytest_cache .mypy_cache .ruff_cache build dist firmware/build

@@ -242,7 +242,7 @@ def _serial_queue_us(count: int, pyserial_asyncio: bool) -> float:
 def _router_intake_us(count: int) -> tuple[float, int, int]:
     """µs per frame for the router to take a client's burst of ``count`` RE (paced, the
     excess refused), and how many it passed and refused."""
-    from fpgalink.cli.router import CLIENT_READ_SIZE, BoardRoute, ClientStats
+    from fpgalink.router import CLIENT_READ_SIZE, BoardRoute, ClientStats
 
     class Port(asyncio.WriteTransport):
         def write(self, data: bytes | bytearray | memoryview) -> None:

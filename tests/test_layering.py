@@ -1,9 +1,11 @@
 """The house rules of docs/architecture.md, read from every module's imports: each layer
-imports only the layers below it, and the two packages meet only in fpgalink.protocol."""
+imports only the layers below it, and the two packages meet only in fpgalink.protocol (and
+fpgalink.ports, the operating system's side of serving a board, which both servers share)."""
 
 from __future__ import annotations
 
 import ast
+import sys
 from pathlib import Path
 
 import pytest
@@ -43,9 +45,46 @@ def within(name: str, *allowed: str) -> bool:
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
 def test_the_emulator_imports_only_the_public_protocol_package(where: str, path: Path) -> None:
+    # And fpgalink.ports: the pty, its --link and the ready lines, which fpgaemu serve shares
+    # with fpgalink-cli router.
     crossing = {n for n in first_party(imports_of(path))
-                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol")}
+                if n.startswith("fpgalink") and not within(n, "fpgalink.protocol",
+                                                           "fpgalink.ports")}
     assert not crossing, f"{where} imports {sorted(crossing)}"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.ports"))
+def test_the_ports_package_stands_on_the_standard_library_alone(where: str, path: Path
+                                                                ) -> None:
+    # Both servers import it, the emulator among them: it may lean on nothing of fpgalink
+    # that the emulator may not import, and on nothing outside the standard library.
+    names = imports_of(path)
+    assert not {n for n in first_party(names) if not within(n, "fpgalink.ports")}, where
+    outside = {n for n in names if n.split(".")[0] not in sys.stdlib_module_names
+               and n.split(".")[0] not in ("__future__", "fpgalink")}
+    assert not outside, f"{where} imports {sorted(outside)}"
+
+
+#: The router's parts that decide without I/O or a clock: what waits for a line, a client's
+#: accounting, who controls the board.
+ROUTER_SANS_IO = ("router/linequeue.py", "router/stats.py", "router/arbitration.py")
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgalink.router"))
+def test_the_router_stands_on_the_transports_beside_the_robot(where: str, path: Path) -> None:
+    # The router's daemon moves frames between a board's port (fpgalink.aio's transports)
+    # and its clients; the CLI's router command stands on it, never the reverse, and it
+    # needs neither the robot nor a link's connection.
+    names = imports_of(path)
+    allowed = ("fpgalink.protocol", "fpgalink.ports", "fpgalink.errors",
+               "fpgalink.aio.transport", "fpgalink.router")
+    assert not {n for n in first_party(names) if not within(n, *allowed)}, where
+    if where.endswith(ROUTER_SANS_IO):
+        assert not names & {"asyncio", "time", "socket", "select", "os", "threading"}, where
+        assert not {n for n in first_party(names)
+                    if not within(n, "fpgalink.protocol", *(
+                        "fpgalink." + m.removesuffix(".py").replace("/", ".")
+                        for m in ROUTER_SANS_IO))}, where
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink"))
@@ -75,7 +114,8 @@ def test_the_sans_io_layer_has_no_io_and_no_clock(where: str, path: Path) -> Non
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.aio"))
 def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -> None:
     above = {n for n in first_party(imports_of(path))
-             if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2")}
+             if within(n, "fpgalink.cli", "fpgalink.robot", "fpgalink.ros2",
+                       "fpgalink.router")}
     assert not above, f"{where} imports {sorted(above)}"
 
 
@@ -88,7 +128,8 @@ ROBOT_ON_ASYNCIO = ("robot.py", "boards.py", "setup.py", "recovery.py", "goal.py
 def test_the_robot_stands_on_the_asyncio_layer_and_below(where: str, path: Path) -> None:
     names = imports_of(path)
     above = {n for n in first_party(names) if within(n, "fpgalink.cli", "fpgalink.ros2",
-                                                      "fpgalink.campaign", "fpgalink.live")}
+                                                      "fpgalink.campaign", "fpgalink.live",
+                                                      "fpgalink.router")}
     assert not above, f"{where} imports {sorted(above)}"
     if path.name not in ROBOT_ON_ASYNCIO:  # the sans-I/O parts: no I/O, no clock
         assert not names & {"asyncio", "time", "socket", "serial", "os", "threading"}, where
@@ -209,7 +250,7 @@ def test_only_the_ros2_package_knows_ros(where: str, path: Path) -> None:
 
 
 @pytest.mark.parametrize("package", ["fpgalink", "fpgalink.protocol", "fpgalink.robot",
-                                     "fpgaemu"])
+                                     "fpgaemu", "fpgaemu.physics"])
 def test_every_public_name_of_a_package_resolves(package: str) -> None:
     # The packages load their names on first use: every name listed must be there.
     import importlib
@@ -217,6 +258,27 @@ def test_every_public_name_of_a_package_resolves(package: str) -> None:
     module = importlib.import_module(package)
     missing = [name for name in module.__all__ if not hasattr(module, name)]
     assert not missing, f"{package} lists {missing} but cannot give them"
+
+
+@pytest.mark.parametrize(("where", "path"), modules("fpgaemu"))
+def test_mujoco_stays_in_the_physics_body_and_loads_when_a_body_is_made(where: str,
+                                                                       path: Path) -> None:
+    # The physics extra is optional: fpgaemu serve, the surfaces and why_unavailable() work
+    # without it, so no module imports MuJoCo at import time, and only the physics body's
+    # modules import it at all.
+    assert "mujoco" not in runtime_imports(path), where
+    if not where.startswith("fpgaemu/physics/"):
+        assert not {n for n in imports_of(path) if within(n, "mujoco")}, where
+
+
+@pytest.mark.parametrize(("where", "path"), [
+    m for m in modules("fpgaemu.physics")
+    if not m[0].endswith(("physics/__init__.py", "physics/body.py", "physics/render.py"))])
+def test_the_physics_bodys_parts_stand_below_the_body(where: str, path: Path) -> None:
+    # Surfaces, the model, the drives, the tyres and the IMU are each handed what they
+    # need; none reaches back into the body that holds them.
+    assert not {n for n in first_party(imports_of(path))
+                if n == "fpgaemu.physics" or within(n, "fpgaemu.physics.body")}, where
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.codegen"))
@@ -261,7 +323,7 @@ def test_the_connections_parts_stand_below_its_facade(where: str, path: Path) ->
 @pytest.mark.parametrize(("where", "path"), [
     m for m in modules("fpgalink.aio") if m[0].endswith(
         ("aio/subscription.py", "aio/fanout.py", "aio/batching.py", "aio/clock.py",
-         "aio/backlog.py"))])
+         "aio/backlog.py", "aio/identity.py"))])
 def test_the_links_parts_stand_below_the_link(where: str, path: Path) -> None:
     assert not {n for n in first_party(imports_of(path)) if within(n, "fpgalink.aio.link")}, where
 
@@ -282,15 +344,27 @@ def runtime_imports(path: Path) -> set[str]:
                 visit(node.body)
                 visit(node.orelse)
             elif isinstance(node, ast.Try):
-                visit(node.body)
+                for block in (node.body, *(h.body for h in node.handlers), node.orelse,
+                              node.finalbody):
+                    visit(block)
 
     visit(ast.parse(path.read_text(encoding="utf-8")).body)
     return found
 
 
+@pytest.mark.parametrize(("where", "path"), [*modules("fpgalink"), *modules("fpgaemu")])
+def test_imports_are_absolute(where: str, path: Path) -> None:
+    # The rules above and the circle below read absolute imports: a relative one would pass
+    # unseen.
+    relative = [node.lineno for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+                if isinstance(node, ast.ImportFrom) and node.level]
+    assert not relative, f"{where}: relative imports on lines {relative}"
+
+
 def test_no_import_circle() -> None:
     # A module's package runs its __init__ before it, so that edge is no circle; every other
-    # import at the top level of a module is.
+    # import at the top level of a module is (in fpgalink and fpgaemu alike). Imports under
+    # ``if TYPE_CHECKING:`` are allowed to close a circle: they never run.
     graph: dict[str, set[str]] = {}
     for package in ("fpgalink", "fpgaemu"):
         for where, path in modules(package):

@@ -45,6 +45,8 @@ from fpgaemu.serve import (
     TruthEndpoint,
     serve_loop,
 )
+from fpgalink.ports import LinkError, LinkSpecError, make_link, pty_where, ready_line
+from fpgalink.ports import parse_links as link_specs
 from fpgalink.protocol import ParameterError
 from fpgalink.protocol.exitcodes import ExitCode, NotInstalled, exit_codes_help
 from fpgalink.protocol.paramfile import parse_parameter_table
@@ -135,19 +137,19 @@ def parse_settings(config: Path | None, assignments: tuple[str, ...]) -> dict[st
 
 
 def parse_links(values: tuple[str, ...], names: list[str]) -> dict[str, Path]:
-    """``--link PATH`` (one board) or ``--link NAME=PATH`` per board."""
+    """``--link PATH`` (one board) or ``--link NAME=PATH`` per board (the router's grammar,
+    :func:`fpgalink.ports.parse_links`); a board's one pty has one link."""
     links: dict[str, Path] = {}
-    for value in values:
-        name, sep, path = value.partition("=")
-        if not sep:
-            if len(names) != 1 or len(values) != 1:
-                raise ServeError(f"--link {value!r}: with several boards give NAME=PATH "
-                                 f"for each of {', '.join(names)}", EXIT_BAD_INPUT)
-            name, path = names[0], value
-        if name not in names:
-            raise ServeError(f"--link {value!r}: no board named {name!r} (boards: "
-                             f"{', '.join(names)})", EXIT_BAD_INPUT)
-        links[name] = Path(path)
+    try:
+        given = link_specs(values, names)
+    except LinkSpecError as exc:
+        raise ServeError(str(exc), EXIT_BAD_INPUT) from None
+    for name, path in given:
+        if name in links:
+            raise ServeError(f"--link {path}: board {name} has one pty, linked at "
+                             f"{links[name]} already; give each board one --link",
+                             EXIT_BAD_INPUT)
+        links[name] = path
     return links
 
 
@@ -225,6 +227,15 @@ SERVE_OPTIONS: list[Callable[[Callable[..., Any]], Callable[..., Any]]] = [
                  help="The MicroBlaze software: the Python model, or the C core of firmware/ "
                       "(built on first use with the system C compiler; docs/firmware.md)  "
                       "[default: python]"),
+    click.option("--seed-protocol", "seed_protocol", is_flag=True, default=None,
+                 help="Serve boards as the seed's firmware was: IQ is not known (counted, "
+                      "unanswered), so a host sees \"seed protocol, identity unknown\" "
+                      "(docs/protocol.md §8); the Python firmware only."),
+    click.option("--declarations", "declarations", metavar="HEX",
+                 help="Answer IQ with this protocol declaration hash (16 hex digits), as a "
+                      "firmware generated from another declaration would: to try a host's "
+                      "refusal (the wire it speaks is still this one); the Python firmware "
+                      "only."),
     click.option("--idle-timeout", "idle_timeout", type=float, metavar="SECONDS",
                  help="With --tcp: disconnect a host that has sent nothing this long after "
                       "connecting; 0: never  [default: "
@@ -235,7 +246,8 @@ DEFAULTS: dict[str, Any] = {"use_pty": False, "tcp": None, "boards": 1, "baud": 
                             "assignments": (), "links": (), "faults": (), "robot": False,
                             "robot_file": None, "surface": None, "truth": None,
                             "firmware": "python", "idle_timeout": None,
-                            "body": None, "uart_rx": "edge", "tx_gap": 0, "foxglove": None}
+                            "body": None, "uart_rx": "edge", "tx_gap": 0, "foxglove": None,
+                            "seed_protocol": False, "declarations": None}
 
 
 def with_serve_options(func: Callable[..., Any]) -> Callable[..., Any]:
@@ -286,6 +298,14 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
     if value["uart_rx"] not in UART_RX_MODES:
         raise ServeError(f"--uart-rx {value['uart_rx']!r}: choose "
                          f"{' or '.join(UART_RX_MODES)}", EXIT_BAD_INPUT)
+    declarations = _declarations(value["declarations"])
+    if value["seed_protocol"] and declarations is not None:
+        raise ServeError("--seed-protocol and --declarations: a seed board does not answer "
+                         "IQ at all", EXIT_BAD_INPUT)
+    if (value["seed_protocol"] or declarations is not None) and value["firmware"] == "c":
+        raise ServeError("--seed-protocol and --declarations serve the Python firmware; the "
+                         "C core (--firmware c) answers IQ with the hash it was generated "
+                         "from", EXIT_BAD_INPUT)
     body = _body(value, robot) if robot is not None else None
     names = list(robot.boards) if robot else board_names(value["boards"])
     links = parse_links(value["links"], names)
@@ -308,7 +328,9 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         paced = _paced_boards(names, robot, value["baud"], value["seed"], value["gear"],
                               settings, faults, value["firmware"], body=body,
                               uart_rx=value["uart_rx"], tx_gap=value["tx_gap"],
-                              surface=value["surface"])
+                              surface=value["surface"],
+                              identity=not value["seed_protocol"],
+                              declarations=declarations)
     except ValueError as exc:
         raise ServeError(str(exc).splitlines()[0], ExitCode.NOT_INSTALLED if isinstance(
             exc, NotInstalled) else EXIT_BAD_INPUT) from None
@@ -321,6 +343,17 @@ def serve(ctx: click.Context, /, **given: Any) -> None:
         code = runner.run(_serve(use_pty, host, port, paced, links, truth, idle_timeout,
                                  live))
     sys.exit(code)
+
+
+def _declarations(text: str | None) -> int | None:
+    """``--declarations HEX``: a declaration hash as ``IA`` carries it (u64)."""
+    if text is None:
+        return None
+    digits = text.strip().lower().removeprefix("0x")
+    if not (1 <= len(digits) <= 16 and all(c in "0123456789abcdef" for c in digits)):
+        raise ServeError(f"--declarations {text!r}: expected a hash of up to 16 hex digits "
+                         "(as fpgalink-cli ports --identify shows one)", EXIT_BAD_INPUT)
+    return int(digits, 16)
 
 
 def _robot(value: dict[str, Any]) -> RobotDescription:
@@ -383,38 +416,30 @@ def _paced_boards(names: list[str], robot: RobotDescription | None, baud: int, s
                   gear: str, settings: dict[str, int | float],
                   faults: dict[str, list[str]], firmware: str = "python", *,
                   body: str | None = None, uart_rx: str = "edge", tx_gap: int = 0,
-                  surface: str | None = None) -> dict[str, PacedBoard]:
+                  surface: str | None = None, identity: bool = True,
+                  declarations: int | None = None) -> dict[str, PacedBoard]:
     if robot is not None:
         emulated = EmulatedRobot(robot, surface, baud=baud, seed=seed, gear=gear,
                                  faults=faults, settings=settings, body=body,
-                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware)
+                                 uart_rx=uart_rx, tx_byte_gap=tx_gap, firmware=firmware,
+                                 identity=identity, declarations=declarations)
         paced_robot = PacedRobot(emulated)
         return {name: paced_robot.side(name) for name in names}
     return {name: PacedBoard(build_board(baud=baud, seed=seed + index, gear=gear,
                                          settings=settings, faults=faults[name],
                                          firmware=firmware, uart_rx=uart_rx,
-                                         tx_byte_gap=tx_gap))
+                                         tx_byte_gap=tx_gap, identity=identity,
+                                         declarations=declarations))
             for index, name in enumerate(names)}
 
 
 def _make_link(path: Path, target: str) -> None:
-    """A symlink at ``path`` to ``target``; an older symlink there (from a board served
-    before, whose pty is gone or is now ours) is replaced. A symlink to a pty that is there
-    may be another serve's or a router's, live, and is not touched; nor is anything else."""
-    if path.is_symlink():
-        pointed = os.readlink(path)
-        if pointed != target and os.path.exists(path):
-            raise ServeError(f"--link {path}: a symlink to {pointed}, which exists (another "
-                             "fpgaemu serve or router may be serving it); not replacing it — "
-                             "remove it if it is stale", EXIT_CANNOT_SERVE)
-        path.unlink()
-    elif path.exists():
-        raise ServeError(f"--link {path}: exists and is not a symlink; not replacing it",
-                         EXIT_CANNOT_SERVE)
+    """:func:`fpgalink.ports.make_link`; a path that is not ours to take, or that the system
+    refuses, is a board that cannot be served (exit 5)."""
     try:
-        path.symlink_to(target)
-    except OSError as exc:
-        raise ServeError(f"--link {path}: {exc.strerror}", EXIT_CANNOT_SERVE) from None
+        make_link(path, target)
+    except LinkError as exc:
+        raise ServeError(str(exc), EXIT_CANNOT_SERVE) from None
 
 
 async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoard],
@@ -441,12 +466,10 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 pty = PtyEndpoint(board)
                 pty.start()
                 endpoints.append((name, pty))
-                where = pty.path
                 if name in links:
                     _make_link(links[name], pty.path)
                     pty.link = links[name]
-                    where = f"{links[name]} -> {pty.path}"
-                ready.append(f"ready {name} {where}")
+                ready.append(ready_line(name, pty_where(pty.path, pty.link)))
             else:
                 tcp = TcpEndpoint(board, host, port + index if port else 0,
                                   idle_timeout=idle_timeout)
@@ -458,7 +481,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                 endpoints.append((name, tcp))
                 # One line per listening socket (IPv4 and IPv6 of a wildcard address), each
                 # an address a client can use.
-                ready += [f"ready {name} {url}" for url in tcp.urls]
+                ready += [ready_line(name, url) for url in tcp.urls]
         sides = [b for b in paced.values() if isinstance(b, RobotSide)]
         if truth is not None and sides:
             truth_endpoint = TruthEndpoint(sides[0].robot, *truth)
@@ -467,7 +490,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
             except OSError as exc:
                 raise ServeError(f"cannot serve the truth on {truth_endpoint.url}: "
                                  f"{exc.strerror or exc}", EXIT_CANNOT_SERVE) from None
-            ready += [f"ready truth {url}" for url in truth_endpoint.urls]
+            ready += [ready_line("truth", url) for url in truth_endpoint.urls]
             if live is not None:
                 view = live(sides[0].robot.truth_record)
                 try:
@@ -476,7 +499,7 @@ async def _serve(use_pty: bool, host: str, port: int, paced: dict[str, PacedBoar
                     raise ServeError(f"--foxglove: cannot listen: {exc}",
                                      EXIT_CANNOT_SERVE) from None
                 stack.push_async_callback(view.close)
-                ready.append(f"ready foxglove {view.url}")
+                ready.append(ready_line("foxglove", view.url))
         try:
             print("\n".join(ready), flush=True)
         except BrokenPipeError:

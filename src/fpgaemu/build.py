@@ -36,6 +36,8 @@ def build_board(
     firmware: str = "python",
     wheels: str = "identified",
     uart_rx: str = "edge",
+    identity: bool = True,
+    declarations: int | None = None,
 ) -> Board:
     """A complete board. ``settings`` are initial parameter values by name
     (``{"Kp_Wheel_PidA": 9.0}``), validated as the firmware validates a ``PS``; ``faults``
@@ -47,14 +49,20 @@ def build_board(
     :class:`~fpgaemu.motor.Motors`) or ``"driven"`` (motors as torque sources for a body's
     physics, :class:`~fpgaemu.motor.DrivenMotors`); ``firmware`` the MicroBlaze software,
     ``"python"`` (the model) or ``"c"`` (the C core, built on first use;
-    :class:`~fpgaemu.cfirmware.CFirmwareUnavailable` without a C compiler). ``ValueError``
-    for anything invalid."""
+    :class:`~fpgaemu.cfirmware.CFirmwareUnavailable` without a C compiler); ``identity``
+    False: the Python model as a seed board, which does not know ``IQ`` (counts it, answers
+    nothing: "seed protocol, identity unknown"); ``declarations`` the hash its ``IA`` says
+    instead of this declaration's (a firmware built from another one). ``ValueError`` for
+    anything invalid."""
     if firmware not in FIRMWARES:
         raise ValueError(f"firmware must be one of {', '.join(FIRMWARES)}, got {firmware!r}")
     if gear not in GEARS:
         raise ValueError(f"gear must be one of {', '.join(sorted(GEARS))}, got {gear!r}")
     if uart_rx not in UART_RX_MODES:
         raise ValueError(f"uart_rx must be {' or '.join(UART_RX_MODES)}, got {uart_rx!r}")
+    if (not identity or declarations is not None) and firmware == "c":
+        raise ValueError("the C core answers IQ with the hash it was generated from: a seed "
+                         "board, or one claiming another declaration, is the Python model")
     wanted = parse_faults(faults or [])
     config = BoardConfig(baud=baud, seed=seed, rx_faults=wanted.line("rx"),
                          tx_faults=wanted.line("tx"), tx_byte_gap=tx_byte_gap,
@@ -67,7 +75,7 @@ def build_board(
 
         attach_c_firmware(board, settings or {})
     else:
-        attach_firmware(board, settings or {})
+        attach_firmware(board, settings or {}, identity=identity, declarations=declarations)
     motors = Motors if wheels == "identified" else DrivenMotors
     board.add_peripheral("motors", motors(gear, current_noise_a))
     board.add_peripheral("faults", wanted.board_faults())

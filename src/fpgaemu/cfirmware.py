@@ -24,7 +24,6 @@ import struct
 import subprocess
 import sys
 import tempfile
-from collections import deque
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
@@ -43,7 +42,7 @@ from fpgaemu.hwcontrol import Coefficients, HardwareController, LoopInput
 from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import PidGains
 from fpgaemu.timeline import EventHandle
-from fpgaemu.timing import TimingReport
+from fpgaemu.timing import FrameBooking, TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgaemu.uartsend import TxDone
 from fpgalink.protocol import PARAMETERS, NackReason, Param, ParamType, Scope, resolve
@@ -263,8 +262,9 @@ class CFirmware:
         self._bind_hal()
         self.values: Mapping[tuple[int, int], int | float] = _Values(self._state)
         self.wire_crc = _WireCrcView(self._state)
-        self._timing = TimingReport()
-        self._in_flight: deque[tuple[int, int, int | None]] = deque()
+        #: the frames on the wire, booked into the timing report once done
+        self._frames = FrameBooking()
+        self._timing = self._frames.report
         self._board: Board | None = None
         self._hardware: dict[int, HardwareController] = {}
         self.channels: dict[int, CChannel] = {}
@@ -324,8 +324,8 @@ class CFirmware:
         accepted = axi.send_tx(bytes(self._ffi.buffer(content, length)))
         assert accepted, "uartsend refused a strobe while idle"
         uartsend = axi.uartsend
-        self._in_flight.append((uartsend.busy_until, uartsend.frame_wire_bytes,
-                                tag if telemetry else None))
+        self._frames.started(tag if telemetry else None, uartsend.busy_until,
+                             uartsend.frame_wire_bytes)
 
     def _tx_done_interrupt(self, context: Any) -> None:
         self.board.axi.on_next_tx_done(self._on_tx_done)
@@ -336,7 +336,7 @@ class CFirmware:
 
     def _timer_set_period_ms(self, context: Any, period_ms: int) -> None:
         board = self.board
-        self._book_finished(board.now)  # frames done so far against the old period
+        self._frames.report_at(board)  # frames done so far against the old period
         board.timer.set_period_ms(period_ms)
 
     def _alive_timer_start(self, context: Any) -> None:
@@ -467,8 +467,8 @@ class CFirmware:
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
-        if self._in_flight and self._in_flight[0][0] <= cycle:
-            self._book_finished(cycle)
+        if self._frames.due(cycle):
+            self._frames.book(cycle, self.board.timer.period_cycles)
         if self.skip_quiescent_ticks and not self._state.enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
             return
@@ -503,19 +503,9 @@ class CFirmware:
             return None
         return self.board.timer.handle
 
-    def _book_finished(self, now: int) -> None:
-        in_flight, timing = self._in_flight, self._timing
-        period = self.board.timer.period_cycles
-        while in_flight and in_flight[0][0] <= now:
-            done, wire_bytes, tick = in_flight.popleft()
-            timing.tx_wire_bytes += wire_bytes
-            if tick is not None:
-                timing.record_slack(tick, done, tick + period - done)
-
     @property
     def timing(self) -> TimingReport:
-        self._book_finished(self.board.now)
-        return self._timing
+        return self._frames.report_at(self.board)
 
     def budget_report(self) -> dict[str, Any]:
         return self.timing.summary(self.board)

@@ -16,7 +16,10 @@ AXI port to the UART logic, the timer, and each channel's PWM, encoder and curre
   query's nonce, the hash of the declaration this firmware runs (this package's), the
   firmware's version (:data:`FIRMWARE_VERSION`, the C core's ``FW_VERSION_*``) and build,
   and the board's serial (:func:`emulated_serial` of the board's seed). ``Firmware(
-  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered.
+  identity=False)`` is a seed board: ``IQ`` is an unknown message, counted, unanswered;
+  ``Firmware(declarations=H)`` answers with the hash ``H`` instead, as a firmware generated
+  from another declaration would (for a host's refusal to be tried; the wire it speaks is
+  still this one).
 
 Controller modes (parameter 4, per channel):
 
@@ -40,7 +43,6 @@ Power-up values come from the parameter table's ``default`` column.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass
 from math import isfinite
 from typing import Any, Final
@@ -52,7 +54,7 @@ from fpgaemu.motor import MotorConstants
 from fpgaemu.pid import Pid, PidGains
 from fpgaemu.pwm import MAX_DUTY
 from fpgaemu.timeline import CLOCK_HZ, EventHandle, ms, us
-from fpgaemu.timing import TimingReport
+from fpgaemu.timing import FrameBooking, TimingReport
 from fpgaemu.uartcommand import EnableChange, RxInterrupt
 from fpgalink.protocol import (
     PARAMETERS,
@@ -157,9 +159,11 @@ def emulated_serial(seed: int) -> int:
 
 class Firmware:
     def __init__(self, settings: dict[str, Any] | None = None, *, wire_crc: bool = True,
-                 identity: bool = True) -> None:
+                 identity: bool = True, declarations: int | None = None) -> None:
         #: answers ``IQ`` (False: a seed board, which does not know the message)
         self.identity = identity
+        #: the declaration hash ``IA`` says (``None``: this package's, the one it runs)
+        self.declarations = declarations
         #: the parameters this firmware knows (without WireCrc: a board older than the CRC)
         self.parameters = {p.id: p for p in PARAMETERS
                            if wire_crc or p.id != WIRE_CRC_PARAM}
@@ -173,14 +177,13 @@ class Firmware:
         #: GetDataPeriodical = 1: a TM at every tick
         self.telemetry_on = self.values[(2, BOARD)] == 1
         self.stats = FirmwareStats()
-        self._timing = TimingReport()
+        #: the frames on the wire, booked into the timing report once done
+        self._frames = FrameBooking()
+        self._timing = self._frames.report
         self.host_counter = CounterTracker()
         self._counter = SendCounter()
         self._pending_settings = dict(settings or {})
         self._powered_at = 0  #: the cycle the board powered up: t_us counts from it
-        #: (done cycle, wire bytes, tick or None) of each frame on the wire, oldest first:
-        #: booked into the timing report once done (no event at a frame's end)
-        self._in_flight: deque[tuple[int, int, int | None]] = deque()
         self._board: Board | None = None
         self._enabled = False
         #: run a quiescent tick as a count only (off: the full tick, for equivalence tests)
@@ -202,7 +205,8 @@ class Firmware:
     def power_cycled(self) -> Firmware:
         """The software after a power cycle: started afresh with the same power-up
         settings (what was flashed), nothing of this run's state."""
-        firmware = Firmware(self._pending_settings, identity=self.identity)
+        firmware = Firmware(self._pending_settings, identity=self.identity,
+                            declarations=self.declarations)
         firmware.skip_quiescent_ticks = self.skip_quiescent_ticks
         return firmware
 
@@ -212,7 +216,7 @@ class Firmware:
         axi = board.axi
         axi.on_rx_interrupt(self._on_rx)
         axi.on_global_enable(self._on_enable)
-        self.tx = TxQueue(axi, depth=8, on_start=self._on_tx_start)
+        self.tx = TxQueue(axi, depth=8, on_start=self._frames.started)
         now = board.now
         self._timing.started_cycle = now
         for param in self.parameters.values():
@@ -235,8 +239,7 @@ class Firmware:
     @property
     def timing(self) -> TimingReport:
         """How the output fitted the timer periods, up to now (SPEC §7)."""
-        self._book_finished(self.board.now)
-        return self._timing
+        return self._frames.report_at(self.board)
 
     def budget_report(self) -> dict[str, Any]:
         """SPEC §7 from this run (see :meth:`fpgaemu.timing.TimingReport.summary`)."""
@@ -256,23 +259,6 @@ class Firmware:
         if kind == "E":
             return self.tx.send(b"E")
         return self.tx.send(self.wire_crc.send(encode_message(message, self._counter.take())))
-
-    def _on_tx_start(self, tick: int | None, done: int, wire_bytes: int) -> None:
-        self._in_flight.append((done, wire_bytes, tick))
-
-    def _book_finished(self, now: int) -> None:
-        """Book every frame whose last stop bit has ended by ``now``: its wire bytes, and a
-        TM's slack to the next tick. Called before anything reads the report or changes the
-        timer period, so each is booked as it would have been at its end."""
-        in_flight = self._in_flight
-        timing = self._timing
-        assert self._board is not None
-        period = self._board.timer.period_cycles
-        while in_flight and in_flight[0][0] <= now:
-            done, wire_bytes, tick = in_flight.popleft()
-            timing.tx_wire_bytes += wire_bytes
-            if tick is not None:
-                timing.record_slack(tick, done, tick + period - done)
 
     def _on_alive(self, cycle: int) -> None:
         if self._send(None, "E"):
@@ -323,7 +309,9 @@ class Firmware:
             self.stats.param_gets += 1
             self._handle_get(message)
         elif isinstance(message, IdentityQuery) and self.identity:
-            self._send(IdentityAnswer(message.nonce, declarations_hash(), *FIRMWARE_VERSION,
+            declarations = declarations_hash() if self.declarations is None \
+                else self.declarations
+            self._send(IdentityAnswer(message.nonce, declarations, *FIRMWARE_VERSION,
                                       FIRMWARE_BUILD, emulated_serial(self.board.config.seed)),
                        "IA")
         elif isinstance(message, Malformed):
@@ -386,7 +374,7 @@ class Firmware:
         if self._board is None:
             return  # applied to the hardware at attach
         if param.id == 1:
-            self._book_finished(self.board.now)  # frames done so far against the old period
+            self._frames.report_at(self.board)  # frames done so far against the old period
             self.board.timer.set_period_ms(int(value))
         elif param.id == WIRE_CRC_PARAM:
             # Before the PA goes out: the confirmation is the first message in the new form.
@@ -491,8 +479,8 @@ class Firmware:
 
     def _on_tick(self, cycle: int) -> None:
         self.last_tick = cycle
-        if self._in_flight and self._in_flight[0][0] <= cycle:
-            self._book_finished(cycle)
+        if self._frames.due(cycle):
+            self._frames.book(cycle, self.board.timer.period_cycles)
         if self.skip_quiescent_ticks and not self._enabled and self.quiescent:
             self._timing.periods += 1  # what a full tick would do, no more
             return
@@ -568,7 +556,9 @@ def _stored(param: Param, value: int | float) -> int | float:
 
 
 def attach_firmware(board: Board, settings: dict[str, Any] | None = None, *,
-                    wire_crc: bool = True, identity: bool = True) -> Firmware:
-    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity)
+                    wire_crc: bool = True, identity: bool = True,
+                    declarations: int | None = None) -> Firmware:
+    firmware = Firmware(settings, wire_crc=wire_crc, identity=identity,
+                        declarations=declarations)
     board.add_peripheral("firmware", firmware)
     return firmware

@@ -3,7 +3,7 @@ for Foxglove — what no host can know (the host's own live view, ``fpgalink-cli
 --foxglove``, shows what it measures).
 
 Decision: the emulator serves its truth itself, with foxglove-sdk (optional, imported only
-here, as MuJoCo is in physics.py), rather than asking a host to relay the truth port: the
+here, as MuJoCo is in physics/), rather than asking a host to relay the truth port: the
 truth is the emulator's to tell, a served robot may have no host attached, and fpgaemu may
 import nothing of fpgalink but its protocol package (which has the shared schemas,
 :mod:`fpgalink.protocol.viewschemas`). A host's view shows truth too, in odometry's frame;

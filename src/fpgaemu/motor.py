@@ -62,7 +62,7 @@ from typing import TYPE_CHECKING, Any, Final
 from fpgaemu.timeline import CLOCK_HZ, ms
 
 if TYPE_CHECKING:
-    from fpgaemu.board import Board
+    from fpgaemu.board import Board, ChannelIo
     from fpgaemu.encoder import QuadratureEncoder
 
 __all__ = [
@@ -393,16 +393,17 @@ def turn(wheel: WheelPlant, encoder: QuadratureEncoder, start: int, end: int) ->
         c0 = c1
 
 
-class Motors:
-    """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
-    current sensors (a board peripheral)."""
+class BoardMotors:
+    """A board's two channels' motors and wheels as one peripheral, wired to its PWM stages,
+    encoders and current (Hall) sensors: what :class:`Motors` and :class:`DrivenMotors`
+    share. A subclass has its wheels, wires each channel's (:meth:`wire`) and integrates
+    them (:meth:`advance_to`, called at every PWM change and whenever the board settles)."""
 
     def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
         if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
             raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
         self.gear = gear
         self.current_noise_a = current_noise_a
-        self.wheels: dict[int, WheelPlant] = {}
         self._board: Board | None = None
         self._cycle = 0
         self._noise: Any = None
@@ -411,20 +412,40 @@ class Motors:
         """Wire the wheels to ``board``'s PWM stages and encoders. Attached again after a
         power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the wheels are the same
         ones, turning on: only the board's counters start again, from their present
-        angles."""
+        angles (:meth:`wire`)."""
         self._board = board
         self._cycle = board.now
         if self.current_noise_a > 0 and self._noise is None:
             self._noise = board.timeline.rng("hall")
         for code, io in board.channels.items():
-            wheel = self.wheels.get(code)
-            if wheel is None:
-                self.wheels[code] = WheelPlant(self.gear)
-            else:
-                io.encoder.power_up(wheel.angle_deg)
-                io.current_a = wheel.current
+            self.wire(code, io)
             io.pwm.on_change(self.advance_to)
         board.on_settle(self.advance_to)
+
+    def wire(self, code: int, io: ChannelIo) -> None:
+        """Channel ``code``'s wheel: made at the first attach, its encoder and current
+        sensor powered up from where it is at the next."""
+        raise NotImplementedError
+
+    def advance_to(self, cycle: int) -> None:
+        raise NotImplementedError
+
+
+class Motors(BoardMotors):
+    """Both channels' motor and wheel, attached to a board's PWM stages, encoders and
+    current sensors (a board peripheral)."""
+
+    def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
+        super().__init__(gear, current_noise_a)
+        self.wheels: dict[int, WheelPlant] = {}
+
+    def wire(self, code: int, io: ChannelIo) -> None:
+        wheel = self.wheels.get(code)
+        if wheel is None:
+            self.wheels[code] = WheelPlant(self.gear)
+        else:
+            io.encoder.power_up(wheel.angle_deg)
+            io.current_a = wheel.current
 
     @property
     def at_rest(self) -> bool:
@@ -618,7 +639,7 @@ class WheelDrive:
             self.on_stall(self)
 
 
-class DrivenMotors:
+class DrivenMotors(BoardMotors):
     """:class:`Motors` for a board whose wheels a body's physics turns (a board peripheral):
     each channel's PWM drives a :class:`WheelDrive`, whose current the Hall sensor reads and
     whose wheel (moved by the physics) turns the channel's encoder. The physics is stepped
@@ -626,38 +647,24 @@ class DrivenMotors:
     motion over a step before the board runs through it."""
 
     def __init__(self, gear: str = "high", current_noise_a: float = 0.0) -> None:
-        if not (math.isfinite(current_noise_a) and current_noise_a >= 0):
-            raise ValueError(f"current_noise_a must be ≥ 0 A, got {current_noise_a!r}")
-        self.gear = gear
+        super().__init__(gear, current_noise_a)
         self.train = drive_train(gear)
-        self.current_noise_a = current_noise_a
         self.wheels: dict[int, WheelDrive] = {}
-        self._board: Board | None = None
-        self._cycle = 0
-        self._noise: Any = None
 
-    def attach(self, board: Board) -> None:
-        """Wire the drives to ``board``'s PWM stages and encoders. Attached again after a
-        power cycle (:meth:`fpgaemu.board.Board.power_cycle`), the drives are the same
-        ones, which the body's physics holds: their wheels turn on, the power-up board's
-        PWM (0) drives them from now on, and only its counters start again, from the
-        wheels' present angles. (New drives here left the physics driving the old ones at
-        the duty they had when the power went, and the board counting wheels that never
-        turned: odometry saw half the motion.)"""
-        self._board = board
-        self._cycle = board.now
-        if self.current_noise_a > 0 and self._noise is None:
-            self._noise = board.timeline.rng("hall")
-        for code, io in board.channels.items():
-            wheel = self.wheels.get(code)
-            if wheel is None:
-                self.wheels[code] = WheelDrive(self.train)
-            else:
-                wheel.duty = 0  # the power-up PWM, until the board's next write
-                io.encoder.power_up(wheel.angle_deg)
-                io.current_a = wheel.current
-            io.pwm.on_change(self.advance_to)
-        board.on_settle(self.advance_to)
+    def wire(self, code: int, io: ChannelIo) -> None:
+        """After a power cycle the drives are the same ones, which the body's physics
+        holds: their wheels turn on, the power-up board's PWM (0) drives them from now on,
+        and only its counters start again, from the wheels' present angles. (New drives
+        here left the physics driving the old ones at the duty they had when the power
+        went, and the board counting wheels that never turned: odometry saw half the
+        motion.)"""
+        wheel = self.wheels.get(code)
+        if wheel is None:
+            self.wheels[code] = WheelDrive(self.train)
+        else:
+            wheel.duty = 0  # the power-up PWM, until the board's next write
+            io.encoder.power_up(wheel.angle_deg)
+            io.current_a = wheel.current
 
     @property
     def at_rest(self) -> bool:

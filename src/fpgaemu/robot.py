@@ -101,6 +101,8 @@ class EmulatedRobot:
         uart_rx: str = "edge",
         tx_byte_gap: int = 0,
         physics_step_cycles: int = physics.STEP_CYCLES,
+        identity: bool = True,
+        declarations: int | None = None,
     ) -> None:
         self.description = description or seed_robot()
         surface = surface or self.description.surface
@@ -118,7 +120,8 @@ class EmulatedRobot:
                               settings=dict(settings or {}),
                               faults=list(faults.get(name, [])), firmware=firmware,
                               wheels="driven" if body == "mujoco" else "identified",
-                              uart_rx=uart_rx, tx_byte_gap=tx_byte_gap)
+                              uart_rx=uart_rx, tx_byte_gap=tx_byte_gap,
+                              identity=identity, declarations=declarations)
             for index, name in enumerate(self.description.boards)
         }
         self._motors = {name: self._motors_of(board) for name, board in self.boards.items()}

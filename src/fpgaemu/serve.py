@@ -21,7 +21,7 @@ from fpgaemu.serving.pacing import (
     PacedRobot,
     RobotSide,
 )
-from fpgaemu.serving.pty import PtyEndpoint, open_raw_pty
+from fpgaemu.serving.pty import PtyEndpoint
 from fpgaemu.serving.tcp import IDLE_TIMEOUT_S, TcpEndpoint
 from fpgaemu.serving.truth import MAX_TRUTH_READERS, TruthEndpoint
 
@@ -43,7 +43,6 @@ __all__ = [
     "TcpEndpoint",
     "TruthEndpoint",
     "open_emulated_transport",
-    "open_raw_pty",
     "say",
     "serve_loop",
 ]

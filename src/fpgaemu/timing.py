@@ -10,14 +10,14 @@ board runs.
 from __future__ import annotations
 
 import math
-from collections import Counter
+from collections import Counter, deque
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Final
 
 if TYPE_CHECKING:
     from fpgaemu.board import Board
 
-__all__ = ["MISSED_LISTED", "TimingReport"]
+__all__ = ["MISSED_LISTED", "FrameBooking", "TimingReport"]
 
 #: Missed periods listed individually (later ones are only counted), so a long run under
 #: overload keeps bounded memory.
@@ -89,3 +89,42 @@ class TimingReport:
             "missed_periods": self.missed_count,
             "missed": list(self.missed),
         }
+
+
+class FrameBooking:
+    """The frames on the TX wire, oldest first, each booked into :attr:`report` (its wire
+    bytes, a ``TM``'s slack to the next tick) once its last stop bit has ended. The wire has
+    no event at a frame's end, so the firmware books what has ended before anything reads
+    the report or changes the timer period, and at each tick: each frame is booked as it
+    would have been at its end."""
+
+    def __init__(self) -> None:
+        self.report = TimingReport()
+        #: (done cycle, wire bytes, tick or None) of each frame on the wire
+        self._on_wire: deque[tuple[int, int, int | None]] = deque()
+
+    def started(self, tick: int | None, done: int, wire_bytes: int) -> None:
+        """A frame of ``wire_bytes`` went onto the wire, its last stop bit ending at
+        ``done``; ``tick``: the timer interrupt whose ``TM`` it is (``None``: no ``TM``)."""
+        self._on_wire.append((done, wire_bytes, tick))
+
+    def due(self, now: int) -> bool:
+        """Whether a frame has ended by ``now`` and is not booked yet."""
+        on_wire = self._on_wire
+        return bool(on_wire) and on_wire[0][0] <= now
+
+    def report_at(self, board: Board) -> TimingReport:
+        """The report with every frame ended by the board's present cycle booked."""
+        self.book(board.now, board.timer.period_cycles)
+        return self.report
+
+    def book(self, now: int, period: int) -> None:
+        """Book every frame ended by ``now``, a ``TM``'s slack against the timer ``period``
+        (cycles) in force."""
+        on_wire = self._on_wire
+        report = self.report
+        while on_wire and on_wire[0][0] <= now:
+            done, wire_bytes, tick = on_wire.popleft()
+            report.tx_wire_bytes += wire_bytes
+            if tick is not None:
+                report.record_slack(tick, done, tick + period - done)

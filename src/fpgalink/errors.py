@@ -11,10 +11,12 @@ from fpgalink.protocol.errors import (
     UnknownParameter,
 )
 from fpgalink.protocol.exitcodes import ExitCode, NotInstalled
+from fpgalink.protocol.identity import IdentityMismatch
 
 __all__ = [
     "BoardLost",
     "FpgalinkError",
+    "IdentityMismatch",
     "LineBusy",
     "LinkClosed",
     "LocalProtocolError",
@@ -115,6 +117,8 @@ def exit_code(exc: BaseException) -> ExitCode:
         return ExitCode.BAD_INPUT
     if isinstance(exc, ParameterRefused | ValueMismatch):
         return ExitCode.REFUSED
+    if isinstance(exc, IdentityMismatch):
+        return ExitCode.MISMATCH
     if isinstance(exc, RequestTimeout | BoardLost):
         return ExitCode.NO_ANSWER
     if isinstance(exc, PortError):

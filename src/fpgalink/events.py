@@ -17,7 +17,9 @@ again; a board heard again after a silence or on a reconnected port is asked, an
 answer's counter says whether it restarted or is :class:`BoardBack`;
 :class:`WatchdogLapsed` (the board's 300 ms watchdog disabled it while the host meant it
 enabled); :class:`TelemetryStale` and :class:`TelemetryResumed` (telemetry configured on
-and none arriving); :class:`WireCrcMismatch` (its frames in the other wire-CRC mode).
+and none arriving); :class:`WireCrcMismatch` (its frames in the other wire-CRC mode);
+:class:`BoardIdentified` (what it said of itself when asked: its protocol declaration,
+firmware and serial, docs/protocol.md §8).
 
 **Status events** (:class:`StatusEvent`) are what a link's watchers get
 (``Link.watch()``, ``Link.on_event()``): the board lost, found, back, restarted,
@@ -36,11 +38,15 @@ from typing import ClassVar
 
 from fpgalink.errors import FpgalinkError
 from fpgalink.protocol import (
+    SEED_PROTOCOL,
     Alive,
+    BoardIdentity,
     CountedMessage,
     Event,
     FrameAborted,
     FramingError,
+    IdentityMatch,
+    IdentityMismatch,
     Malformed,
     NoiseDropped,
     Param,
@@ -54,6 +60,7 @@ __all__ = [
     "BoardBack",
     "BoardFault",
     "BoardFound",
+    "BoardIdentified",
     "BoardRestarted",
     "BoardResynced",
     "BoardSilent",
@@ -273,6 +280,36 @@ class BoardResynced(BoardFault):
             return f"reconfigured: {self.applied} parameter(s) set again and confirmed"
         what = "; ".join(f"{name}: {error}" for name, error in self.failed)
         return f"reconfiguring failed: {what}"
+
+
+@dataclass(frozen=True, slots=True)
+class BoardIdentified(BoardFault):
+    """The board was asked who it is (``IQ``, docs/protocol.md §8): at connect, when the
+    caller asks, and after each restart (a re-flash changes it). ``identity`` is its
+    answer, ``None`` for a seed board that does not know ``IQ``; ``match`` compares its
+    declaration hash with this host's (``host``). A mismatch is the caller's to refuse (the
+    robot stops and keeps the board not ready; the CLI ends)."""
+
+    name: ClassVar[str] = "board_identified"
+
+    identity: BoardIdentity | None
+    match: IdentityMatch
+    host: int
+
+    @property
+    def mismatch(self) -> IdentityMismatch | None:
+        """The error a refusal raises, for a board built from another declaration."""
+        if self.match is not IdentityMatch.MISMATCH or self.identity is None:
+            return None
+        return IdentityMismatch("", self.identity.declarations, self.host)
+
+    def describe(self) -> str:
+        if self.identity is None:
+            return SEED_PROTOCOL
+        mismatch = self.mismatch
+        if mismatch is not None:
+            return f"{mismatch} ({self.identity.describe()})"
+        return self.identity.describe()
 
 
 @dataclass(frozen=True, slots=True)

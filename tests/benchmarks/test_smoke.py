@@ -406,3 +406,14 @@ def test_recording_quick(tmp_path: Path) -> None:
     # fpgalink's reader never takes a damaged chunk for a whole one
     assert report["flips"]["fpgalink"].get("silently different", 0) == 0
     assert set(report["speed"]) == {"mcap", "mcap+crc", "fpgalink"}
+
+
+@pytest.mark.timeout(TIMEOUT_S + 20)
+def test_identity_quick(tmp_path: Path) -> None:
+    out, report = run_quick("identity", tmp_path)
+    results = report["results"]
+    assert results["answers IQ"]["answered"] is True
+    assert results["seed protocol"]["answered"] is False  # asked three rounds, no answer
+    for case in results.values():
+        assert_summary(case, "identify_s", "pg_round_trip_s")
+    assert "seed protocol" in out

@@ -154,3 +154,35 @@ def test_a_board_that_does_not_enable_is_refused_and_left_as_found() -> None:
                             ("TsTimerPeriod", 1), ("GetDataPeriodical", 0)):
             got = run_cli("param", "get", name, "--port", port)
             assert got.returncode == 0 and float(got.stdout) == value, name
+
+
+@pytest.mark.parametrize("body", ["mujoco", "kinematic"])
+def test_identify_on_the_ground_on_a_served_robot(body: str, tmp_path: Path) -> None:
+    """``identify --wheels ground`` on ``fpgaemu serve --robot`` (both boards, one body): one
+    wheel of board L excited both ways round while the robot stands on the ground (it rocks
+    where it stands); the fit holds on held-out data, the wheel turns no faster than in the
+    air, and the other board was never spoken to (a one-board command)."""
+    from fpgaemu import physics
+
+    if body == "mujoco" and not physics.available():
+        pytest.skip(physics.why_unavailable() or "MuJoCo is not installed")
+    with served_pty("--robot", "--body", body, "--link", f"L={tmp_path / 'L'}",
+                    "--link", f"R={tmp_path / 'R'}") as _:
+        done = run_driving("identify", "--channel", "A", "--wheels", "ground",
+                           "--max-duty", "60", "--duration", "10", "--format", "json",
+                           "--port", f"L={tmp_path / 'L'}", "--port", f"R={tmp_path / 'R'}",
+                           "--board", "L", timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert "wheels on the ground" in done.stderr
+        fit = json.loads(done.stdout)
+        assert fit["board"] == "L" and fit["fit_percent"] > 90, fit
+        # Loaded by the ground (the physics body) or not (the kinematic one, where the
+        # wheels turn as commanded): never faster than the free wheel.
+        assert 0.5 * FULL_SPEED["high"] < fit["full_duty_speed_dps"] \
+            < 1.05 * FULL_SPEED["high"], fit
+        # Everything the run set on L was set back, and R was left as it was.
+        for name, value in (("Kp_Wheel_PidA", 520), ("MaxControlSignalA", 32760),
+                            ("GetDataPeriodical", 0)):
+            for board in ("L", "R"):
+                got = run_cli("param", "get", name, "--port", str(tmp_path / board))
+                assert got.returncode == 0 and float(got.stdout) == value, (board, name)

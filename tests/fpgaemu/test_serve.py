@@ -202,6 +202,29 @@ def test_serve_link_to_a_live_pty_is_not_taken_over(tmp_path: Any) -> None:
         os.close(slave)
 
 
+@pytest.mark.parametrize(("links", "says"), [
+    (["L={tmp}/a", "L={tmp}/b"], "board L has one pty, linked at {tmp}/a already"),
+    (["{tmp}/a", "{tmp}/b"], "board L has one pty"),
+    (["L="], "'L=': no path"),
+])
+def test_serve_refuses_a_link_it_would_not_make(links: list[str], says: str,
+                                                  tmp_path: Any) -> None:
+    """``fpgaemu serve --link`` takes the router's grammar (``fpgalink.ports``); a board's
+    one pty has one link. A second link for a board was dropped without a word (only the
+    last was made), and ``L=`` was taken for the working directory (exit 5); now each is
+    one line, exit 2, before anything is served."""
+    import subprocess
+    import sys
+
+    args = [a for link in links for a in ("--link", link.format(tmp=tmp_path))]
+    done = subprocess.run([sys.executable, "-m", "fpgaemu", "serve", "--pty", *args],
+                          capture_output=True, text=True, timeout=30)
+    assert done.returncode == 2, done.stderr
+    assert done.stderr.startswith("fpgaemu: error: --link") and done.stderr.count("\n") == 1
+    assert says.format(tmp=tmp_path) in done.stderr
+    assert not done.stdout and not list(tmp_path.iterdir())
+
+
 async def test_an_unplugged_ptys_link_goes_with_it_and_comes_back_to_the_new_pty(
         tmp_path: Any) -> None:
     """While unplugged, the ``--link`` is gone (as udev's by-id link of a pulled USB-UART):

@@ -488,7 +488,10 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
 
 def kill_scenario(peer: Peer) -> None:
     left = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty")
-    right = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty", "--seed", "1")
+    # R runs the seed's firmware, which does not know IQ: its identity is unknown, and it
+    # works as L does (docs/protocol.md §8).
+    right = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty", "--seed", "1",
+                    "--seed-protocol")
     ports = {"L": left.ready_lines(1)[0][2], "R": right.ready_lines(1)[0][2]}
     # In a namespace, with a board parameter given on the command line: set on the board.
     node = start_node(ports, "-r", "__ns:=/bot", "-p", "L.Kp_Wheel_Pid.B:=350.0")
@@ -497,6 +500,7 @@ def kill_scenario(peer: Peer) -> None:
         report("ros_args", namespace=peer.get_namespace(),
                kp_b=peer.get_double("L.Kp_Wheel_Pid.B"),
                kp_a=peer.get_double("L.Kp_Wheel_Pid.A"))
+        report("identity", board_l=_values(peer, "board L"), board_r=_values(peer, "board R"))
         peer.spin_until(lambda: _status(peer, "supervision") == (0, "enabled"),
                         "the robot enabled", peer.hold_enable)
         left.stop(signal.SIGKILL)
@@ -509,8 +513,21 @@ def kill_scenario(peer: Peer) -> None:
                board_r=_status(peer, "board R"), supervision=_status(peer, "supervision"))
     finally:
         report("node_exit", code=node.stop())
-        right.stop()
         left.stop()  # killed above, unless something failed first: it holds our output
+    # A board whose firmware was built from another declaration: the node refuses to
+    # start, one line naming both hashes, exit 10 (R, free again, is the seed board).
+    other = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty", "--declarations",
+                    "0123456789abcdef")
+    try:
+        ports = {"L": other.ready_lines(1)[0][2], "R": ports["R"]}
+        refused = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
+                                  *(f"--port={b}={url}" for b, url in ports.items())],
+                                 capture_output=True, text=True, timeout=PATIENCE)
+        report("identity_refused", code=refused.returncode,
+               stderr=refused.stderr.splitlines())
+    finally:
+        other.stop()
+        right.stop()
 
 
 #: Emulated seconds at which the fault scenario's first fault comes, doubled on a machine
@@ -1086,6 +1103,14 @@ def _status(peer: Peer, name: str) -> tuple[int, str]:
             level = status.level
             return (level[0] if isinstance(level, bytes) else int(level)), str(status.message)
     return -1, ""
+
+
+def _values(peer: Peer, name: str) -> dict[str, str]:
+    """The key-values of status ``name`` in the latest diagnostics."""
+    for status in peer.diagnostics[-1].status:
+        if status.name == f"{NODE}: {name}":
+            return {str(v.key): str(v.value) for v in status.values}
+    return {}
 
 
 def imu_scenario(peer: Peer) -> None:

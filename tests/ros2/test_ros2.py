@@ -252,6 +252,23 @@ def test_ros_arguments_are_honoured(scenarios: dict[str, Scenario]) -> None:
     assert facts["kp_a"] != 350.0 and facts["kp_a"] > 0
 
 
+def test_diagnostics_say_who_each_board_is(scenarios: dict[str, Scenario]) -> None:
+    # Board L answers IQ with this host's declaration; R runs the seed's firmware (fpgaemu
+    # serve --seed-protocol) and works all the same, its identity unknown.
+    from fpgalink.protocol import SEED_PROTOCOL, declarations_digest
+
+    facts = scenarios["kill"].check("identity")
+    left, right = facts["board_l"], facts["board_r"]
+    assert left["identity"].startswith(f"protocol {declarations_digest()}, firmware 1.1.0")
+    assert left["protocol"] == left["host protocol"] == declarations_digest()
+    assert right["identity"] == SEED_PROTOCOL and right["protocol"] == ""
+    refused = scenarios["kill"].check("identity_refused")
+    assert refused["code"] == 10, refused
+    errors = [line for line in refused["stderr"] if "error:" in line]
+    assert len(errors) == 1 and "board L" in errors[0], refused
+    assert "0123456789abcdef" in errors[0] and declarations_digest() in errors[0]
+
+
 def test_a_killed_board_server_turns_its_status_to_error_and_disables_the_robot(
         scenarios: dict[str, Scenario]) -> None:
     facts = scenarios["kill"].check("kill")

@@ -15,8 +15,9 @@ from collections.abc import Callable, Coroutine
 from typing import Any
 
 from fpgaemu.serving.loop import say
+from fpgalink.ports import usable_url
 
-__all__ = ["Listener", "ListeningEndpoint", "requested_url", "turn_away", "usable_url"]
+__all__ = ["Listener", "ListeningEndpoint", "requested_url", "turn_away"]
 
 #: errno values that say a connection could not be accepted for want of a descriptor (or
 #: the memory behind one).
@@ -63,14 +64,6 @@ def turn_away(connection: socket.socket, message: bytes) -> None:
         connection.setblocking(False)
         with contextlib.suppress(OSError):
             connection.send(message)
-
-
-def usable_url(address: str, port: int) -> str:
-    """``socket://…`` a client can connect to: a wildcard address becomes its family's
-    loopback."""
-    address = {"0.0.0.0": "127.0.0.1", "::": "::1"}.get(address, address)
-    host = f"[{address.split('%')[0]}]" if ":" in address else address
-    return f"socket://{host}:{port}"
 
 
 def requested_url(host: str, port: int) -> str:

@@ -1,37 +1,19 @@
-"""A board behind a pseudo-terminal (``fpgaemu serve --pty``), and the pty set-up itself
-(:func:`open_raw_pty`), which anything serving a device on a pty can share."""
+"""A board behind a pseudo-terminal (``fpgaemu serve --pty``). The pty itself, the writes to
+it and its ``--link`` are :mod:`fpgalink.ports`', which ``fpgalink-cli router`` shares."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
 import os
-import tty
 from pathlib import Path
-from typing import NamedTuple
 
 from fpgaemu.serving.loop import Pacer, say
 from fpgaemu.serving.pacing import TX_BACKLOG_S, PacedBoard, RxFlow, schedule_unplugs
+from fpgalink.ports import LinkError, LinkTaken, PtyOutput, make_link, open_raw_pty, pty_where
+from fpgalink.ports import remove_own_link as remove_link
 
-__all__ = ["PtyEndpoint", "RawPty", "open_raw_pty"]
-
-
-class RawPty(NamedTuple):
-    """A pseudo-terminal: the side this process reads and writes (non-blocking), the side a
-    host opens (raw: no echo, no line discipline), and that side's path."""
-
-    master: int
-    slave: int
-    path: str
-
-
-def open_raw_pty() -> RawPty:
-    """A new pty in raw mode, its master non-blocking. Keeping the slave side open as well
-    lets a host close and reopen the path without the pty going away."""
-    master, slave = os.openpty()
-    tty.setraw(slave)
-    os.set_blocking(master, False)
-    return RawPty(master, slave, os.ttyname(slave))
+__all__ = ["PtyEndpoint"]
 
 
 class PtyEndpoint:
@@ -46,8 +28,6 @@ class PtyEndpoint:
         self._open_pty()
         self.flow = RxFlow(paced, self._pause, self._resume)
         self.pacer = Pacer(self._tick, self.flow.next_wake)
-        self._pending_out = bytearray()
-        self._writing = False
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         #: TX bytes lost because nobody read the pty for longer than the backlog holds
         self.dropped_tx = 0
@@ -60,6 +40,7 @@ class PtyEndpoint:
 
     def _open_pty(self) -> None:
         self._master, self._slave, self.path = open_raw_pty()
+        self._output = PtyOutput(self._master)
 
     def start(self) -> None:
         asyncio.get_running_loop().add_reader(self._master, self._readable)
@@ -70,11 +51,8 @@ class PtyEndpoint:
         """Remove the ``--link`` if it points at the pty served now: another serve or router
         may have taken the name since. An unplugged pty's link went with it, and its freed
         number may be another's now."""
-        if self.link is None or self.unplugged:
-            return
-        with contextlib.suppress(OSError):
-            if os.readlink(self.link) == self.path:
-                self.link.unlink()
+        if self.link is not None and not self.unplugged:
+            remove_link(self.link, self.path)
 
     def _unplug(self) -> None:
         """The USB-UART is pulled out: the pty goes (the host's next read fails), what the
@@ -90,12 +68,7 @@ class PtyEndpoint:
         loop = asyncio.get_running_loop()
         with contextlib.suppress(Exception):
             loop.remove_reader(self._master)
-        if self._writing:
-            with contextlib.suppress(Exception):
-                loop.remove_writer(self._master)
-            self._writing = False
-        self.unplugged_tx += len(self._pending_out)
-        self._pending_out.clear()
+        self.unplugged_tx += self._output.discard()
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -110,18 +83,15 @@ class PtyEndpoint:
             return
         self._open_pty()
         self.unplugged = False
-        shown = self.path
+        shown = pty_where(self.path, self.link)
         if self.link is not None:
-            shown = f"{self.link} -> {self.path}"
             try:
-                if self.link.is_symlink() and not self.link.exists():
-                    self.link.unlink()  # a stale link (its pty gone): ours to replace
-                self.link.symlink_to(self.path)
-            except FileExistsError:
+                make_link(self.link, self.path)  # a stale link (its pty gone) is replaced
+            except LinkTaken:
                 # Taken while unplugged (another serve or router): theirs, left alone.
                 shown = f"{self.path} (--link {self.link} is now another's, left alone)"
-            except OSError as exc:
-                shown = f"{self.path} (--link {self.link}: {exc.strerror or exc})"
+            except LinkError as exc:
+                shown = f"{self.path} ({exc})"
         asyncio.get_running_loop().add_reader(self._master, self._readable)
         say(f"plugged in again: {shown}")
 
@@ -154,41 +124,17 @@ class PtyEndpoint:
         if self.unplugged:
             self.unplugged_tx += len(out)
             return
-        if out:
-            self._pending_out += out
-        self._flush()
-
-    def _flush(self) -> None:
-        if self.unplugged:
-            return
-        if self._pending_out:
-            try:
-                written = os.write(self._master, self._pending_out)
-                del self._pending_out[:written]
-            except OSError:
-                pass  # the pty is full (nobody reading just now): keep the bytes for later
-            excess = len(self._pending_out) - self._backlog
-            if excess > 0:
-                # Nobody read for longer than the backlog: the oldest bytes are gone, counted
-                # rather than blocking the board.
-                del self._pending_out[:excess]
-                self.dropped_tx += excess
-        # Bytes left over go out when the pty has room, not on the next deadline.
-        loop = asyncio.get_running_loop()
-        if self._pending_out and not self._writing:
-            loop.add_writer(self._master, self._flush)
-            self._writing = True
-        elif not self._pending_out and self._writing:
-            loop.remove_writer(self._master)
-            self._writing = False
+        # Bytes the pty cannot take now go out when it has room, not on the next deadline.
+        self._output.write(out)
+        # Nobody read for longer than the backlog: the oldest bytes are gone, counted rather
+        # than blocking the board.
+        self.dropped_tx += self._output.trim(self._backlog)
 
     async def close(self) -> None:
         await self.pacer.stop()
         if self.unplugged:
             return
-        if self._writing:
-            with contextlib.suppress(Exception):
-                asyncio.get_running_loop().remove_writer(self._master)
+        self._output.discard()
         with contextlib.suppress(Exception):
             asyncio.get_running_loop().remove_reader(self._master)
         for fd in (self._master, self._slave):

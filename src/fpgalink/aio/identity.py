@@ -4,23 +4,53 @@ board is (its ``IA`` answer), or ``None`` for a seed board that does not know ``
 :class:`~fpgalink.protocol.identity.IdentityProbe`'s: each ``IQ`` is followed by a ``PG`` of
 ``TsTimerPeriod`` (every board answers it, in order), so a board that did not answer is
 told from a lost answer by what arrives, not by a timeout — only a board that answers
-nothing at all fails, as any request to it would."""
+nothing at all fails, as any request to it would. A refusal (``PN``) of that ``PG`` is an
+answer in order too; one from ``fpgalink-cli router`` (``PN`` 5: this client is an
+observer) is not the board's, and comes through as the error it is.
+
+A part of the link (it stands below :mod:`fpgalink.aio.link`, on what any asker offers:
+:class:`Asker`): :class:`Identification` asks at open, when asked, and after each restart;
+the link keeps it as ``link.identification``."""
 
 from __future__ import annotations
 
+import asyncio
+import contextlib
 import random
+from collections.abc import Callable
+from typing import Protocol
 
-from fpgalink.aio.link import Link
-from fpgalink.protocol.event import Event
+from fpgalink.connection.identity import KnownIdentity
+from fpgalink.errors import (
+    BoardLost,
+    FpgalinkError,
+    ParameterRefused,
+    RequestTimeout,
+    WireCrcMismatchError,
+)
+from fpgalink.protocol import Event, IdentityQuery, NackReason, require_identity
 from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
 
-__all__ = ["FENCE_PARAMETER", "read_identity"]
+__all__ = ["FENCE_PARAMETER", "RETRY_S", "Asker", "Identification", "Identifying",
+           "read_identity"]
 
 #: The request that follows each ``IQ``: a board-wide parameter every board has.
 FENCE_PARAMETER = "TsTimerPeriod"
+#: How often a restarted board's identity is asked again while it does not answer (s).
+RETRY_S = 0.1
 
 
-async def read_identity(link: Link, *, rounds: int = 3) -> BoardIdentity | None:
+class Asker(Protocol):
+    """What asking takes of a link: send a message, read a parameter, hear every event."""
+
+    def send(self, message: IdentityQuery) -> bytes: ...
+
+    async def get_param(self, name: str, channel: None = None) -> int | float: ...
+
+    def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]: ...
+
+
+async def read_identity(link: Asker, *, rounds: int = 3) -> BoardIdentity | None:
     """The board's identity, or ``None`` when ``rounds`` queries in a row went unanswered
     while the board answered the request after each (a seed board). The link's request
     errors (:class:`~fpgalink.errors.RequestTimeout`, :class:`~fpgalink.errors.BoardLost`,
@@ -34,9 +64,108 @@ async def read_identity(link: Link, *, rounds: int = 3) -> BoardIdentity | None:
     remove = link.add_listener(observe)
     try:
         while True:
-            link.send(probe.query_message())
-            await link.get_param(FENCE_PARAMETER)
+            link.send(probe.query())
+            try:
+                await link.get_param(FENCE_PARAMETER)
+            except ParameterRefused as exc:
+                if exc.code == NackReason.NOT_CONTROLLER:
+                    raise
             if probe.fence_answered():
                 return probe.identity
     finally:
         remove()
+
+
+class Identifying(Asker, Protocol):
+    """What :class:`Identification` takes of its link, beside asking."""
+
+    @property
+    def board_alive(self) -> bool: ...
+
+    async def close(self) -> None: ...
+
+
+class Identification:
+    """A link's part for who its board is (docs/protocol.md §8): asks (:meth:`identify`), at
+    open when ``at_open``, and again after each restart once it has asked (a re-flash changes
+    it). What it decides goes to ``settle`` (the link keeps it in its connection's
+    :class:`~fpgalink.connection.identity.KnownIdentity`, ``known``, and says it as a
+    :class:`~fpgalink.events.BoardIdentified`); a board of another declaration is refused
+    with :class:`~fpgalink.protocol.IdentityMismatch` unless ``allow_mismatch``."""
+
+    def __init__(self, link: Identifying, known: KnownIdentity,
+                 settle: Callable[[BoardIdentity | None], None], *, where: str,
+                 at_open: bool = False, allow_mismatch: bool = False) -> None:
+        self._link, self._known, self._settle = link, known, settle
+        self.where = where  #: how a refusal names the board
+        self.at_open = at_open
+        self.allow_mismatch = allow_mismatch
+        self._asked = False
+        self._again: asyncio.Task[None] | None = None
+
+    @property
+    def identity(self) -> BoardIdentity | None:
+        """What the board said when last asked (``None``: a seed board, or not asked since
+        it was found or restarted: :attr:`known` tells which)."""
+        return self._known.identity
+
+    @property
+    def known(self) -> bool:
+        return self._known.known
+
+    async def identify(self, *, allow_mismatch: bool | None = None, rounds: int = 3
+                       ) -> BoardIdentity | None:
+        """Ask: one ``IQ`` and a ``PG`` a round, one round for a board that answers,
+        ``rounds`` for a seed board (``None``). A board that answers nothing fails as any
+        request to it does (``asking who the board is (…): no answer after N tries``)."""
+        try:
+            identity = await read_identity(self._link, rounds=rounds)
+        except WireCrcMismatchError:
+            raise  # its own advice: connect in the board's mode
+        except RequestTimeout as exc:
+            raise RequestTimeout(f"asking who the board is ({exc.what})", exc.tries,
+                                 exc.timeout_s) from exc
+        self._asked = True
+        self._settle(identity)
+        if not (self.allow_mismatch if allow_mismatch is None else allow_mismatch):
+            require_identity(identity, self.where)
+        return identity
+
+    async def opened(self) -> None:
+        """The link opened: ask, if asked to (a failure closes the link and comes through;
+        an observer behind ``fpgalink-cli router`` may not read the board: it opens without
+        knowing, and its own first request says why, as it did before it asked)."""
+        if not self.at_open:
+            return
+        try:
+            await self.identify()
+        except ParameterRefused as exc:
+            if exc.code != NackReason.NOT_CONTROLLER:
+                await self._link.close()
+                raise
+        except BaseException:
+            await self._link.close()
+            raise
+
+    def restarted(self) -> None:
+        """The board restarted: asked again (by a task) if it was ever asked."""
+        if self._asked and (self._again is None or self._again.done()):
+            self._again = asyncio.ensure_future(self._ask_again())
+
+    async def _ask_again(self) -> None:
+        while not self._known.known:
+            if not self._link.board_alive:
+                await asyncio.sleep(RETRY_S)
+                continue
+            try:
+                await self.identify(allow_mismatch=True)
+            except (RequestTimeout, BoardLost):
+                await asyncio.sleep(RETRY_S)
+            except FpgalinkError:
+                return  # closed, or refused (a router's observer): nothing more to ask
+
+    async def close(self) -> None:
+        if self._again is not None:
+            self._again.cancel()
+            with contextlib.suppress(asyncio.CancelledError, Exception):
+                await self._again

@@ -9,7 +9,9 @@ protocol decision, every retry and every count lives in the connection; the link
 moves bytes, timers and futures. Read batching (:mod:`.batching`), the link's clock
 (:mod:`.clock`) and the bound on what waits unwritten in its transport (:mod:`.backlog`:
 a request refused with :class:`~fpgalink.errors.LineBusy` while the line is backed up)
-are its helpers.
+are its helpers; so is :mod:`.identity` (``link.identification``: who the board is, asked
+with ``open_link(…, identify=True)`` or ``await link.identification.identify()``, a board
+of another protocol declaration refused, asked again after each restart).
 """
 
 from __future__ import annotations
@@ -19,19 +21,20 @@ import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
-from types import TracebackType
 from typing import Any, Unpack
 
 from fpgalink.aio.backlog import MAX_LINE_BACKLOG_S, check_line
 from fpgalink.aio.batching import ReadBatcher
 from fpgalink.aio.clock import LinkClock
 from fpgalink.aio.fanout import Stamped, Subscribers
+from fpgalink.aio.identity import Identification
 from fpgalink.aio.subscription import Subscription
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
-from fpgalink.events import RequestDone, RequestFailed, StatusEvent
+from fpgalink.events import BoardRestarted, RequestDone, RequestFailed, StatusEvent
 from fpgalink.protocol import (
+    BoardIdentity,
     CountedMessage,
     DirectCommand,
     Event,
@@ -101,19 +104,14 @@ class Link:
     ``Link(connection, transport)`` attaches to a transport already open (a test's
     :class:`~fpgalink.testing.MemoryTransport`, say). With ``reopen`` and no transport,
     :meth:`open` opens one, and with ``reconnect`` the link reopens it with backoff when the
-    port vanishes; :func:`open_link` builds all of that from a URL."""
+    port vanishes; :func:`open_link` builds all of that from a URL. Who the board is:
+    :attr:`identification` (asked at open with ``identify``; a mismatch refused unless
+    ``allow_mismatch``)."""
 
-    def __init__(
-        self,
-        connection: Connection,
-        transport: asyncio.BaseTransport | None = None,
-        *,
-        name: str = "board",
-        url: str = "",
-        reopen: Reopen | None = None,
-        reconnect: bool = True,
-        reconnect_backoff: tuple[float, float] = (0.05, 2.0),
-    ) -> None:
+    def __init__(self, connection: Connection, transport: asyncio.BaseTransport | None = None,
+                 *, name: str = "board", url: str = "", reopen: Reopen | None = None,
+                 reconnect: bool = True, reconnect_backoff: tuple[float, float] = (0.05, 2.0),
+                 identify: bool = False, allow_mismatch: bool = False) -> None:
         self.connection = connection
         self.name = name
         self.url = url  #: where the board is, for messages
@@ -131,6 +129,9 @@ class Link:
         self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
         self._port_released: asyncio.Event | None = None
+        self.identification = Identification(  #: who the board is (docs/protocol.md §8)
+            self, connection.identity, self._identified, where=url or name,
+            at_open=identify, allow_mismatch=allow_mismatch)
         self._batches = ReadBatcher(lambda data: self._on_data(self._protocol, data),
                                     lambda: self._transport, lambda: bool(self._futures))
         if transport is not None:
@@ -168,6 +169,7 @@ class Link:
         self.state = LinkState.CONNECTED
         self.connection.start(self._now())
         self._arm_timer()
+        await self.identification.opened()
         return self
 
     async def close(self) -> None:
@@ -188,6 +190,7 @@ class Link:
             self._reconnect_task.cancel()
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._reconnect_task
+        await self.identification.close()
         if self._timer is not None:
             self._timer.cancel()
             self._timer = None
@@ -218,12 +221,7 @@ class Link:
     async def __aenter__(self) -> Link:
         return await self.open()
 
-    async def __aexit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    async def __aexit__(self, *exc: object) -> None:
         await self.close()
 
     # --- commands -------------------------------------------------------------------------
@@ -508,6 +506,12 @@ class Link:
                         future.set_exception(event.error)
             elif isinstance(event, StatusEvent):
                 subscribers.status(event)
+                if kind is BoardRestarted:
+                    self.identification.restarted()
+
+    def _identified(self, identity: BoardIdentity | None) -> None:
+        self.connection.identity.identified(identity, self._now())
+        self._process()
 
     def _on_port_lost(self, protocol: _PortProtocol, exc: Exception | None) -> None:
         if protocol is not self._protocol:
@@ -571,6 +575,8 @@ def open_link(
     reconnect: bool = True,
     reconnect_backoff: tuple[float, float] = (0.05, 2.0),
     read_latency: float | None = None,
+    identify: bool = False,
+    allow_mismatch: bool = False,
     **options: Unpack[LinkOptions],
 ) -> Link:
     """``async with open_link("/dev/ttyUSB0") as link:`` — a device path,
@@ -578,13 +584,17 @@ def open_link(
     a package registers). ``options`` are the connection's settings
     (:class:`~fpgalink.connection.Settings`: ``request_tries``, ``liveness_timeout``,
     ``unanswered_rounds`` …); ``reconnect`` reopens the URL with backoff when the port
-    vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`)."""
+    vanishes; ``read_latency`` lets the link batch reads (:meth:`Link.set_read_latency`);
+    ``identify`` asks the board who it is as it opens (``link.identification``: one extra round
+    trip, three for a seed board) and refuses one built from another protocol declaration
+    unless ``allow_mismatch``."""
     connection = Connection(baud=baud, **options)
 
     async def reopen(factory: ProtocolFactory) -> tuple[asyncio.BaseTransport, asyncio.Protocol]:
         return await open_transport(url, baud, factory)
 
     link = Link(connection, name=name or url, url=url, reopen=reopen, reconnect=reconnect,
-                reconnect_backoff=reconnect_backoff)
+                reconnect_backoff=reconnect_backoff, identify=identify,
+                allow_mismatch=allow_mismatch)
     link.set_read_latency(read_latency)
     return link

@@ -110,7 +110,9 @@ class ChannelRecord:
         self.enabled.append(sample.enabled)
 
     def times(self) -> Array:
-        """s from the first sample."""
+        """s from the first sample (none: an empty array)."""
+        if not self.t_us:
+            return np.zeros(0)
         return (np.asarray(self.t_us, dtype=float) - self.t_us[0]) / 1e6
 
     def grid(self) -> tuple[Array, Array, int]:
@@ -279,7 +281,7 @@ async def step_channel(link: Link, channel: str, gains: Gains, target: float, *,
     """Run the board's speed PID on ``channel`` with ``gains`` (and ``limit`` as its clamp,
     if given), step its reference 0 → ``target`` deg/s after ``pre`` s and record ``hold``
     s. Everything is set back afterwards, the gains included (:func:`apply_gains` keeps
-    them)."""
+    them). Stopped (``stop``) before the step was taken: an empty record."""
     params = Parameters(link)
     period = float(await link.get_param("TsTimerPeriod")) / 1000.0
     record = ChannelRecord(channel, period)
@@ -306,6 +308,9 @@ async def step_channel(link: Link, channel: str, gains: Gains, target: float, *,
     stored = float(np.float32(target))
     zero = next((i for i, r in enumerate(record.reference)
                  if math.isclose(r, stored, rel_tol=1e-6, abs_tol=1e-6)), None)
+    if zero is None and stop is not None and stop.is_set():
+        empty = np.zeros(0)
+        return StepRecord(empty, empty, empty, record)
     if zero is None:
         raise ExperimentError("the board never took the step's reference")
     after = slice(zero, None)

@@ -5,6 +5,7 @@ when the step confirms it (docs/hardware.md, "Bring-up checklist")."""
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import datetime
 import signal
 from dataclasses import dataclass
@@ -23,9 +24,11 @@ from fpgalink.cli.bringup import (
     identification_options,
     identify_on,
     load_model,
+    recording,
     write_text,
 )
 from fpgalink.cli.figures import check_plot_path
+from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.formats import emit_document, format_option
 from fpgalink.cli.options import ConnectionOptions, announce_emulator, connection_options
 from fpgalink.cli.output import (
@@ -37,6 +40,7 @@ from fpgalink.cli.output import (
     note,
 )
 from fpgalink.cli.session import install_stop_signals, run
+from fpgalink.protocol import identity_metadata
 
 if TYPE_CHECKING:
     from fpgalink.aio.link import Link
@@ -93,13 +97,14 @@ class Tuned:
                    "(param load FILE).")
 @click.option("--plot", type=click.Path(dir_okay=False, path_type=Path),
               help="Save each step, predicted and measured, to a .png/.svg/.pdf.")
+@force_option
 @format_option
 @connection_options(multi=True, announce=False)
 def autotune(channels: str, wheels: str | None, max_duty: float | None, duration: float,
              bit_s: float, period_ms: int, orders: tuple[int, int, int], offset: bool,
              record: Path | None, model_file: Path | None, target: float | None,
              max_overshoot: float, apply: bool, save: Path | None, plot: Path | None,
-             fmt: str, conn: ConnectionOptions) -> int:
+             force: bool, fmt: str, conn: ConnectionOptions) -> int:
     """Tune the wheels' speed PIDs from their identified plants, every board and channel.
 
     Per channel: identify (as identify does: --wheels and --max-duty needed) or take
@@ -107,7 +112,9 @@ def autotune(channels: str, wheels: str | None, max_duty: float | None, duration
     board 0 → --step deg/s with it and print rise, settling and overshoot beside the
     prediction. With --apply a design is kept only where the step confirms it (settling
     within 25 % + 0.05 s, overshoot within 2 points); elsewhere the board keeps its gains
-    and the exit is 1.
+    and the exit is 1. --record and --plot are refused if they exist (checked before any
+    board is driven) unless --force; a full disk stops the run (exit 1, the recording
+    complete up to there). --save edits its file in place.
     """
     options = identification(wheels, max_duty, duration, bit_s, period_ms, orders, offset,
                              driving=True)
@@ -120,18 +127,20 @@ def autotune(channels: str, wheels: str | None, max_duty: float | None, duration
         except FitError as exc:
             raise CliError(f"--model {model_file}: {exc}", ExitCode.BAD_INPUT) from None
     if plot is not None:
-        check_plot_path(plot, force=False)
+        check_plot_path(plot, force=force)
+    if record is not None:
+        check_output(record, force=force)
     announce_emulator(conn)
     wanted = ["A", "B"] if channels.lower() == "both" else [channels.upper()]
     outcome = run(_autotune(conn, wanted, options, model, target, max_overshoot, apply,
-                            record))
+                            record, force))
     if isinstance(outcome, int):
         note(f"interrupted by {signal.Signals(outcome - 128).name}: every board disabled, "
              "its parameters set back")
         return outcome
     _report(fmt, outcome)
     if plot is not None:
-        _plot(plot, outcome)
+        _plot(plot, outcome, force)
         note(f"plot saved to {plot}")
     confirmed = [t for t in outcome if t.confirmed]
     if save is not None and confirmed:
@@ -153,34 +162,43 @@ def _step_target(target: float | None, model: ContinuousModel, limit: int) -> fl
 
 async def _autotune(conn: ConnectionOptions, channels: list[str], options: Identification,
                     model: ContinuousModel | None, target: float | None,
-                    max_overshoot: float, apply: bool, record: Path | None) -> Any:
+                    max_overshoot: float, apply: bool, record: Path | None, force: bool
+                    ) -> Any:
     stop = asyncio.Event()
     install_stop_signals(stop)
-    recorder = None if record is None else Recorder(
-        record, [e.name for e in conn.endpoints],
-        {"command": "autotune", "wheels": options.wheels,
-         "max_duty_percent": f"{options.max_duty:g}"})
     results: list[Tuned] = []
-    try:
-        for endpoint in conn.endpoints:
-            async with conn.link(endpoint) as link:
+    async with contextlib.AsyncExitStack() as stack:
+        # Every board asked who it is before any is driven: a mismatch refuses the run
+        # before it starts, and the recording names each board.
+        links = {endpoint.name: await stack.enter_async_context(conn.link(endpoint))
+                 for endpoint in conn.endpoints}
+        recorder = None if record is None else Recorder(
+            record, list(links), {
+                "command": "autotune", "wheels": options.wheels,
+                "max_duty_percent": f"{options.max_duty:g}",
+                **identity_metadata({name: (link.identification.identity, link.identification.known)
+                                     for name, link in links.items()})},
+            stop, force=force)
+        with recording(recorder):
+            for name, link in links.items():
                 for channel in channels:
-                    results.append(await _tune(link, endpoint.name, channel, options, model,
-                                               target, max_overshoot, apply, stop, recorder))
+                    tuned = await _tune(link, name, channel, options, model, target,
+                                        max_overshoot, apply, stop, recorder)
+                    if tuned is not None:
+                        results.append(tuned)
                     if stop.is_set():
                         break
-            if stop.is_set():
-                break
-    finally:
-        if recorder is not None:
-            recorder.close()
+                if stop.is_set():
+                    break
     fired = getattr(stop, "signal", None)
     return 128 + int(fired) if fired is not None else results
 
 
 async def _tune(link: Link, board: str, channel: str, options: Identification,
                 given: ContinuousModel | None, target: float | None, max_overshoot: float,
-                apply: bool, stop: asyncio.Event, recorder: Recorder | None) -> Tuned:
+                apply: bool, stop: asyncio.Event, recorder: Recorder | None) -> Tuned | None:
+    """One channel tuned; ``None`` when ``stop`` came first (a signal, a recording that
+    stopped)."""
     from fpgalink.bringup.design import DesignError, Gains, confirms, design_pi, predict_step
     from fpgalink.bringup.plant import FitError
     from fpgalink.bringup.session import ExperimentError, apply_gains, step_channel
@@ -189,6 +207,8 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
     fit = None
     if given is None:
         record = await identify_on(link, board, channel, options, stop, recorder)
+        if stop.is_set():
+            return None
         fit = fit_record(record, options, f"board {board} channel {channel}")
         try:
             model = fit.continuous
@@ -222,6 +242,8 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
                                   else recorder.on_sample(board))
     except ExperimentError as exc:
         raise CliError(f"board {board}: confirmation step: {exc}", ExitCode.STOPPED) from None
+    if stop.is_set():
+        return None
     measured = step_metrics(list(step.t), list(step.speed), 0.0, step_to)
     confirmed, why = confirms(design.prediction, measured)
     tuned = Tuned(board, channel, fit, model, design, before, before_prediction, step,
@@ -307,7 +329,7 @@ def _report(fmt: str, results: list[Tuned]) -> None:
         echo_out(f"  {verdict}: {t.why}; {kept}")
 
 
-def _plot(path: Path, results: list[Tuned]) -> None:
+def _plot(path: Path, results: list[Tuned], force: bool) -> None:
     from fpgalink.bringup.design import predict_step
     from fpgalink.cli.figures import new_figure, save_figure
 
@@ -330,7 +352,7 @@ def _plot(path: Path, results: list[Tuned]) -> None:
         ax.grid(True, alpha=0.3)
         ax.legend(loc="lower right", fontsize="small")
     axes[-1].set_xlabel("s after the step")
-    save_figure(figure, path, force=False)
+    save_figure(figure, path, force=force)
 
 
 def _save(path: Path, results: list[Tuned], conn: ConnectionOptions) -> None:
@@ -369,7 +391,7 @@ def _save(path: Path, results: list[Tuned], conn: ConnectionOptions) -> None:
             parse_parameter_file(text, str(path))
     except (EditError, DescriptionError, TomlFileError, ValueError) as exc:
         raise CliError(f"--save {exc}", ExitCode.FAILURE) from None
-    write_text(path, text, "--save")
+    write_text(path, text, force=True)  # an edit in place (or a new file)
     what = "robot file" if robot_file else "parameter set"
     note(f"saved the confirmed gains to {path} ({what}" + (
         "; load it with fpgalink-cli param load FILE)" if not robot_file else ")"))

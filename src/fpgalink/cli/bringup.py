@@ -1,5 +1,7 @@
-"""What ``identify`` and ``autotune`` share: the identification's options, running it on a
-board with its recording, the fit, and how a fit is shown (table, JSON, plot)."""
+"""What ``identify``, ``autotune`` and ``calibrate`` share: the identification's options,
+running it on a board with its recording (through the one recording path every command
+writes by: :mod:`fpgalink.recording`), the fit, and how a fit is shown (table, JSON,
+plot)."""
 
 from __future__ import annotations
 
@@ -7,25 +9,25 @@ import asyncio
 import contextlib
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from fpgalink.cli.output import CliError, ExitCode, FiniteRange, echo_out, note
+from fpgalink.cli.output import CliError, ExitCode, FiniteRange, classify, echo_out, note
+from fpgalink.recording import RecordingError
 
 if TYPE_CHECKING:
     from fpgalink.aio.link import Link
     from fpgalink.bringup.plant import DiscreteModel, PlantFit
     from fpgalink.bringup.session import ChannelRecord
-    from fpgalink.cli.sinks import McapSink
     from fpgalink.protocol import Telemetry
 
 __all__ = ["Identification", "Recorder", "fit_document", "fit_record", "identification",
            "identification_options", "identify_on", "load_model", "print_fit",
-           "record_from_file", "save_fit_plot", "write_text"]
+           "record_from_file", "recording", "save_fit_plot", "write_text"]
 
 T = TypeVar("T")
 
@@ -104,26 +106,50 @@ class Identification:
     offset: bool
 
     @property
+    def where(self) -> str:
+        """Where the wheels are, in words."""
+        return "in the air" if self.wheels == "air" else "on the ground"
+
+    @property
     def limit(self) -> int:
         return max(1, round(self.max_duty / 100.0 * MAX_DUTY))
 
 
 class Recorder:
-    """``--record``: every board's telemetry as ``record`` writes it, and a metadata record
-    per fit."""
+    """``--record``: every board's telemetry as ``record`` writes it, a metadata record per
+    fit, and any topic of the command's own (``extra_topics``), through the one recording
+    path (:class:`fpgalink.recording.McapSink`: ``NAME.partial`` put in place when complete,
+    an existing file refused unless ``--force``, checked before anything drives). The first
+    write that fails (a full disk) stops the recording and sets ``stop``: the experiment
+    ends as on Ctrl-C, the board disabled and set back; :meth:`close` then says what is on
+    disk, one line, exit 1 — as ``record`` and ``drive --record`` do."""
 
-    def __init__(self, path: Path, boards: list[str], metadata: dict[str, str]) -> None:
+    def __init__(self, path: Path, boards: list[str], metadata: dict[str, str],
+                 stop: asyncio.Event, *, force: bool,
+                 extra_topics: dict[str, dict[str, Any]] | None = None) -> None:
         from fpgalink.cli.sinks import McapSink
 
-        if path.is_dir() or not path.parent.is_dir():
-            raise CliError(f"--record {path}: not a file in an existing directory",
-                           ExitCode.BAD_INPUT)
         try:
-            self.sink: McapSink | None = McapSink(path, boards, metadata, force=False)
-        except OSError as exc:
-            raise CliError(f"--record {path}: cannot write: {exc.strerror or exc}",
-                           ExitCode.FAILURE) from None
+            self.sink = McapSink(path, boards, metadata, extra_topics, force=force)
+        except RecordingError as exc:
+            raise classify(exc) from None
         self.path = path
+        self.stop = stop
+        self.failed = False
+
+    def write(self, call: Callable[..., None], *args: Any) -> None:
+        """One write; a failure stops the recording and the run (said at :meth:`close`)."""
+        if self.failed:
+            return
+        try:
+            call(*args)
+        except RecordingError:
+            self.failed = True
+            self.stop.set()
+
+    def add(self, topic: str, record: dict[str, Any], log_time: float) -> None:
+        """A message on one of ``extra_topics``."""
+        self.write(self.sink.add, topic, record, log_time)
 
     def on_sample(self, board: str) -> Callable[[Telemetry], None]:
         """A writer for ``board``'s samples: received at the host's time, sampled at the
@@ -134,32 +160,41 @@ class Recorder:
         clock = BoardClock()
 
         def write(sample: Telemetry) -> None:
-            sink = self.sink
-            if sink is None:
-                return
             now = time.time()
             sampled = clock.seconds(sample.t_us, now)
             row = json_safe({k: compact(v) for k, v in telemetry_row(sample, sampled).items()})
-            try:
-                sink.telemetry(board, row, now, sampled)
-            except OSError as exc:
-                self.sink = None
-                note(f"--record stopped: {exc.strerror or exc}")
+            self.write(self.sink.telemetry, board, row, now, sampled)
 
         return write
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
-        if self.sink is not None:
-            try:
-                self.sink.metadata(name, data)
-            except OSError as exc:
-                self.sink = None
-                note(f"--record stopped: {exc.strerror or exc}")
+        self.write(self.sink.metadata, name, data)
 
-    def close(self) -> None:
-        if self.sink is not None:
+    def close(self, *, failing: bool = False) -> None:
+        """Finish the file and put it in place. A recording that stopped early (or cannot
+        be finished) is one line, exit 1, saying what is on disk; ``failing`` (another
+        error is on its way out: that one is the command's) says it as a note."""
+        try:
             self.sink.close()
-            note(f"recorded to {self.path}")
+        except RecordingError as exc:
+            if failing:
+                note(str(exc))
+                return
+            raise classify(exc) from None
+        note(f"recorded {self.sink.messages} messages to {self.path}")
+
+
+@contextlib.contextmanager
+def recording(recorder: Recorder | None) -> Iterator[Recorder | None]:
+    """``recorder`` closed however the block ends (see :meth:`Recorder.close`)."""
+    try:
+        yield recorder
+    except BaseException:
+        if recorder is not None:
+            recorder.close(failing=True)
+        raise
+    if recorder is not None:
+        recorder.close()
 
 
 async def identify_on(link: Link, board: str, channel: str, options: Identification,
@@ -170,7 +205,7 @@ async def identify_on(link: Link, board: str, channel: str, options: Identificat
 
     excitation = Excitation.for_wheels(options.wheels, options.limit,
                                        duration_s=options.duration, bit_s=options.bit_s)
-    note(f"identifying board {board} channel {channel}: wheels in the {options.wheels}, duty "
+    note(f"identifying board {board} channel {channel}: wheels {options.where}, duty "
          f"up to {options.max_duty:g} % for {options.duration:g} s")
     try:
         return await identify_channel(
@@ -274,7 +309,8 @@ def print_fit(fmt: str, documents: list[dict[str, Any]]) -> None:
                 echo_out(line)
 
 
-def save_fit_plot(path: Path, record: ChannelRecord, fit: PlantFit, title: str) -> None:
+def save_fit_plot(path: Path, record: ChannelRecord, fit: PlantFit, title: str, *,
+                  force: bool) -> None:
     """Measured and simulated speed with the duty (the held-out part shaded), the model's
     step response, and its Bode plot."""
     import numpy as np
@@ -328,7 +364,7 @@ def save_fit_plot(path: Path, record: ChannelRecord, fit: PlantFit, title: str) 
     bode.grid(True, which="both", alpha=0.3)
     bode.legend(loc="lower left", fontsize="small")
     phase.legend(loc="upper right", fontsize="small")
-    save_figure(figure, path, force=False)
+    save_figure(figure, path, force=force)
 
 
 def load_model(path: Path) -> DiscreteModel:
@@ -347,9 +383,11 @@ def load_model(path: Path) -> DiscreteModel:
         raise CliError(f"--model {exc}", ExitCode.BAD_INPUT) from None
 
 
-def record_from_file(path: Path, board: str | None, channel: str) -> tuple[str, ChannelRecord]:
+def record_from_file(path: Path, board: str | None, channel: str
+                     ) -> tuple[str, ChannelRecord, int]:
     """A recording's telemetry of ``channel`` (``fpgalink-cli record``, ``identify --record``):
-    (the board's name, its samples in the board's time)."""
+    (the board's name, its samples in the board's time, how many damaged parts were skipped
+    — each named on stderr, as ``plot`` names them)."""
     import numpy as np
 
     from fpgalink.bringup.session import ChannelRecord
@@ -359,6 +397,9 @@ def record_from_file(path: Path, board: str | None, channel: str) -> tuple[str, 
     prefix = channel.lower()
     fields = ["t_us", f"{prefix}_pwm", f"{prefix}_speed", f"{prefix}_ref", f"{prefix}_flags"]
     reading = read_series(path, None, fields)
+    for damage in reading.damage:
+        note(f"damaged: {damage}; skipped")
+    damaged = len(reading.damage) + (1 if reading.orphans else 0)
     topics = sorted({s.topic for s in reading.series})
     if board is not None:
         topics = [t for t in topics if t == f"/board/{board}/telemetry"]
@@ -383,26 +424,13 @@ def record_from_file(path: Path, board: str | None, channel: str) -> tuple[str, 
                                        int(columns[f"{prefix}_pwm"][s]),
                                        columns[f"{prefix}_ref"][s],
                                        int(columns[f"{prefix}_flags"][s])))
-    return topic.split("/")[2], record
+    return topic.split("/")[2], record, damaged
 
 
-def write_text(path: Path, text: str, option: str) -> None:
-    """``text`` into ``path`` whole or not at all: a temporary file beside it, renamed."""
-    import os
-    import tempfile
+def write_text(path: Path, text: str, *, force: bool) -> None:
+    """``text`` into ``path`` the way every file a command writes goes
+    (:func:`fpgalink.cli.files.write_file`): whole or not at all, through ``NAME.partial``;
+    an existing one replaced only with ``force`` (an edit of a file in place passes it)."""
+    from fpgalink.cli.files import write_file
 
-    try:
-        descriptor, scratch = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or ".")
-        try:
-            with os.fdopen(descriptor, "w", encoding="utf-8") as stream:
-                stream.write(text)
-                stream.flush()
-                os.fsync(stream.fileno())
-            os.replace(scratch, path)
-        except BaseException:
-            with contextlib.suppress(OSError):
-                os.unlink(scratch)
-            raise
-    except OSError as exc:
-        raise CliError(f"{option} {path}: cannot write: {exc.strerror or exc}",
-                       ExitCode.FAILURE) from None
+    write_file(path, text.encode("utf-8"), force=force)

@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING, Any
 
 import click
 
-from fpgalink.cli.bringup import write_text
+from fpgalink.cli.bringup import Recorder, recording, write_text
+from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.formats import emit_document, format_option
 from fpgalink.cli.options import ConnectionOptions
 from fpgalink.cli.output import (
@@ -30,10 +31,10 @@ from fpgalink.cli.output import (
 )
 from fpgalink.cli.robotsession import RobotRun, load_description, robot_options
 from fpgalink.cli.session import run, stop_exit_code
+from fpgalink.recording import RecordingError
 
 if TYPE_CHECKING:
     from fpgalink.bringup.calibration import Motion, Result, Sample
-    from fpgalink.cli.sinks import McapSink
     from fpgalink.protocol.robot import RobotDescription
     from fpgalink.robot.robot import Robot
 
@@ -95,19 +96,23 @@ class Run:
 @click.option("--save", type=click.Path(dir_okay=False, path_type=Path),
               help="Write the new χ (into [surfaces]) and wheel radius into this robot "
                    "file, edited in place (made from the robot in use when it is new).")
+@force_option
 @format_option
 @robot_options
 def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
               reference: str | None, measured_angle: float | None,
               measured_distance: float | None, from_file: Path | None, record: Path | None,
-              check: bool, save: Path | None, fmt: str, robot_file: Path | None,
+              check: bool, save: Path | None, force: bool, fmt: str, robot_file: Path | None,
               surface: str | None, truth_url: str | None, conn: ConnectionOptions) -> int:
     """Calibrate odometry: χ from a turn in place, the wheel radius from a straight run.
 
     Drives on the ground, so keep a hand on the stop: --distance m straight first (if given),
     then --turn degrees in place, each measured by odometry with the robot file's values and
     by the reference, from rest to rest. Prints each value before and after; --save writes
-    them into the robot file.
+    them into the robot file. --record is refused if it exists (checked before the robot
+    moves) unless --force; a full disk stops the robot (exit 1, the recording complete up
+    to there). --from reads a recording with every chunk checked: damage is named, what is
+    intact used, and the exit is 9.
     """
     measured = measured_angle is not None or measured_distance is not None
     if measured and reference not in (None, "measured"):
@@ -119,9 +124,12 @@ def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
         if record is not None or check:
             raise CliError("--from calibrates a recording: no --record or --check with it",
                            ExitCode.BAD_INPUT)
-        calibration = _read(from_file)
+        calibration, damaged = _read(from_file)
         reference = "measured" if measured else reference or "truth"
     else:
+        damaged = 0
+        if record is not None:
+            check_output(record, force=force)
         description = load_description(conn, robot_file, surface)
         if reference is None:
             reference = "measured" if measured else (
@@ -137,7 +145,7 @@ def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
         session = RobotRun(conn, robot_file, surface, truth_url, None, None)
         runs, stopped = run(_calibrate(session, description, distance, speed, turn_deg,
                                        omega, reference, measured_angle, measured_distance,
-                                       record, check))
+                                       record, check, force))
         if stopped:
             note("interrupted: the robot was stopped and disabled; nothing calibrated")
             return stopped
@@ -149,6 +157,9 @@ def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
     _print(fmt, document)
     if save is not None and results:
         _save(save, calibration, results, conn, robot_file)
+    if damaged:
+        raise CliError(f"{from_file}: damaged: {damaged} part(s) skipped (named above); "
+                       "calibrated from what is intact", ExitCode.DAMAGED)
     return ExitCode.OK
 
 
@@ -158,10 +169,10 @@ def calibrate(turn_deg: float, omega: float, distance: float, speed: float,
 class _Sampler:
     """The robot every :data:`SAMPLE_S`: odometry, truth, the IMU's yaw rate."""
 
-    def __init__(self, robot: Robot, session: RobotRun, sink: McapSink | None) -> None:
+    def __init__(self, robot: Robot, session: RobotRun, recorder: Recorder | None) -> None:
         self.robot = robot
         self.session = session
-        self.sink = sink
+        self.recorder = recorder
         self.phase = "idle"
         self.samples: list[Sample] = []
 
@@ -182,22 +193,26 @@ class _Sampler:
         sample = Sample(time.monotonic(), self.phase, (pose.x, pose.y, pose.theta), true_pose,
                         gyro)
         self.samples.append(sample)
-        if self.sink is not None:
-            try:
-                self.sink.add(SAMPLE_TOPIC, {"t": sample.t, "phase": sample.phase,
+        if self.recorder is not None:
+            self.recorder.add(SAMPLE_TOPIC, {"t": sample.t, "phase": sample.phase,
                                              "odometry": list(sample.odometry),
                                              "truth": None if true_pose is None
                                              else list(true_pose),
                                              "gyro": None if gyro is None else list(gyro)},
                               time.time())
-            except OSError as exc:
-                self.sink = None
-                note(f"--record stopped: {exc.strerror or exc}")
 
     async def run(self) -> None:
         while True:
             self.take()
             await asyncio.sleep(SAMPLE_S)
+
+
+async def _record_board(robot: Robot, name: str, recorder: Recorder) -> None:
+    """Every sample of board ``name`` into ``/board/NAME/telemetry``, as ``record`` writes it
+    (``plot`` of a calibration shows each wheel)."""
+    write = recorder.on_sample(name)
+    async for _, sample in robot.boards.stamped_telemetry(name, maxsize=65536):
+        write(sample)
 
 
 async def _motion(robot: Robot, sampler: _Sampler, stop: asyncio.Event, name: str, v: float,
@@ -268,17 +283,26 @@ async def _motions(robot: Robot, sampler: _Sampler, stop: asyncio.Event, distanc
 async def _calibrate(session: RobotRun, description: RobotDescription, distance: float,
                      speed: float, turn_deg: float, omega: float, reference: str,
                      measured_angle: float | None, measured_distance: float | None,
-                     record: Path | None, check: bool) -> tuple[tuple[Run, Run | None], int]:
-    sink = _open_sink(record, description) if record is not None else None
+                     record: Path | None, check: bool, force: bool
+                     ) -> tuple[tuple[Run, Run | None], int]:
     checked: Run | None = None
-    try:
-        async with session.opened() as robot:
+    async with session.opened() as robot:
+        # Opened once the boards said who they are (the file says it); a write that fails
+        # stops the robot as a signal would, and the file's one line ends the command.
+        recorder = None if record is None else Recorder(
+            record, list(description.boards),
+            {"command": "calibrate", "robot": description.name,
+             "surface": description.surface, **session.identity_metadata()},
+            session.stop, force=force, extra_topics={SAMPLE_TOPIC: SAMPLE_SCHEMA})
+        with recording(recorder):
             model = robot.kinematics
-            sampler = _Sampler(robot, session, sink)
-            sampling = asyncio.ensure_future(sampler.run())
+            sampler = _Sampler(robot, session, recorder)
+            boards = [] if recorder is None else [
+                _record_board(robot, name, recorder) for name in description.boards]
+            sampling = asyncio.gather(sampler.run(), *boards)
             try:
-                if sink is not None:
-                    sink.metadata("calibrate", {
+                if recorder is not None:
+                    recorder.metadata("calibrate", {
                         "surface": description.surface, "chi": repr(model.chi),
                         "wheel_radius": repr(model.wheel_radius), "reference": reference})
                 finished = await _motions(robot, sampler, session.stop, distance, speed,
@@ -301,42 +325,24 @@ async def _calibrate(session: RobotRun, description: RobotDescription, distance:
             finally:
                 sampling.cancel()
                 await asyncio.gather(sampling, return_exceptions=True)
-        if session.stop.is_set():
-            return (first, None), stop_exit_code(session.stop)
-        if not finished:
-            stop = robot.last_stop
-            raise CliError(f"the robot was {stop.describe() if stop else 'stopped'}; nothing "
-                           "calibrated", ExitCode.STOPPED)
-    finally:
-        if sink is not None:
-            sink.close()
-            note(f"recorded to {record}")
+    if session.stop.is_set():
+        return (first, None), stop_exit_code(session.stop)
+    if not finished:
+        stop = robot.last_stop
+        raise CliError(f"the robot was {stop.describe() if stop else 'stopped'}; nothing "
+                       "calibrated", ExitCode.STOPPED)
     return (first, checked), 0
-
-
-def _open_sink(path: Path, description: RobotDescription) -> McapSink:
-    from fpgalink.cli.sinks import McapSink
-
-    if path.is_dir() or not path.parent.is_dir():
-        raise CliError(f"--record {path}: not a file in an existing directory",
-                       ExitCode.BAD_INPUT)
-    try:
-        return McapSink(path, list(description.boards),
-                        {"command": "calibrate", "robot": description.name,
-                         "surface": description.surface}, {SAMPLE_TOPIC: SAMPLE_SCHEMA},
-                        force=False)
-    except OSError as exc:
-        raise CliError(f"--record {path}: cannot write: {exc.strerror or exc}",
-                       ExitCode.FAILURE) from None
 
 
 # --- reading a recording -----------------------------------------------------------------
 
 
-def _read(path: Path) -> Run:
-    from mcap.reader import make_reader
-
+def _read(path: Path) -> tuple[Run, int]:
+    """A calibration recording (``calibrate --record``), read with every chunk checked
+    (:class:`fpgalink.recording.RecordingReader`, as ``plot`` reads): its run, and how many
+    damaged parts were skipped (each named on stderr)."""
     from fpgalink.bringup.calibration import Sample
+    from fpgalink.recording import RecordingReader
 
     def pose(value: object) -> tuple[float, float, float] | None:
         if isinstance(value, list) and len(value) == 3 and all(
@@ -345,14 +351,9 @@ def _read(path: Path) -> Run:
         return None
 
     samples: list[Sample] = []
-    meta: dict[str, str] = {}
     try:
-        with path.open("rb") as stream:
-            reader = make_reader(stream, validate_crcs=True)
-            for record in reader.iter_metadata():
-                if record.name == "calibrate":
-                    meta = dict(record.metadata)
-            for _, _, message in reader.iter_messages(topics=[SAMPLE_TOPIC]):
+        with RecordingReader(path) as reader:
+            for _, _, message in reader.messages(topics=[SAMPLE_TOPIC]):
                 try:
                     data = json.loads(message.data)
                 except (ValueError, RecursionError):
@@ -367,17 +368,28 @@ def _read(path: Path) -> Run:
                     (float(gyro[0]), float(gyro[1])) if isinstance(gyro, list)
                     and len(gyro) == 2 and all(isinstance(v, int | float) for v in gyro)
                     else None))
+            meta = reader.metadata.get("calibrate", {})
+            damage = [d.describe(reader.origin_ns) for d in reader.damage]
+            orphans = reader.skipped_messages
+    except RecordingError as exc:  # not MCAP at all
+        raise CliError(f"--from {exc}", ExitCode.BAD_INPUT) from None
     except OSError as exc:
         raise CliError(f"--from {path}: cannot read: {exc.strerror or exc}",
                        ExitCode.FAILURE) from None
-    except Exception as exc:  # mcap's own errors: a damaged or foreign file
-        raise CliError(f"--from {path}: not a readable calibration recording "
-                       f"({type(exc).__name__}: {exc})", ExitCode.BAD_INPUT) from None
+    for part in damage:
+        note(f"damaged: {path}: {part}; skipped")
+    if orphans:
+        note(f"damaged: {path}: skipped {orphans} message(s) of intact chunks whose channel "
+             "was defined in a damaged one")
+    damaged = len(damage) + (1 if orphans else 0)
     try:
-        return Run(meta["surface"], float(meta["chi"]), float(meta["wheel_radius"]), samples)
+        return Run(meta["surface"], float(meta["chi"]), float(meta["wheel_radius"]),
+                   samples), damaged
     except (KeyError, ValueError):
-        raise CliError(f"--from {path}: not a calibration recording (no calibrate metadata; "
-                       "make one with calibrate --record)", ExitCode.BAD_INPUT) from None
+        what = ("its calibrate metadata is in a damaged part" if damaged else
+                "no calibrate metadata; make one with calibrate --record")
+        raise CliError(f"--from {path}: not a calibration recording ({what})",
+                       ExitCode.DAMAGED if damaged else ExitCode.BAD_INPUT) from None
 
 
 # --- results --------------------------------------------------------------------------------
@@ -541,6 +553,6 @@ def _save(path: Path, calibration: Run, results: list[Result], conn: ConnectionO
         parse_robot(edited, str(path))
     except (EditError, DescriptionError) as exc:
         raise CliError(f"--save {exc}", ExitCode.FAILURE) from None
-    write_text(path, edited, "--save")
+    write_text(path, edited, force=True)  # an edit in place (or a new file)
     note(f"saved to {path} ({', '.join(f'{r.name} {r.after:.4f}' for r in results)}; "
          f"fpgalink-cli calibrate, {when})")

@@ -138,6 +138,15 @@ def _terminated(signum: int, frame: object) -> None:
 RESULT_FILES = ("results.csv", "results.json", "results.parquet", "summary.png")
 
 
+def _make_directory(directory: Path, option: str) -> None:
+    """``directory`` made before the first scenario runs, not after the last; one line
+    naming ``option`` when it cannot be."""
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise CliError(f"{option} {directory}: {exc.strerror or exc}") from None
+
+
 def _check_out(out: Path, spec: Campaign, recorded: bool, force: bool) -> None:
     """Before the first scenario: every file the campaign will write into ``out`` (results,
     recordings) may be written — none is there, unless ``--force``."""
@@ -316,10 +325,7 @@ def campaign(spec_file: Path, jobs: int | None, dask: str | None, out: Path | No
         if out is None:
             raise CliError("recording MCAP (--mcap, or mcap = true in the file) writes into "
                            "--out DIR: give one", ExitCode.BAD_INPUT)
-        try:  # before the first scenario, not after the last
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise CliError(f"--out {out}: {exc.strerror or exc}") from None
+        _make_directory(out, "--out")
     # One campaign at a time in --out (a second is refused, exit 5), held until its results
     # are written; what it will write checked before anything runs.
     with _out_lock(out):
@@ -456,10 +462,7 @@ def tune(channel: str, grid_entries: tuple[str, ...], surface: str, body: str, t
     except CampaignError as exc:
         raise CliError(str(exc), ExitCode.BAD_INPUT) from None
     if mcap_dir is not None:
-        try:  # before the first combination, not after the last
-            mcap_dir.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise CliError(f"--mcap {mcap_dir}: {exc.strerror or exc}") from None
+        _make_directory(mcap_dir, "--mcap")
     with _out_lock(mcap_dir):
         if mcap_dir is not None:
             from fpgalink.campaign.runner import recording_paths

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import click
 
-from fpgalink.cli.output import CliError, ExitCode, console, write_out
+from fpgalink.cli.output import console, stdout_errors, write_out
 
 if TYPE_CHECKING:
     from rich.console import Console
@@ -117,14 +117,9 @@ def _console() -> Console:
 def print_renderable(renderable: Any) -> None:
     """A rich renderable on stdout, with a write error as one line (exit 1)."""
     console = _console()
-    try:
+    with stdout_errors():
         console.print(renderable)
         console.file.flush()
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
-                       ) from None
 
 
 def table_width(widths: Sequence[int]) -> int:

@@ -1,7 +1,14 @@
 """The connection options every board command takes — ``--port``, ``--board``, ``--baud``,
-``--timeout``, ``--retries``, ``--wire-crc``, ``-v``, ``--config`` — accepted before the
-command (the usual place: ``fpgalink-cli --port /dev/ttyUSB0 param get …``) and after it,
-and the links they open. Values resolve as :mod:`fpgalink.cli.settings` describes."""
+``--timeout``, ``--retries``, ``--wire-crc``, ``--allow-mismatch``, ``-v``, ``--config`` —
+accepted before the command (the usual place: ``fpgalink-cli --port /dev/ttyUSB0 param get
+…``) and after it, and the links they open. Values resolve as :mod:`fpgalink.cli.settings`
+describes.
+
+Every link a command opens asks the board who it is first (docs/protocol.md §8): a board
+whose firmware was built from another protocol declaration is refused with one line naming
+both hashes (exit 10) unless ``--allow-mismatch``; a seed board goes on as "seed protocol,
+identity unknown". ``send`` and the passive watchers ask nothing (:meth:`ConnectionOptions.
+link`'s ``identify``)."""
 
 from __future__ import annotations
 
@@ -27,6 +34,7 @@ if TYPE_CHECKING:  # the asyncio layer loads when a command first opens a link
     from click.shell_completion import CompletionItem
 
     from fpgalink.aio.link import Link
+    from fpgalink.events import StatusEvent
 
 __all__ = [
     "CONNECTION_OPTION_NAMES",
@@ -41,8 +49,8 @@ __all__ = [
 
 T = TypeVar("T")
 
-CONNECTION_OPTION_NAMES = ("ports", "board", "baud", "timeout", "retries", "wire_crc", "verbose",
-                           "config")
+CONNECTION_OPTION_NAMES = ("ports", "board", "baud", "timeout", "retries", "wire_crc",
+                           "allow_mismatch", "verbose", "config")
 
 
 def _board_names(ctx: click.Context, param: click.Parameter, incomplete: str) -> list[str]:
@@ -96,6 +104,10 @@ def _options(multi: bool) -> list[Callable[[Callable[..., Any]], Callable[..., A
         click.option("--wire-crc/--no-wire-crc", default=None,
                      help="Connect with the wire CRC on, for a board left with WireCrc = 1 "
                           "(env FPGALINK_WIRE_CRC=1)  [default: off]"),
+        click.option("--allow-mismatch", is_flag=True, default=None,
+                     help="Go on with a board whose firmware was built from another protocol "
+                          "declaration (its identity hash differs from this host's; refused "
+                          "otherwise, exit 10)."),
         click.option("-v", "--verbose", count=True,
                      help="Each message a board sends, as it arrives, with its bytes, on "
                           "stderr; -vv telemetry too."),
@@ -141,6 +153,10 @@ class ConnectionOptions:
         return self.settings.verbose
 
     @property
+    def allow_mismatch(self) -> bool:
+        return self.settings.allow_mismatch
+
+    @property
     def single(self) -> Endpoint:
         """The one board a one-board command talks to (``--board`` picks among several)."""
         endpoints, board = self.endpoints, self.settings.board
@@ -168,10 +184,12 @@ class ConnectionOptions:
         return self.endpoints
 
     def link(self, endpoint: Endpoint, *, reconnect: bool = False,
-             liveness_timeout: float | None = None) -> Link:
+             liveness_timeout: float | None = None, identify: bool = True) -> Link:
         """A link to ``endpoint`` (not open yet). By default a silent board must surface as
         "no answer after N tries", not as the shorter liveness timeout failing the request
-        first, so liveness waits for every try."""
+        first, so liveness waits for every try. ``identify``: opening it asks the board who
+        it is and refuses a mismatch unless ``--allow-mismatch`` (said on stderr when
+        allowed)."""
         from fpgalink.aio.link import open_link
         from fpgalink.cli.wirelog import log_wire
 
@@ -180,9 +198,14 @@ class ConnectionOptions:
         link = open_link(
             endpoint.url, self.baud, name=endpoint.name, request_timeout=self.timeout,
             request_tries=self.retries, liveness_timeout=liveness_timeout,
-            reconnect=reconnect, wire_crc=self.wire_crc,
+            reconnect=reconnect, wire_crc=self.wire_crc, identify=identify,
+            allow_mismatch=self.allow_mismatch,
         )
         log_wire(endpoint.name, link, self.verbose)
+        if identify and self.allow_mismatch:
+            # An unnamed port (called 0, 1 …) is said by its URL.
+            label = endpoint.url if endpoint.name.isdigit() else f"board {endpoint.name}"
+            link.on_event(functools.partial(_say_mismatch, label))
         return link
 
     def note_ephemeral(self) -> None:
@@ -191,6 +214,14 @@ class ConnectionOptions:
             note("note: the built-in emulator lives only for this command; to keep a board "
                  "between commands, serve one (fpgaemu serve --pty --link /tmp/fpga) and give "
                  "--port /tmp/fpga")
+
+
+def _say_mismatch(board: str, event: StatusEvent) -> None:
+    """A mismatch let through by ``--allow-mismatch`` is still said, each time it is seen."""
+    from fpgalink.events import BoardIdentified
+
+    if isinstance(event, BoardIdentified) and event.mismatch is not None:
+        note(f"{board}: {event.mismatch}; going on (--allow-mismatch)")
 
 
 def announce_emulator(conn: ConnectionOptions) -> None:

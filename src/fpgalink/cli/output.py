@@ -7,6 +7,8 @@ import math
 import os
 import re
 import sys
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import fields
 from typing import TYPE_CHECKING, Any
 
@@ -36,6 +38,7 @@ __all__ = [
     "note",
     "number",
     "quiet_stdout",
+    "stdout_errors",
     "table_console",
     "wire_crc_advice",
     "write_out",
@@ -213,18 +216,25 @@ def describe(message: Parsed) -> str:
     return " ".join([head, *shown])
 
 
-def write_out(text: str) -> None:
-    """``text`` on stdout, flushed (pipes see it at once). A write error (a full disk
+@contextmanager
+def stdout_errors() -> Iterator[None]:
+    """Around a write to stdout, the one rule for its errors: a write error (a full disk
     behind a redirect) is one line and exit 1; a reader that went away (``| head``) goes up
     as BrokenPipeError, which the entry point ends quietly."""
     try:
-        sys.stdout.write(text)
-        sys.stdout.flush()
+        yield
     except BrokenPipeError:
         raise
     except OSError as exc:
         raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
                        ) from None
+
+
+def write_out(text: str) -> None:
+    """``text`` on stdout, flushed (pipes see it at once), under :func:`stdout_errors`."""
+    with stdout_errors():
+        sys.stdout.write(text)
+        sys.stdout.flush()
 
 
 def echo_out(text: str = "") -> None:

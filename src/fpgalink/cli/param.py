@@ -8,6 +8,7 @@ import math
 import os
 import stat
 import sys
+from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -40,7 +41,7 @@ from fpgalink.cli.output import (
 )
 from fpgalink.cli.session import gather_all, run
 from fpgalink.errors import FpgalinkError, ParameterError
-from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, resolve
+from fpgalink.protocol import PARAMETERS, Param, ParamType, Scope, describe_identity, resolve
 from fpgalink.protocol.paramfile import Setting, parse_parameter_file, render_parameter_file
 from fpgalink.protocol.params import BOARD, iter_addresses
 from fpgalink.protocol.tomlfile import TomlFileError, read_bounded
@@ -178,6 +179,10 @@ LIST_COLUMNS = (
     Column("A", "A", justify="right"),
     Column("B", "B", justify="right"),
 )
+#: Who the board said it is (docs/protocol.md §8): in the table's title; in JSON and CSV on
+#: every row (``board_protocol`` ``null`` for a seed board).
+LIST_IDENTITY_COLUMNS = (Column("board_identity", "board_identity"),
+                         Column("board_protocol", "board_protocol"))
 #: The range as numbers, for scripts (the table's ``range`` says it in words): ``null`` for
 #: an unbounded side; ``allowed`` the discrete set where there is one.
 LIST_LIMIT_COLUMNS = (
@@ -198,14 +203,15 @@ def list_(fmt: str, conn: ConnectionOptions) -> int:
     """
     endpoints = conn.selected
     if len(endpoints) == 1:
-        values = run(_read(conn, endpoints[0]), endpoints[0].url)
-        _list_one(fmt, values, f"Parameters on {endpoints[0].url}")
+        board = run(_read(conn, endpoints[0]), endpoints[0].url)
+        _list_one(fmt, board, f"Parameters on {endpoints[0].url}")
         return ExitCode.OK
     by_board = run(_read_all(conn, endpoints))
     if fmt != "table":
         rows = [{"board_name": e.name, **row} for e in endpoints
                 for row in _rows(by_board[e.name])]
-        columns = (Column("board_name", "board_name"), *LIST_COLUMNS, *LIST_LIMIT_COLUMNS)
+        columns = (Column("board_name", "board_name"), *LIST_COLUMNS, *LIST_LIMIT_COLUMNS,
+                   *LIST_IDENTITY_COLUMNS)
         emit_rows(fmt, columns, rows)
         return ExitCode.OK
     if not _list_side_by_side(endpoints, by_board):
@@ -215,8 +221,19 @@ def list_(fmt: str, conn: ConnectionOptions) -> int:
     return ExitCode.OK
 
 
-def _rows(values: dict[tuple[int, int], int | float]) -> list[dict[str, Any]]:
-    """One row per parameter as JSON has it, with its values on one board."""
+@dataclass(frozen=True)
+class BoardParameters:
+    """One board's parameters as read, and who it said it is."""
+
+    values: dict[tuple[int, int], int | float]
+    identity: str  #: :func:`~fpgalink.protocol.describe_identity`'s line
+    protocol: str | None  #: its declaration hash (16 hex digits), ``None`` when unknown
+
+
+def _rows(board: BoardParameters) -> list[dict[str, Any]]:
+    """One row per parameter as JSON has it, with its values on one board (and the board's
+    identity, which JSON and CSV repeat on every row)."""
+    values = board.values
     rows = []
     for p in PARAMETERS:
         row: dict[str, Any] = {"id": p.id, "name": p.name, "scope": p.scope.name.lower(),
@@ -229,22 +246,25 @@ def _rows(values: dict[tuple[int, int], int | float]) -> list[dict[str, Any]]:
             row["board"] = number(values[(p.id, BOARD)], p.type)
         else:
             row["A"], row["B"] = (number(values[(p.id, c)], p.type) for c in (1, 2))
+        row["board_identity"], row["board_protocol"] = board.identity, board.protocol
         rows.append(row)
     return rows
 
 
-def _list_one(fmt: str, values: dict[tuple[int, int], int | float], title: str) -> None:
-    rows = _rows(values)
+def _list_one(fmt: str, board: BoardParameters, title: str) -> None:
+    rows = _rows(board)
     if fmt == "table":
         kinds = {p.name: p.type for p in PARAMETERS}
         rows = [{**row, **{k: "" if row[k] is None else format_value(row[k], kinds[row["name"]])
                            for k in ("board", "A", "B")}} for row in rows]
-    columns = LIST_COLUMNS if fmt == "table" else (*LIST_COLUMNS, *LIST_LIMIT_COLUMNS)
+        title = f"{title}\n{board.identity}"
+    columns = LIST_COLUMNS if fmt == "table" else (*LIST_COLUMNS, *LIST_LIMIT_COLUMNS,
+                                                   *LIST_IDENTITY_COLUMNS)
     emit_rows(fmt, columns, rows, title=title)
 
 
 def _list_side_by_side(endpoints: tuple[Endpoint, ...],
-                       by_board: dict[str, dict[tuple[int, int], int | float]]) -> bool:
+                       by_board: dict[str, BoardParameters]) -> bool:
     """Every board's values in one table, a row per parameter and channel
     (``Kp_Wheel_PidA``) and a column per board, if that fits the terminal with at most the
     descriptive columns left out; ``False`` (nothing printed) when it does not."""
@@ -254,14 +274,16 @@ def _list_side_by_side(endpoints: tuple[Endpoint, ...],
     for p, code in iter_addresses():
         rows.append([str(p.id), p.full_name(code), p.scope.name.lower(), p.type.name.lower(),
                      p.range_text, p.unit or "",
-                     *(format_value(by_board[e.name][(p.id, code)], p.type)
+                     *(format_value(by_board[e.name].values[(p.id, code)], p.type)
                        for e in endpoints)])
     needed = [max([len(c.header), *(len(r[i]) for r in rows)])
               for i, c in enumerate(columns) if not c.drop]
     if table_width(needed) > console_width():
         return False
     boards = ", ".join(f"{e.name} ({e.url})" for e in endpoints)
-    print_renderable(fit_table(columns, rows, console_width(), f"Parameters on {boards}"))
+    identities = "\n".join(f"{e.name}: {by_board[e.name].identity}" for e in endpoints)
+    print_renderable(fit_table(columns, rows, console_width(),
+                               f"Parameters on {boards}\n{identities}"))
     return True
 
 
@@ -272,16 +294,19 @@ def _limit(value: float, kind: ParamType) -> int | float | None:
 
 
 async def _read(conn: ConnectionOptions, endpoint: Endpoint | None = None
-                ) -> dict[tuple[int, int], int | float]:
+                ) -> BoardParameters:
     async with conn.link(endpoint or conn.single) as link:
-        return await link.read_params()
+        values = await link.read_params()
+        identity = link.identification.identity
+        return BoardParameters(values, describe_identity(identity, link.identification.known),
+                               None if identity is None else identity.digest)
 
 
 async def _read_all(conn: ConnectionOptions, endpoints: tuple[Endpoint, ...]
-                    ) -> dict[str, dict[tuple[int, int], int | float]]:
+                    ) -> dict[str, BoardParameters]:
     """Every board's values, read at once; a board's failure names its port."""
 
-    async def one(endpoint: Endpoint) -> dict[tuple[int, int], int | float]:
+    async def one(endpoint: Endpoint) -> BoardParameters:
         try:
             return await _read(conn, endpoint)
         except FpgalinkError as exc:
@@ -428,10 +453,13 @@ def dump(file: str, force: bool, conn: ConnectionOptions) -> int:
     if file != "-" and not (target.exists() and not target.is_dir()
                             and not stat.S_ISREG(target.stat().st_mode)):
         check_output(target, force=force)  # before the board is read
-    values = run(_read(conn), conn.single.url)
+    board = run(_read(conn), conn.single.url)
+    values = board.values
     stamp = dt.datetime.now(dt.UTC).replace(microsecond=0).isoformat()
+    # The header says whose parameters these are: a file read from one firmware, loaded
+    # into another, is where a changed declaration bites.
     text = render_parameter_file(values, f"fpgalink parameters read from {conn.single.url} "
-                                         f"at {stamp}")
+                                         f"at {stamp}; board: {board.identity}")
     if file == "-":
         write_out(text)
         return ExitCode.OK

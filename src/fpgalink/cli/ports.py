@@ -5,10 +5,17 @@ between boots and plug orders), USB vendor:product, description and serial numbe
 The CmodA7 carries an FTDI FT2232: interface 0 is the FPGA's JTAG, interface 1 its UART.
 For FTDI ports the driver's ``latency_timer`` (sysfs) decides how long the chip holds
 received bytes before sending a USB packet when fewer than 62 are waiting: the default
-16 ms turns 1 kHz telemetry into 16 ms bursts. Above 1 ms we warn and say how to fix it."""
+16 ms turns 1 kHz telemetry into 16 ms bursts. Above 1 ms we warn and say how to fix it.
+
+``--identify`` also asks the board on each likely board port, and on every port configured
+(``--port``, ``FPGALINK_PORT``, the config file), who it is (docs/protocol.md §8): its
+protocol declaration, firmware and serial, or "seed protocol, identity unknown". It opens
+the ports, so it is asked for: a port another program has open is said to be busy, and
+nothing else is sent to a board than the question and a parameter read."""
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from collections.abc import Iterable
 from dataclasses import asdict, dataclass
@@ -18,7 +25,9 @@ from typing import Any
 import click
 
 from fpgalink.cli.formats import Column, emit_rows, format_option
+from fpgalink.cli.options import ConnectionOptions, Endpoint, connection_options
 from fpgalink.cli.output import EXIT_CODES_HELP, CliError, ExitCode, echo_out
+from fpgalink.cli.settings import DEFAULT
 
 __all__ = ["PortReport", "ports", "scan_ports"]
 
@@ -41,6 +50,9 @@ class PortReport:
     verdict: str  #: what this port is likely to be, for the board's purposes
     latency_timer_ms: int | None  #: FTDI only
     latency_path: str | None
+    #: who the board on it said it is (``--identify``; ``None``: not asked)
+    identity: str | None = None
+    protocol: str | None = None  #: its declaration hash, when it answered
 
     @property
     def likely_board(self) -> bool:
@@ -150,11 +162,18 @@ def set_low_latency(report: PortReport) -> None:
 @click.option("--fix-latency", is_flag=True,
               help=f"Set every FTDI port's latency timer to {GOOD_LATENCY_MS} ms (needs "
                    "permission to write sysfs; lasts until the device is replugged).")
-def ports(show_all: bool, fmt: str, fix_latency: bool) -> int:
+@click.option("--identify", is_flag=True,
+              help="Ask the board on each likely board port and on every configured port "
+                   "(--port, FPGALINK_PORT, the config file) who it is: protocol, firmware, "
+                   "serial (opens those ports).")
+@connection_options(multi=True, announce=False)
+def ports(show_all: bool, fmt: str, fix_latency: bool, identify: bool,
+          conn: ConnectionOptions) -> int:
     """List serial ports, mark the board's USB-UART, check its latency timer.
 
     Give the by-id path as --port (or in fpgalink.toml): it names the same board after a
-    reboot or replug, where /dev/ttyUSB numbers do not.
+    reboot or replug, where /dev/ttyUSB numbers do not. With --identify, each board found
+    or configured is asked who it is.
     """
     from serial.tools import list_ports
 
@@ -168,8 +187,11 @@ def ports(show_all: bool, fmt: str, fix_latency: bool) -> int:
                            f"{report.latency_timer_ms} → {GOOD_LATENCY_MS} ms", err=True)
         reports = [r for r in scan_ports(list_ports.comports())
                    if show_all or r.usb_id is not None]
+    if identify:
+        reports = identified(reports, conn)
     if fmt != "table":
-        emit_rows(fmt, PORT_COLUMNS, [asdict(r) for r in reports])
+        columns = PORT_COLUMNS + (IDENTITY_COLUMNS if identify else ())
+        emit_rows(fmt, columns, [asdict(r) for r in reports])
         return ExitCode.OK
     if not reports:
         echo_out("no USB serial ports found" + ("" if show_all else
@@ -201,6 +223,58 @@ PORT_COLUMNS = (
 )
 
 
+#: ``--identify``'s columns.
+IDENTITY_COLUMNS = (Column("identity", "identity (protocol, firmware, serial)"),
+                    Column("protocol", "protocol", drop=8))
+
+
+def identified(reports: list[PortReport], conn: ConnectionOptions) -> list[PortReport]:
+    """``reports`` with each likely board port and every configured port asked who its
+    board is; a configured port that is not among them (a pty, a TCP board) is added."""
+    from fpgalink.cli.session import run
+
+    known = {os.path.realpath(r.device): r for r in reports}
+    endpoints: dict[str, Endpoint] = {
+        r.device: Endpoint(r.device, r.by_id or r.device) for r in reports if r.likely_board}
+    if conn.settings.sources["port"] != DEFAULT:
+        for endpoint in conn.endpoints:
+            device = os.path.realpath(endpoint.url) if "://" not in endpoint.url \
+                else endpoint.url
+            report = known.get(device)
+            if report is None:
+                report = PortReport(endpoint.url, None, None, f"configured as {endpoint.name}",
+                                    None, None, "configured port", None, None)
+                reports.append(report)
+                known[device] = report
+            endpoints[report.device] = endpoint
+    answers = run(_ask_all(conn, endpoints))
+    return [dataclasses.replace(r, identity=answers[r.device][0], protocol=answers[r.device][1])
+            if r.device in answers else r for r in reports]
+
+
+async def _ask_all(conn: ConnectionOptions, endpoints: dict[str, Endpoint]
+                   ) -> dict[str, tuple[str, str | None]]:
+    import asyncio
+
+    found = await asyncio.gather(*(_ask(conn, e) for e in endpoints.values()))
+    return dict(zip(endpoints, found, strict=True))
+
+
+async def _ask(conn: ConnectionOptions, endpoint: Endpoint) -> tuple[str, str | None]:
+    """(one line, its declaration hash or ``None``) for the board on ``endpoint``: who it
+    said it is, or why it could not be asked (busy, not answering, …)."""
+    from fpgalink.cli.output import classify
+    from fpgalink.errors import FpgalinkError
+    from fpgalink.protocol import describe_identity
+
+    try:
+        async with conn.link(endpoint, identify=False) as link:
+            identity = await link.identification.identify(allow_mismatch=True)
+    except FpgalinkError as exc:
+        return f"not asked: {classify(exc).message}", None
+    return describe_identity(identity), None if identity is None else identity.digest
+
+
 def _print_table(reports: list[PortReport]) -> None:
     rows = []
     for r in reports:
@@ -212,4 +286,8 @@ def _print_table(reports: list[PortReport]) -> None:
                      r.serial_number or "-", "latency_timer_ms": latency or "-",
                      "verdict": r.verdict})
     columns = [c for c in PORT_COLUMNS if c.key not in ("interface", "latency_path")]
+    if any(r.identity is not None for r in reports):
+        columns.append(IDENTITY_COLUMNS[0])
+        for row in rows:
+            row["identity"] = row["identity"] or "-"
     emit_rows("table", columns, rows, title="Serial ports")

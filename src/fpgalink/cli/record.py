@@ -34,7 +34,7 @@ from fpgalink.cli.session import (
 )
 from fpgalink.cli.settings import DEFAULT, EMULATOR_URL
 from fpgalink.cli.sinks import STATS_FIELDS, CsvSink, McapSink, Sink
-from fpgalink.protocol import Parsed
+from fpgalink.protocol import Parsed, identity_metadata
 from fpgalink.recording import RecordingError, parameter_record
 
 __all__ = ["record"]
@@ -116,13 +116,16 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
     to_epoch = time.time() - loop.time()  # loop clock → host epoch
     counts: dict[str, int] = {}
     async with contextlib.AsyncExitStack() as stack:
-        sessions = await open_sessions(stack, conn)
+        sessions = await open_sessions(stack, conn, identify=not passive)
         boards = [s.endpoint.name for s in sessions]
         counts.update(dict.fromkeys(boards, 0))
         metadata = {"ports": " ".join(f"{s.endpoint.name}={s.endpoint.url}" for s in sessions),
                     "baud": str(conn.baud), "started": f"{started:.6f}",
                     "clocks": "log_time: host receive time; publish_time: the board's t_us "
-                              "mapped onto the host clock (anchored at the first sample)"}
+                              "mapped onto the host clock (anchored at the first sample)",
+                    **identity_metadata({s.endpoint.name: (s.link.identification.identity,
+                                                           s.link.identification.known)
+                                         for s in sessions})}
         sink: Sink = (CsvSink(path, force=force) if as_csv else
                       McapSink(path, boards, metadata, force=force))
 

@@ -25,6 +25,12 @@ from fpgalink.cli.files import check_output, force_option
 from fpgalink.cli.liveview import foxglove_option, opened_live
 from fpgalink.cli.options import ConnectionOptions, connection_options
 from fpgalink.cli.output import CliError, ExitCode, classify, echo_out, note
+from fpgalink.protocol import (
+    IdentityMatch,
+    compare_identity,
+    describe_identity,
+    identity_metadata,
+)
 from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA, RecordingError
 
 if TYPE_CHECKING:
@@ -386,7 +392,8 @@ class RobotRun:
         from fpgalink.robot.robot import Robot, RobotError
 
         install_stop_signals(self.stop)
-        robot = Robot.open(self.description, self.ports, baud=self.conn.baud)
+        robot = Robot.open(self.description, self.ports, baud=self.conn.baud,
+                           allow_mismatch=self.conn.allow_mismatch)
         for name in self.description.boards:
             log_wire(name, functools.partial(robot.boards.add_listener, name),
                      self.conn.verbose)
@@ -396,6 +403,11 @@ class RobotRun:
             raise CliError(str(exc), ExitCode.NO_ANSWER if "not answering" in str(exc)
                            else ExitCode.FAILURE) from None
         self.robot = robot
+        for name in self.description.boards:
+            identity, known = robot.boards.identity(name)
+            if known and compare_identity(identity) is IdentityMatch.MISMATCH:
+                note(f"board {name}: {describe_identity(identity)}; going on "
+                     "(--allow-mismatch)")
         try:
             if self._truth_reader is not None:
                 await self._truth_reader.start()
@@ -486,8 +498,15 @@ class RobotRun:
                   "/robot/command": COMMAND_SCHEMA}
         self._sink = self._sink_opened = McapSink(
             self.record_path, list(self.description.boards),
-            {"robot": self.description.name, "surface": self.description.surface}, topics,
-            force=self.force)
+            {"robot": self.description.name, "surface": self.description.surface,
+             **self.identity_metadata()}, topics, force=self.force)
+
+    def identity_metadata(self) -> dict[str, str]:
+        """Who the robot's boards said they are, and this host's declaration, for a
+        recording's metadata (docs/protocol.md §8)."""
+        assert self.robot is not None
+        return identity_metadata({name: self.robot.boards.identity(name)
+                                  for name in self.description.boards})
 
     def _recording_failed(self, *, sink: bool = False) -> None:
         """A recording stopped (its write raised; ``sink``: the ``--record`` one, written no
@@ -527,7 +546,8 @@ class RobotRun:
             metadata={"robot": self.description.name, "surface": self.description.surface,
                       "ports": " ".join(f"{b}={u}" for b, u in self.ports.items()),
                       "clocks": "bag time: host receive time; header stamps: the boards' "
-                                "sample times on the host clock"},
+                                "sample times on the host clock",
+                      **self.identity_metadata()},
             force=self.force)
 
     def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:

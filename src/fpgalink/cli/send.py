@@ -172,7 +172,9 @@ async def _send(conn: ConnectionOptions, message: CountedMessage | DirectCommand
                 reply_id: str | None, request: ParamSet | ParamGet | None, wait: float,
                 fmt: str) -> int:
     endpoint = conn.single
-    async with conn.link(endpoint) as link:
+    # send puts on the wire only what it is given (a board's handling of any message,
+    # another declaration's included, is what it is for): it does not ask the identity.
+    async with conn.link(endpoint, identify=False) as link:
         loop = asyncio.get_running_loop()
         replied: asyncio.Future[Parsed] = loop.create_future()
         others: list[str] = []

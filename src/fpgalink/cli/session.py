@@ -17,7 +17,14 @@ from typing import Any, TypeVar
 from fpgalink.aio.link import Link, LinkState
 from fpgalink.boardclock import BoardClock
 from fpgalink.cli.options import ConnectionOptions, Endpoint
-from fpgalink.cli.output import CliError, ExitCode, classify, note, wire_crc_advice
+from fpgalink.cli.output import (
+    CliError,
+    ExitCode,
+    classify,
+    note,
+    stdout_errors,
+    wire_crc_advice,
+)
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import (
     BoardFound,
@@ -145,15 +152,10 @@ def on_messages(link: Link | Callable[[Callable[[Event], None]], Callable[[], No
 
 
 def write_stdout(text: str) -> None:
-    """Write to stdout; a write error (a full disk behind a redirect) is one line, exit 1.
-    A reader that went away (``| head``) is not an error: BrokenPipeError goes up."""
-    try:
+    """Write to stdout, unflushed (a stream of rows), under
+    :func:`~fpgalink.cli.output.stdout_errors`."""
+    with stdout_errors():
         sys.stdout.write(text)
-    except BrokenPipeError:
-        raise
-    except OSError as exc:
-        raise CliError(f"cannot write to stdout: {exc.strerror or exc}", ExitCode.FAILURE
-                       ) from None
 
 
 def flag_letters(channel: ChannelTelemetry) -> str:
@@ -241,13 +243,15 @@ class BoardSession:
         return "waiting" if self.link.stats.messages_received == 0 else "SILENT"
 
 
-async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions
-                        ) -> list[BoardSession]:
+async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions, *,
+                        identify: bool = True) -> list[BoardSession]:
     """Open every board's link (closed by ``stack``). Long-running commands keep reconnecting
-    after a lost port and use the library's liveness timeout, so their view shows the truth."""
+    after a lost port and use the library's liveness timeout, so their view shows the truth.
+    ``identify``: each board is asked who it is as it opens (``--passive`` sends nothing,
+    so it does not ask)."""
     sessions = []
     for endpoint in conn.endpoints:
-        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7)
+        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7, identify=identify)
         await stack.enter_async_context(link)
         sessions.append(BoardSession(endpoint, link, Streaming(link)))
     return sessions

@@ -87,6 +87,9 @@ class Settings:
     robot: Path | None
     config_file: Path | None
     sources: dict[str, str] = field(default_factory=dict)
+    #: go on with a board whose firmware speaks another protocol declaration (the command
+    #: line only: a file or an environment that always allows it would hide it)
+    allow_mismatch: bool = False
 
     @property
     def emulated(self) -> bool:
@@ -200,5 +203,6 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
             robot_path = path.parent / robot_path
         robot = robot_path
     verbose = max(int(given.get("verbose") or 0), int(before.get("verbose") or 0))
+    allow_mismatch = bool(given.get("allow_mismatch") or before.get("allow_mismatch"))
     return Settings(ports, baud, timeout, retries, bool(wire_crc), verbose, board, robot, path,
-                    sources)
+                    sources, allow_mismatch)

@@ -35,6 +35,7 @@ from typing import Any, Unpack
 
 from fpgalink.connection.counting import Counting, from_router
 from fpgalink.connection.frames import FrameLayer, telemetry_runs
+from fpgalink.connection.identity import KnownIdentity
 from fpgalink.connection.liveness import Hearing, Heartbeat, Liveness, TelemetryWatch
 from fpgalink.connection.pacing import LinePacing
 from fpgalink.connection.queue import EventQueue
@@ -55,6 +56,7 @@ from fpgalink.events import (
 )
 from fpgalink.protocol import (
     FLOAT32_MAX,
+    MESSAGE_TYPES,
     TELEMETRY_RUN_MIN,
     Alive,
     CountedMessage,
@@ -68,9 +70,7 @@ from fpgalink.protocol import (
     Message,
     Param,
     ParamAck,
-    ParamGet,
     ParamNack,
-    ParamSet,
     References,
     Role,
     Telemetry,
@@ -83,11 +83,10 @@ __all__ = ["Connection"]
 
 
 def _sendable(role: Role) -> frozenset[type]:
-    """The message types ``role`` sends, by their wire IDs (a generic counted message is
-    anyone's)."""
-    typed = (ParamSet, ParamGet, References, ParamAck, ParamNack, Telemetry)
+    """The message types ``role`` sends, by their wire IDs: every catalogued one whose ID
+    says this side sends it (a generic counted message is anyone's)."""
     direct = (Enable(), Disable(), Alive())
-    return frozenset({*(cls for cls in typed if cls.msg_id.sender is role),
+    return frozenset({*(cls for cls in MESSAGE_TYPES if cls.msg_id.sender is role),
                       *(type(cmd) for cmd in direct if cmd.msg_id.sender is role),
                       CountedMessage})
 
@@ -99,10 +98,8 @@ _RECEIVE_SLICE = 1 << 16
 
 class Connection:
     """One link to one board (or, with ``role=Role.BOARD``, the board's side of it).
-
     Settings (:class:`~fpgalink.connection.Settings`) are given whole (``settings=``) or as
-    keywords (``Connection(baud=None, request_tries=3)``); references are paced to the line
-    (:mod:`.pacing`)."""
+    keywords (``Connection(baud=None, request_tries=3)``); references are paced (:mod:`.pacing`)."""
 
     def __init__(self, role: Role = Role.HOST, settings: Settings | None = None,
                  **options: Unpack[Options]) -> None:
@@ -129,6 +126,7 @@ class Connection:
         self._continuity = Continuity(self._requests, self.stats, emit=emit,
                                       restart=self._restarted)
         self._settings = settings
+        self.identity = KnownIdentity(emit)  #: who the board said it is (its part)
 
     @property
     def settings(self) -> Settings:
@@ -540,6 +538,7 @@ class Connection:
         telemetry off, parameters at their power-up values, counters from 0, the plain wire.
         Stop keeping it enabled, follow its new counter sequence, set again what is held."""
         self.stats.restarts += 1
+        self.identity.forget()
         self._continuity.restarted(evidence, detail, now)
         self._counting.restarted()
         self._heartbeat.board_restarted(now)

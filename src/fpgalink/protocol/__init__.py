@@ -6,12 +6,14 @@ stands on it, and so does the board emulator (``fpgaemu``): it is the only part 
 
 * :mod:`.framing` — ``S``/``P``/``\\`` framing: :func:`encode_frame`, :class:`FrameDecoder`;
 * :mod:`.messages` — wire IDs (:class:`MessageId`), direct commands, counted messages;
-* :mod:`.catalogue` — the typed messages ``PS PG PA PN RV TM``, :func:`parse_content`,
+* :mod:`.catalogue` — the typed messages ``PS PG PA PN RV TM IQ IA``, :func:`parse_content`,
   :func:`encode_message` (:func:`encode_telemetry` for a ``TM`` from its fields);
 * :mod:`.params` — the parameter table (ranges, types, power-up defaults);
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
 * :mod:`.wire` — 8N1 wire-time arithmetic and budgets;
-* :mod:`.crc` — the optional wire CRC (CRC-16/CCITT-FALSE) and its handshake.
+* :mod:`.crc` — the optional wire CRC (CRC-16/CCITT-FALSE) and its handshake;
+* :mod:`.identity` — board identity (``IQ``/``IA``): the declaration hash, what a board
+  says of itself, and the match, mismatch or seed-protocol judgement.
 
 Names load from their submodule on first use, so importing one part of the protocol (the
 wire arithmetic, say) does not import the rest.
@@ -85,12 +87,30 @@ _HOMES = {
     "parse_telemetry_run": "fpgalink.protocol.catalogue",
     "TELEMETRY_RUN_MIN": "fpgalink.protocol.catalogue",
     "resolve": "fpgalink.protocol.params",
+    "BoardIdentity": "fpgalink.protocol.identity",
+    "IdentityMatch": "fpgalink.protocol.identity",
+    "IdentityMismatch": "fpgalink.protocol.identity",
+    "IdentityProbe": "fpgalink.protocol.identity",
+    "SEED_PROTOCOL": "fpgalink.protocol.identity",
+    "compare_identity": "fpgalink.protocol.identity",
+    "declarations_digest": "fpgalink.protocol.identity",
+    "declarations_hash": "fpgalink.protocol.identity",
+    "require_identity": "fpgalink.protocol.identity",
+    "NOT_ASKED": "fpgalink.protocol.identity",
+    "describe_identity": "fpgalink.protocol.identity",
+    "identity_metadata": "fpgalink.protocol.identity",
+    "IdentityAnswer": "fpgalink.protocol.catalogue",
+    "IdentityQuery": "fpgalink.protocol.catalogue",
+    "MESSAGE_TYPES": "fpgalink.protocol.catalogue",
 }
 
 if TYPE_CHECKING:
     from fpgalink.protocol.catalogue import (
+        MESSAGE_TYPES,
         TELEMETRY_RUN_MIN,
         ChannelTelemetry,
+        IdentityAnswer,
+        IdentityQuery,
         Message,
         NackReason,
         ParamAck,
@@ -129,6 +149,20 @@ if TYPE_CHECKING:
         NoiseDropped,
         encode_frame,
     )
+    from fpgalink.protocol.identity import (
+        NOT_ASKED,
+        SEED_PROTOCOL,
+        BoardIdentity,
+        IdentityMatch,
+        IdentityMismatch,
+        IdentityProbe,
+        compare_identity,
+        declarations_digest,
+        declarations_hash,
+        describe_identity,
+        identity_metadata,
+        require_identity,
+    )
     from fpgalink.protocol.messages import (
         COUNTER_MODULUS,
         Alive,
@@ -163,12 +197,16 @@ __all__ = [
     "CRC_BYTES",
     "DEFAULT_FRAMING",
     "FLOAT32_MAX",
+    "MESSAGE_TYPES",
+    "NOT_ASKED",
     "PARAMETERS",
+    "SEED_PROTOCOL",
     "TELEMETRY_RUN_MIN",
     "WIRE_CRC_PARAM",
     "AbortReason",
     "Alive",
     "Binary",
+    "BoardIdentity",
     "ChannelTelemetry",
     "CountedMessage",
     "CounterTracker",
@@ -184,6 +222,11 @@ __all__ = [
     "Framing",
     "FramingError",
     "FramingStats",
+    "IdentityAnswer",
+    "IdentityMatch",
+    "IdentityMismatch",
+    "IdentityProbe",
+    "IdentityQuery",
     "LocalProtocolError",
     "Malformed",
     "MalformedReason",
@@ -208,14 +251,20 @@ __all__ = [
     "TelemetryFlags",
     "Text",
     "UnknownParameter",
+    "compare_identity",
     "content_length",
+    "declarations_digest",
+    "declarations_hash",
+    "describe_identity",
     "encode_frame",
     "encode_message",
     "encode_telemetry",
     "float32",
+    "identity_metadata",
     "lookup",
     "parse_content",
     "parse_contents",
     "parse_telemetry_run",
+    "require_identity",
     "resolve",
 ]

@@ -42,6 +42,7 @@ from fpgalink.protocol.params import ParamType
 
 __all__ = [
     "BODIES",
+    "MESSAGE_TYPES",
     "ChannelTelemetry",
     "IdentityAnswer",
     "IdentityQuery",
@@ -199,7 +200,8 @@ def _unpack_value(value_type: int, raw: bytes) -> int | float:
 class _Catalogued(Event):
     msg_id: ClassVar[MessageId]
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
+        """The values the wire body carries, in its layout's order (what the codec packs)."""
         raise NotImplementedError
 
 
@@ -213,7 +215,7 @@ class _ParamValue(_Catalogued):
     value: int | float
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel, self.value_type,
                 _pack_value(self.value_type, self.value))
 
@@ -241,7 +243,7 @@ class ParamGet(_Catalogued):
     channel: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel)
 
 
@@ -255,7 +257,7 @@ class ParamNack(_Catalogued):
     error: int  #: a :class:`NackReason` code
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel, self.error)
 
     @property
@@ -275,7 +277,7 @@ class References(_Catalogued):
     ref_b: float
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.ref_a, self.ref_b)
 
 
@@ -312,7 +314,7 @@ class Telemetry(_Catalogued):
     b: ChannelTelemetry
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.t_us, *self.a, *self.b)
 
 
@@ -326,7 +328,7 @@ class IdentityQuery(_Catalogued):
     nonce: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.nonce,)
 
 
@@ -344,13 +346,18 @@ class IdentityAnswer(_Catalogued):
     serial: int
     counter: int | None = None
 
-    def _body_values(self) -> tuple[Any, ...]:
+    def body_values(self) -> tuple[Any, ...]:
         return (self.nonce, self.declarations, self.firmware_major, self.firmware_minor,
                 self.firmware_patch, self.build, self.serial)
 
 
 Message = (ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry | IdentityQuery
            | IdentityAnswer)
+#: Every typed message, once: what a sender may send as itself (each class's ``msg_id``
+#: says who sends it), and what :func:`encode_message` encodes.
+MESSAGE_TYPES: tuple[type[Message], ...] = (
+    ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry, IdentityQuery,
+    IdentityAnswer)
 
 
 # --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
@@ -551,8 +558,7 @@ def _whole(msg_id: MessageId) -> struct.Struct:
 _ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
     cls: (_whole(cls.msg_id), bytes(cls.msg_id),
           bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
-    for cls in (ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry,
-                IdentityQuery, IdentityAnswer)
+    for cls in MESSAGE_TYPES
 }
 
 
@@ -589,6 +595,6 @@ def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
     whole, msg_id, opener = encoder
     try:
         return whole.pack(msg_id, b"%05d" % (counter % COUNTER_MODULUS), opener,
-                          *message._body_values(), _CLOSE)
+                          *message.body_values(), _CLOSE)
     except (struct.error, OverflowError) as exc:
         raise LocalProtocolError(f"{type(message).__name__}: {exc}") from None

@@ -28,6 +28,10 @@ class ExitCode(IntEnum):
     NOT_INSTALLED = 8  #: an optional part is not installed; the message gives the pip command
     #: a recording read back is damaged: what is intact was used, each damaged part named
     DAMAGED = 9
+    #: the board's firmware was built from another protocol declaration than this host's
+    #: (its identity, docs/protocol.md §8): refused, both hashes named; --allow-mismatch
+    #: goes on
+    MISMATCH = 10
     INTERRUPTED = 130  #: a command stopped by Ctrl-C (128 + SIGINT), after a clean stop
     TERMINATED = 143  #: a command stopped by SIGTERM (128 + SIGTERM), handled as Ctrl-C
 
@@ -49,6 +53,8 @@ _SHORT = {
     ExitCode.NOT_INSTALLED: "an optional part not installed (the message gives the pip "
                             "command)",
     ExitCode.DAMAGED: "a recording read is damaged (the rest was used)",
+    ExitCode.MISMATCH: "the board's firmware speaks another protocol declaration (both "
+                       "hashes named; --allow-mismatch goes on)",
     ExitCode.INTERRUPTED: "interrupted (Ctrl-C)",
     ExitCode.TERMINATED: "terminated (SIGTERM)",
 }

@@ -32,22 +32,15 @@ from fpgalink.protocol.catalogue import (
     IdentityQuery,
     NackReason,
     TelemetryFlags,
-    encode_message,
 )
 from fpgalink.protocol.crc import CRC16, WIRE_CRC_PARAM
 from fpgalink.protocol.errors import FpgalinkError
 from fpgalink.protocol.framing import DEFAULT_FRAMING
-from fpgalink.protocol.messages import (
-    COUNTER_MODULUS,
-    CountedMessage,
-    Malformed,
-    MalformedReason,
-    MessageId,
-    parse_body,
-)
+from fpgalink.protocol.messages import COUNTER_MODULUS, MalformedReason, MessageId
 from fpgalink.protocol.params import PARAMETERS
 
 __all__ = [
+    "NOT_ASKED",
     "SEED_PROTOCOL",
     "BoardIdentity",
     "IdentityMatch",
@@ -56,11 +49,15 @@ __all__ = [
     "compare_identity",
     "declarations_digest",
     "declarations_hash",
+    "describe_identity",
+    "identity_metadata",
     "require_identity",
 ]
 
 #: What a board that does not answer ``IQ`` is shown as: it speaks the seed's protocol.
 SEED_PROTOCOL = "seed protocol, identity unknown"
+#: What a board that was not asked is shown as (a passive watcher sends nothing).
+NOT_ASKED = "identity not asked"
 #: A nonce is a u32.
 NONCE_MODULUS = 1 << 32
 
@@ -163,6 +160,40 @@ def require_identity(identity: BoardIdentity | None, where: str = "",
     return match
 
 
+def describe_identity(identity: BoardIdentity | None, known: bool = True,
+                      host: int | None = None) -> str:
+    """One line for people: the board's :meth:`BoardIdentity.describe`, marked when its
+    declaration is not this host's; :data:`SEED_PROTOCOL`; or :data:`NOT_ASKED` (``known``
+    false: the board was not asked, or not since it restarted)."""
+    if not known:
+        return NOT_ASKED
+    if identity is None:
+        return SEED_PROTOCOL
+    if compare_identity(identity, host) is IdentityMatch.MISMATCH:
+        expected = declarations_hash() if host is None else host
+        return f"{identity.describe()} — NOT this host's protocol {expected:016x}"
+    return identity.describe()
+
+
+def identity_metadata(boards: dict[str, tuple[BoardIdentity | None, bool]]
+                      ) -> dict[str, str]:
+    """What a recording's metadata says of who made it: this host's declaration hash
+    (``host_protocol``) and, per board name, ``board.NAME.identity`` (one line:
+    :func:`describe_identity`), ``.protocol`` (its hash, or empty), ``.firmware``,
+    ``.build``, ``.serial`` and ``.match`` (``match``, ``mismatch``, ``unknown`` for a seed
+    board, ``not asked``). ``boards``: name → (identity, known)."""
+    out = {"host_protocol": declarations_digest()}
+    for name, (identity, known) in boards.items():
+        prefix = f"board.{name}."
+        out[prefix + "identity"] = describe_identity(identity, known)
+        out[prefix + "match"] = compare_identity(identity).value if known else "not asked"
+        out[prefix + "protocol"] = identity.digest if identity is not None else ""
+        out[prefix + "firmware"] = identity.version if identity is not None else ""
+        out[prefix + "build"] = f"{identity.build:08x}" if identity is not None else ""
+        out[prefix + "serial"] = f"0x{identity.serial:x}" if identity is not None else ""
+    return out
+
+
 class IdentityProbe:
     """The asking side of ``IQ``, sans-I/O. Per round: send :meth:`query`, then a request
     every board answers (the fence); feed every received message to :meth:`observe`; when
@@ -184,15 +215,6 @@ class IdentityProbe:
         self._next = (nonce + 1) % NONCE_MODULUS
         self._sent.add(nonce)
         return IdentityQuery(nonce)
-
-    def query_message(self) -> CountedMessage:
-        """:meth:`query` as a generic counted message: the same bytes on the wire, for a
-        sender that only sends the catalogued messages it was written for (the counter is
-        the sender's)."""
-        query = self.query()
-        items = parse_body(encode_message(query, 0))
-        assert not isinstance(items, Malformed)
-        return CountedMessage(query.msg_id.decode(), items)
 
     def observe(self, message: object) -> bool:
         """A received message; True when it is the answer."""

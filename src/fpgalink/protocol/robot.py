@@ -446,22 +446,42 @@ def parse_robot(document: Mapping[str, Any] | str, source: str = "robot") -> Rob
                                f"({type(exc).__name__}: {exc})") from None
 
 
+#: The robot's top speeds and sizes: key → (lowest, highest), both accepted.
+_LIMITS: dict[str, tuple[float, float]] = {
+    "wheel_radius": (MIN_WHEEL_RADIUS, 10.0),
+    "gear_ratio": (MIN_GEAR_RATIO, 1e4),
+    "max_wheel_speed": (MIN_WHEEL_SPEED, 1e5),
+    "max_linear_speed": (MIN_LINEAR_SPEED, 100.0),
+    "max_angular_speed": (MIN_ANGULAR_SPEED, 1e4),
+}
+
+
 def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
+    """The description, each section read by its reader in the order the errors are found:
+    the top-level keys, the name and limits, the surfaces, the wheels, odometry, the body,
+    the parameters; then the geometry as a whole."""
     _unknown(document, _TOP_KEYS, where)
     name = document.get("name", "robot")
     if not isinstance(name, str):
         raise DescriptionError(f"{where}name: must be a string, got {_shown(name)}")
-    radius = _number(document, "wheel_radius", where, low=MIN_WHEEL_RADIUS, low_open=False,
-                     high=10.0)
-    gear = _number(document, "gear_ratio", where, low=MIN_GEAR_RATIO, low_open=False,
-                   high=1e4)
-    max_wheel = _number(document, "max_wheel_speed", where, low=MIN_WHEEL_SPEED,
-                        low_open=False, high=1e5)
-    max_v = _number(document, "max_linear_speed", where, low=MIN_LINEAR_SPEED,
-                    low_open=False, high=100.0)
-    max_w = _number(document, "max_angular_speed", where, low=MIN_ANGULAR_SPEED,
-                    low_open=False, high=1e4)
+    limits = {key: _number(document, key, where, low=low, low_open=False, high=high)
+              for key, (low, high) in _LIMITS.items()}
+    surfaces, surface = _surfaces(document, where)
+    wheels = _wheels(document.get("wheels"), where)
+    noise = _odometry(document.get("odometry", {}), f"{where}odometry.")
+    body = _body(document.get("body", {}), f"{where}body.")
+    boards = tuple(dict.fromkeys(w.board for w in wheels))
+    common = _settings(document.get("parameters", {}), f"{where}parameters")
+    per_board = _board_settings(document.get("board_parameters", {}), boards, where)
+    description = RobotDescription(
+        name=name, **limits, wheels=wheels, surfaces=surfaces, surface=surface,
+        odometry=noise, parameters=common, board_parameters=per_board, body=body)
+    _check_geometry(description, where)
+    return description
 
+
+def _surfaces(document: Mapping[str, Any], where: str) -> tuple[dict[str, float], str]:
+    """``[surfaces]`` (NAME = chi) and the ``surface`` the robot is on, one of them."""
     surfaces_table = document.get("surfaces", {"ideal": 1.0})
     if not isinstance(surfaces_table, dict) or not surfaces_table:
         raise DescriptionError(f"{where}surfaces: must be a table of NAME = chi")
@@ -471,76 +491,82 @@ def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
     if not isinstance(surface, str) or surface not in surfaces:
         raise DescriptionError(f"{where}surface: {_shown(surface)} is not in [surfaces] "
                                f"({', '.join(sorted(surfaces))})")
+    return surfaces, str(surface)
 
-    wheels_table = document.get("wheels")
+
+def _wheels(wheels_table: object, where: str) -> tuple[WheelMount, ...]:
+    """``[wheels.FL]`` … ``[wheels.BR]``, each channel of a board driving one wheel."""
     if not isinstance(wheels_table, dict):
         raise DescriptionError(f"{where}wheels: missing (tables [wheels.FL], [wheels.BL], "
                                "[wheels.FR], [wheels.BR])")
     _unknown(wheels_table, frozenset(WHEEL_NAMES), f"{where}wheels.")
-    wheels = []
-    for wheel_name in WHEEL_NAMES:
-        entry = wheels_table.get(wheel_name)
-        at = f"{where}wheels.{wheel_name}."
-        if not isinstance(entry, dict):
-            raise DescriptionError(f"{where}wheels.{wheel_name}: missing")
-        _unknown(entry, _WHEEL_KEYS, at)
-        board = check_board_name(entry.get("board"), f"{at}board")
-        channel = entry.get("channel")
-        if not isinstance(channel, str) or channel not in _CHANNELS:
-            raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got "
-                                   f"{_shown(channel)}")
-        forward = entry.get("forward", 1)
-        if isinstance(forward, bool) or not isinstance(forward, int) or forward not in (1, -1):
-            raise DescriptionError(f"{at}forward: must be 1 or -1, got {_shown(forward)}")
-        x = _number(entry, "x", at, low=-100.0, low_open=False, high=100.0)
-        y = _number(entry, "y", at, low=-100.0, low_open=False, high=100.0)
-        if (y > 0) != (wheel_name in LEFT_WHEELS) or y == 0:
-            side = "left (y > 0)" if wheel_name in LEFT_WHEELS else "right (y < 0)"
-            raise DescriptionError(f"{at}y: {wheel_name} is a {side} wheel in REP-103 "
-                                   f"(x forward, y left), got {y!r}")
-        if abs(y) < MIN_WHEEL_OFFSET:
-            raise DescriptionError(f"{at}y: a wheel at least {MIN_WHEEL_OFFSET:g} m from the "
-                                   f"centre line (the track is at least "
-                                   f"{2 * MIN_WHEEL_OFFSET:g} m), got {y!r}")
-        wheels.append(WheelMount(wheel_name, board, _CHANNELS[channel], x, y, int(forward)))
+    wheels = tuple(_wheel(wheel_name, wheels_table.get(wheel_name), where)
+                   for wheel_name in WHEEL_NAMES)
     used: dict[tuple[str, int], str] = {}
     for wheel in wheels:
         other = used.setdefault((wheel.board, wheel.channel), wheel.name)
         if other != wheel.name:
             raise DescriptionError(f"{where}wheels.{wheel.name}: board {wheel.board} channel "
                                    f"{'AB'[wheel.channel - 1]} already drives {other}")
+    return wheels
 
-    odometry_table = document.get("odometry", {})
-    if not isinstance(odometry_table, dict):
-        raise DescriptionError(f"{where}odometry: must be a table")
-    _unknown(odometry_table, _ODOMETRY_KEYS, f"{where}odometry.")
-    noise = OdometryNoise(**{
-        key: _number(odometry_table, key, f"{where}odometry.", low=0.0, low_open=False,
-                     high=1.0)
-        for key in _ODOMETRY_KEYS if key in odometry_table})
 
-    body = _body(document.get("body", {}), f"{where}body.")
+def _wheel(wheel_name: str, entry: object, where: str) -> WheelMount:
+    """One ``[wheels.NAME]`` table: its board and channel, where it is, its forward sign."""
+    at = f"{where}wheels.{wheel_name}."
+    if not isinstance(entry, dict):
+        raise DescriptionError(f"{where}wheels.{wheel_name}: missing")
+    _unknown(entry, _WHEEL_KEYS, at)
+    board = check_board_name(entry.get("board"), f"{at}board")
+    channel = entry.get("channel")
+    if not isinstance(channel, str) or channel not in _CHANNELS:
+        raise DescriptionError(f"{at}channel: must be \"A\" or \"B\", got "
+                               f"{_shown(channel)}")
+    forward = entry.get("forward", 1)
+    if isinstance(forward, bool) or not isinstance(forward, int) or forward not in (1, -1):
+        raise DescriptionError(f"{at}forward: must be 1 or -1, got {_shown(forward)}")
+    x = _number(entry, "x", at, low=-100.0, low_open=False, high=100.0)
+    y = _number(entry, "y", at, low=-100.0, low_open=False, high=100.0)
+    if (y > 0) != (wheel_name in LEFT_WHEELS) or y == 0:
+        side = "left (y > 0)" if wheel_name in LEFT_WHEELS else "right (y < 0)"
+        raise DescriptionError(f"{at}y: {wheel_name} is a {side} wheel in REP-103 "
+                               f"(x forward, y left), got {y!r}")
+    if abs(y) < MIN_WHEEL_OFFSET:
+        raise DescriptionError(f"{at}y: a wheel at least {MIN_WHEEL_OFFSET:g} m from the "
+                               f"centre line (the track is at least "
+                               f"{2 * MIN_WHEEL_OFFSET:g} m), got {y!r}")
+    return WheelMount(wheel_name, board, _CHANNELS[channel], x, y, int(forward))
 
-    boards = tuple(dict.fromkeys(w.board for w in wheels))
-    common = _settings(document.get("parameters", {}), f"{where}parameters")
-    per_board: dict[str, tuple[Setting, ...]] = {}
-    board_table = document.get("board_parameters", {})
-    if not isinstance(board_table, dict):
+
+def _odometry(table: object, where: str) -> OdometryNoise:
+    if not isinstance(table, dict):
+        raise DescriptionError(f"{where[:-1]}: must be a table")
+    _unknown(table, _ODOMETRY_KEYS, where)
+    return OdometryNoise(**{
+        key: _number(table, key, where, low=0.0, low_open=False, high=1.0)
+        for key in _ODOMETRY_KEYS if key in table})
+
+
+def _board_settings(table: object, boards: tuple[str, ...], where: str
+                    ) -> dict[str, tuple[Setting, ...]]:
+    """``[board_parameters.NAME]``: each named board's own settings."""
+    if not isinstance(table, dict):
         raise DescriptionError(f"{where}board_parameters: must be tables [board_parameters.NAME]")
-    for board_name, table in board_table.items():
+    per_board: dict[str, tuple[Setting, ...]] = {}
+    for board_name, settings in table.items():
         if not isinstance(board_name, str) or board_name not in boards:
             raise DescriptionError(f"{where}board_parameters.{board_name}: no such board "
                                    f"(the wheels name {', '.join(boards)})")
-        per_board[board_name] = _settings(table, f"{where}board_parameters.{board_name}")
+        per_board[board_name] = _settings(settings, f"{where}board_parameters.{board_name}")
+    return per_board
 
-    description = RobotDescription(
-        name=name, wheel_radius=radius, gear_ratio=gear, max_wheel_speed=max_wheel,
-        max_linear_speed=max_v, max_angular_speed=max_w, wheels=tuple(wheels),
-        surfaces=surfaces, surface=str(surface), odometry=noise, parameters=common,
-        board_parameters=per_board, body=body)
+
+def _check_geometry(description: RobotDescription, where: str) -> None:
+    """The wheels as a whole: left of right, front ahead of rear, a side's two apart."""
     if description.track <= 0 or description.wheelbase < 0:
         raise DescriptionError(f"{where}wheels: the left wheels must be left of the right "
                                "ones and the front wheels ahead of the rear ones")
+    radius = description.wheel_radius
     for front, rear in (("FL", "BL"), ("FR", "BR")):
         base = description.wheel(front).x - description.wheel(rear).x
         if base < 2 * radius:
@@ -548,7 +574,6 @@ def _parse_robot(document: Mapping[str, Any], where: str) -> RobotDescription:
                 f"{where}wheels.{front}.x: the front and rear wheels of a side overlap: "
                 f"their centres are {base:g} m apart, less than a wheel's diameter "
                 f"({2 * radius:g} m)")
-    return description
 
 
 def _vector(table: Mapping[str, Any], key: str, where: str, limit: float) -> tuple[

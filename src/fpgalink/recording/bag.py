@@ -113,6 +113,11 @@ class BagRecording(Recorded):
         finally:
             os.close(fd)
 
+    def set_custom_data(self, data: dict[str, str]) -> None:
+        """More ``custom_data`` for its ``metadata.yaml`` (written when it closes)."""
+        for key, value in data.items():
+            self.writer.set_custom_data(key, value)
+
     def add_connection(self, topic: str, msgtype: str, **options: Any) -> Any:
         """``rosbags``' ``Writer.add_connection``; its connection."""
         return self._life.write(self.writer.add_connection, topic, msgtype, **options)

@@ -193,7 +193,9 @@ class RecordingReader:
     """An MCAP file, read back with every chunk checked (``with`` closes it). Iterate
     :meth:`messages`; then :attr:`damage` lists what was skipped, :attr:`complete` says
     whether the file was finished (an intact summary), :attr:`skipped_messages` counts
-    messages of an intact chunk whose channel was lost with a damaged one."""
+    messages of an intact chunk whose channel was lost with a damaged one, and
+    :attr:`metadata` holds the metadata records read on the way (by name; they stand between
+    chunks, covered by the data section's CRC, not a chunk's)."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
@@ -204,6 +206,7 @@ class RecordingReader:
         self.chunks_without_crc = 0  #: of them, those whose content had no CRC to check
         self.schemas: dict[int, Schema] = {}
         self.channels: dict[int, Channel] = {}
+        self.metadata: dict[str, dict[str, str]] = {}
         self._origin: int | None = None
         self._header_ok = False
         self._file = path.open("rb")
@@ -353,6 +356,10 @@ class RecordingReader:
                     if not any(d.offset < pos for d in self.damage):  # else it says nothing new
                         self._check_data_crc(pos)
                     return
+                if opcode == _METADATA:  # its fields were checked against its length
+                    cursor = _Cursor(self._buf, pos + 9, pos + 9 + length)
+                    name = cursor.text()
+                    self.metadata[name] = cursor.text_map()
                 pos += 9 + length
                 continue
             # Damage: skipped up to the end of a chunk whose framing holds, else to the next

@@ -15,7 +15,7 @@ from fpgalink.aio.link import Link, Stamped, Subscription
 from fpgalink.connection import LinkStats
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event
-from fpgalink.protocol import Telemetry
+from fpgalink.protocol import BoardIdentity, Telemetry
 from fpgalink.robot.health import Status, WireUse, board_status
 
 __all__ = ["TRUTH_EXTRA", "Boards"]
@@ -120,6 +120,12 @@ class Boards:
     def url(self, board: str) -> str:
         return self.links[board].url
 
+    def identity(self, board: str) -> tuple[BoardIdentity | None, bool]:
+        """Who board ``board`` said it is (``None``: a seed board), and whether that is
+        known: asked at start, and again after each restart (docs/protocol.md §8)."""
+        link = self.links[board]
+        return link.identification.identity, link.identification.known
+
     async def read_parameters(self, board: str, *, hold: bool = False
                               ) -> dict[tuple[int, int], int | float]:
         """Every parameter of board ``board`` as it has it, by (id, channel); ``hold``:
@@ -149,7 +155,7 @@ class Boards:
                             stats=stats,
                             wire=self._wire[name].update(now, stats.bytes_received,
                                                          stats.bytes_sent),
-                            fault=fault)
+                            fault=fault, identity=self.identity(name))
 
     def truth(self) -> dict[str, Any] | None:
         """The true pose when the robot is emulated (``None`` on hardware)."""

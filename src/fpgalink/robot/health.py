@@ -11,6 +11,13 @@ from dataclasses import dataclass
 from enum import IntEnum
 
 from fpgalink.connection import LinkStats
+from fpgalink.protocol import (
+    BoardIdentity,
+    IdentityMatch,
+    compare_identity,
+    declarations_digest,
+    describe_identity,
+)
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 
 __all__ = ["Level", "Status", "WireUse", "board_status", "supervision_status"]
@@ -55,13 +62,22 @@ def _percent(share: float | None) -> str:
 
 def board_status(board: str, hardware_id: str, *, alive: bool, enabled: bool,
                  stats: LinkStats, wire: tuple[float | None, float | None],
-                 fault: str | None = None) -> Status:
+                 fault: str | None = None,
+                 identity: tuple[BoardIdentity | None, bool] = (None, False)) -> Status:
     """ERROR when the board is not answering, or not ready (``fault``: restarted and being
-    reconfigured, its telemetry stopped); WARN when messages were lost or damaged."""
+    reconfigured, its telemetry stopped, restarted into another protocol declaration); WARN
+    when messages were lost or damaged, or its firmware speaks another declaration than
+    this host's (let through: ``allow_mismatch``). ``identity``: who it said it is, and
+    whether it was asked (docs/protocol.md §8)."""
+    board_identity, known = identity
+    mismatch = known and compare_identity(board_identity) is IdentityMatch.MISMATCH
     if not alive:
         level, message = Level.ERROR, "not answering"
     elif fault is not None:
         level, message = Level.ERROR, fault
+    elif mismatch:
+        level, message = Level.WARN, ("alive; its firmware speaks another protocol "
+                                      "declaration than this host's")
     elif stats.lost or stats.decode_errors:
         level, message = Level.WARN, "alive; messages lost or damaged"
     else:
@@ -76,6 +92,9 @@ def board_status(board: str, hardware_id: str, *, alive: bool, enabled: bool,
         ("bytes received", str(stats.bytes_received)), ("bytes sent", str(stats.bytes_sent)),
         ("wire use board to host", _percent(wire[0])),
         ("wire use host to board", _percent(wire[1])),
+        ("identity", describe_identity(board_identity, known)),
+        ("protocol", board_identity.digest if board_identity is not None else ""),
+        ("host protocol", declarations_digest()),
     )
     return Status(f"board {board}", hardware_id or board, level, message, values)
 

@@ -3,9 +3,11 @@ its links' events (:meth:`BoardRecovery.on_link_event`). Each becomes a supervis
 (the robot stops at once, in the callback that noticed), a :class:`BoardNotice` for the
 robot's readers (the ROS node's log and diagnostics, a campaign's recording), and for a
 board that restarted, its recovery: once its link has set again what it holds, what
-odometry and joint states use is read back, and the board is ready again only then. What a
-restarted board leaves unanswered (silent meanwhile, or answering late) is asked again once
-it is heard (docs/robot.md, Faults)."""
+odometry and joint states use is read back, and once its link has asked who it is again
+(a re-flash changes it: docs/protocol.md §8) the board is ready again — never while it
+answers with another protocol declaration than this host's, unless the robot allows it.
+What a restarted board leaves unanswered (silent meanwhile, or answering late) is asked
+again once it is heard (docs/robot.md, Faults)."""
 
 from __future__ import annotations
 
@@ -19,6 +21,7 @@ from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
 from fpgalink.events import (
     BoardBack,
     BoardFound,
+    BoardIdentified,
     BoardRestarted,
     BoardResynced,
     BoardSilent,
@@ -71,13 +74,14 @@ class BoardRecovery:
     acts through: ``carry_out`` (supervision's actions), ``now`` (the loop's clock),
     ``guarded`` (a block whose exception stops the robot for good), ``restarted`` (a board
     restarted: forget its counts and clocks), ``read_back`` (board, channel, parameter,
-    value read back) and ``notify`` (each :class:`BoardNotice`)."""
+    value read back) and ``notify`` (each :class:`BoardNotice`); ``allow_mismatch``: a
+    board that restarts into another protocol declaration may be ready again."""
 
     def __init__(self, description: RobotDescription, supervisor: Supervisor, *,
                  carry_out: Callable[[list[Action]], None], now: Callable[[], float],
                  guarded: Callable[[str], contextlib.AbstractContextManager[None]],
                  restarted: Callable[[str], None], read_back: ReadBack,
-                 notify: Callable[[BoardNotice], None]) -> None:
+                 notify: Callable[[BoardNotice], None], allow_mismatch: bool = False) -> None:
         self.description = description
         self.supervisor = supervisor
         self._carry_out, self._now, self._guarded = carry_out, now, guarded
@@ -87,6 +91,11 @@ class BoardRecovery:
         self.stale: dict[str, str] = {}
         #: boards heard again after a silence, not yet known whether they restarted
         self.checking: set[str] = set()
+        #: restarted boards not yet asked who they are now, and those that answered with
+        #: another protocol declaration (why, as said)
+        self.identifying: set[str] = set()
+        self.mismatched: dict[str, str] = {}
+        self.allow_mismatch = allow_mismatch
         #: restarts seen per board: a read-back still trying belongs to the newest only
         self.restarts: dict[str, int] = {}
         self._tasks: set[asyncio.Task[None]] = set()
@@ -113,7 +122,9 @@ class BoardRecovery:
             detail = event.describe()
             self._notify(BoardNotice(
                 name, event.at, event.name, detail, isinstance(event, _FAULTS) or (
-                    isinstance(event, BoardResynced) and not event.ok)))
+                    isinstance(event, BoardResynced) and not event.ok) or (
+                    isinstance(event, BoardIdentified) and event.mismatch is not None
+                    and not self.allow_mismatch)))
 
     def _link_event(self, name: str, link: Link, event: StatusEvent) -> None:
         # The robot reacts in the callback that noticed: its events carry that moment.
@@ -145,6 +156,8 @@ class BoardRecovery:
         elif isinstance(event, BoardBack):
             self.checking.discard(name)
             self._board_recovered(name, detail, now)
+        elif isinstance(event, BoardIdentified):
+            self._identified(name, event, now)
         elif isinstance(event, BoardFound | PortRestored) and link.board_alive:
             self.supervisor.board_alive(name, True, now)
             if link.connection.verifying:
@@ -158,6 +171,7 @@ class BoardRecovery:
         for its link to set again what it holds."""
         self.checking.discard(name)
         self.reconfiguring.add(name)
+        self.identifying.add(name)  # asked at start, so its link asks again
         self.restarts[name] = self.restarts.get(name, 0) + 1
         self.stale.pop(name, None)
         self._restarted_hook(name)
@@ -226,10 +240,27 @@ class BoardRecovery:
                 if self.restarts.get(name, 0) != restart:
                     return None
 
+    def _identified(self, name: str, event: BoardIdentified, now: float) -> None:
+        """The restarted board said who it is now: another protocol declaration keeps it not
+        ready (the robot stopped when it restarted), unless the robot allows it."""
+        self.identifying.discard(name)
+        mismatch = event.mismatch
+        if mismatch is not None and not self.allow_mismatch:
+            why = f"restarted into another protocol: {mismatch}"
+            self.mismatched[name] = why
+            self._carry_out(self.supervisor.board_fault(name, Fault.RESTARTED, now, why))
+            return
+        if self.mismatched.pop(name, None) is not None or name in self.supervisor.blocked:
+            self._board_recovered(name, event.describe(), now)
+
     def _board_recovered(self, name: str, detail: str, now: float) -> None:
         """One of the board's faults cleared: ready again once none is left."""
-        if name in self.reconfiguring:
+        if name in self.mismatched:
+            self.supervisor.blocked[name] = self.mismatched[name]
+        elif name in self.reconfiguring:
             self.supervisor.blocked[name] = "restarted: reconfiguring"
+        elif name in self.identifying:
+            self.supervisor.blocked[name] = "restarted: asking who it is now"
         elif name in self.checking:
             self.supervisor.blocked[name] = "heard again: checking whether it restarted"
         elif name in self.stale:

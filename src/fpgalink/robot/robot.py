@@ -80,7 +80,7 @@ class Robot:
 
     def __init__(self, description: RobotDescription, links: Mapping[str, Link], *,
                  deadman_s: float = DEADMAN_S, control_period: float = 0.02,
-                 goto_settings: GoToSettings | None = None) -> None:
+                 goto_settings: GoToSettings | None = None, allow_mismatch: bool = False) -> None:
         missing = sorted(set(description.boards) - set(links))
         extra = sorted(set(links) - set(description.boards))
         if missing or extra:
@@ -106,7 +106,8 @@ class Robot:
         self.recovery = BoardRecovery(
             description, self.supervisor, carry_out=self._carry_out, now=self._now,
             guarded=self._guarded, restarted=self.tracking.restarted,
-            read_back=self.tracking.read_back, notify=self._notify)
+            read_back=self.tracking.read_back, notify=self._notify,
+            allow_mismatch=allow_mismatch)
         #: pulses per turn, TorqueCoef (by board, channel), each board's latest sample
         self.resolution, self.torque_coef = self.tracking.resolution, self.tracking.torque_coef
         self.latest = self.tracking.latest
@@ -140,7 +141,7 @@ class Robot:
         this bound (:meth:`~fpgalink.aio.Link.set_read_latency`: the robot then hears its
         boards up to that much later, so only where nothing reacts to them faster;
         :meth:`read_now` takes what waits); ``options`` go to the robot (deadman_s,
-        control_period, goto_settings)."""
+        control_period, goto_settings, allow_mismatch)."""
         links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
                                  unanswered_rounds=UNANSWERED_ROUNDS,
                                  read_latency=read_latency)
@@ -150,14 +151,15 @@ class Robot:
     # --- lifecycle ------------------------------------------------------------------------
 
     async def start(self) -> Robot:
-        """Open the links, wait for every board, load the description's parameters, read
-        each wheel's encoder resolution back from its board, and turn telemetry on."""
+        """Open the links, wait for every board, ask each who it is (docs/protocol.md §8:
+        ``IdentityMismatch`` unless ``allow_mismatch``), load the description's parameters,
+        read each wheel's encoder resolution back from its board, turn telemetry on."""
         self._timers.start(asyncio.get_running_loop())
         try:
             await self.boards.open()
             await self._wait_for_boards()
-            self._streaming_before, readings = await setup.set_up(self.links,
-                                                                  self.description)
+            self._streaming_before, readings = await setup.set_up(
+                self.links, self.description, self.recovery.allow_mismatch)
         except BaseException:
             await self.boards.close()
             raise

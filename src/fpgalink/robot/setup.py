@@ -1,6 +1,8 @@
 """Setting a robot's boards up at start, over their links: wait until every board is heard,
-quiet the ones found streaming, load the description's parameters, read back what odometry
-and joint states use, and turn telemetry on (:meth:`fpgalink.robot.Robot.start`)."""
+quiet the ones found streaming, ask each who it is (docs/protocol.md §8: one built from
+another protocol declaration is refused before anything else is set), load the
+description's parameters, read back what odometry and joint states use, and turn telemetry
+on (:meth:`fpgalink.robot.Robot.start`)."""
 
 from __future__ import annotations
 
@@ -9,10 +11,11 @@ from collections.abc import Mapping
 
 from fpgalink.aio.link import Link
 from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
+from fpgalink.protocol.identity import require_identity
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot.errors import RobotError
 
-__all__ = ["QUIET_TIMEOUT_S", "START_TIMEOUT_S", "configure", "quiet", "set_up",
+__all__ = ["QUIET_TIMEOUT_S", "START_TIMEOUT_S", "configure", "identify", "quiet", "set_up",
            "wait_for_boards"]
 
 #: How long :meth:`Robot.start` waits for every board to be heard.
@@ -63,11 +66,21 @@ async def quiet(name: str, link: Link) -> int | float:
                                  f"off to set it up: {exc}") from exc
 
 
-async def set_up(links: Mapping[str, Link], description: RobotDescription
+async def identify(name: str, link: Link, allow_mismatch: bool) -> None:
+    """Ask board ``name`` who it is; :class:`~fpgalink.protocol.IdentityMismatch` naming the
+    board and both hashes when its firmware was built from another protocol declaration
+    (unless ``allow_mismatch``). Its link asks again after each restart."""
+    identity = await link.identification.identify(allow_mismatch=True)
+    if not allow_mismatch:
+        require_identity(identity, f"board {name} ({link.url})")
+
+
+async def set_up(links: Mapping[str, Link], description: RobotDescription,
+                 allow_mismatch: bool = False
                  ) -> tuple[dict[str, int | float], dict[tuple[str, int, str], float]]:
-    """Every board heard: quiet the ones streaming, then configure each. Returns each
-    board's telemetry setting as found, and what was read back by (board, channel,
-    parameter)."""
+    """Every board heard: quiet the ones streaming, ask each who it is, then configure each.
+    Returns each board's telemetry setting as found, and what was read back by (board,
+    channel, parameter)."""
     # Every board found streaming is quieted before any is set up, all at once: one set up
     # first would leave the others' telemetry piling up in their ports.
     found = await asyncio.gather(*(quiet(name, link) for name, link in links.items()),
@@ -77,6 +90,10 @@ async def set_up(links: Mapping[str, Link], description: RobotDescription
         if isinstance(outcome, BaseException):
             raise outcome
         streaming_before[name] = outcome
+    # Quiet first (a GetDataPeriodical the seed's protocol has, as every declaration does):
+    # a board streaming answers late. Then who each is, before any of them is configured.
+    for name, link in links.items():
+        await identify(name, link, allow_mismatch)
     readings: dict[tuple[str, int, str], float] = {}
     for name, link in links.items():
         for channel, (pulses, torque) in (await configure(name, link, description)).items():

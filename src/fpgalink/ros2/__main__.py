@@ -23,16 +23,20 @@ import sys
 import textwrap
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any, NoReturn
 from urllib.parse import quote
 
 from fpgalink.protocol.exitcodes import ExitCode, exit_codes_help
 from fpgalink.ros2 import ROS2_INSTALL_HINT, available
 
+if TYPE_CHECKING:
+    from fpgalink.protocol.robot import RobotDescription
+    from fpgalink.ros2.bag import NodeBag
+
 PROG = "fpgalink-ros2"
 
 
-def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> None:
+def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> NoReturn:
     print(f"{PROG}: error: {' '.join(message.split())}", file=sys.stderr, flush=True)
     sys.exit(code)
 
@@ -41,7 +45,7 @@ def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> None:
 #: by SIGINT or SIGTERM, the robot stopped and the boards disabled; docs/ros2.md).
 EXIT_CODES_TABLE = exit_codes_help((
     ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.NO_ANSWER, ExitCode.PORT,
-    ExitCode.NOT_INSTALLED))
+    ExitCode.NOT_INSTALLED, ExitCode.MISMATCH))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -79,6 +83,10 @@ def _parser() -> argparse.ArgumentParser:
                         "pose, path, truth, URDF and supervision; docs/live.md")
     parser.add_argument("--force", action="store_true",
                         help="replace the --bag DIR if it exists")
+    parser.add_argument("--allow-mismatch", action="store_true",
+                        help="go on with boards whose firmware was built from another "
+                        "protocol declaration than this host's (refused otherwise, exit 10; "
+                        "shown in /diagnostics either way)")
     parser.add_argument("--lifecycle", action="store_true",
                         help="a managed (lifecycle) node: configure opens the boards, "
                         "activate publishes and takes commands, deactivate disables the boards")
@@ -188,6 +196,32 @@ def _say(text: str) -> None:
 
 def main(argv: list[str] | None = None) -> None:
     argv = list(sys.argv if argv is None else argv)
+    _answer_without_ros(argv)
+    if not available():
+        _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
+    import rclpy
+
+    options = _own_options(argv)
+    startup, description = _robot(options)
+    ports = _ports(startup, description)
+    live = _live_address(options)
+    bag = _open_bag(options, ports, description)
+    rclpy.init(args=argv)
+    code = 0
+    try:
+        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
+                                bag, options.lifecycle, live, argv, options.allow_mismatch))
+    finally:
+        if bag is not None:
+            code = _close_bag(bag, code)
+        with contextlib.suppress(Exception):
+            rclpy.shutdown()
+    sys.exit(code)
+
+
+def _answer_without_ros(argv: list[str]) -> None:
+    """``--help``, ``--install-tf2`` and ``--version`` (before any ``--ros-args``): answered,
+    then exit, whether ROS 2 is there or not."""
     before_ros = argv[1:argv.index("--ros-args")] if "--ros-args" in argv else argv[1:]
     if "-h" in before_ros or "--help" in before_ros:
         _say(f"{_parser().format_help()}\nROS 2: {ROS2_INSTALL_HINT}.\n")
@@ -201,16 +235,22 @@ def main(argv: list[str] | None = None) -> None:
         from fpgalink import __version__
 
         _say(f"{PROG} {__version__}\n")
-    if not available():
-        _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
-    import rclpy
+
+
+def _own_options(argv: list[str]) -> argparse.Namespace:
+    """This command's options: ``argv`` without the ROS arguments."""
     from rclpy.utilities import remove_ros_args
 
     try:
         own = remove_ros_args(argv)[1:]
     except Exception as exc:  # rclpy's own error for unknown ROS arguments
         _fail(f"{exc} (this command's options go before --ros-args, or after a --)")
-    options = _parser().parse_args(own)
+    return _parser().parse_args(own)
+
+
+def _robot(options: argparse.Namespace) -> tuple[Startup, RobotDescription]:
+    """Where the boards are, and the robot on its surface; a bad config file or robot file
+    is one line, exit 2."""
     from fpgalink.config import ConfigError
     from fpgalink.protocol.robot import DescriptionError, load_robot, seed_robot
 
@@ -224,61 +264,72 @@ def main(argv: list[str] | None = None) -> None:
             description = description.on_surface(options.surface)
     except DescriptionError as exc:
         _fail(str(exc))
+    return startup, description
+
+
+def _ports(startup: Startup, description: RobotDescription) -> dict[str, str]:
+    """Board name → URL: one for each of the robot's boards, or the emulated robot's."""
     ports = startup.ports
     if not ports:
         query = f"surface={quote(description.surface)}" + (
             f"&robot={quote(startup.robot)}" if startup.robot else "")
-        ports = {b: f"emu://robot/{b}?{query}" for b in description.boards}
-    elif set(ports) != set(description.boards):
+        return {b: f"emu://robot/{b}?{query}" for b in description.boards}
+    if set(ports) != set(description.boards):
         _fail(f"the robot's boards are {', '.join(description.boards)}; give a port for "
               f"each, --port NAME=URL or [ports] NAME = URL (got "
               f"{', '.join(sorted(ports))} from {startup.sources['port']})")
-    live = None
-    if options.foxglove is not None:
-        from fpgalink.live import parse_address, require_sdk
-        from fpgalink.protocol.exitcodes import NotInstalled
+    return ports
 
-        if options.lifecycle:
-            _fail("--foxglove does not go with --lifecycle yet")
-        try:
-            live = parse_address(options.foxglove)
-            require_sdk()
-        except ValueError as exc:
-            _fail(f"--foxglove {exc}")
-        except NotInstalled as exc:
-            _fail(str(exc), ExitCode.NOT_INSTALLED)
-    bag = None
-    if options.bag is not None:
-        from fpgalink.ros2.bag import BagError, NodeBag
 
-        try:
-            bag = NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
-                                        "robot": description.name}, force=options.force)
-        except BagError as exc:
-            _fail(str(exc), exc.code)
-    rclpy.init(args=argv)
-    code = 0
+def _live_address(options: argparse.Namespace) -> Any:
+    """``--foxglove``'s address (``None`` without it), the SDK checked before ROS starts."""
+    if options.foxglove is None:
+        return None
+    from fpgalink.live import parse_address, require_sdk
+    from fpgalink.protocol.exitcodes import NotInstalled
+
+    if options.lifecycle:
+        _fail("--foxglove does not go with --lifecycle yet")
     try:
-        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live, argv))
-    finally:
-        if bag is not None:
-            try:
-                bag.close()
-            except BagError as exc:  # stopped early: complete up to there, or not finished
-                print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
-                code = code or exc.code
-            else:
-                print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr,
-                      flush=True)
-        with contextlib.suppress(Exception):
-            rclpy.shutdown()
-    sys.exit(code)
+        live = parse_address(options.foxglove)
+        require_sdk()
+    except ValueError as exc:
+        _fail(f"--foxglove {exc}")
+    except NotInstalled as exc:
+        _fail(str(exc), ExitCode.NOT_INSTALLED)
+    return live
+
+
+def _open_bag(options: argparse.Namespace, ports: dict[str, str],
+              description: RobotDescription) -> NodeBag | None:
+    """``--bag DIR``'s recording, opened before the node starts (``None`` without it)."""
+    if options.bag is None:
+        return None
+    from fpgalink.ros2.bag import BagError, NodeBag
+
+    try:
+        return NodeBag(options.bag, {"ports": " ".join(f"{b}={u}" for b, u in ports.items()),
+                                     "robot": description.name}, force=options.force)
+    except BagError as exc:
+        _fail(str(exc), exc.code)
+
+
+def _close_bag(bag: NodeBag, code: int) -> int:
+    """The bag closed and said in one line; the exit code, a failure to close it included."""
+    from fpgalink.ros2.bag import BagError
+
+    try:
+        bag.close()
+    except BagError as exc:  # stopped early: complete up to there, or not finished
+        print(f"{PROG}: error: {exc}", file=sys.stderr, flush=True)
+        return code or exc.code
+    print(f"{PROG}: bag {bag.path}: {bag.messages} messages", file=sys.stderr, flush=True)
+    return code
 
 
 async def _run(description: object, ports: dict[str, str], baud: int, source: str,
                bag: Any = None, lifecycle: bool = False, live: Any = None,
-               argv: list[str] | None = None) -> int:
+               argv: list[str] | None = None, allow_mismatch: bool = False) -> int:
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -297,8 +348,9 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     if lifecycle:
         from fpgalink.ros2.managed import run_managed
 
-        return await run_managed(description, ports, baud, bag, stop, overrides)
-    robot = Robot.open(description, ports, baud=baud)
+        return await run_managed(description, ports, baud, bag, stop, overrides,
+                                 allow_mismatch)
+    robot = Robot.open(description, ports, baud=baud, allow_mismatch=allow_mismatch)
     try:
         await robot.start()
     except (RobotError, FpgalinkError) as exc:

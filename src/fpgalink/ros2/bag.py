@@ -83,6 +83,11 @@ class NodeBag:
     def messages(self) -> int:
         return self._bag.messages
 
+    def set_metadata(self, metadata: dict[str, str]) -> None:
+        """More of the bag's ``metadata.yaml`` custom data (``fpgalink.KEY``), known once the
+        robot started: who its boards are."""
+        self._bag.set_custom_data({f"fpgalink.{key}": value for key, value in metadata.items()})
+
     def write(self, topic: str, message: Any, log_ns: int) -> str | None:
         """``message`` (an rclpy message) on ``topic``; returns why the recording just
         stopped, once, or ``None``."""

@@ -28,6 +28,7 @@ from rclpy.exceptions import ParameterException, ParameterImmutableException
 from rclpy.lifecycle import LifecycleNode, LifecycleState, TransitionCallbackReturn
 
 from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import IdentityMismatch
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot import Robot, RobotError
 from fpgalink.ros2.bag import NodeBag
@@ -70,7 +71,8 @@ class _NodeMark:
 class _ManagedNode(LifecycleNode):
     def __init__(self, loop: asyncio.AbstractEventLoop, description: RobotDescription,
                  ports: dict[str, str], baud: int, bag: NodeBag | None,
-                 stop: asyncio.Event, overrides: set[str]) -> None:
+                 stop: asyncio.Event, overrides: set[str], allow_mismatch: bool = False
+                 ) -> None:
         super().__init__(NODE_NAME, start_parameter_services=False)
         self.loop = loop
         self.description = description
@@ -79,6 +81,7 @@ class _ManagedNode(LifecycleNode):
         self.bag = bag
         self.stop = stop
         self.overrides = overrides
+        self.allow_mismatch = allow_mismatch
         self.executor_ref: Any = None
         self.robot: Robot | None = None
         self.bridge: RosBridge | None = None
@@ -124,12 +127,16 @@ class _ManagedNode(LifecycleNode):
     async def _configure(self) -> TransitionCallbackReturn:
         log = self.get_logger()
         mark = _NodeMark(self)
-        robot = Robot.open(self.description, self.ports, baud=self.baud)
+        robot = Robot.open(self.description, self.ports, baud=self.baud,
+                           allow_mismatch=self.allow_mismatch)
         configured = False
         bridge: RosBridge | None = None
         try:
             try:
                 await robot.start()
+            except IdentityMismatch as exc:
+                log.error(f"configure: {exc} (--allow-mismatch goes on)")
+                return TransitionCallbackReturn.FAILURE
             except (RobotError, FpgalinkError) as exc:
                 log.error(f"configure: boards not reached: {exc}")
                 return TransitionCallbackReturn.FAILURE
@@ -207,10 +214,11 @@ class _ManagedNode(LifecycleNode):
 
 
 async def run_managed(description: RobotDescription, ports: dict[str, str], baud: int,
-                      bag: NodeBag | None, stop: asyncio.Event, overrides: set[str]) -> int:
+                      bag: NodeBag | None, stop: asyncio.Event, overrides: set[str],
+                      allow_mismatch: bool = False) -> int:
     """The managed node until SIGINT/SIGTERM (``stop``) or its shutdown transition."""
     loop = asyncio.get_running_loop()
-    node = _ManagedNode(loop, description, ports, baud, bag, stop, overrides)
+    node = _ManagedNode(loop, description, ports, baud, bag, stop, overrides, allow_mismatch)
     executor, thread = spin_in_thread(node)
     node.executor_ref = executor
     node.get_logger().info("up, unconfigured (--lifecycle): configure opens the boards")

@@ -42,6 +42,7 @@ from sensor_msgs.msg import Imu, JointState
 from std_msgs.msg import Bool, String
 
 from fpgalink.errors import FpgalinkError
+from fpgalink.protocol import describe_identity, identity_metadata
 from fpgalink.robot import GoalTimeout, Robot, RobotStopped
 from fpgalink.robot.arbiter import Commanded, CommandNotice, Taken
 from fpgalink.robot.feed import SetFeed
@@ -108,6 +109,12 @@ class RosBridge:
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
         self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
+        # Who the boards are, said once here, carried in /diagnostics and the bag.
+        boards = {name: robot.boards.identity(name) for name in robot.description.boards}
+        for name, (identity, known) in boards.items():
+            self.log.info(f"board {name}: {describe_identity(identity, known)}")
+        if bag is not None:
+            bag.set_metadata(identity_metadata(boards))
         self.params = NodeParameters(robot, node, self._parameters_changed)
         try:
             self._create_publishers(managed)

@@ -12,7 +12,16 @@ from fpgaemu.firmware import FIRMWARE_BUILD, FIRMWARE_VERSION, emulated_serial
 from fpgalink import Connection, RequestTimeout
 from fpgalink.aio.identity import read_identity
 from fpgalink.aio.link import Link, open_link
-from fpgalink.protocol import CountedMessage, Event, encode_message
+from fpgalink.errors import LocalProtocolError
+from fpgalink.events import BoardIdentified, BoardRestarted
+from fpgalink.protocol import (
+    DEFAULT_FRAMING,
+    Event,
+    ParamSet,
+    Role,
+    encode_frame,
+    encode_message,
+)
 from fpgalink.protocol.catalogue import IdentityAnswer, IdentityQuery
 from fpgalink.protocol.identity import (
     SEED_PROTOCOL,
@@ -25,9 +34,9 @@ from fpgalink.protocol.identity import (
     declarations_hash,
     require_identity,
 )
-from fpgalink.protocol.messages import parse_body
 from tests.support.fakeboard import ScriptedBoard, memory_pair
 from tests.support.firmwares import require_c_firmware
+from tests.support.waiting import wait_until
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -44,11 +53,10 @@ class IdentifiedBoard(ScriptedBoard):
 
     def _answer(self, event: Event, now: float) -> None:
         if isinstance(event, IdentityQuery):
-            answer = IdentityAnswer((event.nonce + self.nonce_offset) % 2**32,
-                                    self.declarations, 2, 0, 1, 0x1A2B3C4D, 42)
-            items = parse_body(encode_message(answer, 0))
-            assert isinstance(items, tuple)
-            self.conn.send(CountedMessage("IA", items), now)
+            # A board's connection sends the typed answer as it does PA: the catalogue says
+            # who sends what (it took a generic message with the same bytes before).
+            self.conn.send(IdentityAnswer((event.nonce + self.nonce_offset) % 2**32,
+                                          self.declarations, 2, 0, 1, 0x1A2B3C4D, 42), now)
             return
         super()._answer(event, now)
 
@@ -122,3 +130,132 @@ def test_the_probe_takes_a_late_answer_to_an_earlier_round() -> None:
     assert probe.fence_answered() and probe.identity == BoardIdentity(1, (1, 1, 0), 0, 9)
     with pytest.raises(ValueError):
         IdentityProbe(rounds=0)
+
+
+# --- the sendable set from the catalogue; the link asking at open and after a restart ------
+
+
+def test_each_side_sends_its_catalogued_messages_as_themselves() -> None:
+    # The connection's sendable set hard-coded six typed messages: IQ went out as a generic
+    # message with the same bytes, and a board could not send IA typed at all.
+    host, board = Connection(baud=None), Connection(role=Role.BOARD, baud=None)
+    host.send(IdentityQuery(0x0A0B0C0D), 0.0)
+    board.receive_data(host.data_to_send(), 0.0)
+    (query,) = [e for e in board.events() if isinstance(e, IdentityQuery)]
+    assert query.nonce == 0x0A0B0C0D
+    board.send(IdentityAnswer(query.nonce, 1, 1, 1, 0, 0, 7), 0.0)
+    host.receive_data(board.data_to_send(), 0.0)
+    assert [e.serial for e in host.events() if isinstance(e, IdentityAnswer)] == [7]
+    with pytest.raises(LocalProtocolError):
+        host.send(IdentityAnswer(1, 1, 1, 1, 0, 0, 0), 0.0)  # a board's message
+    with pytest.raises(LocalProtocolError):
+        board.send(ParamSet(1, 0, 1, 1), 0.0)  # a host's
+
+
+async def test_a_link_opened_to_identify_knows_the_board_before_it_returns() -> None:
+    link = open_link("emu://?seed=2", identify=True)
+    said: list[BoardIdentified] = []
+    link.on_event(lambda e: said.append(e) if isinstance(e, BoardIdentified) else None)
+    async with link:
+        assert link.identification.known
+        assert link.identification.identity == BoardIdentity(declarations_hash(), FIRMWARE_VERSION,
+                                              FIRMWARE_BUILD, emulated_serial(2))
+        (event,) = said
+        assert event.match is IdentityMatch.MATCH and event.mismatch is None
+        assert event.describe() == link.identification.identity.describe()
+    plain = open_link("emu://")  # not asked unless asked: no extra round trip
+    async with plain:
+        assert not plain.identification.known and plain.stats.bytes_sent == 0
+
+
+async def test_a_link_opened_to_identify_refuses_another_declaration_and_closes() -> None:
+    board = IdentifiedBoard(OTHER)
+    link = Link(Connection(request_timeout=0.05, request_tries=3), memory_pair(board),
+                identify=True)
+    with pytest.raises(IdentityMismatch) as caught:
+        await link.open()
+    assert f"{OTHER:016x}" in str(caught.value) and declarations_digest() in str(caught.value)
+    assert link.state.value == "closed"
+    allowed = Link(Connection(request_timeout=0.05, request_tries=3),
+                   memory_pair(IdentifiedBoard(OTHER)), identify=True, allow_mismatch=True)
+    async with allowed:
+        identity = allowed.identification.identity
+        assert identity is not None and identity.declarations == OTHER
+        assert compare_identity(identity) is IdentityMatch.MISMATCH
+
+
+async def test_a_seed_board_opens_as_seed_protocol() -> None:
+    async with Link(Connection(request_timeout=0.05, request_tries=3),
+                    memory_pair(ScriptedBoard()), identify=True) as link:
+        assert link.identification.known and link.identification.identity is None
+
+
+async def test_a_restarted_board_is_asked_again() -> None:
+    # A re-flash changes who the board is: after a restart the link asks again by itself
+    # and says what the board answered.
+    link = open_link("emu://?seed=4&fault=restart=1.0", identify=True)
+    seen: list[Event] = []
+    link.on_event(seen.append)
+    async with link:
+        assert link.identification.known
+        await link.set_param("GetDataPeriodical", 1)  # its stopping shows the restart
+        await wait_until(lambda: sum(isinstance(e, BoardIdentified) for e in seen) == 2,
+                         timeout=20, what="the board asked again after its restart")
+        kinds = [type(e) for e in seen if isinstance(e, BoardRestarted | BoardIdentified)]
+        assert kinds[:3] == [BoardIdentified, BoardRestarted, BoardIdentified]
+        assert link.identification.known and link.identification.identity is not None
+        assert link.identification.identity.serial == emulated_serial(4)
+
+
+# --- hostile answers (docs/reliability.md, identity rows) ------------------------------------
+
+
+class HostileBoard(ScriptedBoard):
+    """Answers each ``IQ`` as told: ``torn`` (its ``IA`` frame one byte short, the section's
+    LEN left as it was), or ``flood`` answers to nonces it was not asked before the right
+    one."""
+
+    def __init__(self, *, torn: bool = False, flood: int = 0) -> None:
+        super().__init__()
+        self.torn = torn
+        self.flood = flood
+        self._raw: list[bytes] = []
+
+    def receive(self, data: bytes, now: float = 0.0) -> bytes:
+        reply = super().receive(data, now)
+        raw, self._raw = b"".join(self._raw), []
+        return reply + raw
+
+    def _answer(self, event: Event, now: float) -> None:
+        if not isinstance(event, IdentityQuery):
+            super()._answer(event, now)
+            return
+        for n in range(self.flood):
+            self.conn.send(IdentityAnswer((event.nonce + 1 + n) % 2**32, OTHER, 9, 9, 9, 9,
+                                          9), now)
+        answer = IdentityAnswer(event.nonce, declarations_hash(), 1, 1, 0, 0, 1)
+        if self.torn:
+            whole = encode_message(answer, 99)
+            self._raw.append(encode_frame(whole[:-2] + whole[-1:], DEFAULT_FRAMING))
+            return
+        self.conn.send(answer, now)
+
+
+async def test_a_torn_answer_is_counted_and_never_taken_for_one() -> None:
+    async with scripted(HostileBoard(torn=True)) as link:
+        # unknown: nothing it said is an IA
+        assert await link.identification.identify(rounds=3) is None
+        assert link.stats.malformed == 3 and link.identification.known  # each counted
+        assert link.identification.identity is None
+        assert await link.set_param("TsTimerPeriod", 4) == 4  # and it works
+
+
+async def test_a_flood_of_answers_to_other_nonces_is_read_past() -> None:
+    board = HostileBoard(flood=5_000)
+    async with scripted(board) as link:
+        identity = await link.identification.identify()
+        assert identity is not None and identity.declarations == declarations_hash()
+        assert link.connection.pending_events == 0  # nothing piled up
+        # Five thousand answers with another declaration's hash and nonces never asked:
+        # none of them is this board's answer, none refused the board.
+        assert link.stats.messages_received > 5_000

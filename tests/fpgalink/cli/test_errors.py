@@ -10,6 +10,7 @@ from pathlib import Path
 import pytest
 import serial
 
+from fpgalink.protocol import ParamGet
 from tests.support.cli import Board, BoardThread, cli_env, run_cli
 
 pytestmark = pytest.mark.timeout(60)
@@ -107,8 +108,12 @@ def test_board_not_answering_exits_4_saying_how_many_tries(
                    "--timeout", "0.05")
     assert done.returncode == 4, done.stderr
     assert_one_line_error(done.stderr, "not answering", "3 tries")
-    sets = [m for m in fake.board.received if type(m).__name__ == "ParamSet"]
-    assert len(sets) == 3  # every try went out, each with its own counter
+    # Its first question is who the board is (IQ, then a PG that every board answers):
+    # every try of that PG went out, each with its own counter, and nothing was set.
+    assert "asking who the board is" in done.stderr
+    gets = [m for m in fake.board.received if isinstance(m, ParamGet)]
+    assert len(gets) == 3 and len({m.counter for m in gets}) == 3
+    assert not [m for m in fake.board.received if type(m).__name__ == "ParamSet"]
 
 
 def test_send_reply_timeout_exits_4(fake_board: Callable[..., BoardThread]) -> None:

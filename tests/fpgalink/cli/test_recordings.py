@@ -88,9 +88,20 @@ WRITERS = {
     "drive --rosbag2": ["drive", "--v", "0.1", "--for", "60", "--rosbag2", "{small}/bag"],
     "goto --record": ["goto", "30", "0", "--time-limit", "60", "--record", "{small}/run.mcap"],
 }
+#: The bring-up commands' recordings: identify's and autotune's of a board driven for a
+#: minute at 1 kHz, calibrate's of the robot turning round ten times.
+BRINGUP = ("--wheels", "air", "--max-duty", "100", "--duration", "60", "--period-ms", "1")
+WRITERS.update({
+    "identify --record": ["identify", "-c", "A", *BRINGUP, "--record", "{small}/run.mcap"],
+    "autotune --record": ["autotune", "-c", "A", *BRINGUP, "--record", "{small}/run.mcap"],
+    "calibrate --record": ["calibrate", "--turn", "3600", "--omega", "90", "--record",
+                           "{small}/run.mcap"],
+})
 #: A disk that fills within seconds: the 768 KiB kept for a bag's summary and metadata.yaml
 #: (512 KiB for a file's summary) and what a writer at rest (compressed well) fills quickly.
-FILLS = {"drive --record": "1200k", "goto --record": "1200k", "record --rosbag2": "900k"}
+FILLS = {"drive --record": "1200k", "goto --record": "1200k", "record --rosbag2": "900k",
+         "identify --record": "1200k", "autotune --record": "1200k",
+         "calibrate --record": "1200k"}
 
 
 @needs_tmpfs
@@ -126,6 +137,10 @@ def test_a_disk_that_fills_stops_the_recording_complete_with_one_line(
     assert "the disk is full" in line and "complete up to there" in line, line
     assert "recorded" not in done.stderr.replace(line, "")
     said = int(line.split(" with ")[1].split()[0])
+    if writer == "autotune --record":
+        # The disk filled while the wheel was being identified: the run stopped there (the
+        # board disabled and set back), it did not go on to drive the confirming step.
+        assert "stepping" not in done.stderr, done.stderr
     if "rosbag2" in writer:
         assert left == ["bag"]
         assert bag_messages(kept / "bag") == said > 500
@@ -208,6 +223,19 @@ TARGETS = [
      "x.png", False),
     (["tune", "-c", "A", "--grid", "Kp=100", "--seconds", "0.2", "--mcap", "{dir}"],
      "0-seed_3.4.mcap", False),
+    # The bring-up commands (they passed force=False, and wrote around the rule): checked
+    # before the board or the robot is driven.
+    (["identify", "-c", "A", *("--wheels", "air", "--max-duty", "50", "--duration", "3"),
+      "--port", "emu://", "--record", "{dir}/x"], "x", False),
+    (["identify", "-c", "A", *("--wheels", "air", "--max-duty", "50", "--duration", "3"),
+      "--port", "emu://", "--plot", "{dir}/x.png"], "x.png", False),
+    (["identify", "-c", "A", *("--wheels", "air", "--max-duty", "50", "--duration", "3"),
+      "--port", "emu://", "--save-model", "{dir}/x"], "x", False),
+    (["autotune", "-c", "A", *("--wheels", "air", "--max-duty", "50", "--duration", "3"),
+      "--port", "emu://", "--record", "{dir}/x"], "x", False),
+    (["autotune", "-c", "A", *("--wheels", "air", "--max-duty", "50", "--duration", "3"),
+      "--port", "emu://", "--plot", "{dir}/x.png"], "x.png", False),
+    (["calibrate", "--turn", "30", "--record", "{dir}/x"], "x", False),
 ]
 
 
@@ -260,6 +288,25 @@ def test_force_replaces_what_is_there(tmp_path: Path, recording: Path) -> None:
     with run.open("rb") as stream:
         topics = {c.topic for _, c, _ in make_reader(stream).iter_messages()}
     assert "/robot/odometry" in topics  # drive's, not record's
+
+
+def test_the_bring_up_commands_replace_with_force_and_say_who_the_board_was(
+        tmp_path: Path) -> None:
+    record, plot, model = tmp_path / "id.mcap", tmp_path / "id.png", tmp_path / "model.toml"
+    for path in (record, plot, model):
+        path.write_text("old")
+    done = run_driving("identify", "-c", "A", "--wheels", "air", "--max-duty", "50",
+                       "--duration", "3", "--port", "emu://?seed=2", "--record", str(record),
+                       "--plot", str(plot), "--save-model", str(model), "--force",
+                       timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert plot.read_bytes().startswith(b"\x89PNG") and "[plant]" in model.read_text()
+    with RecordingReader(record) as reader:
+        assert sum(1 for _ in reader.messages()) > 100 and reader.complete
+        metadata = reader.metadata["fpgalink"]
+    assert metadata["command"] == "identify" and metadata["board.0.match"] == "match"
+    assert metadata["host_protocol"] == metadata["board.0.protocol"]
+    assert sorted(os.listdir(tmp_path)) == ["id.mcap", "id.png", "model.toml"]
 
 
 def test_record_without_a_port_says_what_it_records(tmp_path: Path) -> None:

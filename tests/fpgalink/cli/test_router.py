@@ -160,7 +160,10 @@ def test_an_observers_writes_are_refused_and_counted(tmp_path: Path) -> None:
     clients = {c["client"]: c for c in summary["clients"]}
     assert clients[1]["role"] == "controller" and clients[1]["refused_frames"] == 0
     assert clients[2]["refused_by_id"] == {"RE": 1} and clients[2]["frames_to_board"] == 0
-    assert clients[3]["refused_by_id"] == {"PS": 1}  # the PN is final: not sent again
+    # The PN is final: not sent again. Before it, the command asked who the board is: its
+    # IQ passed to the board (a question), the PG after it refused as every read is.
+    assert clients[3]["refused_by_id"] == {"PG": 1, "PS": 1}
+    assert clients[3]["to_board_by_id"] == {"IQ": 1}
 
 
 def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
@@ -469,8 +472,8 @@ async def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
     before it is back: the RD the first one was owed goes to the board first (the board
     may still be enabled, an outage shorter than its watchdog), then the new controller's
     frames. Before, a new controller cancelled it: the motor stayed driven."""
-    from fpgalink.cli.router import DISABLE, BoardRoute, ClientStats
     from fpgalink.protocol.framing import encode_frame
+    from fpgalink.router import DISABLE, BoardRoute, ClientStats
 
     class Client:
         def __init__(self) -> None:
@@ -499,36 +502,6 @@ async def test_rd_goes_first_when_the_port_is_back_even_with_a_new_controller(
     assert wire.written[2:] == [encode_frame(b"RE")]
     assert "RD sent for the controller that left while the port was gone" in (
         capsys.readouterr().err)
-
-
-def test_a_link_to_a_live_pty_is_not_taken_over_and_only_our_own_is_removed(
-        tmp_path: Path) -> None:
-    """``--link``: a symlink to a pty that is there may be another router's or serve's,
-    live: refused, one line, the link untouched. A dangling one (a killed router's) or one
-    to the very pty we now have is replaced. At the end only a link still pointing at our
-    pty is removed."""
-    import os
-
-    from fpgalink.cli.output import CliError
-    from fpgalink.cli.router import make_link
-
-    master, slave = os.openpty()
-    try:
-        live = os.ttyname(slave)
-        link = tmp_path / "fpga0"
-        link.symlink_to(live)
-        with pytest.raises(CliError, match="which exists") as caught:
-            make_link(link, "/dev/pts/999999")
-        assert caught.value.exit_code == 2 and os.readlink(link) == live
-        make_link(link, live)  # the pty we now have: ours, replaced
-        assert os.readlink(link) == live
-        link.unlink()
-        link.symlink_to(tmp_path / "gone")  # dangling: a killed router's
-        make_link(link, live)
-        assert os.readlink(link) == live
-    finally:
-        os.close(master)
-        os.close(slave)
 
 
 def test_bad_link_refused_through_the_console_script(tmp_path: Path) -> None:
@@ -697,7 +670,7 @@ def test_a_flooding_controller_that_leaves_is_overtaken_by_the_rd(tmp_path: Path
     off = len(enabled) - enabled[::-1].index(1)  # the first TM after the last enabled one
     enabled_s = (samples[off]["t_us"] - samples[on]["t_us"]) / 1e6
     assert enabled_s <= flood_s + 2.0, (enabled_s, flood_s)  # was 10 s
-    from fpgalink.cli.router import BOARD_QUEUE_S
+    from fpgalink.router import BOARD_QUEUE_S
 
     flood = {c["client"]: c for c in summary["clients"]}[2]
     passed = flood["frames_to_board"]
@@ -739,7 +712,8 @@ def test_a_refused_parameter_set_says_the_router_refused_it(tmp_path: Path) -> N
     assert untouched.returncode == 0 and float(untouched.stdout.split()[-1]) != 500, (
         untouched.stdout, untouched.stderr)
     clients = {c["client"]: c for c in summary["clients"]}
-    assert clients[2]["role"] == "observer" and clients[2]["refused_by_id"] == {"PS": 1}
+    assert clients[2]["role"] == "observer"
+    assert clients[2]["refused_by_id"] == {"PG": 1, "PS": 1}  # the identity's PG too
     # A client with the wire CRC on is answered with it (docs/protocol.md §7), else its
     # link would drop the answer as a CRC failure.
     from fpgalink.protocol import NackReason, ParamNack, parse_content
@@ -776,7 +750,7 @@ async def test_the_line_queue_paces_bounds_and_is_overtaken_by_a_disable() -> No
     """LineQueue on its own, time passed in: frames go to the port only while what went
     before has less than the lead left on the line; beyond the bound they are refused; a
     disable goes ahead of what waits, which is dropped and returned."""
-    from fpgalink.cli.router import LineQueue
+    from fpgalink.router import LineQueue
 
     line: LineQueue[int] = LineQueue(1_000_000, bound=0.01, lead=0.002)  # 1,000 / 200 B
     assert all(line.push(i, 100, 0.0) for i in range(10))

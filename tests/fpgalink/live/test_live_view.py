@@ -293,6 +293,22 @@ def test_step_and_monitor_stream_their_board() -> None:
     assert len(got.messages["/board/0/telemetry"]) > 100
 
 
+def test_identify_streams_the_board_it_excites() -> None:
+    # Issue 41: --foxglove on identify (it had none): the board's telemetry live while the
+    # wheel is excited, its duty changing as the sequence steps.
+    proc = start_script("fpgalink-cli", "identify", "-c", "A", "--wheels", "air",
+                        "--max-duty", "50", "--duration", "6", "--port", "emu://",
+                        "--format", "json", "--foxglove", "0", stdout=subprocess.DEVNULL)
+    try:
+        got = asyncio.run(watch(_live_url(proc), 4.0))
+    finally:
+        _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, err
+    assert {"/board/0/telemetry", "/board/0/stats"} <= got.topics()
+    duties = {row["a_pwm"] for _, row in got.messages["/board/0/telemetry"]}
+    assert len(duties) > 1, duties
+
+
 def test_serve_robot_streams_the_true_body(tmp_path: Path) -> None:
     serve = start_script("fpgaemu", "serve", "--robot", "--body", "kinematic", "--pty",
                          "--link", f"L={tmp_path / 'L'}", "--link", f"R={tmp_path / 'R'}",

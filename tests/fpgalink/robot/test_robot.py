@@ -16,6 +16,7 @@ from typing import Any
 
 import pytest
 
+import fpgaemu.firmware
 from fpgaemu.board import Board
 from fpgaemu.firmware import Firmware
 from fpgaemu.robot import EmulatedRobot
@@ -32,10 +33,17 @@ from fpgalink.events import (
     RestartEvidence,
     StatusEvent,
 )
-from fpgalink.protocol import LocalProtocolError, float32
+from fpgalink.protocol import (
+    IdentityMismatch,
+    LocalProtocolError,
+    declarations_digest,
+    declarations_hash,
+    float32,
+)
 from fpgalink.protocol.robot import SEED_ROBOT_TOML, RobotDescription, parse_robot, seed_robot
-from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped
+from fpgalink.robot import GoalTimeout, Robot, RobotClosed, RobotError, RobotStopped, setup
 from fpgalink.robot.arbiter import CommandNotice, Taken
+from fpgalink.robot.recovery import BoardNotice
 from fpgalink.robot.supervision import State, StopReason, SupervisionEvent
 from tests.support.driving import drive_until
 from tests.support.interpose import HeldReads, LateReads, SlowReader, interpose
@@ -753,3 +761,76 @@ def test_a_robot_reading_in_batches_is_brought_to_the_present_by_read_now() -> N
     assert max(behind) > 3_000  # the batches were there: up to 10 ms late
     # After read_now: the latest TM (one a millisecond, ~0.5 ms on the line) is there.
     assert max(caught_up) < 2_000
+
+
+# --- who the boards are (docs/protocol.md §8) ---------------------------------------------
+
+OTHER_DECLARATION = declarations_hash() ^ 0x00FF_00FF_00FF_00FF
+
+
+async def test_start_refuses_boards_built_from_another_declaration(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    # The emulated firmware answers IQ with the hash its code was built from: here another
+    # declaration's. Start refuses, naming the board and both hashes, before it sets any
+    # parameter of the description on it.
+    monkeypatch.setattr(fpgaemu.firmware, "declarations_hash", lambda: OTHER_DECLARATION)
+    configured: list[str] = []
+    configure = setup.configure
+
+    async def recorded(name: str, *args: Any) -> Any:
+        configured.append(name)
+        return await configure(name, *args)
+
+    monkeypatch.setattr(setup, "configure", recorded)
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    with pytest.raises(IdentityMismatch) as caught:
+        await robot.start()
+    assert str(caught.value).startswith("board L (emu://robot/L")
+    assert f"{OTHER_DECLARATION:016x}" in str(caught.value)
+    assert declarations_digest() in str(caught.value)
+    assert configured == []  # no board was set up
+    async with emulated("surface=ideal", allow_mismatch=True) as allowed:
+        statuses = {s.name: s for s in allowed.health()}
+        level, values = statuses["board L"].level, dict(statuses["board L"].values)
+        assert level.name == "WARN" and "another protocol" in statuses["board L"].message
+        assert values["protocol"] == f"{OTHER_DECLARATION:016x}"
+        assert values["host protocol"] == declarations_digest()
+        assert "NOT this host's protocol" in values["identity"]
+
+
+async def test_health_says_who_each_board_is() -> None:
+    async with emulated("surface=ideal") as robot:
+        values = {s.name: dict(s.values) for s in robot.health()}
+        assert values["board L"]["identity"] == robot.boards.identity("L")[0].describe()  # type: ignore[union-attr]
+        assert values["board L"]["protocol"] == values["board L"]["host protocol"] == \
+            declarations_digest()
+
+
+@pytest.mark.parametrize("allow", [False, True])
+async def test_a_board_restarted_into_another_declaration_is_not_ready_again(
+        monkeypatch: pytest.MonkeyPatch, allow: bool) -> None:
+    # A re-flash changes who the board is: after L's restart its link asks again, and L
+    # answers another declaration's hash. It stays not ready (the robot stopped at the
+    # restart) and says why; unless the robot allows it, then it is ready once set up.
+    notices: list[BoardNotice] = []
+    async with emulated("surface=ideal&fault=L:restart=1.5", allow_mismatch=allow) as robot:
+        robot.on_notice(lambda n: notices.append(n) if isinstance(n, BoardNotice) else None)
+        monkeypatch.setattr(fpgaemu.firmware, "declarations_hash", lambda: OTHER_DECLARATION)
+        await wait_until(lambda: any(n.kind == "board_identified" for n in notices),
+                         PATIENCE, "L asked who it is after its restart")
+        (said,) = [n for n in notices if n.kind == "board_identified"]
+        assert f"{OTHER_DECLARATION:016x}" in said.detail and said.fault is not allow
+        if not allow:
+            await wait_until(lambda: "another protocol" in robot.supervisor.blocked.get("L", ""),
+                             PATIENCE, "L kept not ready")
+            with pytest.raises(RobotStopped, match="another protocol"):
+                robot.enable()
+            statuses = {s.name: s for s in robot.health()}
+            assert statuses["board L"].level.name == "ERROR"
+        else:
+            await wait_until(lambda: not robot.supervisor.blocked, PATIENCE, "L ready again")
+            robot.enable()
+            robot.disable()
+        assert robot.boards.identity("L")[0] is not None
+        assert robot.boards.identity("L")[0].declarations == OTHER_DECLARATION  # type: ignore[union-attr]
