@@ -10,7 +10,8 @@ sources: if every one is as compiled, the extensions load; if any changed, or th
 is missing, or its shared library is not beside the packages (an extension would load
 another build's from elsewhere on the path), or ``FPGALINK_PURE`` is set, every module of
 both packages loads from its source (the compiled modules call one another in C, so it is
-all of them or none), and a stale build is said once on stderr. With no compiled build at all, nothing here is installed.
+all of them or none), and a stale build is said once on stderr. With no compiled build at
+all, nothing here is installed.
 """
 
 from __future__ import annotations

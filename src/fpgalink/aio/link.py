@@ -444,10 +444,7 @@ class Link:
     # --- read batching --------------------------------------------------------------------
 
     def set_read_latency(self, seconds: float | None) -> None:
-        """Let the link gather received bytes for up to ``seconds`` before handling them
-        (``None`` or 0: handle every read at once, the default;
-        :mod:`~fpgalink.aio.batching`). A pending parameter request is never held back:
-        reading resumes at once while one is in flight."""
+        """Read in batches of up to ``seconds`` (None or 0: at once; :mod:`.batching`)."""
         self._batches.set_latency(seconds)
 
     @property
@@ -455,8 +452,7 @@ class Link:
         return self._batches.latency
 
     def read_now(self) -> None:
-        """Handle at once what the port holds: a batch under way ends now (reading goes on
-        as set). For a reader about to compare what the link says with the present."""
+        """Handle at once what the port holds: a batch under way ends now."""
         self._batches.resume()
 
     def _flush(self) -> None:

@@ -26,7 +26,7 @@ import math
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, Stamped, Subscription, open_link
+from fpgalink.aio.link import Link, Subscription, open_link
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event, RequestDone, StatusEvent
 from fpgalink.protocol import Telemetry
@@ -37,6 +37,7 @@ from fpgalink.robot.boards import TRUTH_EXTRA, Boards
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.feed import SetFeed
+from fpgalink.robot.following import TelemetryFollowers
 from fpgalink.robot.goto import GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, supervision_status
 from fpgalink.robot.joints import JointStates
@@ -114,8 +115,8 @@ class Robot:
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
-        #: each board's telemetry as the robot follows it, and the task that does
-        self._following: list[tuple[Subscription[Stamped], asyncio.Task[None]]] = []
+        self._followers = TelemetryFollowers(self.boards, self.tracking, self.arbiter,
+                                             description.boards[0], self._guarded)
         self._removers: list[Callable[[], None]] = []
         self._feeds: set[Subscription[SupervisionEvent]] = set()
         self._set_feeds: set[SetFeed] = set()
@@ -138,9 +139,7 @@ class Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
         ``stale_periods``: timer periods without a board's telemetry that stop the robot
         (:class:`~fpgalink.Connection`); ``read_latency``: the links read in batches under
-        this bound (:meth:`~fpgalink.aio.Link.set_read_latency`: the robot then hears its
-        boards up to that much later, so only where nothing reacts to them faster;
-        :meth:`read_now` takes what waits); ``options`` go to the robot (deadman_s,
+        it (docs/robot.md, :meth:`read_now`); ``options`` go to the robot (deadman_s,
         control_period, goto_settings, allow_mismatch)."""
         links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
                                  unanswered_rounds=UNANSWERED_ROUNDS,
@@ -167,10 +166,7 @@ class Robot:
             self.tracking.read_back(name, channel, param, value)
         for name, link in self.links.items():
             self.supervisor.board_alive(name, link.board_alive, self._now())
-            samples = link.stamped_telemetry(maxsize=4096)
-            task = asyncio.ensure_future(self._follow_telemetry(name, samples))
-            self._tasks.append(task)
-            self._following.append((samples, task))
+            self._tasks.append(self._followers.follow(name, link))
             self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
                                                                       name)))
         self._started = True
@@ -193,7 +189,6 @@ class Robot:
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
         self._tasks.clear()
-        self._following.clear()
         await self.recovery.close()
         await self.boards.restore(self._streaming_before)
         await self.boards.close()
@@ -374,31 +369,11 @@ class Robot:
 
     # --- the boards' telemetry, their restarts and confirmed changes -----------------------
 
-    async def _follow_telemetry(self, name: str, samples: Subscription[Stamped]) -> None:
-        with self._guarded(f"board {name}'s telemetry (odometry)"):
-            async for received, sample in samples:
-                self._on_telemetry(name, received, sample)
-
     async def read_now(self) -> None:
-        """Take at once what the boards have sent, whatever the links' read latency, and
-        let the robot follow it: its odometry, latest samples and counts are then as of
-        the boards' present (for a reader comparing them with something taken now)."""
+        """Take at once what the boards have sent, whatever the links' read latency: the
+        robot's odometry and latest samples are then as of the boards' present."""
         self._ensure_started()
-        for link in self.links.values():
-            link.read_now()
-        # The robot's followers take what was queued at their next turn (they queue no
-        # more meanwhile: the links were read up to now).
-        while any(len(samples) and not task.done() for samples, task in self._following):
-            await asyncio.sleep(0)
-
-    def _on_telemetry(self, name: str, received: float, sample: Telemetry) -> None:
-        self.tracking.add(name, received, sample)
-        if name == self.description.boards[0]:
-            send = self.arbiter.control_step(sample.t_us)
-            if send is not None and send.command is not None:
-                self.boards.send_each(send.references)
-                self.tracking.drove(sample.t_us, send.command)
-        self.tracking.publish(name, received, sample)
+        await self._followers.read_now()
 
     def _on_confirmed(self, board: str, event: Event) -> None:
         """A parameter set through this robot's links changed a wheel's encoder resolution
