@@ -377,12 +377,12 @@ class Robot:
 
     def _on_confirmed(self, board: str, event: Event) -> None:
         """A parameter set through this robot's links changed a wheel's encoder resolution
-        or torque coefficient: odometry and joint states follow the board."""
-        with self._guarded(f"board {board}'s confirmations"):
-            if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
-                with contextlib.suppress(ValueError):  # 0 pulses: odometry keeps the last
-                    self.tracking.read_back(board, event.channel, event.param.name,
-                                            event.value)
+        or torque coefficient: odometry and joint states follow the board (every event
+        comes here, each sample too: guarded only where it acts; 0 pulses: kept the last)."""
+        if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
+            with self._guarded(f"board {board}'s confirmations"), \
+                    contextlib.suppress(ValueError):
+                self.tracking.read_back(board, event.channel, event.param.name, event.value)
 
     def sample_sets(self, min_period: float = 0.0, clock: Callable[[float], int] | None = None,
                     maxsize: int = 4096) -> SetFeed:
