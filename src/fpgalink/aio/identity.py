@@ -50,13 +50,15 @@ class Asker(Protocol):
     def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]: ...
 
 
-async def read_identity(link: Asker, *, rounds: int = 3) -> BoardIdentity | None:
+async def read_identity(link: Asker, *, rounds: int = 3, nonces: random.Random | None = None
+                        ) -> BoardIdentity | None:
     """The board's identity, or ``None`` when ``rounds`` queries in a row went unanswered
     while the board answered the request after each (a seed board). The link's request
     errors (:class:`~fpgalink.errors.RequestTimeout`, :class:`~fpgalink.errors.BoardLost`,
     :class:`~fpgalink.errors.LinkClosed`) come through: a board answering nothing is not a
-    seed board."""
-    probe = IdentityProbe(random.getrandbits(32), rounds)
+    seed board. The first nonce is drawn from ``nonces`` (default: the ``random`` module's),
+    so that askers sharing a board (through the router) tell their answers apart."""
+    probe = IdentityProbe((nonces or random).getrandbits(32), rounds)
 
     def observe(event: Event) -> None:
         probe.observe(event)
@@ -102,6 +104,10 @@ class Identification:
         self.allow_mismatch = allow_mismatch
         self._asked = False
         self._again: asyncio.Task[None] | None = None
+        #: where the queries' nonces come from: seeded from the system unless seeded again
+        #: (a campaign's scenario seeds it, so that a scenario's run is the same wherever it
+        #: runs: a nonce changes the bytes on the line, hence the timing)
+        self.nonces = random.Random()
 
     @property
     def identity(self) -> BoardIdentity | None:
@@ -119,7 +125,7 @@ class Identification:
         ``rounds`` for a seed board (``None``). A board that answers nothing fails as any
         request to it does (``asking who the board is (…): no answer after N tries``)."""
         try:
-            identity = await read_identity(self._link, rounds=rounds)
+            identity = await read_identity(self._link, rounds=rounds, nonces=self.nonces)
         except WireCrcMismatchError:
             raise  # its own advice: connect in the board's mode
         except RequestTimeout as exc:
