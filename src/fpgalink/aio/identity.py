@@ -34,8 +34,12 @@ from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
 __all__ = ["FENCE_PARAMETER", "RETRY_S", "Asker", "Identification", "Identifying",
            "read_identity"]
 
-#: The request that follows each ``IQ``: a board-wide parameter every board has.
-FENCE_PARAMETER = "TsTimerPeriod"
+#: The request that follows each ``IQ``: the wire CRC's handshake (docs/protocol.md §7),
+#: which a board answers whichever mode it and this host are in, so asking also settles the
+#: link in the board's mode (a board left with its CRC on drops a plain ``PG`` of anything
+#: else, and would look like one that answers nothing); a board without the parameter (the
+#: seed's) answers ``PN`` 1, an answer all the same.
+FENCE_PARAMETER = "WireCrc"
 #: How often a restarted board's identity is asked again while it does not answer (s).
 RETRY_S = 0.1
 
