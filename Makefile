@@ -19,7 +19,7 @@ PYTEST_WORKERS ?= 3
 # PYTHONDONTWRITEBYTECODE=1 is set nothing is written at run time, and each command compiled
 # them again. setuptools, which venv adds on Python 3.11 and nothing here imports, is taken
 # out (9 MB; builds bring their own).
-BYTECODE_PACKAGES := fpgalink fpgaemu click rich serial serial_asyncio construct mcap numpy
+BYTECODE_PACKAGES := fpgalink fpgaemu click rich serial construct mcap numpy
 $(DEMO_STAMP): pyproject.toml
 	python3 -m venv $(VENV)
 	$(PY) -m pip install --quiet --no-compile --upgrade pip

@@ -265,7 +265,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     results, serve = asyncio.run(run(args.baud, sets, seconds))
     goals = targets(results)
     payload: dict[str, Any] = {
-        **report_header(NAME, ["pyserial", "pyserial-asyncio"]),
+        **report_header(NAME, ["pyserial"]),
         "config": {"quick": args.quick, "sets": sets, "seconds": seconds, "baud": args.baud,
                    "transport": "pty", "period_ms": 1,
                    "argv": sys.argv[1:] if argv is None else list(argv)},

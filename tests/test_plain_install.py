@@ -20,7 +20,7 @@ from tests.support.cli import ROOT, cli_env
 pytestmark = pytest.mark.timeout(120)
 
 #: What a plain install may pull in: the light main job (issue 26, "under 200 MB").
-CORE = {"pyserial", "pyserial-asyncio", "numpy", "construct", "click", "rich", "mcap"}
+CORE = {"pyserial", "numpy", "construct", "click", "rich", "mcap"}
 
 
 def _name(requirement: str) -> str:

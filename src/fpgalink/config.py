@@ -33,6 +33,7 @@ __all__ = [
     "load_config",
     "parse_ports",
     "seconds",
+    "switch",
     "whole",
 ]
 
@@ -43,7 +44,8 @@ class ConfigError(ValueError):
 
 
 CONFIG_NAME = "fpgalink.toml"
-CONFIG_KEYS = frozenset({"port", "ports", "baud", "timeout", "retries", "board", "robot"})
+CONFIG_KEYS = frozenset({"port", "ports", "baud", "timeout", "retries", "wire_crc", "board",
+                         "robot"})
 #: ``NAME=URL``: a board name (:data:`~fpgalink.protocol.robot.BOARD_NAME`) before the first
 #: ``=``; a URL's own ``=`` comes after ``://`` or ``?``, which no name holds.
 _NAMED = re.compile(rf"^({BOARD_NAME.pattern})=(.*)$", re.DOTALL)
@@ -140,6 +142,13 @@ def whole(value: object, name: str, where: str, low: int, high: int) -> int:
     if isinstance(value, bool) or not isinstance(value, int) or not low <= value <= high:
         raise ConfigError(f"{where}: {name} must be a whole number from {low:,} to {high:,}, "
                        f"got {value!r}")
+    return value
+
+
+def switch(value: object, name: str, where: str) -> bool:
+    """A config file's on/off value: TOML's ``true`` or ``false``, nothing else."""
+    if not isinstance(value, bool):
+        raise ConfigError(f"{where}: {name} must be true or false, got {value!r}")
     return value
 
 

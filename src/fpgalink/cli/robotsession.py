@@ -393,7 +393,7 @@ class RobotRun:
 
         install_stop_signals(self.stop)
         robot = Robot.open(self.description, self.ports, baud=self.conn.baud,
-                           allow_mismatch=self.conn.allow_mismatch)
+                           wire_crc=self.conn.wire_crc, allow_mismatch=self.conn.allow_mismatch)
         for name in self.description.boards:
             log_wire(name, functools.partial(robot.boards.add_listener, name),
                      self.conn.verbose)

@@ -39,6 +39,7 @@ from fpgalink.config import check_name as _check_name
 from fpgalink.config import config_ports as _config_ports
 from fpgalink.config import load_config as _load_config
 from fpgalink.config import seconds as _seconds
+from fpgalink.config import switch as _switch
 from fpgalink.config import whole as _whole
 from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 
@@ -187,7 +188,8 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
     timeout = _seconds(pick("timeout", None, None, 0.05), "timeout", sources["timeout"],
                        1e-4, 60.0)
     retries = _whole(pick("retries", None, None, 8), "retries", sources["retries"], 1, 1000)
-    wire_crc = pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False)
+    wire_crc = _switch(pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False), "wire_crc",
+                       sources["wire_crc"])
     board = pick("board", "FPGALINK_BOARD", lambda text, _where: text, None)
     robot = pick("robot", None, None, None)
     for name, value in (("board", board), ("robot", robot)):

@@ -26,14 +26,14 @@ import math
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, Subscription, open_link
+from fpgalink.aio.link import Link, Subscription
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event, RequestDone, StatusEvent
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot import goal, setup
 from fpgalink.robot.arbiter import CommandArbiter, CommandNotice, Send, Source
-from fpgalink.robot.boards import TRUTH_EXTRA, Boards
+from fpgalink.robot.boards import TRUTH_EXTRA, Boards, open_links
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.feed import SetFeed
@@ -64,10 +64,6 @@ RENEW_S = 0.1
 #: Running time a caller gets to renew when the deadman's deadline passed while this loop
 #: was not running (a blocked or starved process): one and a half renewal periods.
 DEADMAN_GRACE_S = 1.5 * RENEW_S
-#: A request a board that is heard leaves unanswered after its tries (8 × 50 ms) is asked
-#: again at once this many more times (Settings.unanswered_rounds): on a loaded machine an
-#: answer comes later than the tries, and a robot must not give up at start for it.
-UNANSWERED_ROUNDS = 4
 START_TIMEOUT_S = setup.START_TIMEOUT_S
 QUIET_TIMEOUT_S = setup.QUIET_TIMEOUT_S
 
@@ -134,18 +130,17 @@ class Robot:
 
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
-             baud: int = 1_000_000, stale_periods: int = 50,
-             read_latency: float | None = None, **options: Any) -> Robot:
+             baud: int = 1_000_000, stale_periods: int = 50, wire_crc: bool = False,
+             identity_seed: int | None = None, read_latency: float | None = None,
+             **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
-        ``stale_periods``: timer periods without a board's telemetry that stop the robot
-        (:class:`~fpgalink.Connection`); ``read_latency``: the links read in batches under
-        it (docs/robot.md, :meth:`read_now`); ``options`` go to the robot (deadman_s,
+        The links' settings: :func:`~fpgalink.robot.boards.open_links` (``read_latency``:
+        docs/robot.md, :meth:`read_now`); ``options`` go to the robot (deadman_s,
         control_period, goto_settings, allow_mismatch)."""
-        links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
-                                 unanswered_rounds=UNANSWERED_ROUNDS,
-                                 read_latency=read_latency)
-                 for name, url in ports.items()}
-        return cls(description, links, **options)
+        return cls(description, open_links(ports, baud=baud, stale_periods=stale_periods,
+                                           wire_crc=wire_crc, identity_seed=identity_seed,
+                                           read_latency=read_latency),
+                   **options)
 
     # --- lifecycle ------------------------------------------------------------------------
 

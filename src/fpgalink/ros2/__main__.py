@@ -73,6 +73,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--baud", type=int, default=None,
                         help="the boards' line rate (default: FPGALINK_BAUD, the config "
                         "file's baud, else 1000000)")
+    parser.add_argument("--wire-crc", action="store_true", default=None,
+                        help="the boards' frames carry the wire CRC (docs/protocol.md §7; "
+                        "default: FPGALINK_WIRE_CRC, the config file's wire_crc, else off)")
     parser.add_argument("--bag", metavar="DIR", type=Path,
                         help="record the node's inputs and outputs into a new rosbag2 DIR "
                         "(MCAP, CDR; with the rosbags library)")
@@ -109,8 +112,9 @@ class Startup:
     robot: str | None
     ports: dict[str, str]
     baud: int
+    wire_crc: bool
     #: where the ports came from (``command line``, ``environment FPGALINK_PORT``,
-    #: ``config file PATH``, ``default``), and the same for baud and robot
+    #: ``config file PATH``, ``default``), and the same for baud, wire_crc and robot
     sources: dict[str, str] = field(default_factory=dict)
 
 
@@ -159,6 +163,7 @@ def resolve(options: argparse.Namespace) -> Startup:
     else:
         baud, sources["baud"] = 1_000_000, "default"
     baud = whole(baud, "baud", sources["baud"], MIN_BAUD, MAX_BAUD)
+    wire_crc = _wire_crc(options, config, where, sources)
     robot: str | None = options.robot
     sources["robot"] = "command line" if robot else "default"
     if robot is None and config.get("robot") is not None:
@@ -170,7 +175,28 @@ def resolve(options: argparse.Namespace) -> Startup:
         robot = str(robot_path if robot_path.is_absolute() or path is None
                     else path.parent / robot_path)
         sources["robot"] = where
-    return Startup(robot, {e.name: e.url for e in endpoints}, baud, sources)
+    return Startup(robot, {e.name: e.url for e in endpoints}, baud, wire_crc, sources)
+
+
+def _wire_crc(options: argparse.Namespace, config: dict[str, Any], where: str,
+              sources: dict[str, str]) -> bool:
+    """``--wire-crc``, else ``FPGALINK_WIRE_CRC`` (0 or 1), else the file's ``wire_crc``."""
+    from fpgalink.config import ConfigError, switch
+
+    text = os.environ.get("FPGALINK_WIRE_CRC", "").strip()
+    if options.wire_crc:
+        sources["wire_crc"] = "command line"
+        return True
+    if text:
+        if text not in ("0", "1"):
+            raise ConfigError(f"environment FPGALINK_WIRE_CRC: {text!r} is not 0 or 1")
+        sources["wire_crc"] = "environment FPGALINK_WIRE_CRC"
+        return text == "1"
+    if "wire_crc" in config:
+        sources["wire_crc"] = where
+        return switch(config["wire_crc"], "wire_crc", where)
+    sources["wire_crc"] = "default"
+    return False
 
 
 EXIT_USAGE = ExitCode.BAD_INPUT
@@ -209,8 +235,10 @@ def main(argv: list[str] | None = None) -> None:
     rclpy.init(args=argv)
     code = 0
     try:
-        code = asyncio.run(_run(description, ports, startup.baud, startup.sources["port"],
-                                bag, options.lifecycle, live, argv, options.allow_mismatch))
+        opening = {"baud": startup.baud, "wire_crc": startup.wire_crc,
+                   "allow_mismatch": options.allow_mismatch}
+        code = asyncio.run(_run(description, ports, opening, startup.sources["port"], bag,
+                                options.lifecycle, live, argv))
     finally:
         if bag is not None:
             code = _close_bag(bag, code)
@@ -285,19 +313,28 @@ def _live_address(options: argparse.Namespace) -> Any:
     """``--foxglove``'s address (``None`` without it), the SDK checked before ROS starts."""
     if options.foxglove is None:
         return None
+    if options.lifecycle:
+        _fail("--foxglove does not go with --lifecycle yet")
+    live, error = _parse_live("--foxglove", options.foxglove)
+    if error is not None:
+        _fail(*error)
+    return live
+
+
+def _parse_live(what: str, text: str) -> tuple[Any, tuple[str, int] | None]:
+    """A live view's ``[HOST:]PORT`` and the SDK there to serve it; else the error's line and
+    exit code."""
     from fpgalink.live import parse_address, require_sdk
     from fpgalink.protocol.exitcodes import NotInstalled
 
-    if options.lifecycle:
-        _fail("--foxglove does not go with --lifecycle yet")
     try:
-        live = parse_address(options.foxglove)
+        live = parse_address(text)
         require_sdk()
     except ValueError as exc:
-        _fail(f"--foxglove {exc}")
+        return None, (f"{what} {exc}", ExitCode.BAD_INPUT)
     except NotInstalled as exc:
-        _fail(str(exc), ExitCode.NOT_INSTALLED)
-    return live
+        return None, (str(exc), ExitCode.NOT_INSTALLED)
+    return live, None
 
 
 def _open_bag(options: argparse.Namespace, ports: dict[str, str],
@@ -327,9 +364,11 @@ def _close_bag(bag: NodeBag, code: int) -> int:
     return code
 
 
-async def _run(description: object, ports: dict[str, str], baud: int, source: str,
-               bag: Any = None, lifecycle: bool = False, live: Any = None,
-               argv: list[str] | None = None, allow_mismatch: bool = False) -> int:
+async def _run(description: object, ports: dict[str, str], opening: dict[str, Any],
+               source: str, bag: Any = None, lifecycle: bool = False, live: Any = None,
+               argv: list[str] | None = None) -> int:
+    """The node until SIGINT/SIGTERM; ``opening``: how ``Robot.open`` takes the boards
+    (``baud``, ``wire_crc``, ``allow_mismatch``)."""
     from rclpy.exceptions import ParameterException
     from rclpy.node import Node
 
@@ -348,9 +387,8 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
     if lifecycle:
         from fpgalink.ros2.managed import run_managed
 
-        return await run_managed(description, ports, baud, bag, stop, overrides,
-                                 allow_mismatch)
-    robot = Robot.open(description, ports, baud=baud, allow_mismatch=allow_mismatch)
+        return await run_managed(description, ports, opening, bag, stop, overrides)
+    robot = Robot.open(description, ports, **opening)
     try:
         await robot.start()
     except (RobotError, FpgalinkError) as exc:
@@ -366,6 +404,11 @@ async def _run(description: object, ports: dict[str, str], baud: int, source: st
                   flush=True)
             return EXIT_USAGE
         bridge.serve_parameters()
+        if live is None and bridge.params.foxglove:  # the node parameter's route
+            live, error = _parse_live("-p foxglove:=", bridge.params.foxglove)
+            if error is not None:
+                print(f"{PROG}: error: {error[0]}", file=sys.stderr, flush=True)
+                return error[1]
         executor, thread = spin_in_thread(node)
         bridge.executor = executor
         node.get_logger().info(

@@ -21,7 +21,7 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures
 import contextlib
-from collections.abc import Coroutine
+from collections.abc import Coroutine, Mapping
 from typing import Any
 
 from rclpy.exceptions import ParameterException, ParameterImmutableException
@@ -70,18 +70,17 @@ class _NodeMark:
 
 class _ManagedNode(LifecycleNode):
     def __init__(self, loop: asyncio.AbstractEventLoop, description: RobotDescription,
-                 ports: dict[str, str], baud: int, bag: NodeBag | None,
-                 stop: asyncio.Event, overrides: set[str], allow_mismatch: bool = False
-                 ) -> None:
+                 ports: dict[str, str], opening: Mapping[str, Any], bag: NodeBag | None,
+                 stop: asyncio.Event, overrides: set[str]) -> None:
         super().__init__(NODE_NAME, start_parameter_services=False)
         self.loop = loop
         self.description = description
         self.ports = ports
-        self.baud = baud
+        #: how Robot.open takes the boards (baud, wire_crc, allow_mismatch)
+        self.opening = dict(opening)
         self.bag = bag
         self.stop = stop
         self.overrides = overrides
-        self.allow_mismatch = allow_mismatch
         self.executor_ref: Any = None
         self.robot: Robot | None = None
         self.bridge: RosBridge | None = None
@@ -127,8 +126,7 @@ class _ManagedNode(LifecycleNode):
     async def _configure(self) -> TransitionCallbackReturn:
         log = self.get_logger()
         mark = _NodeMark(self)
-        robot = Robot.open(self.description, self.ports, baud=self.baud,
-                           allow_mismatch=self.allow_mismatch)
+        robot = Robot.open(self.description, self.ports, **self.opening)
         configured = False
         bridge: RosBridge | None = None
         try:
@@ -148,6 +146,9 @@ class _ManagedNode(LifecycleNode):
                 log.error(f"configure: {exc}")
                 return TransitionCallbackReturn.FAILURE
             bridge.serve_parameters()
+            if bridge.params.foxglove:
+                log.warning(f"foxglove {bridge.params.foxglove!r}: no live view with "
+                            "--lifecycle yet: ignored")
             configured = True
         finally:
             if not configured:  # failed, or out of time: as before it, to be tried again
@@ -213,12 +214,12 @@ class _ManagedNode(LifecycleNode):
         return TransitionCallbackReturn.SUCCESS
 
 
-async def run_managed(description: RobotDescription, ports: dict[str, str], baud: int,
-                      bag: NodeBag | None, stop: asyncio.Event, overrides: set[str],
-                      allow_mismatch: bool = False) -> int:
+async def run_managed(description: RobotDescription, ports: dict[str, str],
+                      opening: Mapping[str, Any], bag: NodeBag | None,
+                      stop: asyncio.Event, overrides: set[str]) -> int:
     """The managed node until SIGINT/SIGTERM (``stop``) or its shutdown transition."""
     loop = asyncio.get_running_loop()
-    node = _ManagedNode(loop, description, ports, baud, bag, stop, overrides, allow_mismatch)
+    node = _ManagedNode(loop, description, ports, opening, bag, stop, overrides)
     executor, thread = spin_in_thread(node)
     node.executor_ref = executor
     node.get_logger().info("up, unconfigured (--lifecycle): configure opens the boards")

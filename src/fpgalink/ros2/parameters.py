@@ -155,6 +155,7 @@ class NodeParameters:
             self.prefix = self._frame_prefix()
             self.urdf, self.fixed_joints = self._declare_robot_description()
             self.publish_clock = self._declare_publish_clock()
+            self.foxglove = self._declare_foxglove()
         except BaseException:
             self.withdraw()
             raise
@@ -402,6 +403,20 @@ class NodeParameters:
             raise BadOverride("publish_clock: only the emulated robot in this process has a "
                               "time of its own (no --port)")
         return wanted
+
+    def _declare_foxglove(self) -> str:
+        """``foxglove`` (read-only): the ROS-less route to Foxglove as a node parameter, so a
+        launch file or a parameters file can ask for it; ``--foxglove`` on the command line
+        wins. Empty: no live view. A bare port is what ROS reads as an integer
+        (``-p foxglove:=8765``), so either type is taken."""
+        value = self.declare("foxglove", "", ParameterDescriptor(
+            type=ParameterType.PARAMETER_STRING, read_only=True, dynamic_typing=True,
+            description="[HOST:]PORT of a live view for Foxglove without ROS, read at start "
+                        "(as --foxglove; loopback unless HOST is given; the foxglove extra; "
+                        "empty: none)"))
+        if isinstance(value, bool) or not isinstance(value, int | str):
+            raise BadOverride(f"foxglove: [HOST:]PORT, got {value!r}")
+        return str(value).strip()
 
     # --- the boards' --------------------------------------------------------------------
 

@@ -1,6 +1,7 @@
-"""The ROS-less route to Foxglove: ``fpgalink-ros2 --foxglove PORT`` serves the live view
-beside its ROS topics (inside a loopback-only network namespace, as every DDS participant
-in the suite runs; the client speaks Foxglove's protocol from the same namespace)."""
+"""The ROS-less route to Foxglove: ``fpgalink-ros2 --foxglove PORT`` (or ``-p
+foxglove:=PORT``) serves the live view beside its ROS topics (inside a loopback-only
+network namespace, as every DDS participant in the suite runs; the client speaks
+Foxglove's protocol from the same namespace)."""
 
 from __future__ import annotations
 
@@ -20,7 +21,8 @@ NETNS = ROOT / "tests" / "ros2" / "netns.sh"
 INSIDE = """
 import asyncio, json, re, select, subprocess, sys, time
 from tests.support.foxglove import watch
-node = subprocess.Popen([sys.argv[1], "--foxglove", "0"], stderr=subprocess.PIPE, text=True)
+node = subprocess.Popen([sys.argv[1], *json.loads(sys.argv[2])], stderr=subprocess.PIPE,
+                        text=True)
 url, deadline = None, time.monotonic() + 60
 while url is None and time.monotonic() < deadline:
     if select.select([node.stderr], [], [], 0.5)[0]:
@@ -37,7 +39,11 @@ print(json.dumps(None if got is None else {
 """
 
 
-def test_the_node_serves_the_live_view_without_ros() -> None:
+@pytest.mark.parametrize("route", [["--foxglove", "0"], ["--ros-args", "-p", "foxglove:=0"]],
+                         ids=["option", "node-parameter"])
+def test_the_node_serves_the_live_view_without_ros(route: list[str]) -> None:
+    """Asked on the command line, or as the node's ``foxglove`` parameter (a launch file's
+    way)."""
     if importlib.util.find_spec("rclpy") is None:
         pytest.skip("rclpy is not installed")
     probe = subprocess.run([str(NETNS), "true"], capture_output=True, text=True, check=False)
@@ -46,7 +52,7 @@ def test_the_node_serves_the_live_view_without_ros() -> None:
     env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     done = subprocess.run([str(NETNS), sys.executable, "-c", INSIDE,
-                           str(BIN / "fpgalink-ros2")], cwd=ROOT, env=env,
+                           str(BIN / "fpgalink-ros2"), json.dumps(route)], cwd=ROOT, env=env,
                           capture_output=True, text=True, timeout=150, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     facts = json.loads(done.stdout.strip().splitlines()[-1])

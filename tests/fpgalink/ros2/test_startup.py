@@ -25,7 +25,7 @@ def nowhere(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     """A working directory and a user config directory of the test's own, no variables."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "xdg"))
-    for name in ("FPGALINK_CONFIG", "FPGALINK_PORT", "FPGALINK_BAUD"):
+    for name in ("FPGALINK_CONFIG", "FPGALINK_PORT", "FPGALINK_BAUD", "FPGALINK_WIRE_CRC"):
         monkeypatch.delenv(name, raising=False)
     return tmp_path
 
@@ -38,7 +38,29 @@ def startup(*args: str) -> tuple[dict[str, str], int, str | None, dict[str, str]
 def test_nothing_anywhere_is_the_emulated_robot() -> None:
     ports, baud, robot, sources = startup()
     assert ports == {} and baud == 1_000_000 and robot is None
-    assert sources == {"port": "default", "baud": "default", "robot": "default"}
+    assert sources == {"port": "default", "baud": "default", "wire_crc": "default",
+                       "robot": "default"}
+    assert resolve(_parser().parse_args([])).wire_crc is False
+
+
+def test_the_wire_crc_from_the_option_the_environment_or_the_file(
+        nowhere: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """As the CLI takes it: ``--wire-crc``, then ``FPGALINK_WIRE_CRC``, then the file's
+    ``wire_crc`` (the robot's links were opened without it whatever was asked)."""
+    (nowhere / "fpgalink.toml").write_text("wire_crc = true\n", encoding="utf-8")
+    found = resolve(_parser().parse_args([]))
+    assert found.wire_crc is True
+    assert found.sources["wire_crc"] == f"config file {nowhere / 'fpgalink.toml'}"
+    monkeypatch.setenv("FPGALINK_WIRE_CRC", "0")
+    assert resolve(_parser().parse_args([])).wire_crc is False
+    assert resolve(_parser().parse_args(["--wire-crc"])).wire_crc is True
+    monkeypatch.setenv("FPGALINK_WIRE_CRC", "yes")
+    with pytest.raises(ConfigError, match="FPGALINK_WIRE_CRC: 'yes' is not 0 or 1"):
+        resolve(_parser().parse_args([]))
+    monkeypatch.delenv("FPGALINK_WIRE_CRC")
+    (nowhere / "fpgalink.toml").write_text('wire_crc = "on"\n', encoding="utf-8")
+    with pytest.raises(ConfigError, match="wire_crc must be true or false, got 'on'"):
+        resolve(_parser().parse_args([]))
 
 
 def test_the_config_files_ports_baud_and_robot_are_used(nowhere: Path) -> None:
