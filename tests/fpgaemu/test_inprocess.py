@@ -43,6 +43,19 @@ async def _robot(run: str) -> tuple[list[Any], list[Host]]:
     return transports, hosts
 
 
+async def _paused_robot(name: str) -> tuple[list[Any], list[Host]]:
+    """A robot's two boards streaming for 0.1 s, then both transports paused (a host that
+    reads in batches)."""
+    transports, hosts = await _robot(name)
+    for transport in transports:
+        transport.write(STREAM)
+    await asyncio.sleep(0.1)
+    for transport in transports:
+        transport.pause_reading()
+        assert not transport.is_reading()
+    return transports, hosts
+
+
 def test_an_in_process_robot_wakes_once_per_due_deadline() -> None:
     async def main() -> tuple[int, list[int]]:
         transports, hosts = await _robot("wakes")
@@ -70,14 +83,8 @@ def test_an_in_process_robot_wakes_once_per_due_deadline() -> None:
 
 def test_a_paused_reader_loses_nothing_and_an_unread_robot_is_not_woken() -> None:
     async def main() -> tuple[int, list[int], list[list[Telemetry]]]:
-        transports, hosts = await _robot("batched")
+        transports, hosts = await _paused_robot("batched")
         try:
-            for transport in transports:
-                transport.write(STREAM)
-            await asyncio.sleep(0.1)
-            for transport in transports:
-                transport.pause_reading()
-                assert not transport.is_reading()
             reads = [len(h.reads) for h in hosts]
             pacer = transports[0].pacer
             before = pacer.wakeups
@@ -118,13 +125,8 @@ def test_a_robot_left_idle_is_run_up_to_the_present_whenever_it_is_looked_at() -
     assert READ_WAITING_EXTRA == FPGALINK_READ_WAITING  # the two sides name it alike
 
     async def main() -> tuple[float, float, int, list[int], float, list[Telemetry]]:
-        transports, hosts = await _robot("idle")
+        transports, hosts = await _paused_robot("idle")
         try:
-            for transport in transports:
-                transport.write(STREAM)
-            await asyncio.sleep(0.1)
-            for transport in transports:
-                transport.pause_reading()
             before = len(hosts[0].reads)
             await asyncio.sleep(0.0504)
             loop = asyncio.get_running_loop()
