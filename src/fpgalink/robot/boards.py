@@ -29,14 +29,17 @@ UNANSWERED_ROUNDS = 4
 
 
 def open_links(ports: Mapping[str, str], *, baud: int = 1_000_000, stale_periods: int = 50,
-               wire_crc: bool = False, identity_seed: int | None = None) -> dict[str, Link]:
+               wire_crc: bool = False, identity_seed: int | None = None,
+               read_latency: float | None = None) -> dict[str, Link]:
     """A robot's links to ``ports`` (board name → URL). ``stale_periods``: timer periods
     without a board's telemetry that stop the robot (:class:`~fpgalink.Connection`);
     ``wire_crc``: the boards' frames carry the wire CRC (docs/protocol.md §7);
     ``identity_seed``: the identity queries' nonces drawn from it (with the board's name), so
-    that a run is repeated byte for byte (a campaign's scenario), else from the system."""
+    that a run is repeated byte for byte (a campaign's scenario), else from the system;
+    ``read_latency``: the links read in batches under it (:meth:`Link.set_read_latency`)."""
     links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
-                             unanswered_rounds=UNANSWERED_ROUNDS, wire_crc=wire_crc)
+                             unanswered_rounds=UNANSWERED_ROUNDS, wire_crc=wire_crc,
+                             read_latency=read_latency)
              for name, url in ports.items()}
     if identity_seed is not None:
         for name, link in links.items():

@@ -37,6 +37,7 @@ from fpgalink.robot.boards import TRUTH_EXTRA, Boards, open_links
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.feed import SetFeed
+from fpgalink.robot.following import TelemetryFollowers
 from fpgalink.robot.goto import GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, supervision_status
 from fpgalink.robot.joints import JointStates
@@ -110,6 +111,8 @@ class Robot:
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
+        self._followers = TelemetryFollowers(self.boards, self.tracking, self.arbiter,
+                                             description.boards[0], self._guarded)
         self._removers: list[Callable[[], None]] = []
         self._feeds: set[Subscription[SupervisionEvent]] = set()
         self._set_feeds: set[SetFeed] = set()
@@ -128,12 +131,15 @@ class Robot:
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
              baud: int = 1_000_000, stale_periods: int = 50, wire_crc: bool = False,
-             identity_seed: int | None = None, **options: Any) -> Robot:
+             identity_seed: int | None = None, read_latency: float | None = None,
+             **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
-        The links' settings: :func:`~fpgalink.robot.boards.open_links`; ``options`` go to
-        the robot (deadman_s, control_period, goto_settings, allow_mismatch)."""
+        The links' settings: :func:`~fpgalink.robot.boards.open_links` (``read_latency``:
+        docs/robot.md, :meth:`read_now`); ``options`` go to the robot (deadman_s,
+        control_period, goto_settings, allow_mismatch)."""
         return cls(description, open_links(ports, baud=baud, stale_periods=stale_periods,
-                                           wire_crc=wire_crc, identity_seed=identity_seed),
+                                           wire_crc=wire_crc, identity_seed=identity_seed,
+                                           read_latency=read_latency),
                    **options)
 
     # --- lifecycle ------------------------------------------------------------------------
@@ -155,7 +161,7 @@ class Robot:
             self.tracking.read_back(name, channel, param, value)
         for name, link in self.links.items():
             self.supervisor.board_alive(name, link.board_alive, self._now())
-            self._tasks.append(asyncio.ensure_future(self._follow_telemetry(name, link)))
+            self._tasks.append(self._followers.follow(name, link))
             self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
                                                                       name)))
         self._started = True
@@ -358,28 +364,20 @@ class Robot:
 
     # --- the boards' telemetry, their restarts and confirmed changes -----------------------
 
-    async def _follow_telemetry(self, name: str, link: Link) -> None:
-        with self._guarded(f"board {name}'s telemetry (odometry)"):
-            async for received, sample in link.stamped_telemetry(maxsize=4096):
-                self._on_telemetry(name, received, sample)
-
-    def _on_telemetry(self, name: str, received: float, sample: Telemetry) -> None:
-        self.tracking.add(name, received, sample)
-        if name == self.description.boards[0]:
-            send = self.arbiter.control_step(sample.t_us)
-            if send is not None and send.command is not None:
-                self.boards.send_each(send.references)
-                self.tracking.drove(sample.t_us, send.command)
-        self.tracking.publish(name, received, sample)
+    async def read_now(self) -> None:
+        """Take at once what the boards have sent, whatever the links' read latency: the
+        robot's odometry and latest samples are then as of the boards' present."""
+        self._ensure_started()
+        await self._followers.read_now()
 
     def _on_confirmed(self, board: str, event: Event) -> None:
         """A parameter set through this robot's links changed a wheel's encoder resolution
-        or torque coefficient: odometry and joint states follow the board."""
-        with self._guarded(f"board {board}'s confirmations"):
-            if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
-                with contextlib.suppress(ValueError):  # 0 pulses: odometry keeps the last
-                    self.tracking.read_back(board, event.channel, event.param.name,
-                                            event.value)
+        or torque coefficient: odometry and joint states follow the board (every event
+        comes here, each sample too: guarded only where it acts; 0 pulses: kept the last)."""
+        if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
+            with self._guarded(f"board {board}'s confirmations"), \
+                    contextlib.suppress(ValueError):
+                self.tracking.read_back(board, event.channel, event.param.name, event.value)
 
     def sample_sets(self, min_period: float = 0.0, clock: Callable[[float], int] | None = None,
                     maxsize: int = 4096) -> SetFeed:
