@@ -91,7 +91,8 @@ setup: $(STAMP)
 # Python instead, saying `make compile` rebuilds it (fpgalink/buildinfo.py). `make pure`
 # removes the compiled modules; FPGALINK_PURE=1 (at build or at run time) is pure Python.
 COMPILED_MANIFEST := src/fpgalink/_compiled.txt
-COMPILED_SOURCES := $(wildcard src/fpgaemu/*.py src/fpgalink/protocol/*.py)
+COMPILED_SOURCES := $(wildcard src/fpgaemu/*.py src/fpgalink/protocol/*.py \
+	src/fpgalink/connection/*.py src/fpgalink/boardclock.py src/fpgalink/robot/*.py)
 $(COMPILED_MANIFEST): build_support/mypyc_build.py $(COMPILED_SOURCES) | $(STAMP) cc
 	$(PY) build_support/mypyc_build.py
 

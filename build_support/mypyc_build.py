@@ -27,9 +27,13 @@ from pathlib import Path
 from typing import Any
 
 #: The modules compiled: what runs every emulated millisecond (the board's blocks, its
-#: firmware, the wheels, the robot's lockstep) and the protocol's counters. Not
-#: serving/ (the event loop's code, which waits on I/O), __main__, the C co-simulation, the
-#: faults' parser or the physics body (MuJoCo's stepping is numpy calls).
+#: firmware, the wheels, the robot's lockstep), the protocol's counters, and the host's
+#: per-message work: the sans-I/O connection's parts, the boards' clock, and the robot's
+#: per-sample modules (odometry, tracking, stamping, joints). Not serving/ (the event
+#: loop's code, which waits on I/O), __main__, the C co-simulation, the faults' parser or
+#: the physics body (MuJoCo's stepping is numpy calls); not yet the protocol's codec and
+#: events (framing, catalogue, messages, events.py: frozen dataclasses built with
+#: ``object.__new__``, docs/emulator.md says why), nor the asyncio layer.
 COMPILED = (
     "fpgaemu.timeline",
     "fpgaemu.bram",
@@ -49,6 +53,19 @@ COMPILED = (
     "fpgaemu.body",
     "fpgaemu.robot",
     "fpgalink.protocol.counter",
+    "fpgalink.connection.queue",
+    "fpgalink.connection.counting",
+    "fpgalink.connection.frames",
+    "fpgalink.connection.liveness",
+    "fpgalink.connection.pacing",
+    "fpgalink.connection.requests",
+    "fpgalink.connection.restart",
+    "fpgalink.connection.core",
+    "fpgalink.boardclock",
+    "fpgalink.robot.odometry",
+    "fpgalink.robot.tracking",
+    "fpgalink.robot.stamping",
+    "fpgalink.robot.joints",
 )
 #: The shared library every compiled module's extension loads (mypyc names it
 #: ``GROUP__mypyc``): one library, so calls between the modules are C calls.

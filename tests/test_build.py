@@ -93,6 +93,20 @@ def test_extensions_without_their_manifest_are_not_loaded(tmp_path: Path) -> Non
     assert "without their build's manifest" in done.stderr
 
 
+def test_extensions_without_their_shared_library_are_not_loaded(tmp_path: Path) -> None:
+    # The packages copied without the build's library beside them (as a copy of the package
+    # directories makes): the extensions would load whatever library of that name is on the
+    # path, another build's, and fail at import. They are not loaded: pure Python, said.
+    _compiled_here()
+    src = _copy(tmp_path)
+    for library in src.glob("fpgalink__mypyc*"):
+        library.unlink()
+    done = _probe(src)
+    assert done.stdout.startswith("pure Python | ") and "timeline.py" in done.stdout
+    assert "without their build's shared library" in done.stderr
+    assert _probe(src, pure=True).stdout.startswith("pure Python | ")  # nor on FPGALINK_PURE
+
+
 def test_fpgalink_pure_runs_pure_python_and_the_version_says_which(tmp_path: Path) -> None:
     _compiled_here()
     src = _copy(tmp_path)

@@ -121,7 +121,7 @@ def test_the_asyncio_layer_stands_on_the_sans_io_layer(where: str, path: Path) -
 
 #: The robot's modules that run on asyncio (over the links); the rest of it is sans-I/O.
 ROBOT_ON_ASYNCIO = ("robot.py", "boards.py", "setup.py", "recovery.py", "goal.py", "timers.py",
-                    "feed.py")
+                    "feed.py", "following.py")
 
 
 @pytest.mark.parametrize(("where", "path"), modules("fpgalink.robot"))

@@ -7,9 +7,11 @@ loads an extension before a source of the same name: a source changed after the 
 be shadowed by its stale extension, silently. So the build writes a manifest, each compiled
 module's source hash (``build_support/mypyc_build.py``), and here it is checked against the
 sources: if every one is as compiled, the extensions load; if any changed, or the manifest
-is missing, or ``FPGALINK_PURE`` is set, every module of both packages loads from its source
-(the compiled modules call one another in C, so it is all of them or none), and a stale
-build is said once on stderr. With no compiled build at all, nothing here is installed.
+is missing, or its shared library is not beside the packages (an extension would load
+another build's from elsewhere on the path), or ``FPGALINK_PURE`` is set, every module of
+both packages loads from its source (the compiled modules call one another in C, so it is
+all of them or none), and a stale build is said once on stderr. With no compiled build at
+all, nothing here is installed.
 """
 
 from __future__ import annotations
@@ -93,6 +95,12 @@ def _decide() -> tuple[frozenset[str], str | None]:
         return frozenset(), ("fpgalink: compiled modules without their build's manifest "
                              "(an interrupted build?): running pure Python; `make compile` "
                              "rebuilds them")
+    if not _library_present(root):
+        # Each extension imports the library by name: it would get another build's from
+        # elsewhere on the path (or none), and fail at import.
+        return frozenset(), ("fpgalink: compiled modules without their build's shared "
+                             f"library ({_LIBRARY} beside the packages): running pure "
+                             "Python; `make compile` rebuilds it")
     for module, digest, size, mtime_ns in lines:
         if not _unchanged(root, module, digest, int(size), int(mtime_ns)):
             path = os.path.join(root, *module.split(".")) + ".py"
@@ -105,8 +113,9 @@ def _install() -> frozenset[str]:
     compiled, notice = _decide()
     if notice is not None:
         print(notice, file=sys.stderr, flush=True)
-    if compiled or notice is not None or _library_present(
-            os.path.dirname(os.path.dirname(os.path.abspath(__file__)))):
+    here = os.path.dirname(os.path.abspath(__file__))
+    if compiled or notice is not None or _library_present(os.path.dirname(here)) or \
+            os.path.exists(os.path.join(here, _MANIFEST)):  # extensions are here
         sys.meta_path.insert(0, _SourcesFirst(compiled))
     return compiled
 

@@ -81,10 +81,14 @@ def test_the_wire_crc_switched_on_and_found_again_by_the_next_session(c_board: S
     # understands in either form, and the CRC-carrying answer is taken while it is asked.
     again = run_cli("param", "get", "WireCrc", "--port", port)
     assert (again.returncode, again.stdout.strip()) == (0, "1"), again.stderr
-    # Any other plain request is a frame without a good CRC: dropped by the board, so no
-    # answer — a clear failure (exit 4), never a value reported as confirmed.
+    # Any other command that asks who the board is at connect settles the link the same way
+    # (the question's fence is that handshake), so its requests carry the CRC: answered.
     plain = run_cli("param", "get", "TsTimerPeriod", "--port", port)
-    assert plain.returncode == 4, plain.stdout + plain.stderr
+    assert (plain.returncode, plain.stdout.strip()) == (0, "1"), plain.stderr
+    # One that asks nothing sends plain frames: the board drops them, counted on its side;
+    # the host says how to connect, never a value reported as confirmed.
+    sent = run_cli("send", "PG", "--hex", "0100", "--reply", "PA", "--port", port)
+    assert sent.returncode == 4, sent.stdout + sent.stderr
     off = run_cli("param", "set", "WireCrc", "0", "--port", port)
     assert (off.returncode, off.stdout.strip()) == (0, "WireCrc = 0"), off.stderr
     plain = run_cli("param", "get", "TsTimerPeriod", "--port", port)

@@ -251,3 +251,66 @@ def test_a_few_ulps_in_one_plant_mode_are_caught(twins: tuple[Twin, Twin],
                                            or "current_a" in difference), difference
     finally:
         mutated.close()
+
+
+def _board_bytes(telemetry_ms: int) -> list[tuple[int, int]]:
+    """What a board sends a host that enables it, sets a parameter and streams telemetry
+    for ``telemetry_ms``: each byte with the cycle its stop bit ended."""
+    board = build_board(settings={"GetDataPeriodical": 1})
+    board.host_write(encode_frame(b"RE"), 50)
+    board.host_write(encode_frame(_counted(b"PS", 0, _param(8, 1, 2.5))), ms(0.2))
+    board.run_until(ms(telemetry_ms))
+    sent: list[tuple[int, int]] = board.read_host_bytes_timed()
+    return sent
+
+
+#: the board's own bytes, made once (the same for every example: the mutations differ)
+_SENT = _board_bytes(40)
+
+
+@settings(max_examples=40, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    cuts=st.lists(st.integers(1, 400), min_size=1, max_size=60),
+    damage=st.lists(st.tuples(st.integers(0, len(_SENT) - 1), st.binary(max_size=6),
+                              st.integers(0, 2)), max_size=8),
+    timers=st.lists(st.floats(0.0, 0.06), max_size=6),
+)
+def test_the_compiled_host_is_the_pure_host(
+        twins: tuple[Twin, Twin], cuts: list[int], damage: list[tuple[int, bytes, int]],
+        timers: list[float]) -> None:
+    """A ``Connection`` of each build fed the same bytes at the same times — a real board's
+    telemetry and answers, cut into reads of random sizes, with bytes replaced, dropped or
+    inserted — reports the same events, writes the same bytes, asks for the same timers
+    and counts the same."""
+    _require_compiled(twins[0])
+    data = bytearray(b for b, _ in _SENT)
+    for index, junk, how in sorted(damage, reverse=True):
+        if how == 0:  # replaced
+            data[index:index + len(junk)] = junk
+        elif how == 1:  # dropped
+            del data[index:index + len(junk) + 1]
+        else:  # inserted
+            data[index:index] = junk
+    # Each byte arrives when the board's byte at its place did (damage shifts a few).
+    sent_at = [cycle / 100e6 for _, cycle in _SENT]
+    at = [sent_at[min(i, len(sent_at) - 1)] for i in range(len(data))]
+    script: list[tuple[Any, ...]] = [("start", 0.0), ("enable", 0.0),
+                                     ("set", 0.001, "Kp_Wheel_PidA", 2.5),
+                                     ("references", 0.002, 40.0, -25.0)]
+    start = 0
+    for size in cuts:
+        if start >= len(data):
+            break
+        end = min(len(data), start + size)
+        script.append(("receive", at[min(end, len(at)) - 1], bytes(data[start:end])))
+        start = end
+    if start < len(data):
+        script.append(("receive", at[-1], bytes(data[start:])))
+    for when in timers:
+        script.append(("timer", at[-1] + when))
+    compiled, pure = (twin.call("host", script) for twin in twins)
+    reported = [event for events, _, _ in compiled[:-1] for event in events]
+    assert sum(event.startswith("Telemetry(") for event in reported) > 10, \
+        "hardly any telemetry reported: the comparison compares nothing"
+    assert compiled == pure

@@ -9,8 +9,10 @@ import pytest
 from fpgalink import Connection
 from fpgalink.events import (
     BoardBack,
+    BoardFound,
     BoardRestarted,
     BoardResynced,
+    BoardSilent,
     CounterDuplicate,
     Event,
     RequestAskedAgain,
@@ -584,3 +586,25 @@ def test_a_host_that_was_not_running_gives_the_board_half_a_window_of_its_own_ti
     assert not host.telemetry_stale
     host.handle_timer(0.33 + 0.025)
     assert host.telemetry_stale
+
+
+@pytest.mark.parametrize("listen_only", [False, True])
+def test_a_listen_only_watcher_sends_nothing_of_its_own(listen_only: bool) -> None:
+    """``monitor --passive`` beside another host (through the router, whose refusal of an
+    observer's frame was counted): a board heard again after a silence, or whose telemetry
+    stopped, is asked by a host (the first case, the proof the test can fail), never by a
+    watcher, which judges by what the board sends alone."""
+    host, board = Connection(baud=None, listen_only=listen_only), Board()
+    host.start(0.0)
+    sent = b""
+    for k in range(20):
+        host.receive_data(board.tm(), 0.001 * (k + 1))
+    for now in (0.06, 0.2, 0.5, 1.0):  # the stream stops, then the board falls silent
+        host.handle_timer(now)
+        sent += host.data_to_send()
+    assert any(isinstance(e, BoardSilent) for e in host.events())
+    host.receive_data(board.tm(advance_us=1_000_000), 1.1)  # heard again
+    host.handle_timer(1.15)
+    sent += host.data_to_send()
+    assert any(isinstance(e, BoardBack | BoardFound) for e in host.events())
+    assert (sent == b"") is listen_only, sent

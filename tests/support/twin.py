@@ -74,6 +74,36 @@ class _Worker:
     def do_truth(self) -> str:
         return repr(self.target.truth())
 
+    def do_host(self, script: list[tuple[Any, ...]]) -> list[object]:
+        """A fresh sans-I/O ``Connection`` (the host) through ``script``: after each step,
+        what it reported (every event's repr, in order), the bytes it would write and its
+        next timer; at the end its stats."""
+        from dataclasses import asdict
+
+        from fpgalink import Connection
+        from fpgalink.protocol import References, resolve
+
+        host = Connection(baud=1_000_000)
+        out: list[object] = []
+        for kind, now, *args in script:
+            if kind == "start":
+                host.start(now)
+            elif kind == "receive":
+                host.receive_data(args[0], now)
+            elif kind == "timer":
+                host.handle_timer(now)
+            elif kind == "enable":
+                host.enable(now)
+            elif kind == "references":
+                host.send(References(*args), now)
+            elif kind == "set":
+                param, channel = resolve(args[0])
+                host.set_param(param, channel, param.coerce(args[1]), now)
+            out.append(([repr(event) for event in host.events()], host.data_to_send(),
+                        host.get_timer()))
+        out.append(asdict(host.stats))
+        return out
+
     def do_golden(self, firmware: str) -> tuple[str, dict[str, object]]:
         from fpgaemu import build_board
         from tests.fpgaemu.test_golden_trace import digest, trace

@@ -34,8 +34,12 @@ from fpgalink.protocol.identity import BoardIdentity, IdentityProbe
 __all__ = ["FENCE_PARAMETER", "RETRY_S", "Asker", "Identification", "Identifying",
            "read_identity"]
 
-#: The request that follows each ``IQ``: a board-wide parameter every board has.
-FENCE_PARAMETER = "TsTimerPeriod"
+#: The request that follows each ``IQ``: the wire CRC's handshake (docs/protocol.md §7),
+#: which a board answers whichever mode it and this host are in, so asking also settles the
+#: link in the board's mode (a board left with its CRC on drops a plain ``PG`` of anything
+#: else, and would look like one that answers nothing); a board without the parameter (the
+#: seed's) answers ``PN`` 1, an answer all the same.
+FENCE_PARAMETER = "WireCrc"
 #: How often a restarted board's identity is asked again while it does not answer (s).
 RETRY_S = 0.1
 
@@ -50,13 +54,15 @@ class Asker(Protocol):
     def add_listener(self, listener: Callable[[Event], None]) -> Callable[[], None]: ...
 
 
-async def read_identity(link: Asker, *, rounds: int = 3) -> BoardIdentity | None:
+async def read_identity(link: Asker, *, rounds: int = 3, nonces: random.Random | None = None
+                        ) -> BoardIdentity | None:
     """The board's identity, or ``None`` when ``rounds`` queries in a row went unanswered
     while the board answered the request after each (a seed board). The link's request
     errors (:class:`~fpgalink.errors.RequestTimeout`, :class:`~fpgalink.errors.BoardLost`,
     :class:`~fpgalink.errors.LinkClosed`) come through: a board answering nothing is not a
-    seed board."""
-    probe = IdentityProbe(random.getrandbits(32), rounds)
+    seed board. The first nonce is drawn from ``nonces`` (default: the ``random`` module's),
+    so that askers sharing a board (through the router) tell their answers apart."""
+    probe = IdentityProbe((nonces or random).getrandbits(32), rounds)
 
     def observe(event: Event) -> None:
         probe.observe(event)
@@ -102,6 +108,10 @@ class Identification:
         self.allow_mismatch = allow_mismatch
         self._asked = False
         self._again: asyncio.Task[None] | None = None
+        #: where the queries' nonces come from: seeded from the system unless seeded again
+        #: (a campaign's scenario seeds it, so that a scenario's run is the same wherever it
+        #: runs: a nonce changes the bytes on the line, hence the timing)
+        self.nonces = random.Random()
 
     @property
     def identity(self) -> BoardIdentity | None:
@@ -119,7 +129,7 @@ class Identification:
         ``rounds`` for a seed board (``None``). A board that answers nothing fails as any
         request to it does (``asking who the board is (…): no answer after N tries``)."""
         try:
-            identity = await read_identity(self._link, rounds=rounds)
+            identity = await read_identity(self._link, rounds=rounds, nonces=self.nonces)
         except WireCrcMismatchError:
             raise  # its own advice: connect in the board's mode
         except RequestTimeout as exc:

@@ -436,23 +436,24 @@ class Link:
     def _on_data(self, protocol: _PortProtocol | None, data: bytes) -> None:
         if protocol is not self._protocol or self.state is not LinkState.CONNECTED:
             return
-        self.connection.receive_data(data, self._now())
-        self._process()
+        self.connection.receive_data(data, now := self._now())  # asked once: a far end's lag
+        self._process(now)
         self._flush()
         self._batches.read()
 
     # --- read batching --------------------------------------------------------------------
 
     def set_read_latency(self, seconds: float | None) -> None:
-        """Let the link gather received bytes for up to ``seconds`` before handling them
-        (``None`` or 0: handle every read at once, the default;
-        :mod:`~fpgalink.aio.batching`). A pending parameter request is never held back:
-        reading resumes at once while one is in flight."""
+        """Read in batches of up to ``seconds`` (None or 0: at once; :mod:`.batching`)."""
         self._batches.set_latency(seconds)
 
     @property
     def read_latency(self) -> float | None:
         return self._batches.latency
+
+    def read_now(self) -> None:
+        """Handle at once what the port holds: a batch under way ends now."""
+        self._batches.resume()
 
     def _flush(self) -> None:
         self._write(self.connection.data_to_send())
@@ -483,12 +484,12 @@ class Link:
         self._process()
         self._flush()
 
-    def _process(self) -> None:
-        """Hand out what the connection reported: every event to the listeners, telemetry
-        to its subscriptions, status events to the watchers, request outcomes to their
-        futures."""
+    def _process(self, now: float | None = None) -> None:
+        """Hand out what the connection reported (at ``now``, default the link's time):
+        every event to the listeners, telemetry to its subscriptions, status events to the
+        watchers, request outcomes to their futures."""
         subscribers, futures = self._subscribers, self._futures
-        now = self._now() if subscribers.stamping else 0.0
+        now = self._now() if now is None else now
         for event in self.connection.events():
             subscribers.deliver(event, now)
             kind = type(event)

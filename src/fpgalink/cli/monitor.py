@@ -116,7 +116,7 @@ async def _monitor(conn: ConnectionOptions, duration: float | None, fmt: str,
     pipe_closed = False
     started = time.time()
     async with contextlib.AsyncExitStack() as stack:
-        sessions = await open_sessions(stack, conn, identify=not passive)
+        sessions = await open_sessions(stack, conn, passive=passive)
         view = await stack.enter_async_context(opened_live(foxglove, "fpgalink-cli monitor"))
         add_live_boards(view, {s.endpoint.name: s.link for s in sessions})
         subs = [s.link.telemetry(maxsize=65536) for s in sessions]

@@ -184,12 +184,13 @@ class ConnectionOptions:
         return self.endpoints
 
     def link(self, endpoint: Endpoint, *, reconnect: bool = False,
-             liveness_timeout: float | None = None, identify: bool = True) -> Link:
+             liveness_timeout: float | None = None, identify: bool = True,
+             listen_only: bool = False) -> Link:
         """A link to ``endpoint`` (not open yet). By default a silent board must surface as
         "no answer after N tries", not as the shorter liveness timeout failing the request
         first, so liveness waits for every try. ``identify``: opening it asks the board who
         it is and refuses a mismatch unless ``--allow-mismatch`` (said on stderr when
-        allowed)."""
+        allowed). ``listen_only``: the link sends nothing of its own (``--passive``)."""
         from fpgalink.aio.link import open_link
         from fpgalink.cli.wirelog import log_wire
 
@@ -199,7 +200,7 @@ class ConnectionOptions:
             endpoint.url, self.baud, name=endpoint.name, request_timeout=self.timeout,
             request_tries=self.retries, liveness_timeout=liveness_timeout,
             reconnect=reconnect, wire_crc=self.wire_crc, identify=identify,
-            allow_mismatch=self.allow_mismatch,
+            allow_mismatch=self.allow_mismatch, listen_only=listen_only,
         )
         log_wire(endpoint.name, link, self.verbose)
         if identify and self.allow_mismatch:

@@ -116,7 +116,7 @@ async def _record(conn: ConnectionOptions, path: Path, duration: float | None, a
     to_epoch = time.time() - loop.time()  # loop clock → host epoch
     counts: dict[str, int] = {}
     async with contextlib.AsyncExitStack() as stack:
-        sessions = await open_sessions(stack, conn, identify=not passive)
+        sessions = await open_sessions(stack, conn, passive=passive)
         boards = [s.endpoint.name for s in sessions]
         counts.update(dict.fromkeys(boards, 0))
         metadata = {"ports": " ".join(f"{s.endpoint.name}={s.endpoint.url}" for s in sessions),

@@ -244,14 +244,15 @@ class BoardSession:
 
 
 async def open_sessions(stack: contextlib.AsyncExitStack, conn: ConnectionOptions, *,
-                        identify: bool = True) -> list[BoardSession]:
+                        passive: bool = False) -> list[BoardSession]:
     """Open every board's link (closed by ``stack``). Long-running commands keep reconnecting
     after a lost port and use the library's liveness timeout, so their view shows the truth.
-    ``identify``: each board is asked who it is as it opens (``--passive`` sends nothing,
-    so it does not ask)."""
+    Each board is asked who it is as it opens, unless ``passive``: then its link sends
+    nothing at all (``Settings.listen_only``), as ``--passive`` promises."""
     sessions = []
     for endpoint in conn.endpoints:
-        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7, identify=identify)
+        link = conn.link(endpoint, reconnect=True, liveness_timeout=0.7, identify=not passive,
+                         listen_only=passive)
         await stack.enter_async_context(link)
         sessions.append(BoardSession(endpoint, link, Streaming(link)))
     return sessions

@@ -298,7 +298,7 @@ class Connection:
         self._hearing.liveness = Liveness.ALIVE
         self._events.append(BoardFound(at=now))
         self._continuity.heard(now, self.wire_crc.on, self._stream.last_t_us,
-                               self._stream.last_at)
+                               self._stream.last_at, ask=not self._settings.listen_only)
 
     def next_event(self) -> Event | None:
         """The oldest pending event, or ``None`` when there is none."""
@@ -436,7 +436,7 @@ class Connection:
             self._requests.fail_all(BoardLost(f"board silent for {now - origin:.3f} s"), now)
         self._requests.expire(now)
         if (self._port_up and self._stream.check(now)
-                and self.liveness is Liveness.ALIVE):
+                and self.liveness is Liveness.ALIVE and not self._settings.listen_only):
             self._continuity.ask(now, self.wire_crc.on)
 
     # --- the port -------------------------------------------------------------------------

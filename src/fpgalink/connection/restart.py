@@ -280,11 +280,11 @@ class Continuity:
         self._cue(Cue.LOST)
 
     def heard(self, now: float, crc_on: bool, last_t_us: int | None,
-              last_at: float | None) -> None:
+              last_at: float | None, *, ask: bool = True) -> None:
         """Heard after it was out of reach: it may have restarted meanwhile, or not. What it
         sends next decides (its counter back at 00000, or going on; its clock, against the
         last sample before, ``last_t_us`` arrived at ``last_at``), and a question asked
-        (:func:`_question`) makes sure something comes."""
+        (:func:`_question`; unless not to ``ask``) makes sure something comes."""
         if self._away is None:
             return
         where, since = self._away
@@ -292,7 +292,7 @@ class Continuity:
         self._verify = f"heard again after {now - since:.3f} s of silence{where}"
         self.clock.start(last_t_us, last_at, self._queued)
         self._cue(Cue.HEARD)
-        if self.probe is None:
+        if self.probe is None and ask:
             self.probe = self._requests.start(_question(crc_on), 0, None, now, 0)
 
     def went_on(self, now: float) -> None:

@@ -37,6 +37,11 @@ class Settings:
     ``max_events``: the event queue's cap (the oldest dropped beyond it, and said).
     ``wire_crc``: the link starts with the wire CRC on (a board left with ``WireCrc`` = 1;
     docs/protocol.md §7); either way the board's answer about ``WireCrc`` sets it.
+    ``listen_only``: this side sends nothing of its own — no question to a board heard again
+    after a silence or whose telemetry stopped (a watcher beside another host, as
+    ``monitor --passive``: through the router its question would be refused, and on a
+    shared line it would be another host's traffic); a restart is then judged by what the
+    board sends alone.
     """
 
     framing: Framing = DEFAULT_FRAMING
@@ -51,6 +56,7 @@ class Settings:
     heartbeat_give_up: float = 0.28
     stale_periods: int = 50
     wire_crc: bool = False
+    listen_only: bool = False
 
     def __post_init__(self) -> None:
         if not 0 < self.heartbeat_interval < WATCHDOG_S:
@@ -97,6 +103,7 @@ class LinkOptions(TypedDict, total=False):
     heartbeat_give_up: float
     stale_periods: int
     wire_crc: bool
+    listen_only: bool
 
 
 class Options(LinkOptions, total=False):

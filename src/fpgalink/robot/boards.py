@@ -11,17 +11,40 @@ import dataclasses
 from collections.abc import Callable, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, Stamped, Subscription
+from fpgalink.aio.link import Link, Stamped, Subscription, open_link
 from fpgalink.connection import LinkStats
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event
 from fpgalink.protocol import BoardIdentity, Telemetry
 from fpgalink.robot.health import Status, WireUse, board_status
 
-__all__ = ["TRUTH_EXTRA", "Boards"]
+__all__ = ["TRUTH_EXTRA", "UNANSWERED_ROUNDS", "Boards", "open_links"]
 
 #: What an emulated robot's transport offers for its true pose (see fpgaemu.serve).
 TRUTH_EXTRA = "fpgaemu.truth"
+#: A request a board that is heard leaves unanswered after its tries (8 × 50 ms) is asked
+#: again at once this many more times (Settings.unanswered_rounds): on a loaded machine an
+#: answer comes later than the tries, and a robot must not give up at start for it.
+UNANSWERED_ROUNDS = 4
+
+
+def open_links(ports: Mapping[str, str], *, baud: int = 1_000_000, stale_periods: int = 50,
+               wire_crc: bool = False, identity_seed: int | None = None,
+               read_latency: float | None = None) -> dict[str, Link]:
+    """A robot's links to ``ports`` (board name → URL). ``stale_periods``: timer periods
+    without a board's telemetry that stop the robot (:class:`~fpgalink.Connection`);
+    ``wire_crc``: the boards' frames carry the wire CRC (docs/protocol.md §7);
+    ``identity_seed``: the identity queries' nonces drawn from it (with the board's name), so
+    that a run is repeated byte for byte (a campaign's scenario), else from the system;
+    ``read_latency``: the links read in batches under it (:meth:`Link.set_read_latency`)."""
+    links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
+                             unanswered_rounds=UNANSWERED_ROUNDS, wire_crc=wire_crc,
+                             read_latency=read_latency)
+             for name, url in ports.items()}
+    if identity_seed is not None:
+        for name, link in links.items():
+            link.identification.nonces.seed(f"{identity_seed}/{name}")
+    return links
 
 
 class Boards:

@@ -26,17 +26,18 @@ import math
 from collections.abc import AsyncIterator, Callable, Iterator, Mapping
 from typing import Any
 
-from fpgalink.aio.link import Link, Subscription, open_link
+from fpgalink.aio.link import Link, Subscription
 from fpgalink.errors import FpgalinkError
 from fpgalink.events import Event, RequestDone, StatusEvent
 from fpgalink.protocol import Telemetry
 from fpgalink.protocol.robot import Pose, RobotDescription, SkidSteer
 from fpgalink.robot import goal, setup
 from fpgalink.robot.arbiter import CommandArbiter, CommandNotice, Send, Source
-from fpgalink.robot.boards import TRUTH_EXTRA, Boards
+from fpgalink.robot.boards import TRUTH_EXTRA, Boards, open_links
 from fpgalink.robot.drive import WheelCommand, changed_kinematics
 from fpgalink.robot.errors import GoalTimeout, RobotClosed, RobotError, RobotStopped
 from fpgalink.robot.feed import SetFeed
+from fpgalink.robot.following import TelemetryFollowers
 from fpgalink.robot.goto import GoToCommand, GoToSettings
 from fpgalink.robot.health import Status, supervision_status
 from fpgalink.robot.joints import JointStates
@@ -63,10 +64,6 @@ RENEW_S = 0.1
 #: Running time a caller gets to renew when the deadman's deadline passed while this loop
 #: was not running (a blocked or starved process): one and a half renewal periods.
 DEADMAN_GRACE_S = 1.5 * RENEW_S
-#: A request a board that is heard leaves unanswered after its tries (8 × 50 ms) is asked
-#: again at once this many more times (Settings.unanswered_rounds): on a loaded machine an
-#: answer comes later than the tries, and a robot must not give up at start for it.
-UNANSWERED_ROUNDS = 4
 START_TIMEOUT_S = setup.START_TIMEOUT_S
 QUIET_TIMEOUT_S = setup.QUIET_TIMEOUT_S
 
@@ -114,6 +111,8 @@ class Robot:
         #: the exception that stopped the robot for good, if one did
         self.failure: BaseException | None = None
         self._tasks: list[asyncio.Task[None]] = []
+        self._followers = TelemetryFollowers(self.boards, self.tracking, self.arbiter,
+                                             description.boards[0], self._guarded)
         self._removers: list[Callable[[], None]] = []
         self._feeds: set[Subscription[SupervisionEvent]] = set()
         self._set_feeds: set[SetFeed] = set()
@@ -132,16 +131,16 @@ class Robot:
     @classmethod
     def open(cls, description: RobotDescription, ports: Mapping[str, str], *,
              baud: int = 1_000_000, stale_periods: int = 50, wire_crc: bool = False,
+             identity_seed: int | None = None, read_latency: float | None = None,
              **options: Any) -> Robot:
         """A robot over links to ``ports`` (board name → URL): ``async with Robot.open(…)``.
-        ``stale_periods``: timer periods without a board's telemetry that stop the robot
-        (:class:`~fpgalink.Connection`); ``wire_crc``: the boards' frames carry the wire CRC
-        (docs/protocol.md §7); ``options`` go to the robot (deadman_s, control_period,
-        goto_settings, allow_mismatch)."""
-        links = {name: open_link(url, baud, name=name, stale_periods=stale_periods,
-                                 unanswered_rounds=UNANSWERED_ROUNDS, wire_crc=wire_crc)
-                 for name, url in ports.items()}
-        return cls(description, links, **options)
+        The links' settings: :func:`~fpgalink.robot.boards.open_links` (``read_latency``:
+        docs/robot.md, :meth:`read_now`); ``options`` go to the robot (deadman_s,
+        control_period, goto_settings, allow_mismatch)."""
+        return cls(description, open_links(ports, baud=baud, stale_periods=stale_periods,
+                                           wire_crc=wire_crc, identity_seed=identity_seed,
+                                           read_latency=read_latency),
+                   **options)
 
     # --- lifecycle ------------------------------------------------------------------------
 
@@ -162,7 +161,7 @@ class Robot:
             self.tracking.read_back(name, channel, param, value)
         for name, link in self.links.items():
             self.supervisor.board_alive(name, link.board_alive, self._now())
-            self._tasks.append(asyncio.ensure_future(self._follow_telemetry(name, link)))
+            self._tasks.append(self._followers.follow(name, link))
             self._removers.append(link.add_listener(functools.partial(self._on_confirmed,
                                                                       name)))
         self._started = True
@@ -365,28 +364,20 @@ class Robot:
 
     # --- the boards' telemetry, their restarts and confirmed changes -----------------------
 
-    async def _follow_telemetry(self, name: str, link: Link) -> None:
-        with self._guarded(f"board {name}'s telemetry (odometry)"):
-            async for received, sample in link.stamped_telemetry(maxsize=4096):
-                self._on_telemetry(name, received, sample)
-
-    def _on_telemetry(self, name: str, received: float, sample: Telemetry) -> None:
-        self.tracking.add(name, received, sample)
-        if name == self.description.boards[0]:
-            send = self.arbiter.control_step(sample.t_us)
-            if send is not None and send.command is not None:
-                self.boards.send_each(send.references)
-                self.tracking.drove(sample.t_us, send.command)
-        self.tracking.publish(name, received, sample)
+    async def read_now(self) -> None:
+        """Take at once what the boards have sent, whatever the links' read latency: the
+        robot's odometry and latest samples are then as of the boards' present."""
+        self._ensure_started()
+        await self._followers.read_now()
 
     def _on_confirmed(self, board: str, event: Event) -> None:
         """A parameter set through this robot's links changed a wheel's encoder resolution
-        or torque coefficient: odometry and joint states follow the board."""
-        with self._guarded(f"board {board}'s confirmations"):
-            if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
-                with contextlib.suppress(ValueError):  # 0 pulses: odometry keeps the last
-                    self.tracking.read_back(board, event.channel, event.param.name,
-                                            event.value)
+        or torque coefficient: odometry and joint states follow the board (every event
+        comes here, each sample too: guarded only where it acts; 0 pulses: kept the last)."""
+        if isinstance(event, RequestDone) and (board, event.channel) in self.resolution:
+            with self._guarded(f"board {board}'s confirmations"), \
+                    contextlib.suppress(ValueError):
+                self.tracking.read_back(board, event.channel, event.param.name, event.value)
 
     def sample_sets(self, min_period: float = 0.0, clock: Callable[[float], int] | None = None,
                     maxsize: int = 4096) -> SetFeed:

@@ -109,12 +109,10 @@ class RosBridge:
         self._tasks: list[asyncio.Task[Any]] = []
         self._removers: list[Callable[[], None]] = []
         self.published = {"joint_states": 0, "odom": 0, "diagnostics": 0, "tf": 0}
-        # Who the boards are, said once here, carried in /diagnostics and the bag.
-        boards = {name: robot.boards.identity(name) for name in robot.description.boards}
-        for name, (identity, known) in boards.items():
-            self.log.info(f"board {name}: {describe_identity(identity, known)}")
+        # Who the boards are: carried in /diagnostics and the bag, said once the node is up.
         if bag is not None:
-            bag.set_metadata(identity_metadata(boards))
+            bag.set_metadata(identity_metadata(
+                {name: robot.boards.identity(name) for name in robot.description.boards}))
         self.params = NodeParameters(robot, node, self._parameters_changed)
         try:
             self._create_publishers(managed)
@@ -188,6 +186,10 @@ class RosBridge:
         ``start_parameter_services=False``), board parameters confirmed by the board."""
         BoardParameterService(self.node, lambda parameter: self.params.set_parameter(
             parameter, self.loop, self.executor))
+        # Said once every parameter was taken: a start refused for a bad -p is one line.
+        for name in self.robot.description.boards:
+            identity, known = self.robot.boards.identity(name)
+            self.log.info(f"board {name}: {describe_identity(identity, known)}")
 
     async def declare_board_parameters(self) -> None:
         await self.params.declare_board_parameters(self.overrides)

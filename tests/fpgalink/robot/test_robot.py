@@ -735,6 +735,34 @@ async def test_a_stale_telemetry_limit_set_on_the_boards_is_their_connections_ow
                 for link in robot.links.values()} == {1000}
 
 
+def test_a_robot_reading_in_batches_is_brought_to_the_present_by_read_now() -> None:
+    """``Robot.open(read_latency=…)``: the links read in batches (the robot hears its
+    boards up to a batch late); ``read_now()`` takes what waits, and the robot's latest
+    samples (what its odometry was fed) are then the boards' present's."""
+    from fpgalink.aio.virtualtime import run_virtual
+
+    async def main() -> tuple[list[float], list[float]]:
+        description = seed_robot()
+        async with Robot.open(description, _ports(description, "surface=ideal&run=batched"),
+                              read_latency=0.01) as robot:
+            loop = asyncio.get_running_loop()
+            assert all(link.read_latency == 0.01 for link in robot.links.values())
+            behind, caught_up = [], []
+            for _ in range(40):
+                await asyncio.sleep(0.00731)  # anywhere within a batch
+                now_us = loop.time() * 1e6
+                behind.append(max(now_us - robot.latest[b].t_us for b in robot.latest))
+                await robot.read_now()
+                caught_up.append(max(now_us - robot.latest[b].t_us
+                                     for b in robot.latest))
+            return behind, caught_up
+
+    behind, caught_up = run_virtual(main())
+    assert max(behind) > 3_000  # the batches were there: up to 10 ms late
+    # After read_now: the latest TM (one a millisecond, ~0.5 ms on the line) is there.
+    assert max(caught_up) < 2_000
+
+
 # --- who the boards are (docs/protocol.md §8) ---------------------------------------------
 
 OTHER_DECLARATION = declarations_hash() ^ 0x00FF_00FF_00FF_00FF
