@@ -28,6 +28,8 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 from typing import Any, TextIO, TypeVar
 
+from tests.support.serving import Served, start_serve
+
 __all__ = [
     "BUILDS",
     "RESULTS_DIR",
@@ -245,44 +247,19 @@ def write_results(name: str, payload: dict[str, Any], path: Path | None = None) 
 # --- the emulator in its own process ----------------------------------------------------------
 
 
-async def start_emulator(
-    boards: int, baud: int
-) -> tuple[asyncio.subprocess.Process, list[tuple[str, str]]]:
-    """``fpgaemu serve --pty`` in a separate process, so the board's CPU is not the host's;
-    returns it and ``(board name, pty path)`` per board."""
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", "--pty", "--boards", str(boards),
-        "--baud", str(baud),
-        stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-    )
-    assert proc.stdout is not None
-    ready: list[tuple[str, str]] = []
-    try:
-        while len(ready) < boards:
-            words = (await asyncio.wait_for(proc.stdout.readline(),
-                                            EMULATOR_READY_TIMEOUT_S)).decode().split()
-            if not words:
-                raise RuntimeError("fpgaemu serve exited before it was ready")
-            if words[0] == "ready":
-                ready.append((words[1], words[2]))
-    except BaseException:
-        _, said = await stop_emulator(proc)
-        if said:
-            print(f"fpgaemu serve: {said}", file=sys.stderr)
-        raise
-    return proc, ready
+async def start_emulator(boards: int, baud: int) -> tuple[Served, list[tuple[str, str]]]:
+    """``fpgaemu serve --pty`` in a separate process (tests/support/serving.py, the one way
+    it is started), so the board's CPU is not the host's; returns it and ``(board name, pty
+    path)`` per board."""
+    served = await asyncio.to_thread(start_serve, "--pty", "--boards", str(boards), "--baud",
+                                     str(baud), ready_timeout=EMULATOR_READY_TIMEOUT_S)
+    return served, list(served.ready.items())
 
 
-async def stop_emulator(proc: asyncio.subprocess.Process) -> tuple[int | None, str]:
+async def stop_emulator(served: Served) -> tuple[int | None, str]:
     """SIGINT (serve's clean stop, which reports any lag on stderr); its exit code and what
     it said."""
-    if proc.returncode is None:
-        proc.send_signal(signal.SIGINT)
-        try:
-            await asyncio.wait_for(proc.wait(), 10)
-        except TimeoutError:
-            proc.kill()
-            await proc.wait()
-    err = await proc.stderr.read() if proc.stderr is not None else b""
-    return proc.returncode, err.decode(errors="replace").strip()
+    code = await served.stopped(signal.SIGINT)
+    said = served.log_text().strip()
+    served.discard()
+    return code, said

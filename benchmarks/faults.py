@@ -37,6 +37,7 @@ from fpgaemu.timeline import CLOCK_HZ
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot, RobotStopped
 from fpgalink.robot.supervision import State, SupervisionEvent
+from tests.support.serving import start_serve
 
 NAME = "faults"
 #: Emulated seconds from power-up at which the fault comes: the robot is driving by then.
@@ -132,18 +133,12 @@ def _note(event: SupervisionEvent, bad: Board, stops: list[int], ready: list[int
 
 async def _frozen_host(freeze_s: float) -> dict[str, float]:
     """``fpgalink-cli drive`` against a served robot, frozen with SIGSTOP for ``freeze_s``."""
-    server = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty", "--boards", "2",
-        "--body", "kinematic", "--surface", "ideal",
-        stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE)
-    assert server.stdout is not None
+    server = await asyncio.to_thread(start_serve, "--robot", "--pty", "--body", "kinematic",
+                                     "--surface", "ideal")
     try:
-        ready: dict[str, str] = {}
-        while len(ready) < 3:
-            words = (await asyncio.wait_for(server.stdout.readline(), PATIENCE_S)).split()
-            ready[words[1].decode()] = words[2].decode()
-        host, port = ready.pop("truth").removeprefix("socket://").rsplit(":", 1)
+        ready = dict(server.ready)
+        assert server.truth is not None
+        host, port = server.truth.removeprefix("socket://").rsplit(":", 1)
         reader, writer = await asyncio.open_connection(host, int(port))
         env = {k: v for k, v in os.environ.items() if not k.startswith("FPGALINK_")}
         cli = await asyncio.create_subprocess_exec(
@@ -177,8 +172,8 @@ async def _frozen_host(freeze_s: float) -> dict[str, float]:
                 "watchdog_after_last_re_ms": max(lapses) * 1e3 if lapses else math.nan,
                 "said_why": float("watchdog: host silent" in err.decode())}
     finally:
-        server.send_signal(signal.SIGTERM)
-        await server.wait()
+        await server.stopped()
+        server.discard()
 
 
 CASES = (

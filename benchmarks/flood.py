@@ -38,6 +38,7 @@ from benchmarks._common import (
 )
 from fpgalink.protocol import ParamGet
 from tests.support.flood import BAUD, RawHost, board_counts, noise, rss_kb
+from tests.support.serving import start_serve
 from tests.support.wire import sent
 
 NAME = "flood"
@@ -68,18 +69,13 @@ class PeakRss:
 
 async def flood(where: str, size: int) -> dict[str, Any]:
     args = ["--pty"] if where == "pty" else ["--tcp", "127.0.0.1:0"]
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", *args, stdin=asyncio.subprocess.DEVNULL,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
-    assert proc.stdout is not None and proc.stderr is not None
-    words = (await asyncio.wait_for(proc.stdout.readline(),
-                                    EMULATOR_READY_TIMEOUT_S)).decode().split()
-    assert words[:2] == ["ready", "L"], words
+    proc = await asyncio.to_thread(start_serve, *args,
+                                   ready_timeout=EMULATOR_READY_TIMEOUT_S)
     payload = noise(size) + sent(ParamGet(1, 0))
     line_s = len(payload) * 10 / BAUD
     before = rss_kb(proc.pid)
     peak = PeakRss(proc.pid)
-    host = await asyncio.to_thread(RawHost, words[2])
+    host = await asyncio.to_thread(RawHost, proc.url)
 
     def run() -> tuple[float, float]:
         start = time.monotonic()
@@ -94,14 +90,14 @@ async def flood(where: str, size: int) -> dict[str, Any]:
         host.close()
     peak_kb = peak.stop()
     after = rss_kb(proc.pid)
-    proc.send_signal(signal.SIGINT)
-    await asyncio.wait_for(proc.wait(), 30)
-    counts = board_counts((await proc.stderr.read()).decode())
+    exit_code = await proc.stopped(signal.SIGINT, 30)
+    counts = board_counts(proc.log_text())
+    proc.discard()
     return {
         "transport": where, "bytes": len(payload), "line_s": line_s, "write_s": write_s,
         "answer_s": answer_s, "answer_over_line": answer_s / line_s,
         "rss_before_kb": before, "rss_peak_kb": peak_kb, "rss_after_kb": after,
-        "rss_growth_kb": peak_kb - before, "exit_code": proc.returncode,
+        "rss_growth_kb": peak_kb - before, "exit_code": exit_code,
         "board": {"written": counts.written, "received": counts.received,
                   "noise": counts.noise, "frames": counts.frames, "held_back": counts.held,
                   "discarded": counts.discarded},

@@ -25,6 +25,7 @@ from benchmarks._common import (
     write_results,
 )
 from fpgalink.aio import open_link
+from tests.support.serving import start_serve
 
 NAME = "identity"
 REPEATS = 21
@@ -33,25 +34,11 @@ QUICK_REPEATS = 3
 CASES = (("answers IQ", ()), ("seed protocol", ("--seed-protocol",)))
 
 
-async def _serve(*options: str) -> tuple[asyncio.subprocess.Process, str]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", "--pty", *options,
-        stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.DEVNULL)
-    assert proc.stdout is not None
-    words = (await asyncio.wait_for(proc.stdout.readline(),
-                                    EMULATOR_READY_TIMEOUT_S)).decode().split()
-    if words[:1] != ["ready"]:
-        proc.kill()
-        await proc.wait()
-        raise RuntimeError("fpgaemu serve did not become ready")
-    return proc, words[2]
-
-
 async def _case(options: tuple[str, ...], repeats: int) -> dict[str, Any]:
-    proc, path = await _serve(*options)
+    served = await asyncio.to_thread(start_serve, "--pty", *options,
+                                     ready_timeout=EMULATOR_READY_TIMEOUT_S)
     try:
-        async with open_link(path) as link:
+        async with open_link(served.url) as link:
             await link.get_param("TsTimerPeriod")  # the board heard, the link settled
             asked, fence = [], []
             for _ in range(repeats):
@@ -62,8 +49,8 @@ async def _case(options: tuple[str, ...], repeats: int) -> dict[str, Any]:
                 await link.get_param("TsTimerPeriod")
                 fence.append(time.perf_counter() - start)
     finally:
-        proc.send_signal(signal.SIGINT)
-        await proc.wait()
+        await served.stopped(signal.SIGINT)
+        served.discard()
     return {"identify_s": summarize(asked), "pg_round_trip_s": summarize(fence),
             "answered": identity is not None}
 

@@ -13,6 +13,7 @@ from __future__ import annotations
 import asyncio
 import itertools
 import json
+import signal
 import statistics
 import subprocess
 import sys
@@ -27,6 +28,7 @@ from benchmarks._common import (
     report_header,
     write_results,
 )
+from tests.support.serving import Served, start_serve
 
 NAME = "liveview"
 CASES = ("no live view", "live view, no client", "live view, 1 client")
@@ -44,19 +46,9 @@ except OSError as exc:  # the case ended before the client connected (a stop)
 """
 
 
-async def _serve_robot() -> tuple[asyncio.subprocess.Process, dict[str, str]]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", "--robot", "--body", "kinematic", "--pty",
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.DEVNULL)
-    assert proc.stdout is not None
-    ports: dict[str, str] = {}
-    while len(ports) < 2:
-        words = (await asyncio.wait_for(proc.stdout.readline(), 30)).decode().split()
-        if not words:
-            raise RuntimeError("fpgaemu serve ended before it was ready")
-        if words[0] == "ready" and words[1] in ("L", "R"):
-            ports[words[1]] = words[2]
-    return proc, ports
+async def _serve_robot() -> tuple[Served, dict[str, str]]:
+    served = await asyncio.to_thread(start_serve, "--robot", "--body", "kinematic", "--pty")
+    return served, dict(served.ready)
 
 
 async def _one(robot: Any, case: str, seconds: float) -> dict[str, Any]:
@@ -126,8 +118,8 @@ async def run(seconds: float, repeat: int) -> list[dict[str, Any]]:
                     results.append(await _one(robot, case, seconds))
                     await asyncio.sleep(0.5)  # a stopped robot is ready again
     finally:
-        serve.send_signal(2)
-        await serve.wait()
+        await serve.stopped(signal.SIGINT)
+        serve.discard()
     return results
 
 

@@ -42,6 +42,7 @@ from benchmarks._common import (
     report_header,
     write_results,
 )
+from tests.support.serving import start_serve
 
 NAME = "ros2"
 ROOT = Path(__file__).resolve().parents[1]
@@ -85,17 +86,6 @@ def start(*args: str) -> tuple[subprocess.Popen[str], list[list[str]]]:
     return proc, []
 
 
-def ready_lines(proc: subprocess.Popen[str], count: int) -> list[list[str]]:
-    assert proc.stdout is not None
-    lines: list[list[str]] = []
-    while len(lines) < count:
-        line = proc.stdout.readline()
-        if not line:
-            raise RuntimeError(f"{proc.args!r} ended before it was ready")
-        lines.append(line.split())
-    return lines
-
-
 def stop(proc: subprocess.Popen[str]) -> None:
     if proc.poll() is None:
         proc.terminate()
@@ -114,10 +104,10 @@ def measure_rate(rate: float, seconds: float) -> dict[str, Any]:
     from sensor_msgs.msg import JointState
     from std_msgs.msg import Bool
 
-    serve, _ = start(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                     "--surface", "gravel")
-    ports = {words[1]: words[2] for words in ready_lines(serve, 3)}
-    truth = TruthReader(ports.pop("truth"))
+    serve = start_serve("--robot", "--pty", "--surface", "gravel")
+    ports = dict(serve.ready)
+    assert serve.truth is not None
+    truth = TruthReader(serve.truth)
     node, _ = start(sys.executable, "-m", "fpgalink.ros2",
                     *(f"--port={b}={u}" for b, u in ports.items()),
                     "--ros-args", "-p", f"joint_state_rate:={rate}",
@@ -159,20 +149,20 @@ def measure_rate(rate: float, seconds: float) -> dict[str, Any]:
         spin_for(WARM_UP_S)
         first_line = len(truth.lines)
         measuring[0] = True
-        cpu_before = {n: cpu_seconds(p.pid) for n, p in (("node", node), ("serve", serve))}
+        cpu_before = {"node": cpu_seconds(node.pid), "serve": cpu_seconds(serve.pid)}
         peer_before = time.process_time()
         started = time.monotonic()
         spin_for(seconds)
         window = time.monotonic() - started
         measuring[0] = False
-        cpu = {n: (cpu_seconds(p.pid) - cpu_before[n]) / window * 100
-               for n, p in (("node", node), ("serve", serve))}
+        cpu = {n: (cpu_seconds(pid) - cpu_before[n]) / window * 100
+               for n, pid in (("node", node.pid), ("serve", serve.pid))}
         cpu["peer"] = (time.process_time() - peer_before) / window * 100
         lines = truth.lines[first_line:]
     finally:
         peer.destroy_node()
         stop(node)
-        stop(serve)
+        serve.discard()
         truth.close()
     return {"rate_hz": rate, "window_s": window, "messages": len(received),
             "cpu_percent": cpu, **latencies(received, lines)}

@@ -52,6 +52,7 @@ from fpgalink.aio import open_link
 from fpgalink.aio.transport import open_transport
 from fpgalink.protocol import DEFAULT_FRAMING, Telemetry, encode_frame, parse_content
 from fpgalink.protocol.framing import FrameDecoder
+from tests.support.serving import Served, start_serve
 
 NAME = "router"
 #: Observers per row (the controller comes on top); "direct" is the board without a router.
@@ -107,8 +108,7 @@ async def _start_router(port: str) -> tuple[asyncio.subprocess.Process, str]:
     return proc, await _ready(proc, "the router")
 
 
-async def _end(router: asyncio.subprocess.Process | None,
-               serve: asyncio.subprocess.Process) -> None:
+async def _end(router: asyncio.subprocess.Process | None, serve: Served) -> None:
     """After a row: a router not stopped cleanly is killed; the board's server stopped."""
     if router is not None:
         router.kill()
@@ -308,12 +308,10 @@ def queue_cost(counts: tuple[int, ...]) -> list[dict[str, Any]]:
 # --- an RD after a flood -----------------------------------------------------------------
 
 
-async def _serve_tcp() -> tuple[asyncio.subprocess.Process, str]:
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", "--tcp", "127.0.0.1:0", "--set",
-        "GetDataPeriodical=1", stdin=asyncio.subprocess.DEVNULL,
-        stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE)
-    return proc, await _ready(proc, "fpgaemu serve")
+async def _serve_tcp() -> tuple[Served, str]:
+    served = await asyncio.to_thread(start_serve, "--tcp", "127.0.0.1:0", "--set",
+                                     "GetDataPeriodical=1")
+    return served, served.url
 
 
 class Watcher(asyncio.Protocol):

@@ -16,6 +16,7 @@ from importlib import metadata
 import pytest
 
 from tests.support.cli import ROOT, cli_env
+from tests.support.serving import served
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -117,17 +118,10 @@ def test_the_emulator_works_on_a_plain_install() -> None:
     done = _plain("fpgaemu", EMU, "--help")
     assert done.returncode == 0, done.stderr
     # fpgaemu serve on a pty, and the CLI reading the served board's parameters.
+    # The guard sets serve's command line itself: the helper's is ignored.
     code = _guarded("fpgaemu", EMU, "serve", "--pty")
-    serve = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
-                             stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
-    try:
-        assert serve.stdout is not None
-        line = serve.stdout.readline()  # the ready line (or EOF if serve failed)
-        assert line.startswith("ready "), serve.stderr.read() if serve.stderr else line
+    with served(command=(sys.executable, "-c", code), cwd=ROOT, env=cli_env()) as serve:
         done = _plain("fpgalink-cli", CLI, "param", "get", "TsTimerPeriod", "--port",
-                      line.split()[2])
+                      serve.url)
         assert done.returncode == 0, done.stderr
         assert done.stdout == "1\n"
-    finally:
-        serve.terminate()
-        serve.wait(timeout=10)

@@ -6,7 +6,6 @@ prints. It stays short: a README says what it is, how to install, one example, a
 
 from __future__ import annotations
 
-import itertools
 import os
 import re
 import subprocess
@@ -104,16 +103,13 @@ def test_make_demo_says_once_that_the_built_in_emulator_stands_in(tmp_path: Path
     said = 0
     for args in _demo_commands():
         args = [str(tmp_path / a) if a.endswith(".png") else a for a in args]
-        for _ in range(3):  # a step stopped by a loaded machine's own stall: again
-            result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
-                                    capture_output=True, text=True, timeout=60, cwd=ROOT,
-                                    env={"COLUMNS": "200", "NO_COLOR": "1",
-                                         "PATH": "/usr/bin:/bin",
-                                         "XDG_CONFIG_HOME": str(tmp_path),
-                                         "PYTHONPATH": os.pathsep.join(
-                                             [str(ROOT / "src"), str(ROOT)])})
-            if result.returncode != 7:
-                break
+        result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
+                                capture_output=True, text=True, timeout=60, cwd=ROOT,
+                                env={"COLUMNS": "200", "NO_COLOR": "1",
+                                     "PATH": "/usr/bin:/bin",
+                                     "XDG_CONFIG_HOME": str(tmp_path),
+                                     "PYTHONPATH": os.pathsep.join(
+                                         [str(ROOT / "src"), str(ROOT)])})
         assert result.returncode == 0, result.stderr
         said += result.stderr.count("using the built-in emulator")
     assert said == 1
@@ -146,15 +142,11 @@ def test_the_try_it_sequence_runs_as_written_after_make_demo(tmp_path: Path) -> 
            "XDG_CONFIG_HOME": str(tmp_path / "xdg"),
            "PYTHONPATH": os.pathsep.join([str(ROOT / "src"), str(ROOT)])}
     for args in [*_demo_commands(), *_demo_commands(), *_try_it_writers()]:
-        for _ in range(3):  # a drive or step stopped by a loaded machine's own stall: again
-            result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
-                                    capture_output=True, text=True, timeout=100,
-                                    cwd=tmp_path, env=env)
-            if result.returncode != 7:
-                break
-            for option, value in itertools.pairwise(args):
-                if option in ("--plot", "--record"):
-                    (tmp_path / value).unlink(missing_ok=True)
+        # In the CLI's own process (the built-in emulator): its boards keep the link's
+        # time, so however loaded the machine, nothing stops a drive or a step.
+        result = subprocess.run([sys.executable, "-m", "fpgalink", *args],
+                                capture_output=True, text=True, timeout=100,
+                                cwd=tmp_path, env=env)
         assert result.returncode == 0, (args, result.stderr)
     assert {"step.png", "step45.png", "run.mcap", "run.png", "idle.mcap"} <= {
         p.name for p in tmp_path.iterdir()}

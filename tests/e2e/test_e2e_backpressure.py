@@ -17,15 +17,15 @@ import pytest
 
 from fpgalink.protocol import ParamGet
 from tests.support.flood import BAUD, KERNEL_SLACK, RawHost, board_counts, noise, rss_kb
-from tests.support.served import PATIENCE, Serve, serve
+from tests.support.served import PATIENCE
+from tests.support.serving import Served, serve
 from tests.support.wire import sent
 
 pytestmark = pytest.mark.timeout(90)
 
-async def stopped_stderr(server: Serve) -> str:
-    await server.send_signal(signal.SIGTERM)
-    assert await server.wait(10.0) == 0
-    text = await server.stderr_text()
+async def stopped_stderr(server: Served) -> str:
+    assert await server.stopped(signal.SIGTERM) == 0
+    text = server.log_text()
     assert "Traceback" not in text, text
     return text
 

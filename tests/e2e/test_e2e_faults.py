@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import os
+import signal
 from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
@@ -25,16 +26,14 @@ from fpgalink.protocol import Disable, Enable, ParamGet, ParamNack, ParamSet, Pa
 from tests.support.served import (
     PATIENCE,
     T_US_MODULUS,
-    Serve,
     connect_when_free,
     next_event,
     open_when_free,
-    serve,
-    start_serve,
     stream,
     wait_for_sample,
     wait_until,
 )
+from tests.support.serving import Served, serve, start_serve
 
 pytestmark = pytest.mark.timeout(30)
 
@@ -156,7 +155,7 @@ async def test_refusals_name_the_reason() -> None:
 
 
 async def _unplug_with_a_request_pending(
-    link: Link, server: Serve, loop: asyncio.AbstractEventLoop,
+    link: Link, server: Served, loop: asyncio.AbstractEventLoop,
     kinds: tuple[type[StatusEvent], ...]
 ) -> tuple[AsyncIterator[StatusEvent], Subscription[Telemetry]]:
     """Stream enabled with a PS pending (the board never answers it), kill the serve
@@ -169,7 +168,7 @@ async def _unplug_with_a_request_pending(
     await wait_for_sample(samples, both_enabled, PATIENCE, "enable")
     pending = asyncio.ensure_future(link.set_param("TsTimerPeriod", 2))
     await wait_until(lambda: link.connection.pending_requests == 1, PATIENCE, "the PS")
-    server.proc.kill()
+    server.send_signal(signal.SIGKILL)
     await next_event(events, kinds, PATIENCE)
     with pytest.raises(BoardLost):
         await asyncio.wait_for(pending, PATIENCE)
@@ -179,8 +178,8 @@ async def _unplug_with_a_request_pending(
 async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
     loop = asyncio.get_running_loop()
     # The first board never answers PS, so a request is pending when the cable goes.
-    server = await start_serve("--tcp", "127.0.0.1:0", "--fault", "drop-frames=PS:1000",
-                               *STREAMING)
+    server = await asyncio.to_thread(start_serve, "--tcp", "127.0.0.1:0", "--fault",
+                                     "drop-frames=PS:1000", *STREAMING)
     url = server.url
     port = url.rsplit(":", 1)[1]
     restarted = None
@@ -192,9 +191,10 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
             assert link.state is LinkState.RECONNECTING
             with pytest.raises(BoardLost, match="disconnected"):
                 await link.get_param("TsTimerPeriod")
-            assert await server.wait(5.0) != 0
+            assert await server.exited(5.0) != 0
 
-            restarted = await start_serve("--tcp", f"127.0.0.1:{port}", *STREAMING)
+            restarted = await asyncio.to_thread(start_serve, "--tcp", f"127.0.0.1:{port}",
+                                                *STREAMING)
             assert restarted.url == url
             await next_event(events, (PortRestored,), 5.0)
             assert link.state is LinkState.CONNECTED  # type: ignore[comparison-overlap]
@@ -217,9 +217,9 @@ async def test_tcp_serve_killed_then_restarted_on_the_same_port() -> None:
             assert await link.set_param("TsTimerPeriod", 1) == 1
             assert link.stats.reconnects == 1 and link.stats.port_losses == 1
     finally:
-        await server.stop()
+        await server.stopped()
         if restarted is not None:
-            await restarted.stop()
+            await restarted.stopped()
 
 
 async def test_pty_vanishing_is_reported_and_retried(tmp_path: Path) -> None:

@@ -22,7 +22,8 @@ from fpgalink import open_link
 from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot
 from tests.support.driving import drive_until
-from tests.support.served import PATIENCE, Serve, serve, wait_until
+from tests.support.served import PATIENCE, wait_until
+from tests.support.serving import Served, serve
 
 pytestmark = [pytest.mark.timeout(120),
               pytest.mark.skipif(not sys.platform.startswith("linux"),
@@ -42,7 +43,7 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / TICKS  # utime, stime
 
 
-async def cpu_share(server: Serve) -> float:
+async def cpu_share(server: Served) -> float:
     """The share of one core the server used over one window."""
     loop = asyncio.get_running_loop()
     cpu0, t0 = cpu_seconds(server.proc.pid), loop.time()
@@ -50,7 +51,7 @@ async def cpu_share(server: Serve) -> float:
     return (cpu_seconds(server.proc.pid) - cpu0) / (loop.time() - t0)
 
 
-async def back_to_idle(server: Serve, fresh: float) -> None:
+async def back_to_idle(server: Served, fresh: float) -> None:
     """Measure window after window until one is within a fresh server's use (3× its share,
     or 1 % of a core, whichever is higher, plus one clock tick); fail if none is within
     :data:`SETTLE_LIMIT_S`."""
@@ -81,7 +82,7 @@ async def test_a_served_board_is_idle_again_after_a_step() -> None:
 
 
 async def test_a_served_robot_is_idle_again_after_a_drive() -> None:
-    async with serve("--robot", "--pty", boards=2) as server:
+    async with serve("--robot", "--pty") as server:
         fresh = await cpu_share(server)
         async with Robot.open(seed_robot(), server.ready) as robot:
             await drive_until(robot, lambda: robot.pose.x > 0.05, "the robot moving", 0.2,

@@ -17,12 +17,12 @@ from fpgalink.protocol.catalogue import encode_telemetry
 from fpgalink.protocol.params import ParamType, float32, iter_addresses
 from tests.support.served import (
     PATIENCE,
-    serve,
     stream,
     valid_value,
     wait_for_sample,
     wait_until,
 )
+from tests.support.serving import serve
 
 #: Five seconds of 1 kHz telemetry, however long the machine takes to deliver them.
 STREAM_SAMPLES = 5000
@@ -100,7 +100,7 @@ async def test_every_parameter_then_1khz_telemetry(board_url: str) -> None:
 
 @pytest.mark.timeout(120)
 async def test_two_boards_left_and_right_in_one_program() -> None:
-    async with serve("--pty", boards=2) as server:
+    async with serve("--pty", "--boards", "2") as server:
         assert set(server.ready) == {"L", "R"}
         assert server.ready["L"] != server.ready["R"]
         async with open_link(server.ready["L"], name="L") as left, \
@@ -177,8 +177,8 @@ async def test_batched_reads_lose_nothing_and_never_hold_back_a_request() -> Non
             assert received / len(reads) > 3, (received, len(reads))
             link.set_read_latency(None)
             assert await link.set_param("GetDataPeriodical", 0) == 0
-        await server.stop()  # its exit report says what it dropped
-        report = await server.stderr_text()
+        await server.stopped()  # its exit report says what it dropped
+        report = server.log_text()
     said = re.search(r"dropped (\d+) TX bytes nobody read in time", report)
     dropped = int(said.group(1)) if said else 0
     if not dropped:

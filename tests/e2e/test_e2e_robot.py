@@ -17,17 +17,16 @@ from fpgalink.protocol.robot import seed_robot
 from fpgalink.robot import Robot
 from fpgalink.robot.supervision import State, StopReason
 from tests.support.driving import drive_until
-from tests.support.served import PATIENCE, serve, wait_until
+from tests.support.served import PATIENCE, wait_until
+from tests.support.serving import serve
 
 pytestmark = pytest.mark.timeout(60)
 
 
 async def test_a_served_robot_moves_its_body_and_streams_the_truth() -> None:
-    async with serve("--robot", "--pty", "--surface", "ideal", boards=2) as server:
-        assert server.proc.stdout is not None
-        word, name, url = (await asyncio.wait_for(server.proc.stdout.readline(),
-                                                  PATIENCE)).decode().split()
-        assert (word, name) == ("ready", "truth") and url.startswith("socket://127.0.0.1:")
+    async with serve("--robot", "--pty", "--surface", "ideal") as server:
+        url = server.truth
+        assert url is not None and url.startswith("socket://127.0.0.1:")
         host, port = url.removeprefix("socket://").rsplit(":", 1)
         reader, writer = await asyncio.open_connection(host, int(port))
         try:
@@ -76,7 +75,7 @@ async def test_killing_one_boards_server_stops_the_other_board_at_once(tmp_path:
             await wait_until(lambda: r_link.latest is not None and r_link.latest.a.flags & 1,
                              PATIENCE, "R enabled (TM flags)")
             board_l.unlink()
-            await left.send_signal(signal.SIGKILL)
+            left.send_signal(signal.SIGKILL)
             async for event in events:
                 if event.state is State.DISABLED:
                     break

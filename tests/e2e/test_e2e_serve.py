@@ -20,12 +20,11 @@ from fpgalink.protocol import ParamAck, ParamGet
 from tests.support.flood import board_counts
 from tests.support.served import (
     PATIENCE,
-    ServeExited,
     connect_when_free,
     open_when_free,
-    serve,
     wait_until,
 )
+from tests.support.serving import ServeExited, serve, served
 from tests.support.wire import received as wire_received
 from tests.support.wire import sent as wire_sent
 
@@ -34,15 +33,14 @@ pytestmark = pytest.mark.timeout(20)
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 async def test_pty_serve_exits_0_on_signal_and_removes_the_device(sig: int) -> None:
-    async with serve("--pty", boards=2) as server:
+    async with serve("--pty", "--boards", "2") as server:
         paths = list(server.ready.values())
         assert all(os.path.exists(p) for p in paths)
         # Reachable: a link hears the board's alive frames.
         async with open_link(paths[0]) as link:
             await wait_until(lambda: link.stats.alive_received >= 1, PATIENCE, "an E frame")
-        await server.send_signal(sig)
-        assert await server.wait(5.0) == 0
-        stderr = await server.stderr_text()
+        assert await server.stopped(sig) == 0
+        stderr = server.log_text()
         assert "Traceback" not in stderr, stderr
         for path in paths:
             await wait_until(lambda p=path: not os.path.exists(p), 1.0,  # type: ignore[misc]
@@ -82,9 +80,8 @@ async def test_tcp_serve_raw_alive_frames_and_clean_exit(sig: int) -> None:
         # The board sends E every 300 ms, so a second one follows the first.
         data, took = await asyncio.to_thread(_raw_read_alive, url, PATIENCE)
         assert b"SEP" in data, f"no alive frame in {took:.3f} s on reconnect: {data!r}"
-        await server.send_signal(sig)
-        assert await server.wait(5.0) == 0
-        assert "Traceback" not in await server.stderr_text()
+        assert await server.stopped(sig) == 0
+        assert "Traceback" not in server.log_text()
         with pytest.raises(OSError):
             _, writer = await asyncio.open_connection(host, int(port))
             writer.close()
@@ -147,9 +144,8 @@ async def test_a_client_flooding_tcp_is_held_back_loses_nothing_and_memory_stays
         assert (sent + len(request)) * 10 / 1e6 <= took, (sent, took)
         async with await open_when_free(server.url) as link:
             assert await link.get_param("TsTimerPeriod") == 1
-        await server.send_signal(signal.SIGTERM)
-        assert await server.wait(5.0) == 0
-        stderr = await server.stderr_text()
+        assert await server.stopped(signal.SIGTERM) == 0
+        stderr = server.log_text()
     assert "dropped" not in stderr, stderr
     counts = board_counts(stderr)
     assert counts.noise >= sent and counts.held >= 1, counts
@@ -191,9 +187,8 @@ async def test_clients_that_write_garbage_and_leave_do_not_hold_up_the_next() ->
                     if link.board_alive or refusals >= 20:
                         raise
                     refusals += 1
-        await server.send_signal(signal.SIGTERM)
-        assert await server.wait(5.0) == 0
-        stderr = await server.stderr_text()
+        assert await server.stopped(signal.SIGTERM) == 0
+        stderr = server.log_text()
     assert "Traceback" not in stderr, stderr
     assert board_counts(stderr).discarded > 0, stderr  # what the line had not carried
 
@@ -211,9 +206,8 @@ async def test_a_second_client_is_told_busy_while_the_first_is_connected() -> No
         # Once the first has gone, the port serves the next.
         async with await open_when_free(server.url) as second:
             await wait_until(lambda: second.board_alive, PATIENCE, "the board")
-        await server.send_signal(signal.SIGTERM)
-        assert await server.wait(5.0) == 0
-        assert "1 host(s) told busy" in await server.stderr_text()
+        assert await server.stopped(signal.SIGTERM) == 0
+        assert "1 host(s) told busy" in server.log_text()
 
 
 async def test_a_host_that_sends_nothing_is_let_go_after_the_idle_timeout() -> None:
@@ -367,15 +361,14 @@ async def test_a_parameter_dump_serves_as_a_config(tmp_path: Path) -> None:
 
 async def test_links_name_each_pty_stably_and_go_on_exit(tmp_path: Path) -> None:
     left, right = tmp_path / "fpga-L", tmp_path / "fpga-R"
-    async with serve("--pty", "--link", f"L={left}", "--link", f"R={right}",
-                     boards=2) as server:
+    async with serve("--pty", "--boards", "2", "--link", f"L={left}", "--link",
+                     f"R={right}") as server:
         assert server.ready == {"L": str(left), "R": str(right)}
         for name, path in (("L", left), ("R", right)):
-            assert path.is_symlink() and os.readlink(path) == server.links[name]
+            assert path.is_symlink() and os.readlink(path) == server.ptys[name]
         async with open_link(str(left)) as link:  # the link path is a working port
             await wait_until(lambda: link.stats.alive_received >= 1, PATIENCE, "an E frame")
-        await server.send_signal(signal.SIGTERM)
-        assert await server.wait(5.0) == 0
+        assert await server.stopped(signal.SIGTERM) == 0
     assert not left.exists() and not left.is_symlink() and not right.is_symlink()
 
 
@@ -390,7 +383,7 @@ async def test_a_link_never_replaces_a_file(tmp_path: Path) -> None:
 
 async def test_tcp_ports_are_reported_as_they_are() -> None:
     # Port 0: every board gets its own free port, and the ready lines say which.
-    async with serve("--tcp", "127.0.0.1:0", boards=2) as server:
+    async with serve("--tcp", "127.0.0.1:0", "--boards", "2") as server:
         ports = [int(url.rsplit(":", 1)[1]) for url in server.ready.values()]
         assert len(set(ports)) == 2 and 0 not in ports
         for url in server.ready.values():
@@ -405,7 +398,7 @@ async def test_tcp_ports_are_reported_as_they_are() -> None:
     for _attempt in range(5):
         base = free_port_pair()
         try:
-            async with serve("--tcp", f"127.0.0.1:{base}", boards=2) as server:
+            async with serve("--tcp", f"127.0.0.1:{base}", "--boards", "2") as server:
                 assert list(server.ready.values()) == [f"socket://127.0.0.1:{base}",
                                                        f"socket://127.0.0.1:{base + 1}"]
                 return
@@ -437,14 +430,8 @@ def test_options_before_serve_and_after_it() -> None:
 
 
 def test_options_before_serve_are_honoured() -> None:
-    proc = subprocess.Popen([sys.executable, "-m", "fpgaemu", "--pty", "--boards", "2", "serve"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        lines = [proc.stdout.readline(), proc.stdout.readline()]  # blocks until ready
-        assert [li.split()[:2] for li in lines] == [["ready", "L"], ["ready", "R"]], lines
-        assert all(li.split()[2].startswith("/dev/pts/") for li in lines)
-    finally:
-        proc.terminate()
-        proc.wait(timeout=10)
-    assert proc.returncode == 0
+    with served(command=(sys.executable, "-m", "fpgaemu", "--pty", "--boards", "2")) as server:
+        lines = server.lines
+        assert [li[:2] for li in lines] == [["ready", "L"], ["ready", "R"]], lines
+        assert all(li[2].startswith("/dev/pts/") for li in lines)
+        assert server.stop() == 0

@@ -9,15 +9,14 @@ What is asserted is what the collector would walk, read in the serving process b
 
 from __future__ import annotations
 
-import os
 import signal
-import subprocess
 import sys
-from typing import IO
 
 import pytest
 
 from tests.support.cli import ROOT, cli_env
+from tests.support.serving import served
+from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -33,29 +32,14 @@ main()
 """
 
 
-def _line(stream: IO[str] | None, prefix: str) -> str:
-    """The first line starting with ``prefix`` (blocking: serve prints it, or ends and the
-    stream with it; the test's timeout bounds the wait)."""
-    assert stream is not None
-    for line in stream:
-        if line.startswith(prefix):
-            return line
-    raise AssertionError(f"the stream ended before a line starting {prefix!r}")
-
-
 def test_serve_keeps_its_start_up_heap_out_of_the_collectors_full_passes() -> None:
-    proc = subprocess.Popen([sys.executable, "-c", PROBE], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
-    try:
-        _line(proc.stdout, "ready truth")  # serving: every board is ready
-        os.kill(proc.pid, signal.SIGUSR2)
-        words = _line(proc.stderr, "gen2 ").split()
+    # serve's own command line is the probe's (its argv set there): the helper's is ignored.
+    with served(command=(sys.executable, "-c", PROBE), env=cli_env(), cwd=ROOT) as server:
+        assert server.truth is not None  # serving: every board is ready
+        server.send_signal(signal.SIGUSR2)
+        wait_until_sync(lambda: "gen2 " in server.log_text(), 30, "the probe's line")
+        line = next(li for li in server.log_text().splitlines() if li.startswith("gen2 "))
+        words = line.split()
         walked, frozen = int(words[1]), int(words[3])
         assert frozen > 10_000, words  # the start-up heap, frozen
         assert walked < frozen // 10, words  # what a full pass walks while serving
-    finally:
-        proc.terminate()
-        proc.wait(timeout=20)
-        for stream in (proc.stdout, proc.stderr):
-            if stream is not None:
-                stream.close()

@@ -12,7 +12,6 @@ import os
 import resource
 import signal
 import socket
-import subprocess
 import sys
 from collections.abc import AsyncIterator
 from typing import Any
@@ -23,7 +22,8 @@ from fpgaemu.robot import EmulatedRobot
 from fpgaemu.serve import MAX_TRUTH_READERS, PacedRobot, TruthEndpoint
 from fpgalink.aio import open_link
 from tests.support.cli import run_cli
-from tests.support.served import PATIENCE, Serve, serve, wait_until
+from tests.support.served import PATIENCE, wait_until
+from tests.support.serving import Served, serve, served, start_serve
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -32,21 +32,17 @@ def open_fds(pid: int) -> int:
     return len(os.listdir(f"/proc/{pid}/fd"))
 
 
-def truth_address(server: Serve) -> tuple[str, int]:
-    url = server.ready["truth"]
+def truth_address(server: Served) -> tuple[str, int]:
+    url = server.truth
+    assert url is not None
     host, port = url.removeprefix("socket://").rsplit(":", 1)
     return host.strip("[]"), int(port)
 
 
 @contextlib.asynccontextmanager
-async def robot_served(*args: str, **popen: Any) -> AsyncIterator[Serve]:
-    """``fpgaemu serve --robot --pty``, ready lines for L, R and the truth all read."""
-    async with serve("--robot", "--pty", *args, boards=2, **popen) as server:
-        assert server.proc.stdout is not None
-        line = (await asyncio.wait_for(server.proc.stdout.readline(), PATIENCE)).decode()
-        word, name, url = line.split()
-        assert (word, name) == ("ready", "truth"), line
-        server.ready["truth"] = url
+async def robot_served(*args: str, **popen: Any) -> AsyncIterator[Served]:
+    """``fpgaemu serve --robot --pty``: boards L and R, and the truth."""
+    async with serve("--robot", "--pty", *args, **popen) as server:
         yield server
 
 
@@ -58,10 +54,9 @@ async def first_line(host: str, port: int) -> bytes:
         writer.close()
 
 
-async def stop(server: Serve) -> str:
-    await server.send_signal(signal.SIGTERM)
-    assert await server.wait(10.0) == 0
-    stderr = await server.stderr_text()
+async def stop(server: Served) -> str:
+    assert await server.stopped(signal.SIGTERM) == 0
+    stderr = server.log_text()
     assert "Traceback" not in stderr, stderr
     return stderr
 
@@ -77,7 +72,7 @@ PRELUDE = (
     "resource.setrlimit(resource.RLIMIT_NOFILE, (min(hard, 4096), hard))\n"
     f"for _ in range({INHERITED}):\n"
     "    os.set_inheritable(os.open(os.devnull, os.O_RDONLY), True)\n"
-    "os.execv(sys.executable, [sys.executable, '-m', 'fpgaemu', 'serve', *sys.argv[1:]])\n"
+    "os.execv(sys.executable, [sys.executable, '-m', 'fpgaemu', *sys.argv[1:]])\n"
 )
 
 
@@ -85,21 +80,14 @@ PRELUDE = (
                     reason="the hard descriptor limit is below 1400")
 async def test_serve_works_with_every_descriptor_above_1024() -> None:
     # The loop used select(): "filedescriptor out of range in select()" and a dead serve.
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-c", PRELUDE, "--robot", "--tcp", "127.0.0.1:0", "--boards", "2",
-        stdin=asyncio.subprocess.DEVNULL, stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE, close_fds=True)
-    server = Serve(proc, ())
+    server = await asyncio.to_thread(
+        start_serve, "--robot", "--tcp", "127.0.0.1:0", "--boards", "2",
+        command=(sys.executable, "-c", PRELUDE), close_fds=True)
     try:
-        assert proc.stdout is not None
-        for _ in range(3):
-            line = (await asyncio.wait_for(proc.stdout.readline(), PATIENCE)).decode()
-            assert line.startswith("ready "), (line, await server.stderr_text())
-            server.ready[line.split()[1]] = line.split()[2]
         async with open_link(server.ready["L"]) as link:
             assert await link.get_param("TsTimerPeriod") == 1
         assert json.loads(await first_line(*truth_address(server)))["surface"]
-        assert max(int(fd) for fd in os.listdir(f"/proc/{proc.pid}/fd")) >= INHERITED
+        assert max(int(fd) for fd in os.listdir(f"/proc/{server.proc.pid}/fd")) >= INHERITED
     finally:
         await stop(server)
 
@@ -235,14 +223,10 @@ def _has_ipv6_loopback() -> bool:
 def test_a_wildcard_listener_prints_one_usable_address_per_socket() -> None:
     # `--tcp :0` printed socket://:PORT (which fpgalink-cli refuses), and the IPv4 and
     # IPv6 sockets had different ports with only one printed.
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "fpgaemu", "serve", "--robot", "--tcp", ":0", "--truth", ":0"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        assert proc.stdout is not None
-        lines = [proc.stdout.readline().split() for _ in range(6)]
+    with served("--robot", "--tcp", ":0", "--truth", ":0") as server:
+        assert len(server.lines) == 6, server.lines
         by_name: dict[str, list[str]] = {}
-        for word, name, url in lines:
+        for word, name, url in server.lines:
             assert word == "ready"
             by_name.setdefault(name, []).append(url)
         assert sorted(by_name) == ["L", "R", "truth"]
@@ -258,7 +242,5 @@ def test_a_wildcard_listener_prints_one_usable_address_per_socket() -> None:
             with socket.create_connection((host.strip("[]"), int(port)), timeout=PATIENCE) \
                     as sock, sock.makefile("rb") as stream:
                 assert "x" in json.loads(stream.readline())
-    finally:
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=10)
-    assert proc.returncode == 0 and "Traceback" not in err, err
+        assert server.stop() == 0
+        assert "Traceback" not in server.log_text(), server.log_text()

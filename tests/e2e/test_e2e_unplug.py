@@ -16,7 +16,9 @@ from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import PortError
 from fpgalink.aio import open_link
 from fpgalink.events import BoardBack, BoardRestarted, PortLost, PortRestored
-from tests.support.served import PATIENCE, next_event, serve
+from tests.support.served import PATIENCE, next_event
+from tests.support.serving import serve, served
+from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -52,8 +54,8 @@ async def test_an_unplugged_link_is_lost_found_again_and_the_board_is_back(
             assert link.stats.lost > lost_at  # the unplugged half second, counted
             assert samples.dropped == before
             assert link.stats.port_losses == 1 and link.stats.reconnects == 1
-        await server.stop()
-        report = await server.stderr_text()
+        await server.stopped()
+        report = server.log_text()
     assert "unplugged 1 time(s) (--fault unplug)" in report, report
     if kind == "pty":
         assert "plugged in again: " + str(link_path) in report, report
@@ -81,17 +83,13 @@ def test_monitor_through_a_pty_unplug_says_back_not_restarted(tmp_path: Path) ->
     # through a 2 s unplug of fpgaemu serve's pty, 4 s into serve's run. A loaded machine
     # may start the CLI only after the unplug (it cannot open the port, or opens the new
     # pty and sees no loss): such a run tells nothing, and is made again.
-    from tests.support.cli import run_cli, serve_pty
+    from tests.support.cli import run_cli
 
     for attempt in range(3):
         link = tmp_path / f"fpga{attempt}"
-        proc, _ = serve_pty("--link", str(link), "--fault", "unplug=4:2")
-        try:
+        with served("--pty", "--link", str(link), "--fault", "unplug=4:2"):
             done = run_cli("--port", str(link), "monitor", "--duration", "8", "--format",
                            "csv", timeout=60)
-        finally:
-            proc.terminate()
-            proc.communicate(timeout=PATIENCE)
         if "# 0: port_lost" in done.stderr:
             break
     assert "# 0: port_restored" in done.stderr, done.stderr
@@ -117,23 +115,13 @@ def test_serve_ending_while_unplugged_leaves_a_link_another_took_meanwhile(
     to the freed pty's number, given to it. serve ending meanwhile leaves that link alone."""
     import os
     import signal
-    import time
-
-    from tests.support.cli import serve_pty
 
     link = tmp_path / "fpga0"
-    proc, _ = serve_pty("--link", str(link), "--fault", "unplug=0.5:600")
-    try:
+    with served("--pty", "--link", str(link), "--fault", "unplug=0.5:600") as server:
         freed = os.readlink(link)
-        deadline = time.monotonic() + PATIENCE
-        while link.is_symlink():  # unplugged: the link goes with the pty
-            assert time.monotonic() < deadline and proc.poll() is None, "not unplugged"
-            time.sleep(0.05)
+        wait_until_sync(lambda: not link.is_symlink() or not server.running, PATIENCE,
+                        "the link gone with the pty")  # unplugged: the link goes with it
+        assert server.running, server.log_text()
         link.symlink_to(freed)  # another's now, to the number it was given
-        proc.send_signal(signal.SIGTERM)
-        _, err = proc.communicate(timeout=PATIENCE)
-    finally:
-        if proc.poll() is None:
-            proc.kill()
-    assert proc.returncode == 0, err
+        assert server.stop(signal.SIGTERM) == 0, server.log_text()
     assert os.readlink(link) == freed

@@ -15,7 +15,7 @@ from mcap.reader import make_reader
 
 from fpgalink.recording import RecordingReader
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import run_cli, run_driving
+from tests.support.cli import run_cli
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -51,7 +51,7 @@ def test_every_chunk_the_writers_write_carries_a_crc(recording: Path, tmp_path: 
     # The bags had none (rosbags writes 0): damage inside them could not be found.
     pytest.importorskip("rosbags")
     bag = tmp_path / "bag"
-    done = run_driving("drive", "--for", "0.5", "--rosbag2", str(bag), timeout=60)
+    done = run_cli("drive", "--for", "0.5", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     for path in (recording, *bag.glob("*.mcap")):
         with path.open("rb") as stream:
@@ -123,7 +123,7 @@ def test_plot_of_a_damaged_recording_names_the_chunk_and_exits_8(recording: Path
 def test_plot_of_a_damaged_bag_names_the_chunk_and_exits_8(tmp_path: Path) -> None:
     pytest.importorskip("rosbags")
     bag = tmp_path / "bag"
-    done = run_driving("drive", "--v", "0.1", "--for", "2", "--rosbag2", str(bag), timeout=60)
+    done = run_cli("drive", "--v", "0.1", "--for", "2", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     [storage] = bag.glob("*.mcap")
     offset, length = chunk_spans(storage)[0]
@@ -210,15 +210,15 @@ def test_the_bring_up_commands_read_a_damaged_recording_as_plot_does(
     # nothing of damage. Now: each damaged part named, what is intact used, exit 9.
     path = tmp_path / "run.mcap"
     if command == "calibrate":
-        made = run_driving("calibrate", "--turn", "90", "--omega", "45", "--reference", "truth",
-                           "--record", str(path),
-                           "--port", "L=emu://robot/L?body=kinematic",
-                           "--port", "R=emu://robot/R?body=kinematic", timeout=120)
+        made = run_cli("calibrate", "--turn", "90", "--omega", "45", "--reference", "truth",
+                       "--record", str(path),
+                       "--port", "L=emu://robot/L?body=kinematic",
+                       "--port", "R=emu://robot/R?body=kinematic", timeout=120)
         again = ["calibrate", "--from", str(path), "--format", "json"]
     else:
-        made = run_driving("identify", "-c", "A", "--wheels", "air", "--max-duty", "50",
-                           "--duration", "6", "--record", str(path),
-                           "--port", "emu://", timeout=120)
+        made = run_cli("identify", "-c", "A", "--wheels", "air", "--max-duty", "50",
+                       "--duration", "6", "--record", str(path),
+                       "--port", "emu://", timeout=120)
         again = ["identify", "-c", "A", "--from", str(path), "--format", "json"]
     assert made.returncode == 0, made.stderr
     whole = run_cli(*again)

@@ -1,8 +1,10 @@
 """A ROS 2 peer written with plain rclpy (nothing of the node's code): it starts
-``fpgaemu serve`` and ``fpgalink-ros2`` as processes, talks to the node over ROS, reads what
-really happened from the emulator's truth endpoint, and prints one JSON line per check.
+``fpgaemu serve`` (tests/support/serving.py) and ``fpgalink-ros2`` as processes, talks to the
+node over ROS, reads what really happened from the emulator's truth endpoint, and writes one
+JSON line per check to REPORT, a file of its own: never to the stdout and stderr it shares
+with the node's and serve's logs, where a check's line could be glued to a log line.
 
-    python -m tests.ros2.peer main|kill|fault|ddc|imu|describe   (in tests/ros2/netns.sh)
+    python -m tests.ros2.peer main|kill|fault|ddc|imu|describe REPORT   (in tests/ros2/netns.sh)
 
 ``main``: joint_states against the boards' telemetry, cmd_vel against the body, goal_pose,
 the enable deadman, SetParameters. ``kill``: one board's serving process killed.
@@ -13,6 +15,7 @@ node's ``truth``. ``describe``: in namespace ``/bot``, the emulated robot in the
 process: robot_description and /tf_static against the URDF, frame prefixes, wheel names,
 covariances, limits and cmd_vel_out, /clock and use_sim_time.
 Exit 0 when it ran to the end (the checks' verdicts are in the JSON, for the test to assert).
+Each serve's log goes beside REPORT.
 """
 
 from __future__ import annotations
@@ -58,13 +61,26 @@ from tf2_msgs.msg import TFMessage
 
 from fpgalink.protocol.robot import SEED_ROBOT_TOML
 from fpgalink.ros2.node import IMU_RATE_HZ
+from tests.support import serving
+from tests.support.serving import Served
 
 PATIENCE = 30.0
 NODE = "fpgalink"
 
 
+#: Where the checks go (the REPORT argument), and serve's logs beside it.
+_REPORT: dict[str, Any] = {}
+
+
 def report(check: str, **facts: Any) -> None:
-    print(json.dumps({"check": check, **facts}), flush=True)
+    """One check's facts, a JSON line of its own in the report file."""
+    with open(_REPORT["path"], "a", encoding="utf-8") as out:
+        out.write(json.dumps({"check": check, **facts}) + "\n")
+
+
+def start_serve(*args: str) -> Served:
+    """``fpgaemu serve ARGS`` (the tests' one way to start it), its log beside the report."""
+    return serving.start_serve(*args, log_dir=_REPORT["logs"])
 
 
 def float32(value: float) -> float:
@@ -95,18 +111,10 @@ class Truth:
 
 
 class Process:
-    def __init__(self, *args: str) -> None:
-        self.proc = subprocess.Popen(args, stdout=subprocess.PIPE, stderr=None, text=True)
+    """A node: its output the peer's own (the checks go to the report file, never there)."""
 
-    def ready_lines(self, count: int) -> list[list[str]]:
-        assert self.proc.stdout is not None
-        lines: list[list[str]] = []
-        while len(lines) < count:
-            line = self.proc.stdout.readline()
-            if not line:
-                raise RuntimeError(f"{self.proc.args!r} ended before it was ready")
-            lines.append(line.split())
-        return lines
+    def __init__(self, *args: str) -> None:
+        self.proc = subprocess.Popen(args, text=True)
 
     def stop(self, sig: int = signal.SIGTERM) -> int | None:
         if self.proc.poll() is None:
@@ -256,10 +264,10 @@ def start_node(ports: dict[str, str], *ros_args: str, own: tuple[str, ...] = ())
 def main_scenario(peer: Peer) -> None:
     # The kinematic body: these checks are of the node's plumbing, against a body whose
     # motion odometry describes exactly (the imu scenario has the physics body).
-    serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                    "--surface", "gravel", "--body", "kinematic")
-    ready = {line[1]: line[2] for line in serve.ready_lines(3)}
-    truth = Truth(ready.pop("truth"))
+    serve = start_serve("--robot", "--pty", "--surface", "gravel", "--body", "kinematic")
+    ready = dict(serve.ready)
+    assert serve.truth is not None
+    truth = Truth(serve.truth)
     # This scenario checks what holds when nothing goes wrong. On a loaded machine the
     # served emulator may deliver a board's telemetry tens of ms late, which the node's
     # default (50 periods) rightly takes for a fault: here the limit is 1 s. The faults
@@ -487,12 +495,11 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
 
 
 def kill_scenario(peer: Peer) -> None:
-    left = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty")
+    left = start_serve("--pty")
     # R runs the seed's firmware, which does not know IQ: its identity is unknown, and it
     # works as L does (docs/protocol.md §8).
-    right = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty", "--seed", "1",
-                    "--seed-protocol")
-    ports = {"L": left.ready_lines(1)[0][2], "R": right.ready_lines(1)[0][2]}
+    right = start_serve("--pty", "--seed", "1", "--seed-protocol")
+    ports = {"L": left.url, "R": right.url}
     # In a namespace, with a board parameter given on the command line: set on the board.
     node = start_node(ports, "-r", "__ns:=/bot", "-p", "L.Kp_Wheel_Pid.B:=350.0")
     try:
@@ -516,10 +523,9 @@ def kill_scenario(peer: Peer) -> None:
         left.stop()  # killed above, unless something failed first: it holds our output
     # A board whose firmware was built from another declaration: the node refuses to
     # start, one line naming both hashes, exit 10 (R, free again, is the seed board).
-    other = Process(sys.executable, "-m", "fpgaemu", "serve", "--pty", "--declarations",
-                    "0123456789abcdef")
+    other = start_serve("--pty", "--declarations", "0123456789abcdef")
     try:
-        ports = {"L": other.ready_lines(1)[0][2], "R": ports["R"]}
+        ports = {"L": other.url, "R": ports["R"]}
         refused = subprocess.run([sys.executable, "-m", "fpgalink.ros2",
                                   *(f"--port={b}={url}" for b, url in ports.items())],
                                  capture_output=True, text=True, timeout=PATIENCE)
@@ -569,10 +575,10 @@ class FaultRun:
         self.peer, self.at = peer, at
         #: messages stamped before this are an earlier run's, arriving late
         self.started_ns = peer.get_clock().now().nanoseconds
-        self.serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                             *body, "--fault", fault)
-        ready = {line[1]: line[2] for line in self.serve.ready_lines(3)}
-        self.truth = Truth(ready.pop("truth"))
+        self.serve = start_serve("--robot", "--pty", *body, "--fault", fault)
+        ready = dict(self.serve.ready)
+        assert self.serve.truth is not None
+        self.truth = Truth(self.serve.truth)
         self.node = start_node(ready)
 
     def driving_before_the_fault(self) -> bool:
@@ -972,10 +978,10 @@ def _ddc(peer: Peer, exits: contextlib.ExitStack) -> None:
     exits.callback(configure_again.node.stop, signal.SIGKILL)
     _bad_values()
     configure_again.start()
-    serve = Process(sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty",
-                    "--surface", "ideal")
-    ready = {line[1]: line[2] for line in serve.ready_lines(3)}
-    truth = Truth(ready.pop("truth"))
+    serve = start_serve("--robot", "--pty", "--surface", "ideal")
+    ready = dict(serve.ready)
+    assert serve.truth is not None
+    truth = Truth(serve.truth)
     # As in the main scenario: a loaded machine's late telemetry is not what is tested here.
     patient = ("-p", "telemetry_timeout_periods:=1000")
     # A misspelt -p: said, not silently ignored.
@@ -1436,7 +1442,8 @@ def describe_scenario(peer: Peer) -> None:
 
 
 def main() -> None:
-    scenario = sys.argv[1]
+    scenario, where = sys.argv[1], Path(sys.argv[2])
+    _REPORT.update(path=where, logs=where.parent / f"{where.stem}-serve")
     os.environ.setdefault("ROS_AUTOMATIC_DISCOVERY_RANGE", "LOCALHOST")
     rclpy.init()
     peer = Peer(namespace="/bot" if scenario in ("kill", "describe") else "")

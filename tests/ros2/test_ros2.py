@@ -65,11 +65,18 @@ class Scenario:
                    PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
                    PYTHONUNBUFFERED="1", RCUTILS_COLORIZED_OUTPUT="0")
         self.name = name
-        command = [sys.executable, "-m", "tests.ros2.peer", name]
+        #: the peer's checks, one JSON line each: a file of their own, never the output it
+        #: shares with the node's and serve's logs (where a line could be glued to another)
+        self.report = log_dir / f"{name}.checks.jsonl"
+        command = [sys.executable, "-m", "tests.ros2.peer", name, str(self.report)]
         if name == "docs":  # the node on the emulated robot, then the docs' example
             example = log_dir / "docs_example.py"
             example.write_text(docs_example(), encoding="utf-8")
-            command = ["sh", "-c", f"{sys.executable} -m fpgalink.ros2 & node=$!; "
+            # The node's log to a file of its own: the example's printed lines are checked
+            # as printed, never glued to one of the node's.
+            node_log = log_dir / "docs_node.log"
+            command = ["sh", "-c", f"{sys.executable} -m fpgalink.ros2 > {node_log} 2>&1 & "
+                       "node=$!; "
                        f"{sys.executable} {example}; rc=$?; kill -INT $node; wait $node; "
                        "echo node exit $?; exit $rc"]
         # A session of its own: a timeout kills the peer with everything it started.
@@ -102,10 +109,11 @@ class Scenario:
             self._checks = {}
             if self.proc.returncode != 0:
                 pytest.fail(f"peer {self.name} exited {self.proc.returncode}:\n{self.output}")
-            for line in self.output.splitlines():
-                if line.startswith('{"check"'):
-                    facts = json.loads(line)
-                    self._checks[facts.pop("check")] = facts
+            lines = self.report.read_text(encoding="utf-8").splitlines() \
+                if self.report.exists() else []
+            for line in lines:
+                facts = json.loads(line)
+                self._checks[facts.pop("check")] = facts
         return self._checks
 
     def kill(self) -> None:
@@ -114,7 +122,8 @@ class Scenario:
 
     def check(self, name: str) -> dict[str, Any]:
         checks = self.checks()
-        assert name in checks, f"peer {self.name} did not get to {name!r}:\n{self.output}"
+        assert name in checks, (f"peer {self.name} did not get to {name!r} (its checks: "
+                                f"{sorted(checks)}):\n{self.output}")
         return checks[name]
 
 
@@ -283,8 +292,7 @@ def test_a_killed_board_server_turns_its_status_to_error_and_disables_the_robot(
 def test_the_example_session_in_the_docs_runs_as_shown(scenarios: dict[str, Scenario]
                                                        ) -> None:
     scenarios["docs"].checks()  # it ran to the end, exit 0
-    lines = scenarios["docs"].output.splitlines()
-    printed = [line for line in lines if not line.startswith("[")]  # the node's log: [INFO]
+    printed = scenarios["docs"].output.splitlines()  # the node's log is in a file of its own
     joints = next(line for line in printed if line.startswith("joint_states:"))
     assert "['FL', 'BL', 'FR', 'BR']" in joints
     speeds = [float(v) for v in joints.split("] [")[1].split("]")[0].replace("'", "").split(",")]

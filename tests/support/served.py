@@ -1,5 +1,5 @@
-"""Shared pieces of the end-to-end tests: a real ``fpgaemu serve`` subprocess, waits on
-conditions with deadlines, and telemetry streaming checks.
+"""Shared pieces of the end-to-end tests: waits on conditions with deadlines and telemetry
+streaming checks, over links to a real ``fpgaemu serve`` (started by :mod:`tests.support.serving`).
 
 Nothing here sleeps a fixed time and hopes: every wait is for a condition, bounded by a
 deadline, and fails with a message naming what did not happen.
@@ -8,12 +8,9 @@ deadline, and fails with a message naming what did not happen.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import itertools
-import signal
-import sys
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, TypeVar
 
 from fpgalink import PortError, Telemetry
@@ -26,13 +23,10 @@ from tests.support.waiting import wait_until
 __all__ = [
     "COUNTER_MODULUS",
     "PATIENCE",
-    "Serve",
-    "ServeExited",
     "StreamResult",
     "connect_when_free",
     "next_event",
     "open_when_free",
-    "serve",
     "stream",
     "valid_value",
     "wait_for_sample",
@@ -42,96 +36,6 @@ __all__ = [
 E = TypeVar("E", bound=StatusEvent)
 COUNTER_MODULUS = 100_000
 T_US_MODULUS = 1 << 32
-#: Starting a Python interpreter and the emulator takes well under a second; a loaded CI
-#: machine gets ten.
-READY_TIMEOUT = 10.0
-
-
-@dataclass
-class Serve:
-    """A running ``python -m fpgaemu serve`` and the endpoints it printed."""
-
-    proc: asyncio.subprocess.Process
-    args: tuple[str, ...]
-    ready: dict[str, str] = field(default_factory=dict)  #: board name → path or URL
-    links: dict[str, str] = field(default_factory=dict)  #: with --link: name → the pty
-
-    @property
-    def url(self) -> str:
-        """The first board's path or URL."""
-        return next(iter(self.ready.values()))
-
-    @property
-    def running(self) -> bool:
-        return self.proc.returncode is None
-
-    async def send_signal(self, sig: int) -> None:
-        if self.running:
-            self.proc.send_signal(sig)
-
-    async def wait(self, timeout: float = 5.0) -> int:
-        return await asyncio.wait_for(self.proc.wait(), timeout)
-
-    async def stderr_text(self) -> str:
-        assert self.proc.stderr is not None
-        if self.running:
-            return ""
-        return (await asyncio.wait_for(self.proc.stderr.read(), 2.0)).decode(errors="replace")
-
-    async def stop(self) -> None:
-        """SIGTERM, then SIGKILL if it does not go within five seconds."""
-        if not self.running:
-            return
-        self.proc.send_signal(signal.SIGTERM)
-        try:
-            await asyncio.wait_for(self.proc.wait(), 5.0)
-        except TimeoutError:
-            self.proc.kill()
-            await self.proc.wait()
-
-
-class ServeExited(AssertionError):
-    """``fpgaemu serve`` exited before it printed ``ready`` for every board; says why."""
-
-
-async def start_serve(*args: str, boards: int = 1, **popen: Any) -> Serve:
-    """Start ``fpgaemu serve ARGS`` and return once it printed ``ready`` for every board.
-    ``popen``: more options for the subprocess (``preexec_fn`` to lower a limit, say)."""
-    proc = await asyncio.create_subprocess_exec(
-        sys.executable, "-m", "fpgaemu", "serve", *args, "--boards", str(boards),
-        stdin=asyncio.subprocess.DEVNULL,
-        stdout=asyncio.subprocess.PIPE,
-        stderr=asyncio.subprocess.PIPE,
-        **popen,
-    )
-    server = Serve(proc, args)
-    assert proc.stdout is not None
-    try:
-        while len(server.ready) < boards:
-            line = (await asyncio.wait_for(proc.stdout.readline(), READY_TIMEOUT)).decode()
-            if not line:
-                await asyncio.wait_for(proc.wait(), READY_TIMEOUT)
-                raise ServeExited(f"fpgaemu serve {' '.join(args)} exited before ready: "
-                                  f"{(await server.stderr_text()).strip()}")
-            word, name, where, *pointed = line.split()  # "ready L LINK -> /dev/pts/N"
-            assert word == "ready", line
-            server.ready.setdefault(name, where)  # the first of a board's addresses
-            if pointed:
-                server.links[name] = pointed[-1]
-    except BaseException:
-        await server.stop()
-        raise
-    return server
-
-
-@contextlib.asynccontextmanager
-async def serve(*args: str, boards: int = 1, **popen: Any) -> AsyncIterator[Serve]:
-    """``async with serve("--pty") as srv:`` — always stopped (and reaped) afterwards."""
-    server = await start_serve(*args, boards=boards, **popen)
-    try:
-        yield server
-    finally:
-        await server.stop()
 
 
 async def next_event(

@@ -59,6 +59,16 @@ class ReadBatcher:
             self.cancel()
         self._resume_transport()
 
+    def read_now(self) -> None:
+        """Hand the link what the port holds now, paused or not, without waiting for the
+        loop to notice it. Before a timer's judgement (a silence, a stale stream, an overdue
+        heartbeat): the loop looks at the port once per turn, before that turn's timers, so
+        bytes that came while this host was not scheduled, after the look, would be judged
+        missing by a timer in the same turn. A silence is the board's only when nothing waits."""
+        data = _read_waiting(self._transport())
+        if data:
+            self._deliver(data)
+
     def cancel(self) -> None:
         if self._timer is not None:
             self._timer.cancel()

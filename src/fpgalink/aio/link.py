@@ -477,8 +477,8 @@ class Link:
         self._timer = self._loop.call_at(self._clock.loop_time(deadline), self._on_timer)
 
     def _on_timer(self) -> None:
-        self._timer = None
-        self._timer_at = None
+        self._timer = self._timer_at = None
+        self._batches.read_now()  # what waits is the board's: read before any judgement
         self.connection.handle_timer(self._now())
         self._process()
         self._flush()

@@ -34,6 +34,8 @@ from fpgalink.protocol import (
 from fpgalink.recording import COMMAND_SCHEMA, POSE_SCHEMA, RecordingError
 
 if TYPE_CHECKING:
+    from fpgalink.aio import Subscription
+    from fpgalink.aio.link import Stamped
     from fpgalink.cli.rosbag import RosbagWriter
     from fpgalink.live import LiveAddress
     from fpgalink.protocol.robot import RobotDescription
@@ -418,25 +420,14 @@ class RobotRun:
                 self.truth_frame.anchor(start)
             if self.record_path is not None:
                 self._open_sink()
-            tasks = []
-            if self._sink is not None:
-                to_epoch = time.time() - asyncio.get_running_loop().time()
-                tasks += [asyncio.ensure_future(self._record_board(robot, name, to_epoch))
-                          for name in self.description.boards]
-            if self.rosbag_path is not None:
-                self._open_bag(robot)
-                tasks += self._bag_tasks(robot)  # beside --record's, not instead of them
-            self._started = time.monotonic()
-            tasks.append(asyncio.ensure_future(self._sample()))
+            feeds, writers, periodic = self._start_recorders(robot)
             try:
                 async with opened_live(self.foxglove, self.name) as view:
                     if view is not None:
                         view.add_robot(robot, self.truth)
                     yield robot
             finally:
-                for task in tasks:
-                    task.cancel()
-                await asyncio.gather(*tasks, return_exceptions=True)
+                await _drained(feeds, writers, periodic)
                 self._sample_once()
         finally:
             await robot.close()
@@ -444,6 +435,29 @@ class RobotRun:
                 await self._truth_reader.close()
                 self._report_truth(self._truth_reader)
             self._close_recordings()
+
+    def _start_recorders(self, robot: Robot) -> tuple[
+            list[Subscription[Any]], list[asyncio.Task[None]], list[asyncio.Task[None]]]:
+        """The recordings' writers, each reading a subscription of its own (closed at the
+        end: see :func:`_drained`), and the periodic tasks (cancelled at the end)."""
+        feeds: list[Subscription[Any]] = []
+        writers: list[asyncio.Task[None]] = []
+        periodic: list[asyncio.Task[None]] = []
+        if self._sink is not None:
+            to_epoch = time.time() - asyncio.get_running_loop().time()
+            for name in self.description.boards:
+                feed = robot.boards.stamped_telemetry(name, maxsize=65536)
+                feeds.append(feed)
+                writers.append(asyncio.ensure_future(self._record_board(feed, name, to_epoch)))
+        if self.rosbag_path is not None:
+            self._open_bag(robot)
+            sets = self._bag_sets(robot)  # beside --record's, not instead of them
+            feeds.append(sets)
+            writers.append(asyncio.ensure_future(self._bag_telemetry(robot, sets)))
+            periodic.append(asyncio.ensure_future(self._bag_diagnostics(robot)))
+        self._started = time.monotonic()
+        periodic.append(asyncio.ensure_future(self._sample()))
+        return feeds, writers, periodic
 
     def _close_recordings(self) -> None:
         """Close the recordings: each put in place, complete up to where it got. A
@@ -515,13 +529,15 @@ class RobotRun:
             self._sink = None
         self.stop.set()
 
-    async def _record_board(self, robot: Robot, name: str, to_epoch: float) -> None:
+    async def _record_board(self, feed: Subscription[Stamped], name: str, to_epoch: float
+                            ) -> None:
         """Every sample of one board into ``/board/NAME/telemetry``, as ``record`` writes it
-        (so ``plot`` of a drive shows the wheels' speeds against their references)."""
+        (so ``plot`` of a drive shows the wheels' speeds against their references), until
+        ``feed`` is closed and drained."""
         from fpgalink.cli.session import compact, json_safe, telemetry_row
 
         clock = BoardClock()
-        async for received, sample in robot.boards.stamped_telemetry(name, maxsize=65536):
+        async for received, sample in feed:
             sink = self._sink
             if sink is None:
                 return
@@ -550,16 +566,14 @@ class RobotRun:
                       **self.identity_metadata()},
             force=self.force)
 
-    def _bag_tasks(self, robot: Robot) -> list[asyncio.Task[None]]:
+    def _bag_sets(self, robot: Robot) -> SetFeed:
         # One truth clock for the whole bag: /truth at most every BAG_TRUTH_PERIOD_S.
         self._bag_truth_at = -(1 << 62)
         # One mapping of the loop's clock onto epoch time for every board: bag times of
         # different boards are then on one clock.
         to_epoch_ns = time.time_ns() - round(asyncio.get_running_loop().time() * 1e9)
-        sets = robot.sample_sets(clock=lambda received: round(received * 1e9) + to_epoch_ns,
+        return robot.sample_sets(clock=lambda received: round(received * 1e9) + to_epoch_ns,
                                  maxsize=65536)
-        return [asyncio.ensure_future(self._bag_telemetry(robot, sets)),
-                asyncio.ensure_future(self._bag_diagnostics(robot))]
 
     async def _bag_telemetry(self, robot: Robot, sets: SetFeed) -> None:
         """Every set of samples (the robot's stamping: each sample on the host clock by its
@@ -731,6 +745,22 @@ class RobotRun:
             note(f"recorded the path to {self.record_path}")
         if self.bag is not None and self.bag.path in self.recorded:
             note(f"recorded {self.bag.messages} ROS messages to the bag {self.rosbag_path}")
+
+
+async def _drained(feeds: list[Subscription[Any]], writers: list[asyncio.Task[None]],
+                   periodic: list[asyncio.Task[None]]) -> None:
+    """The recordings' writers end once they wrote what their closed subscriptions still
+    hold (cancelled, a writer one turn behind lost the samples it had not yet read); the
+    periodic tasks are cancelled. A writer is cancelled only if this wait itself is."""
+    for feed in feeds:
+        feed.close()  # nothing more is put; the writer drains it and ends
+    for task in periodic:
+        task.cancel()
+    try:
+        await asyncio.gather(*writers, *periodic, return_exceptions=True)
+    finally:
+        for task in writers:
+            task.cancel()
 
 
 @contextlib.contextmanager

@@ -3,13 +3,13 @@ tests/support/cli.py)."""
 
 from __future__ import annotations
 
-import subprocess
 from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
 
-from tests.support.cli import Board, BoardThread, serve_pty
+from tests.support.cli import Board, BoardThread
+from tests.support.serving import served
 
 
 @pytest.fixture(params=["fake", "emu", "pty"])
@@ -22,13 +22,8 @@ def board(request: pytest.FixtureRequest) -> Iterator[Board]:
     elif kind == "emu":
         yield Board("emu", "emu://", has_dynamics=True, persistent=False)
     else:
-        proc, path = serve_pty()
-        yield Board("pty", path, has_dynamics=True)
-        proc.terminate()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        with served("--pty") as server:
+            yield Board("pty", server.url, has_dynamics=True, served=server)
 
 
 @pytest.fixture

@@ -22,7 +22,8 @@ from typing import Any
 import pytest
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import CLI, ROOT, BoardThread, cli_env, stalled
+from tests.support.cli import CLI, ROOT, BoardThread, cli_env
+from tests.support.serving import served
 from tests.support.waiting import wait_until_sync
 
 pytestmark = pytest.mark.timeout(120)
@@ -41,16 +42,6 @@ def cli(*args: str, env: dict[str, str] | None = None, timeout: float = 60,
 
 
 NUMBER_WITH_UNIT = re.compile(r"^[-+]?\d+(\.\d+)?(e[-+]?\d+)?\s*(s|ms|%|deg/s|B|m|A)$")
-
-
-def cli_through_stalls(*args: str, **options: Any) -> subprocess.CompletedProcess[str]:
-    """``cli`` for a command that enables the board for something else: run again when a
-    loaded machine's own stall stopped it (exit 7), as tests/support/cli.run_driving."""
-    for _ in range(3):
-        done = cli(*args, **options)
-        if not stalled(done):
-            break
-    return done
 
 
 def numbers_only(value: Any, path: str = "") -> None:
@@ -137,7 +128,7 @@ def test_ports_json_is_one_array_even_when_empty() -> None:
 
 
 def test_step_json_has_the_figures_as_numbers() -> None:
-    done = cli_through_stalls("step", "--channel", "A", "--to", "45", "--pre", "0.1",
+    done = cli("step", "--channel", "A", "--to", "45", "--pre", "0.1",
                               "--hold", "0.6", "--format", "json", "--port", "emu://")
     assert done.returncode == 0, done.stderr
     document = json.loads(done.stdout)
@@ -148,7 +139,7 @@ def test_step_json_has_the_figures_as_numbers() -> None:
 
 
 def test_step_table_gives_a_unit_for_every_figure() -> None:
-    done = cli_through_stalls("step", "--channel", "A", "--to", "45", "--pre", "0.1",
+    done = cli("step", "--channel", "A", "--to", "45", "--pre", "0.1",
                               "--hold", "0.6", "--port", "emu://")
     assert done.returncode == 0, done.stderr
     rows = [li for li in done.stdout.splitlines() if li.startswith("│")]
@@ -218,8 +209,8 @@ def test_every_other_command_on_a_full_stdout_is_one_line_and_exit_1(
     emulator; whatever it prints first meets the full disk."""
     args = [a.format(tmp=tmp_path) for a in args]
     with open("/dev/full", "w") as full:
-        done = cli_through_stalls(*args, "--port", "emu://", stdout=full) \
-            if args[0] in ("step", "param", "send") else cli_through_stalls(*args, stdout=full)
+        done = cli(*args, "--port", "emu://", stdout=full) \
+            if args[0] in ("step", "param", "send") else cli(*args, stdout=full)
     assert done.returncode == 1, done.stderr
     assert "Traceback" not in done.stderr
     errors = [li for li in done.stderr.splitlines() if li.startswith("fpgalink-cli: error:")]
@@ -285,7 +276,7 @@ def test_negative_numbers_as_written(args: list[str], needle: str) -> None:
 
 
 def test_goto_a_negative_goal_arrives() -> None:
-    done = cli_through_stalls("goto", "-0.2", "0", "--format", "json", timeout=90)
+    done = cli("goto", "-0.2", "0", "--format", "json", timeout=90)
     assert done.returncode == 0, done.stderr
     document = json.loads(done.stdout)
     assert document["arrived"] is True and document["goal"]["x_m"] == -0.2
@@ -374,14 +365,8 @@ def test_fpgaemu_serve_help_keeps_the_fault_table() -> None:
 @pytest.mark.skipif(shutil.which("script") is None, reason="needs util-linux's script (a tty)")
 def test_monitor_on_an_80_column_terminal_tells_the_boards_ports_apart(tmp_path: Path) -> None:
     links = {name: tmp_path / f"fpga-board-with-a-long-name-{name}" for name in "LR"}
-    serve = subprocess.Popen(
-        [sys.executable, "-m", "fpgaemu", "serve", "--pty", "--boards", "2",
-         *[a for name, path in links.items() for a in ("--link", f"{name}={path}")]],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT, env=cli_env())
-    try:
-        assert serve.stdout is not None
-        for _ in links:
-            assert serve.stdout.readline().startswith("ready ")
+    with served("--pty", "--boards", "2",
+                *[a for name, path in links.items() for a in ("--link", f"{name}={path}")]):
         command = " ".join([*SCRIPT, "monitor", "--duration", "1",
                             *[a for name, path in links.items()
                               for a in ("--port", f"{name}={path}")]])
@@ -389,9 +374,6 @@ def test_monitor_on_an_80_column_terminal_tells_the_boards_ports_apart(tmp_path:
                                "/dev/null"], capture_output=True, text=True, cwd=ROOT,
                               env=cli_env(COLUMNS="80"), timeout=60)
         assert done.returncode == 0, done.stdout + done.stderr
-    finally:
-        serve.terminate()
-        serve.wait(timeout=10)
     screen = re.sub(r"\x1b\[[0-9;?]*[a-zA-Z]", "", done.stdout)
     # The last frame of the live view (a line said on stderr after it, such as telemetry
     # stopping on a loaded machine, is the terminal's to wrap).

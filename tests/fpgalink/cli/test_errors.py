@@ -170,15 +170,11 @@ PLAIN_BOARD = "the board sends frames without the wire CRC; connect with the CRC
 @pytest.fixture(params=["crc", "plain"])
 def streaming_board(request: pytest.FixtureRequest) -> Iterator[tuple[str, str]]:
     """``fpgaemu serve --pty`` streaming telemetry, its wire CRC on or off."""
-    from tests.support.cli import serve_pty
+    from tests.support.serving import served
 
     crc = ["--set", "WireCrc=1"] if request.param == "crc" else []
-    proc, pty = serve_pty(*crc, "--set", "GetDataPeriodical=1")
-    try:
-        yield request.param, pty
-    finally:
-        proc.terminate()
-        proc.communicate(timeout=10)
+    with served("--pty", *crc, "--set", "GetDataPeriodical=1") as server:
+        yield request.param, server.url
 
 
 def test_a_host_in_the_other_wire_crc_mode_says_how_to_connect_and_fails(

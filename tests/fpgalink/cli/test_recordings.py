@@ -23,8 +23,6 @@ from tests.support.cli import (
     ROOT,
     cli_env,
     run_cli,
-    run_driving,
-    stalled,
     start_cli,
 )
 from tests.support.waiting import wait_until_sync as wait_until
@@ -37,22 +35,17 @@ def on_small_disk(tmp_path: Path, size: str, *args: str, timeout: float = 150
                   ) -> tuple[subprocess.CompletedProcess[str], list[str], Path]:
     """``fpgalink-cli ARGS`` (``{small}`` in them: a directory on a tmpfs of ``size``, in a
     private mount namespace); returns the run, every name left in that directory, and a
-    copy of what was left there (taken before the namespace goes). A robot command stopped
-    by a loaded machine's own stall (exit 7) is run again on a fresh disk."""
-    for attempt in range(3):
-        small, kept = tmp_path / f"small{attempt}", tmp_path / f"kept{attempt}"
-        listing = tmp_path / f"listing{attempt}"
-        small.mkdir()
-        kept.mkdir()
-        command = shlex.join([*CLI, *(a.replace("{small}", str(small)) for a in args)])
-        script = (f"mount -t tmpfs -o size={size} tmpfs {small} || exit 97\n{command}\n"
-                  f"rc=$?\nls -A {small} > {listing}\ncp -a {small}/. {kept}/\nexit $rc\n")
-        done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True,
-                              text=True, cwd=ROOT, env=cli_env(), timeout=timeout)
-        if done.returncode == 97:
-            pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
-        if not stalled(done):
-            break
+    copy of what was left there (taken before the namespace goes)."""
+    small, kept, listing = tmp_path / "small", tmp_path / "kept", tmp_path / "listing"
+    small.mkdir()
+    kept.mkdir()
+    command = shlex.join([*CLI, *(a.replace("{small}", str(small)) for a in args)])
+    script = (f"mount -t tmpfs -o size={size} tmpfs {small} || exit 97\n{command}\n"
+              f"rc=$?\nls -A {small} > {listing}\ncp -a {small}/. {kept}/\nexit $rc\n")
+    done = subprocess.run(["unshare", "--mount", "sh", "-c", script], capture_output=True,
+                          text=True, cwd=ROOT, env=cli_env(), timeout=timeout)
+    if done.returncode == 97:
+        pytest.skip(f"cannot mount a tmpfs here: {done.stderr.strip()}")
     return done, listing.read_text().split(), kept
 
 
@@ -283,7 +276,7 @@ def test_force_replaces_what_is_there(tmp_path: Path, recording: Path) -> None:
     assert sorted(os.listdir(tmp_path)) == ["x.png"]
     run = tmp_path / "run.mcap"
     run.write_bytes(recording.read_bytes())
-    done = run_driving("drive", "--for", "0.5", "--record", str(run), "--force", timeout=60)
+    done = run_cli("drive", "--for", "0.5", "--record", str(run), "--force", timeout=60)
     assert done.returncode == 0, done.stderr
     with run.open("rb") as stream:
         topics = {c.topic for _, c, _ in make_reader(stream).iter_messages()}
@@ -295,10 +288,10 @@ def test_the_bring_up_commands_replace_with_force_and_say_who_the_board_was(
     record, plot, model = tmp_path / "id.mcap", tmp_path / "id.png", tmp_path / "model.toml"
     for path in (record, plot, model):
         path.write_text("old")
-    done = run_driving("identify", "-c", "A", "--wheels", "air", "--max-duty", "50",
-                       "--duration", "3", "--port", "emu://?seed=2", "--record", str(record),
-                       "--plot", str(plot), "--save-model", str(model), "--force",
-                       timeout=120)
+    done = run_cli("identify", "-c", "A", "--wheels", "air", "--max-duty", "50",
+                   "--duration", "3", "--port", "emu://?seed=2", "--record", str(record),
+                   "--plot", str(plot), "--save-model", str(model), "--force",
+                   timeout=120)
     assert done.returncode == 0, done.stderr
     assert plot.read_bytes().startswith(b"\x89PNG") and "[plant]" in model.read_text()
     with RecordingReader(record) as reader:

@@ -10,7 +10,7 @@ import pytest
 from mcap.reader import make_reader
 
 from tests.fpgalink.cli.test_errors import assert_one_line_error
-from tests.support.cli import run_cli, run_driving
+from tests.support.cli import run_cli
 
 pytestmark = pytest.mark.timeout(90)
 
@@ -19,7 +19,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
 
 def test_goto_arrives_and_plots_odometry_against_truth(tmp_path: Path) -> None:
     plot = tmp_path / "path.png"
-    done = run_driving("goto", "0.5", "0.2", "--plot", str(plot), timeout=60)
+    done = run_cli("goto", "0.5", "0.2", "--plot", str(plot), timeout=60)
     assert done.returncode == 0, done.stderr
     lines = done.stdout.splitlines()
     assert lines[0].startswith("arrived at (0.5, 0.2): x 0.4")
@@ -29,7 +29,7 @@ def test_goto_arrives_and_plots_odometry_against_truth(tmp_path: Path) -> None:
 
 
 def test_goto_out_of_time_exits_6() -> None:
-    done = run_driving("goto", "3", "0", "--time-limit", "1.5", timeout=60)
+    done = run_cli("goto", "3", "0", "--time-limit", "1.5", timeout=60)
     assert done.returncode == 6, done.stderr
     errors = [li for li in done.stderr.splitlines() if li.startswith("fpgalink-cli: error:")]
     assert len(errors) == 1 and "not at (3, 0) after 1.5 s" in errors[0]
@@ -37,7 +37,7 @@ def test_goto_out_of_time_exits_6() -> None:
 
 def test_drive_records_odometry_truth_and_commands(tmp_path: Path) -> None:
     record = tmp_path / "drive.mcap"
-    done = run_driving("drive", "--v", "0.1", "--omega", "10", "--for", "1", "--record",
+    done = run_cli("drive", "--v", "0.1", "--omega", "10", "--for", "1", "--record",
                    str(record), timeout=60)
     assert done.returncode == 0, done.stderr
     with record.open("rb") as f:
@@ -63,7 +63,7 @@ def test_drive_records_odometry_truth_and_commands(tmp_path: Path) -> None:
 
 
 def test_drive_says_when_a_command_is_scaled_to_the_limits() -> None:
-    done = run_driving("drive", "--v", "1.0", "--for", "0.3", timeout=60)
+    done = run_cli("drive", "--v", "1.0", "--for", "0.3", timeout=60)
     assert done.returncode == 0, done.stderr
     assert "scaled to 25%" in done.stderr
 

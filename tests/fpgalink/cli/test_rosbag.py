@@ -10,6 +10,7 @@ from __future__ import annotations
 import collections
 import importlib.util
 import itertools
+import json
 import math
 import os
 import statistics
@@ -29,7 +30,6 @@ from tests.support.cli import (
     cli_env,
     cli_on_small_disk,
     run_cli,
-    run_driving,
 )
 
 _missing = next((f"{name} is not installed (the ros2 extra)" for name in ("rclpy", "rosbags")
@@ -70,7 +70,7 @@ def driven(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
     bag = tmp_path_factory.mktemp("bags") / "drive"
     # On the ideal surface the emulated robot's body is the kinematic one, which odometry
     # describes exactly: the checks below compare odom with the truth to the centimetre.
-    done = run_driving("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--surface",
+    done = run_cli("drive", "--v", "0.2", "--omega", "10", "--for", "2", "--surface",
                        "ideal", "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
     return bag, done.stdout + done.stderr
@@ -229,10 +229,19 @@ def test_plot_reads_the_bag_the_cli_wrote(driven: tuple[Path, str], tmp_path: Pa
 def test_record_and_rosbag2_together_write_both(tmp_path: Path) -> None:
     # The bag's tasks used to replace --record's telemetry tasks: both run side by side.
     bag, record = tmp_path / "bag", tmp_path / "run.mcap"
-    done = run_driving("drive", "--v", "0.1", "--for", "1", "--record", str(record),
-                       "--rosbag2", str(bag), timeout=60)
+    done = run_cli("drive", "--v", "0.1", "--for", "1", "--record", str(record),
+                   "--rosbag2", str(bag), timeout=60)
     assert done.returncode == 0, done.stderr
+    # How much of the boards' time a second of this machine's holds depends on its load
+    # (the in-process boards keep the link's time): what holds is that the record has every
+    # sample of each board from its first to its last (nothing lost at the end either), and
+    # the bag its joint states beside them.
     with record.open("rb") as f:
-        topics = [channel.topic for _, channel, _ in make_reader(f).iter_messages()]
-    assert topics.count("/board/L/telemetry") > 300 and topics.count("/board/R/telemetry") > 300
-    assert len(read_bag(bag)["/joint_states"]) > 100
+        counters = collections.defaultdict(list)
+        for _, channel, message in make_reader(f).iter_messages():
+            if channel.topic.endswith("/telemetry"):
+                counters[channel.topic].append(json.loads(message.data)["counter"])
+    assert set(counters) == {"/board/L/telemetry", "/board/R/telemetry"}
+    for got in counters.values():
+        assert len(got) > 50 and got == list(range(got[0], got[0] + len(got))), got[-3:]
+    assert len(read_bag(bag)["/joint_states"]) > 10

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from fpgalink.cli.step import step_metrics
-from tests.support.cli import Board, run_cli, run_driving
+from tests.support.cli import Board, completed, run_cli
 
 pytestmark = pytest.mark.timeout(60)
 
@@ -55,9 +55,15 @@ def test_step_plot_against_the_emulator(board: Board, tmp_path: Path) -> None:
     if not board.has_dynamics:
         pytest.skip("the scripted fake board has no plant: step needs the emulator")
     png = tmp_path / "step.png"
-    done = run_driving("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
-                       "--plot", str(png), "--port", board.url, timeout=30)
-    assert done.returncode == 0, done.stderr
+    done = run_cli("step", "--channel", "A", "--to", "45", "--hold", "2", "--pre", "0.3",
+                   "--plot", str(png), "--port", board.url, timeout=30)
+    # Over a pty a loaded machine may stop the step for real (the emulator or the host not
+    # scheduled in time, measured): then no figures and no plot. In-process (emu://) the
+    # board keeps the link's time: it completes.
+    if not completed(done, *([board.served] if board.served else [])):
+        assert "the step was stopped: " in done.stderr and "rise time" not in done.stdout
+        assert not png.exists()
+        return
     for figure in ("rise time", "settling time", "overshoot", "steady-state error"):
         assert figure in done.stdout
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
@@ -103,8 +109,8 @@ def test_the_step_plot_marks_what_the_table_measures(tmp_path: Path) -> None:
     the settling time, the ±2 % band, the reference (dashed) and the PWM limit."""
     pytest.importorskip("matplotlib")
     svg = tmp_path / "step.svg"
-    done = run_driving("step", "--channel", "A", "--to", "45", "--hold", "1.5", "--plot",
-                       str(svg), "--port", "emu://", timeout=60)
+    done = run_cli("step", "--channel", "A", "--to", "45", "--hold", "1.5", "--plot",
+                   str(svg), "--port", "emu://", timeout=60)
     assert done.returncode == 0, done.stderr
     # matplotlib's SVG keeps each text as a comment beside its glyphs.
     texts = re.findall(r"<!-- (.*?) -->", svg.read_text(encoding="utf-8"))

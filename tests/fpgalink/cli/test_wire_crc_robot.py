@@ -5,54 +5,24 @@ passed to the robot's links, so ``drive`` could not reach such boards at all).""
 
 from __future__ import annotations
 
-import os
-import select
-import subprocess
-import sys
-import time
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 
-from tests.support.cli import ROOT, run_cli
+from tests.support.cli import run_cli
+from tests.support.serving import served
 
-SERVE = (sys.executable, "-m", "fpgaemu", "serve", "--robot", "--pty", "--surface", "ideal",
-         "--body", "kinematic", "--set", "WireCrc=1", "--set", "GetDataPeriodical=1")
+#: A served robot whose boards send CRC-16 frames (streaming, as a host left them).
+SERVE = ("--robot", "--pty", "--surface", "ideal", "--body", "kinematic", "--set", "WireCrc=1",
+         "--set", "GetDataPeriodical=1")
 
 
 @pytest.fixture(scope="module")
 def crc_robot() -> Iterator[list[str]]:
-    """A served robot whose boards send CRC-16 frames (streaming, as a host left them):
-    ``--port`` options for it."""
-    proc = subprocess.Popen(SERVE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, cwd=ROOT)
-    try:
-        ready = _ready(proc, 60.0)
-        yield ["--port", f"L={ready['L']}", "--port", f"R={ready['R']}"]
-    finally:
-        proc.terminate()
-        try:
-            proc.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
-
-
-def _ready(proc: subprocess.Popen[bytes], timeout: float) -> dict[str, str]:
-    """serve's ``ready NAME PATH`` lines, up to its truth port's (read unbuffered: serve
-    prints them in one write)."""
-    assert proc.stdout is not None
-    out = b""
-    deadline = time.monotonic() + timeout
-    while b"ready truth" not in out and time.monotonic() < deadline:
-        if select.select([proc.stdout], [], [], 0.5)[0]:
-            chunk = os.read(proc.stdout.fileno(), 4096)
-            assert chunk, f"fpgaemu serve ended before it was ready: {out!r}"
-            out += chunk
-    lines = [line.split() for line in out.decode().splitlines()]
-    ready = {words[1]: words[2] for words in lines if len(words) == 3 and words[0] == "ready"}
-    assert "truth" in ready, f"fpgaemu serve not ready in {timeout:g} s: {out!r}"
-    return ready
+    """``--port`` options for a served robot whose boards send CRC-16 frames."""
+    with served(*SERVE, shared=True) as server:
+        yield server.ports
 
 
 def test_a_robot_of_crc_boards_without_the_crc_says_how_to_connect(
