@@ -10,8 +10,6 @@ from __future__ import annotations
 import asyncio
 from typing import Any
 
-import pytest
-
 from fpgaemu.serve import open_emulated_transport
 from fpgalink.aio.virtualtime import run_virtual
 from fpgalink.protocol import Enable, ParamSet, Telemetry
@@ -112,47 +110,3 @@ def test_a_paused_reader_loses_nothing_and_an_unread_robot_is_not_woken() -> Non
         assert len(counters) >= 590
     # What the pause held came as the robot caught up: a read per slice, not per TM.
     assert all(1 <= n <= 60 for n in reads_after), reads_after
-
-
-def test_a_robot_left_idle_is_run_up_to_the_present_whenever_it_is_looked_at() -> None:
-    """Both transports paused (a host reading in batches): a host's write enters the line
-    at the loop's present, not where the idle robot was left; the truth is the present's;
-    the batched read (``READ_WAITING_EXTRA``) holds every byte sent up to the present,
-    none lost, while reading stays paused."""
-    from fpgaemu.serving.inprocess import READ_WAITING_EXTRA, TRUTH_EXTRA
-    from fpgalink.aio.transport import READ_WAITING_EXTRA as FPGALINK_READ_WAITING
-
-    assert READ_WAITING_EXTRA == FPGALINK_READ_WAITING  # the two sides name it alike
-
-    async def main() -> tuple[float, float, int, list[int], float, list[Telemetry]]:
-        transports, hosts = await _paused_robot("idle")
-        try:
-            before = len(hosts[0].reads)
-            await asyncio.sleep(0.0504)
-            loop = asyncio.get_running_loop()
-            truth = transports[0].get_extra_info(TRUTH_EXTRA)()
-            # A write now: the board's line takes it at this cycle (its RX line was idle).
-            board = transports[0].get_extra_info("board")
-            transports[0].write(sent(Enable()))
-            entered = board.uartread.line_free_at - board.uartread.cycles_per_byte * len(
-                sent(Enable()))
-            lag = transports[1].get_extra_info("fpgalink.far_end_lag")()
-            waiting = [transport.get_extra_info(READ_WAITING_EXTRA)()
-                       for transport in transports]
-            unread = [len(h.reads) - before for h in hosts]
-            return (loop.time(), truth["t"], entered, unread, lag,
-                    [t for t in received(b"".join(hosts[0].reads) + waiting[0])
-                     if isinstance(t, Telemetry)])
-        finally:
-            for transport in transports:
-                transport.close()
-
-    now, truth_t, entered, unread, lag, telemetry = run_virtual(main())
-    assert truth_t == pytest.approx(now, abs=1e-8)  # the idle robot was run up to now
-    assert entered == round(now * 100e6)
-    assert lag == 0.0  # idle is not behind
-    assert unread == [0, 0]  # paused: handed nothing, read through the extra
-    counters = [t.counter or 0 for t in telemetry]
-    assert counters == list(range(counters[0], counters[0] + len(counters)))
-    # Every TM whose stop bit ended by now (one a millisecond, 150 ms since the stream).
-    assert telemetry[-1].t_us >= (now - 0.002) * 1e6

@@ -13,8 +13,8 @@ from fpgaemu.robot import robot_from_options, robot_from_url
 from fpgaemu.serving.loop import Pacer
 from fpgaemu.serving.pacing import PacedBoard, PacedRobot, RobotSide
 
-__all__ = ["FAR_END_LAG_EXTRA", "READ_WAITING_EXTRA", "TRUTH_EXTRA", "WRITE_BUFFER_HIGH",
-           "EmulatedTransport", "FarEnd", "open_emulated_transport"]
+__all__ = ["FAR_END_LAG_EXTRA", "TRUTH_EXTRA", "WRITE_BUFFER_HIGH", "EmulatedTransport",
+           "FarEnd", "open_emulated_transport"]
 
 #: ``transport.get_extra_info(FAR_END_LAG_EXTRA)`` on an in-process emulated board: a
 #: function giving how far, in seconds, the board's time trails the host's clock
@@ -22,13 +22,6 @@ __all__ = ["FAR_END_LAG_EXTRA", "READ_WAITING_EXTRA", "TRUTH_EXTRA", "WRITE_BUFF
 #: process starved together with its board does not take the board's unmade samples for a
 #: board that stopped (the name is fpgalink's, which never imports the emulator).
 FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
-
-#: ``transport.get_extra_info(READ_WAITING_EXTRA)`` on an in-process emulated board: a
-#: function giving what the board sent up to the present, for a host that paused reading
-#: (fpgalink's batched reads read a paused serial port or socket directly, and this the
-#: same way): the far end is run up to the present first, so a batch read on emulated time
-#: holds exactly what reading every byte as it came would have had by then.
-READ_WAITING_EXTRA = "fpgalink.read_waiting"
 
 #: ``transport.get_extra_info(TRUTH_EXTRA)`` on an emulated robot's board: a function that
 #: returns the body's true state as a JSON-ready dict (fpgalink reads it without importing
@@ -47,43 +40,16 @@ class FarEnd:
     them, so a robot wakes once per due deadline, not once per transport: each wake-up runs
     the far end up to the present (``run``), then hands every transport what its board sent.
     A transport whose reading is paused (batched reads) asks for no wake-up of its own: a
-    far end all of whose transports are paused is left idle, and whenever it is looked at —
-    a host writes, reads its clock or the truth, or reads a batch — it runs up to the
-    present first (:meth:`look`), so the host's bytes enter the line, and the truth is
-    taken, at the same cycles as when every transport reads (what it sent in between waits
-    on its TX line, as in a port's buffer)."""
+    far end all of whose transports are paused is left until one reads or writes again, and
+    runs up to the present then (what it sent in between waits on its TX line, as in a
+    port's buffer)."""
 
     def __init__(self, run: Callable[[], None],
-                 wake: Callable[[list[PacedBoard]], float | None],
-                 catch_up: Callable[[], None]) -> None:
+                 wake: Callable[[list[PacedBoard]], float | None]) -> None:
         self._run = run
         self._wake = wake  #: when to run next, for the boards whose transports read now
-        self._catch_up = catch_up  #: run up to the present, however far it is
         self.transports: list[EmulatedTransport] = []
         self.pacer = Pacer(self._tick, self._next_wake)
-
-    def look(self) -> bool:
-        """Someone looks at the far end: left idle (every transport paused), it is run up
-        to the present first, and ``True`` says so (it is then not behind)."""
-        if self.transports and not any(t.is_reading() for t in self.transports):
-            self._catch_up()
-            return True
-        return False
-
-    def catch_up(self) -> None:
-        """Run the far end up to the present now (a batched read takes what it sent)."""
-        self._catch_up()
-
-    def behind(self, transport: EmulatedTransport) -> float:
-        """How far ``transport``'s board trails the clock (:meth:`PacedBoard.behind`, over
-        the boards whose transports read now; a far end left idle is first run up to the
-        present: idle is not behind)."""
-        transports = self.transports
-        if all(t.is_reading() for t in transports):
-            return transport.paced.behind()
-        if self.look():
-            return 0.0
-        return transport.paced.behind([t.paced.board for t in transports if t.is_reading()])
 
     def join(self, transport: EmulatedTransport) -> None:
         self.transports.append(transport)
@@ -162,28 +128,6 @@ class EmulatedTransport(asyncio.Transport):
     def is_reading(self) -> bool:
         return self._reading and not self._closing
 
-    def read_waiting(self) -> bytes:
-        """:data:`READ_WAITING_EXTRA`: what the board sent up to the present, the far end
-        run up to it first (``b""`` once closing)."""
-        if self._closing:
-            return b""
-        self._far_end.catch_up()
-        self._feed()
-        return self.paced.take_bytes()
-
-    def lag(self) -> float:
-        """:data:`FAR_END_LAG_EXTRA`: how far the board's time trails the clock (a far end
-        left idle is run up to the present first: idle is not behind)."""
-        return self._far_end.behind(self)
-
-    def truth(self) -> dict[str, Any]:
-        """:data:`TRUTH_EXTRA`: the robot's truth at the present (the robot is run up to
-        it first: between its deadlines it is left where the last one was, and the body
-        moves meanwhile)."""
-        assert isinstance(self.paced, RobotSide)
-        self._far_end.catch_up()
-        return self.paced.robot.truth_record()
-
     def _feed(self, everything: bool = False) -> None:
         """Move buffered bytes onto the RX line as far as it has room (all of them when the
         transport closes: they were written before it did)."""
@@ -191,7 +135,7 @@ class EmulatedTransport(asyncio.Transport):
             # The host in this process lives on the board's time (FAR_END_LAG_EXTRA): what
             # it writes enters the line at the board's present, even when the board trails
             # the wall clock, so heartbeats reach the board as far apart as they were sent.
-            now = self.paced.clock() - self.lag()
+            now = self.paced.clock() - self.paced.behind()
             room = len(self._buffer) if everything else self.paced.rx_room(now)
             if room > 0:
                 self.paced.host_write(bytes(self._buffer[:room]), now)
@@ -251,11 +195,9 @@ class EmulatedTransport(asyncio.Transport):
         if name == "board":
             return self.paced.board
         if name == FAR_END_LAG_EXTRA:
-            return self.lag
-        if name == READ_WAITING_EXTRA:
-            return self.read_waiting
+            return self.paced.behind
         if name == TRUTH_EXTRA and isinstance(self.paced, RobotSide):
-            return self.truth
+            return self.paced.robot.truth_record
         return default
 
 
@@ -276,7 +218,7 @@ async def open_emulated_transport(
         paced: PacedBoard = shared.side(side_name)
     else:
         paced = PacedBoard(board_from_url(url, baud), clock=asyncio.get_running_loop().time)
-        far_end = FarEnd(paced.run, lambda _reading: paced.next_wake(), paced.catch_up)
+        far_end = FarEnd(paced.run, lambda _reading: paced.next_wake())
     protocol = protocol_factory()
     transport = EmulatedTransport(paced, protocol, far_end)
     protocol.connection_made(transport)
@@ -296,8 +238,7 @@ def _shared_robot(key: str, options: dict[str, list[str]], baud: int
         # a campaign's (fpgalink.aio.virtual_time_loop), where the board runs as fast as it goes.
         paced = PacedRobot(robot_from_options(options, baud), asyncio.get_running_loop().time)
         shared = _ROBOTS[(key, baud)] = (paced, FarEnd(
-            paced.advance, lambda reading: paced.next_wake(side.board for side in reading),
-            paced.catch_up))
+            paced.advance, lambda reading: paced.next_wake(side.board for side in reading)))
 
         def forget() -> None:
             _ROBOTS.pop((key, baud), None)

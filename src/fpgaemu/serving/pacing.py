@@ -170,14 +170,6 @@ class PacedBoard:
         if step_to > self.board.now:
             self.board.run_until(step_to)
 
-    def catch_up(self) -> None:
-        """Run the board up to the clock's present, every slice at once (a far end left
-        idle, looked at)."""
-        now = self.clock()
-        target = self.target_cycle(now)
-        while self.board.now < target:
-            self.run(now)
-
     def next_wake(self) -> float | None:
         """When :meth:`advance` next has something to do (monotonic seconds): the board's
         next deadline (now, if it is already past: catching up) or the end of the frame now
@@ -189,17 +181,14 @@ class PacedBoard:
         (its next deadline, the end of the frame on its TX pin)."""
         return earliest(self.board.next_deadline(), self.board.uartwrite.next_completion)
 
-    def behind(self, read: Iterable[Board] | None = None) -> float:
+    def behind(self) -> float:
         """How far this board's emulated time trails the clock it follows, in seconds: 0
         while it keeps up (a board with nothing due is never behind), else the time since
         its earliest work still undone came due — a process starved as a whole, the board
         with it. An in-process host keeps its own time by this
         (:data:`FAR_END_LAG_EXTRA`): what the board has not yet had the time to do is not
-        what it failed to do. (``read``: the boards whose hosts read now, default every
-        one: the frame on the TX pin of a board whose host paused reading waits for it,
-        work undone by no one.)"""
-        reading = read is None or self.board in read
-        pending = self.pending_cycle() if reading else self.board.next_deadline()
+        what it failed to do."""
+        pending = self.pending_cycle()
         return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
 
     def _wake_at(self, *cycles: int | None) -> float | None:
@@ -279,14 +268,6 @@ class PacedRobot:
             self.robot.run_until(step_to)
         self._catching_up = self.robot.now < target
 
-    def catch_up(self) -> None:
-        """Boards and body up to the clock's present, every slice at once (a robot left
-        idle, looked at)."""
-        now = self.clock()
-        target = self.target_cycle(now)
-        while self.robot.now < target:
-            self.advance(now)
-
     def next_wake(self, read: Iterable[Board] | None = None) -> float | None:
         """:meth:`PacedBoard.next_wake` over every board of the robot (the body moves
         with them and needs no wake-up of its own): each board's next deadline, and the end
@@ -301,21 +282,18 @@ class PacedRobot:
         self._due = min(cycles, default=None)
         return None if self._due is None else self._origin + (self._due + 1) / CLOCK_HZ
 
-    def pending_cycle(self, read: Iterable[Board] | None = None) -> int | None:
-        """:meth:`PacedBoard.pending_cycle` over every board of the robot (the frames on the
-        TX pins of those in ``read``: default every board)."""
-        boards = self.robot.boards.values()
-        read = boards if read is None else read
-        return earliest(*(board.next_deadline() for board in boards),
-                        *(board.uartwrite.next_completion for board in read))
+    def pending_cycle(self) -> int | None:
+        """:meth:`PacedBoard.pending_cycle` over every board of the robot."""
+        return earliest(*(c for board in self.robot.boards.values()
+                          for c in (board.next_deadline(), board.uartwrite.next_completion)))
 
-    def behind(self, read: Iterable[Board] | None = None) -> float:
+    def behind(self) -> float:
         """:meth:`PacedBoard.behind` for the robot: while it catches up in slices its body
         has work at every step (a physics body's is not free), so it trails by all the time
         since its present; otherwise by how late its boards' earliest work is."""
         if self._catching_up:
             return max(0.0, self.clock() - self.time_of(self.robot.now))
-        pending = self.pending_cycle(read)
+        pending = self.pending_cycle()
         return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
 
     def truth_record(self) -> dict[str, Any]:
@@ -354,13 +332,11 @@ class RobotSide(PacedBoard):
     def pending_cycle(self) -> int | None:
         return self.robot.pending_cycle()
 
-    def behind(self, read: Iterable[Board] | None = None) -> float:
-        read = None if read is None else list(read)
-        lag = self.robot.behind(read)
-        if (read is None or self.board in read) and self.robot.robot.now > self._handed_out_to:
+    def behind(self) -> float:
+        lag = self.robot.behind()
+        if self.robot.robot.now > self._handed_out_to:
             # The robot ran on for the other board: what this board sent meanwhile waits for
             # this side's turn, so its host's time stays where this side last handed out.
-            # (A host that paused reading chose not to be handed anything: its time goes on.)
             lag = max(lag, self.clock() - self.time_of(self._handed_out_to))
         return lag
 

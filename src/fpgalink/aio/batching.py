@@ -3,10 +3,9 @@ consumer that needs samples at 100 Hz or less (at 1 kHz telemetry a 10 ms bound 
 thousand wake-ups a second into about a hundred, losing nothing).
 
 While a batch gathers, the transport is paused (the loop stops watching the port) and one
-timer reads what arrived, straight from the port's device or socket (or, for a far end in
-this process, through its :data:`~fpgalink.aio.transport.READ_WAITING_EXTRA`), when the bound
-is up. A transport that offers none of these (``get_extra_info("serial")``, ``"socket"``)
-is resumed at the bound, and hands over what it held then."""
+timer reads what arrived, straight from the port's device or socket, when the bound is up.
+A transport that offers neither (``get_extra_info("serial")`` or ``"socket"``) is never
+paused."""
 
 from __future__ import annotations
 
@@ -16,7 +15,7 @@ import math
 import os
 from collections.abc import Callable
 
-from fpgalink.aio.transport import READ_CHUNK, READ_WAITING_EXTRA
+from fpgalink.aio.transport import READ_CHUNK
 
 __all__ = ["ReadBatcher"]
 
@@ -111,10 +110,6 @@ def _read_waiting(transport: asyncio.BaseTransport | None) -> bytes | None:
     failed (the transport, resumed, then sees and reports the problem itself)."""
     if transport is None:
         return None
-    reader = transport.get_extra_info(READ_WAITING_EXTRA)
-    if callable(reader):
-        waiting: bytes = reader()
-        return waiting
     port = transport.get_extra_info("serial")
     if port is not None:
         try:

@@ -35,7 +35,6 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "FAR_END_LAG_EXTRA",
     "READ_CHUNK",
-    "READ_WAITING_EXTRA",
     "Opener",
     "ProtocolFactory",
     "describe_url",
@@ -52,11 +51,6 @@ ENTRY_POINT_GROUP = "fpgalink.transports"
 #: starves its board too, and the samples the board had no time to make are not a board
 #: that stopped, nor is a heartbeat the board had no time to miss a lapse.
 FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
-#: Such an opener's transport may also offer, under this name, a function giving the bytes
-#: its far end sent up to the present while reading is paused: batched reads
-#: (:mod:`fpgalink.aio.batching`) read a paused transport through it, as they read a serial
-#: port's device or a socket directly.
-READ_WAITING_EXTRA = "fpgalink.read_waiting"
 
 ProtocolFactory = Callable[[], asyncio.Protocol]
 #: ``await opener(url, baud, protocol_factory)`` → the transport and its protocol.

@@ -366,7 +366,8 @@ class Robot:
 
     async def read_now(self) -> None:
         """Take at once what the boards have sent, whatever the links' read latency: the
-        robot's odometry and latest samples are then as of the boards' present."""
+        robot's odometry and latest samples are then as of the boards' present (on an
+        in-process robot, up to one catch-up slice behind: docs/robot.md)."""
         self._ensure_started()
         await self._followers.read_now()
 
