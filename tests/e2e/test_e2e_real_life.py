@@ -155,7 +155,10 @@ async def test_a_board_that_restarts_mid_drive_is_reconfigured_before_the_robot_
             # The restart's encoder reset was not taken as motion: odometry never jumped.
             jumps = [math.dist(a[1:], b[1:]) - TOP_SPEED * (b[0] - a[0]) / 1e9
                      for a, b in itertools.pairwise(poses)]
-            assert len(poses) > 100 and max(jumps) < 0.01, max(jumps)
+            # The reset taken as motion would jump by L's wheels' travel since the start
+            # (tens of cm); under load the restarted board's new stamp mapping alone
+            # made 1.2 cm of a pose's interval (tests/ros2's check says the same).
+            assert len(poses) > 100 and max(jumps) < 0.05, max(jumps)
             assert robot.odometry.reanchors == 1
             assert truth.board("L")["now_s"] > 4.0
 

@@ -333,7 +333,11 @@ def test_a_board_restarting_mid_drive_stops_the_robot_and_is_reconfigured(
     assert facts["board_params"]["GetDataPeriodical"] == 1
     # Odometry continuous across the restart (the encoder's reset is not motion); odom and
     # joint_states flowing again; the enable held all along drives again once L is ready.
-    assert facts["odom_worst_jump_m"] < 0.01, (
+    # An encoder reset taken as motion jumps by L's wheels' travel since the start (over half
+    # a metre at FAULT_AT_S); 5 cm is beyond what the stamps' own jitter makes of a pose
+    # (1.3 cm seen once on the 2-core CI machine: after a restart the board's stamp mapping
+    # starts again, so two odom stamps can stand closer than the poses' real interval).
+    assert facts["odom_worst_jump_m"] < 0.05, (
         facts["odom_worst_jump_m"], f"the odometry around it: {scenarios['fault'].saved}")
     assert facts["odom_after_ok"] > 10 and facts["joints_after_ok"] > 10, facts
     assert facts["x_driven_again"] > 0.1
