@@ -30,6 +30,7 @@ __all__ = [
     "check_name",
     "config_paths",
     "config_ports",
+    "env_switch",
     "load_config",
     "parse_ports",
     "seconds",
@@ -143,6 +144,13 @@ def whole(value: object, name: str, where: str, low: int, high: int) -> int:
         raise ConfigError(f"{where}: {name} must be a whole number from {low:,} to {high:,}, "
                        f"got {value!r}")
     return value
+
+
+def env_switch(text: str, where: str) -> bool:
+    """An environment variable's on/off value: ``1`` or ``0``, nothing else."""
+    if text not in ("0", "1"):
+        raise ConfigError(f"{where}: {text!r} is not 0 or 1")
+    return text == "1"
 
 
 def switch(value: object, name: str, where: str) -> bool:

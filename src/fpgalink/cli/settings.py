@@ -37,6 +37,7 @@ from fpgalink.config import (
 from fpgalink.config import blank as _blank
 from fpgalink.config import check_name as _check_name
 from fpgalink.config import config_ports as _config_ports
+from fpgalink.config import env_switch as _env_switch
 from fpgalink.config import load_config as _load_config
 from fpgalink.config import seconds as _seconds
 from fpgalink.config import switch as _switch
@@ -155,11 +156,6 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
         sources[name] = DEFAULT
         return default
 
-    def env_switch(text: str, where: str) -> bool:
-        if text not in ("0", "1"):
-            raise CliError(f"{where}: {text!r} is not 0 or 1", ExitCode.BAD_INPUT)
-        return text == "1"
-
     def env_int(text: str, where: str) -> int:
         try:
             return int(text)
@@ -188,7 +184,7 @@ def _resolve_settings(given: Mapping[str, Any], before: Mapping[str, Any]) -> Se
     timeout = _seconds(pick("timeout", None, None, 0.05), "timeout", sources["timeout"],
                        1e-4, 60.0)
     retries = _whole(pick("retries", None, None, 8), "retries", sources["retries"], 1, 1000)
-    wire_crc = _switch(pick("wire_crc", "FPGALINK_WIRE_CRC", env_switch, False), "wire_crc",
+    wire_crc = _switch(pick("wire_crc", "FPGALINK_WIRE_CRC", _env_switch, False), "wire_crc",
                        sources["wire_crc"])
     board = pick("board", "FPGALINK_BOARD", lambda text, _where: text, None)
     robot = pick("robot", None, None, None)

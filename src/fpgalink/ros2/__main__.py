@@ -181,17 +181,15 @@ def resolve(options: argparse.Namespace) -> Startup:
 def _wire_crc(options: argparse.Namespace, config: dict[str, Any], where: str,
               sources: dict[str, str]) -> bool:
     """``--wire-crc``, else ``FPGALINK_WIRE_CRC`` (0 or 1), else the file's ``wire_crc``."""
-    from fpgalink.config import ConfigError, switch
+    from fpgalink.config import env_switch, switch
 
     text = os.environ.get("FPGALINK_WIRE_CRC", "").strip()
     if options.wire_crc:
         sources["wire_crc"] = "command line"
         return True
     if text:
-        if text not in ("0", "1"):
-            raise ConfigError(f"environment FPGALINK_WIRE_CRC: {text!r} is not 0 or 1")
         sources["wire_crc"] = "environment FPGALINK_WIRE_CRC"
-        return text == "1"
+        return env_switch(text, sources["wire_crc"])
     if "wire_crc" in config:
         sources["wire_crc"] = where
         return switch(config["wire_crc"], "wire_crc", where)
