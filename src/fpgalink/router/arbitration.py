@@ -9,7 +9,7 @@ send)."""
 
 from __future__ import annotations
 
-from typing import Generic, TypeVar
+from typing import Any, Generic, TypeVar
 
 from fpgalink.protocol.catalogue import (
     IdentityQuery,
@@ -72,20 +72,24 @@ class Arbitration(Generic[C]):
 
 def parameter_request(content: bytes) -> tuple[ParamSet | ParamGet | None, bool]:
     """A ``PS`` or ``PG`` in ``content``, plain or with a good wire CRC (and which)."""
-    message = parse_content(content)
-    if isinstance(message, ParamSet | ParamGet):
-        return message, False
-    body = strip_crc(content)
-    if body is not None:
-        message = parse_content(body)
-        if isinstance(message, ParamSet | ParamGet):
-            return message, True
-    return None, False
+    message, with_crc = _message(content, ParamSet | ParamGet)
+    return (message if isinstance(message, ParamSet | ParamGet) else None), with_crc
 
 
 def identity_query(content: bytes) -> bool:
     """An ``IQ`` (docs/protocol.md §8) in ``content``, plain or with a good wire CRC."""
-    if isinstance(parse_content(content), IdentityQuery):
-        return True
+    return _message(content, IdentityQuery)[0] is not None
+
+
+def _message(content: bytes, wanted: Any) -> tuple[object | None, bool]:
+    """The message of type ``wanted`` in ``content`` as it is, or with a good wire CRC
+    stripped (and whether it had one); ``None`` when it is neither."""
+    message = parse_content(content)
+    if isinstance(message, wanted):
+        return message, False
     body = strip_crc(content)
-    return body is not None and isinstance(parse_content(body), IdentityQuery)
+    if body is not None:
+        message = parse_content(body)
+        if isinstance(message, wanted):
+            return message, True
+    return None, False
