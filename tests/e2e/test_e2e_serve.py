@@ -17,7 +17,7 @@ import serial
 from fpgalink import BoardLost, LinkClosed
 from fpgalink.aio import open_link
 from fpgalink.protocol import ParamAck, ParamGet
-from tests.support.flood import board_counts
+from tests.support.flood import board_counts, rss_kb
 from tests.support.served import (
     PATIENCE,
     connect_when_free,
@@ -100,12 +100,6 @@ async def test_closing_a_link_releases_the_serial_port_at_once() -> None:
 
 
 # --- hostile and careless hosts ---------------------------------------------------------------
-
-
-def rss_kb(pid: int) -> int:
-    with open(f"/proc/{pid}/status", encoding="ascii") as status:
-        line = next(x for x in status if x.startswith("VmRSS:"))
-    return int(line.split()[1])
 
 
 @pytest.mark.timeout(60)

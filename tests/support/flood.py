@@ -46,8 +46,16 @@ def noise(size: int, seed: int = 24) -> bytes:
 
 
 def rss_kb(pid: int) -> int:
-    with open(f"/proc/{pid}/status", encoding="ascii") as status:
-        line = next(x for x in status if x.startswith("VmRSS:"))
+    """Resident memory of a running process, in KiB. Raises :class:`ProcessLookupError` once it
+    has exited: a process that has exited but is not yet reaped still has a status file, with
+    no memory lines in it."""
+    try:
+        with open(f"/proc/{pid}/status", encoding="ascii") as status:
+            line = next((x for x in status if x.startswith("VmRSS:")), None)
+    except FileNotFoundError:
+        line = None
+    if line is None:
+        raise ProcessLookupError(f"process {pid} has exited")
     return int(line.split()[1])
 
 

@@ -23,6 +23,7 @@ import pytest
 
 from fpgalink.live.clients import Connection, StallJudge, parse_proc_net_tcp
 from fpgalink.protocol.exitcodes import ExitCode
+from tests.support.flood import rss_kb
 from tests.support.foxglove import Received, watch
 from tests.support.scripts import BIN, script, script_env, start_script, without
 from tests.support.serving import served
@@ -192,13 +193,6 @@ def _stalled_client(url: str) -> socket.socket:
     return sock
 
 
-def _rss_kib(pid: int) -> int:
-    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-        if line.startswith("VmRSS:"):
-            return int(line.split()[1])
-    raise AssertionError("no VmRSS")
-
-
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="the stall watch is Linux's")
 @pytest.mark.timeout(180)
 def test_a_client_that_stops_reading_is_let_go_with_memory_flat() -> None:
@@ -214,7 +208,10 @@ def test_a_client_that_stops_reading_is_let_go_with_memory_flat() -> None:
         fd = proc.stderr.fileno()
         os.set_blocking(fd, False)
         while proc.poll() is None:
-            rss.append((time.monotonic(), _rss_kib(proc.pid)))
+            try:
+                rss.append((time.monotonic(), rss_kb(proc.pid)))
+            except ProcessLookupError:
+                break  # it ended between the poll and the reading
             with contextlib.suppress(BlockingIOError):
                 lines += os.read(fd, 65536).decode(errors="replace").splitlines()
             if let_go_at is None and any("let go of the Foxglove client" in x for x in lines):
