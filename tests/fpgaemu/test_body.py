@@ -10,7 +10,7 @@ import pytest
 
 from fpgaemu.body import Body
 from fpgalink.protocol.robot import Pose, seed_robot
-from tests.support.robotsim import RobotSim
+from tests.support.emulated import RobotSim
 
 SETTLE_S = 3.0  #: wheels up to speed
 MEASURE_S = 8.0

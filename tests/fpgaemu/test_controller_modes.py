@@ -23,7 +23,7 @@ from fpgaemu.hwcontrol import (
 from fpgaemu.pid import Pid, PidGains
 from fpgaemu.timeline import ms
 from fpgalink.protocol import ParamAck
-from tests.support.host import Host
+from tests.support.emulated import Cable
 
 # Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
 pytestmark = pytest.mark.usefixtures("each_firmware")
@@ -31,8 +31,8 @@ pytestmark = pytest.mark.usefixtures("each_firmware")
 TORQUE_COEF = 0.2  #: N·m per A (the power-up TorqueCoef)
 
 
-def streaming_host(mode: int, *, period_ms: int = 1) -> Host:
-    host = Host.make()
+def streaming_host(mode: int, *, period_ms: int = 1) -> Cable:
+    host = Cable.make()
     for param_id, channel, value_type, value in ((2, 0, 1, 1), (1, 0, 1, period_ms),
                                                  (4, 1, 1, mode), (4, 2, 1, mode)):
         assert isinstance(host.set(param_id, channel, value_type, value), ParamAck)
@@ -43,7 +43,7 @@ def streaming_host(mode: int, *, period_ms: int = 1) -> Host:
 
 @pytest.mark.parametrize("mode", [0, 1, 2, 3])
 def test_every_mode_is_accepted_echoed_and_read_back_on_both_channels(mode: int) -> None:
-    host = Host.make()
+    host = Cable.make()
     for channel in (1, 2):
         reply = host.set(4, channel, 1, mode)
         assert isinstance(reply, ParamAck) and reply.value == mode

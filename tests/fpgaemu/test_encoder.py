@@ -18,7 +18,7 @@ from fpgaemu.encoder import SPEED_TIMEOUT_CYCLES, QuadratureEncoder
 from fpgaemu.motor import MAX_DUTY, WheelPlant
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink.protocol import ParamAck
-from tests.support.host import MS, Host, counts_floor
+from tests.support.emulated import MS, Cable, counts_floor
 from tests.support.plant import advance
 
 
@@ -178,15 +178,15 @@ def test_end_stop_is_a_settable_input() -> None:
 INT = 1
 
 
-def driven(ref_a: float, ref_b: float, settings: dict[str, int] | None = None) -> Host:
-    host = Host.make(settings=settings)
+def driven(ref_a: float, ref_b: float, settings: dict[str, int] | None = None) -> Cable:
+    host = Cable.make(settings=settings)
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.start_enabled()
     host.references(ref_a, ref_b)
     return host
 
 
-def walk_ticks(host: Host, ticks: int) -> list[tuple[int, dict[int, tuple[int, float, float]]]]:
+def walk_ticks(host: Cable, ticks: int) -> list[tuple[int, dict[int, tuple[int, float, float]]]]:
     """Stop at each timer tick; per channel (encoder position, plant angle, TM speed)."""
     out = []
     period = host.timer.period_cycles
@@ -252,7 +252,7 @@ def test_mt_speed_stays_within_the_true_speed_range_during_the_transient() -> No
 
 
 def test_resolution_parameter_sets_counts_per_turn() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(6, 1, INT, 100), ParamAck)  # 1000 counts per turn
     assert isinstance(host.set(6, 2, INT, 2000), ParamAck)  # 20000 counts per turn
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
@@ -291,7 +291,7 @@ def test_direction_and_resolution_changes_restart_the_count_from_the_present_ang
 
 
 def test_zero_resolution_reads_nothing() -> None:
-    host = Host.make(settings={"IncSenzResA": 0, "MaxControlSignalA": 3000})
+    host = Cable.make(settings={"IncSenzResA": 0, "MaxControlSignalA": 3000})
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.start_enabled()
     host.references(20.0, 0.0)

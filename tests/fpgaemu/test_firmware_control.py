@@ -13,7 +13,7 @@ import pytest
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import Telemetry
 from fpgalink.protocol import ParamAck, References, encode_frame
-from tests.support.host import MS, Host, StepFigures, step_figures
+from tests.support.emulated import MS, Cable, StepFigures, step_figures
 from tests.support.plant import DEFAULT_GAINS
 
 # Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
@@ -22,8 +22,8 @@ pytestmark = pytest.mark.usefixtures("each_firmware")
 FLOAT = 2
 
 
-def streaming_enabled() -> Host:
-    host = Host.make()
+def streaming_enabled() -> Cable:
+    host = Cable.make()
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     host.start_enabled()
     host.run(0.05)
@@ -34,7 +34,7 @@ def tm_samples(stream: list[Telemetry], channel: str) -> list[tuple[float, float
     return [(tm.t_us / 1e6, getattr(tm, channel).speed) for tm in stream]
 
 
-def step(host: Host, ref_a: float, ref_b: float, seconds: float = 2.5) -> float:
+def step(host: Cable, ref_a: float, ref_b: float, seconds: float = 2.5) -> float:
     """Send RV and run; returns the time (s) the RV's STOP reached the board."""
     stop = host.references(ref_a, ref_b)
     host.run(seconds)
@@ -159,7 +159,7 @@ def test_re_enabling_while_the_speed_reading_still_decays_barely_drives() -> Non
 
 def test_the_seed_tunings_read_literally_barely_move_the_wheel() -> None:
     # Kp 7.11, Ti 23.66, Td 0.43 were in the seed's own units (docs/emulator.md, part 2).
-    host = Host.make()
+    host = Cable.make()
     for param_id, value in ((8, 7.11), (9, 23.66), (10, 0.43)):
         assert isinstance(host.set(param_id, 1, FLOAT, value), ParamAck)
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
@@ -173,7 +173,7 @@ def test_the_seed_tunings_read_literally_barely_move_the_wheel() -> None:
 # --- a non-finite reference never drives a motor ----------------------------------------------
 
 
-def raw_references(host: Host, ref_a: float, ref_b: float) -> int:
+def raw_references(host: Cable, ref_a: float, ref_b: float) -> int:
     """An RV the host library would refuse to send (a broken or hostile host)."""
     counter = host.conn.next_counter
     host.conn.send(References(0.0, 0.0), host.now_s)  # keep the host's counter in step

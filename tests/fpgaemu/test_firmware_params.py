@@ -10,7 +10,7 @@ import pytest
 
 from fpgalink.protocol import NackReason, ParamAck, ParamGet, ParamNack, ParamSet, lookup
 from fpgalink.protocol.params import PARAMETERS, Param, ParamType, Scope, float32
-from tests.support.host import MS, Host
+from tests.support.emulated import MS, Cable
 
 # Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
 pytestmark = pytest.mark.usefixtures("each_firmware")
@@ -32,8 +32,8 @@ def a_valid_value(param: Param) -> int | float:
 
 
 @pytest.fixture
-def host() -> Host:
-    return Host.make()
+def host() -> Cable:
+    return Cable.make()
 
 
 def assert_nack(reply: ParamAck | ParamNack, param_id: int, channel: int, code: int) -> None:
@@ -41,7 +41,7 @@ def assert_nack(reply: ParamAck | ParamNack, param_id: int, channel: int, code: 
     assert (reply.param_id, reply.channel, reply.error) == (param_id, channel, code)
 
 
-def in_force(host: Host, param: Param, channel: int) -> int | float:
+def in_force(host: Cable, param: Param, channel: int) -> int | float:
     return host.firmware.values[(param.id, channel)]
 
 
@@ -49,7 +49,7 @@ def in_force(host: Host, param: Param, channel: int) -> int | float:
 
 
 @pytest.mark.parametrize("param_id", [0, 12, 13, 99, 255])
-def test_unknown_id_is_pn1_for_set_and_get(host: Host, param_id: int) -> None:
+def test_unknown_id_is_pn1_for_set_and_get(host: Cable, param_id: int) -> None:
     assert_nack(host.set(param_id, 0, INT, 1), param_id, 0, NackReason.UNKNOWN_ID)
     assert_nack(host.set(param_id, 1, FLOAT, 1.0), param_id, 1, NackReason.UNKNOWN_ID)
     assert_nack(host.get(param_id, 0), param_id, 0, NackReason.UNKNOWN_ID)
@@ -61,7 +61,7 @@ def test_unknown_id_is_pn1_for_set_and_get(host: Host, param_id: int) -> None:
 
 @pytest.mark.parametrize("param", BOARD_PARAMS, ids=lambda p: p.name)
 @pytest.mark.parametrize("channel", [1, 2, 3, 255])
-def test_board_parameter_with_a_channel_is_pn2(host: Host, param: Param, channel: int) -> None:
+def test_board_parameter_with_a_channel_is_pn2(host: Cable, param: Param, channel: int) -> None:
     before = in_force(host, param, 0)
     assert_nack(host.set(param.id, channel, INT, 1), param.id, channel, NackReason.BAD_CHANNEL)
     assert_nack(host.get(param.id, channel), param.id, channel, NackReason.BAD_CHANNEL)
@@ -71,7 +71,7 @@ def test_board_parameter_with_a_channel_is_pn2(host: Host, param: Param, channel
 @pytest.mark.parametrize("param", CHANNEL_PARAMS, ids=lambda p: p.name)
 @pytest.mark.parametrize("channel", [0, 3, 255])
 def test_channel_parameter_with_channel_0_or_3_is_pn2(
-    host: Host, param: Param, channel: int
+    host: Cable, param: Param, channel: int
 ) -> None:
     value = a_valid_value(param)
     reply = host.set(param.id, channel, int(param.type), value)
@@ -84,7 +84,7 @@ def test_channel_parameter_with_channel_0_or_3_is_pn2(
 
 
 @pytest.mark.parametrize("param", PARAMETERS, ids=lambda p: p.name)
-def test_wrong_type_code_is_pn4(host: Host, param: Param) -> None:
+def test_wrong_type_code_is_pn4(host: Cable, param: Param) -> None:
     channel = valid_channel(param)
     before = in_force(host, param, channel)
     if param.type is ParamType.INT:
@@ -131,7 +131,7 @@ IN_RANGE_EDGES: dict[int, list[int | float]] = {
 
 
 @pytest.mark.parametrize("param", PARAMETERS, ids=lambda p: p.name)
-def test_out_of_range_is_pn3_and_nothing_changes(host: Host, param: Param) -> None:
+def test_out_of_range_is_pn3_and_nothing_changes(host: Cable, param: Param) -> None:
     channels = [0] if param.scope is Scope.BOARD else [1, 2]
     for channel in channels:
         before = in_force(host, param, channel)
@@ -144,7 +144,7 @@ def test_out_of_range_is_pn3_and_nothing_changes(host: Host, param: Param) -> No
 
 
 @pytest.mark.parametrize("param", PARAMETERS, ids=lambda p: p.name)
-def test_range_edges_are_accepted_and_echoed(host: Host, param: Param) -> None:
+def test_range_edges_are_accepted_and_echoed(host: Cable, param: Param) -> None:
     channel = valid_channel(param)
     for value in IN_RANGE_EDGES[param.id]:
         reply = host.set(param.id, channel, int(param.type), value)
@@ -179,7 +179,7 @@ def test_range_edges_are_accepted_and_echoed(host: Host, param: Param) -> None:
     ],
 )
 def test_check_order_first_failure_answers(
-    host: Host, body: tuple[int, int, int, int | float], code: int
+    host: Cable, body: tuple[int, int, int, int | float], code: int
 ) -> None:
     param_id, channel, value_type, value = body
     assert_nack(host.request(ParamSet(param_id, channel, value_type, value)),
@@ -189,7 +189,7 @@ def test_check_order_first_failure_answers(
 # --- PG and PA --------------------------------------------------------------------------------
 
 
-def test_pg_of_every_parameter_answers_the_power_up_value(host: Host) -> None:
+def test_pg_of_every_parameter_answers_the_power_up_value(host: Cable) -> None:
     for param in PARAMETERS:
         channels = [0] if param.scope is Scope.BOARD else [1, 2]
         for channel in channels:
@@ -203,7 +203,7 @@ def test_pg_of_every_parameter_answers_the_power_up_value(host: Host) -> None:
 
 
 @pytest.mark.parametrize("param", PARAMETERS, ids=lambda p: p.name)
-def test_ps_echo_is_the_value_in_force_and_pg_agrees(host: Host, param: Param) -> None:
+def test_ps_echo_is_the_value_in_force_and_pg_agrees(host: Cable, param: Param) -> None:
     channel = valid_channel(param)
     value = a_valid_value(param)
     reply = host.set(param.id, channel, int(param.type), value)
@@ -226,7 +226,7 @@ def test_ps_echo_is_the_value_in_force_and_pg_agrees(host: Host, param: Param) -
         assert other.value == float32(param.default)
 
 
-def test_gains_reach_the_pid(host: Host) -> None:
+def test_gains_reach_the_pid(host: Cable) -> None:
     for param_id, value in ((8, 300.5), (9, 0.3), (10, 0.02)):
         assert isinstance(host.set(param_id, 2, FLOAT, value), ParamAck)
     gains = host.firmware.channels[2].pid.gains
@@ -234,7 +234,7 @@ def test_gains_reach_the_pid(host: Host) -> None:
     assert host.firmware.channels[1].pid.gains.kp == lookup("Kp_Wheel_Pid").default
 
 
-def test_every_request_gets_exactly_one_reply_with_the_next_counter(host: Host) -> None:
+def test_every_request_gets_exactly_one_reply_with_the_next_counter(host: Cable) -> None:
     requests: list[ParamSet | ParamGet] = [
         ParamSet(1, 0, INT, 2), ParamGet(99, 0), ParamSet(8, 0, FLOAT, 1.0),
         ParamGet(5, 1), ParamSet(7, 1, INT, 0),
@@ -248,7 +248,7 @@ def test_every_request_gets_exactly_one_reply_with_the_next_counter(host: Host) 
 # --- values actually applied ------------------------------------------------------------------
 
 
-def test_timer_period_5_ms_spaces_tm_5_ms_apart(host: Host) -> None:
+def test_timer_period_5_ms_spaces_tm_5_ms_apart(host: Cable) -> None:
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.run(0.02)
     spacing_1 = {b.t_us - a.t_us for a, b in zip(host.telemetry, host.telemetry[1:], strict=False)}
@@ -262,7 +262,7 @@ def test_timer_period_5_ms_spaces_tm_5_ms_apart(host: Host) -> None:
     assert host.timer.period_cycles == 5 * MS
 
 
-def test_max_control_signal_clamps_the_tm_pwm(host: Host) -> None:
+def test_max_control_signal_clamps_the_tm_pwm(host: Cable) -> None:
     assert isinstance(host.set(5, 1, INT, 5000), ParamAck)
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.start_enabled()
@@ -278,7 +278,7 @@ def test_max_control_signal_clamps_the_tm_pwm(host: Host) -> None:
     assert driven[-1].a.speed == pytest.approx(90.0 * 5000 / 32760, rel=0.02)
 
 
-def test_count_direction_minus_1_flips_position_and_speed(host: Host) -> None:
+def test_count_direction_minus_1_flips_position_and_speed(host: Cable) -> None:
     # Both wheels driven identically: a low clamp keeps each at its limit (channel A's loop
     # sees the opposite sign and runs to the clamp too), so the physics is the same.
     for channel in (1, 2):
@@ -295,7 +295,7 @@ def test_count_direction_minus_1_flips_position_and_speed(host: Host) -> None:
     assert last.a.speed == pytest.approx(-last.b.speed, rel=1e-6)
 
 
-def test_get_data_periodical_0_stops_tm(host: Host) -> None:
+def test_get_data_periodical_0_stops_tm(host: Cable) -> None:
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.run(0.05)
     assert len(host.telemetry) >= 49

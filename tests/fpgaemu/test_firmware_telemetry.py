@@ -15,7 +15,7 @@ from fpgalink import Telemetry
 from fpgalink.protocol import ParamAck
 from fpgalink.protocol.catalogue import ChannelTelemetry
 from fpgalink.protocol.params import float32
-from tests.support.host import MS, Host
+from tests.support.emulated import MS, Cable
 
 # Every test runs against the Python firmware model and the C core (tests/support/firmwares.py).
 pytestmark = pytest.mark.usefixtures("each_firmware")
@@ -33,7 +33,7 @@ class Registers:
     plant_angle: float
 
 
-def snapshot(host: Host, code: int) -> Registers:
+def snapshot(host: Cable, code: int) -> Registers:
     ch, io = host.firmware.channels[code], host.io(code)
     return Registers(
         io.encoder.position, io.pwm.applied_duty, host.board.global_enable, io.encoder.end_stop,
@@ -41,7 +41,7 @@ def snapshot(host: Host, code: int) -> Registers:
     )
 
 
-def record_ticks(host: Host, ticks: int,
+def record_ticks(host: Cable, ticks: int,
                  actions: dict[int, list[str]]) -> dict[int, tuple[Registers, Registers]]:
     """Step tick by tick (each run stops at a timer tick's cycle, after it ran) and keep the
     registers there. ``actions[k]`` happen just after tick ``k``."""
@@ -84,13 +84,13 @@ def check_channel(tm: ChannelTelemetry, reg: Registers) -> None:
 
 
 @pytest.fixture
-def streaming() -> Host:
-    host = Host.make()
+def streaming() -> Cable:
+    host = Cable.make()
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     return host
 
 
-def test_tm_fields_are_the_registers_at_the_sample_cycle(streaming: Host) -> None:
+def test_tm_fields_are_the_registers_at_the_sample_cycle(streaming: Cable) -> None:
     host = streaming
     actions = {0: ["RE"], 5: ["RV"], 100: ["RE"], 150: ["endstop A"], 200: ["RE"],
                220: ["release A", "endstop B"], 260: ["RD"], 300: ["RE"], 302: ["RV"],
@@ -113,7 +113,7 @@ def test_tm_fields_are_the_registers_at_the_sample_cycle(streaming: Host) -> Non
     assert min(tm.b.pwm for tm in stream) < 0 and min(tm.b.position for tm in stream) < -10
 
 
-def test_tm_current_is_the_motor_current_over_the_period_just_ended(streaming: Host) -> None:
+def test_tm_current_is_the_motor_current_over_the_period_just_ended(streaming: Cable) -> None:
     # The winding: L·di/dt = V·duty − k_e·ω − R·i over each period, with the duty held since
     # the last tick and the wheel's mean speed over the period (its angle change).
     host = streaming
@@ -138,7 +138,7 @@ def test_tm_current_is_the_motor_current_over_the_period_just_ended(streaming: H
     assert max(tm.a.current for tm in host.telemetry) > 15.0  # the saturated start
 
 
-def test_t_us_is_the_tick_cycle_over_100_at_every_period(streaming: Host) -> None:
+def test_t_us_is_the_tick_cycle_over_100_at_every_period(streaming: Cable) -> None:
     host = streaming
     assert isinstance(host.set(1, 0, 1, 3), ParamAck)
     since = host.board.now
@@ -150,7 +150,7 @@ def test_t_us_is_the_tick_cycle_over_100_at_every_period(streaming: Host) -> Non
     assert all(t % 1000 == 0 for t in times)
 
 
-def test_tm_is_sent_whether_enabled_or_not_and_flags_follow_the_enable(streaming: Host) -> None:
+def test_tm_is_sent_whether_enabled_or_not_and_flags_follow_the_enable(streaming: Cable) -> None:
     host = streaming
     host.run(0.05)
     assert host.telemetry and all(not tm.a.enabled and not tm.b.enabled

@@ -23,7 +23,7 @@ from fpgaemu.motor import (
 )
 from fpgaemu.timeline import seconds_to_cycles
 from fpgalink.protocol import ParamAck
-from tests.support.host import Host
+from tests.support.emulated import Cable
 
 HIGH_DC = sum(GEARS["high"][0]) / (1 + sum(GEARS["high"][1]))
 LOW_DC = sum(GEARS["low"][0]) / (1 + sum(GEARS["low"][1]))
@@ -253,7 +253,7 @@ def test_full_duty_gives_90_dps_in_high_gear_and_the_ratio_in_low() -> None:
 @pytest.mark.parametrize(("gear", "top"), [("high", 90.0), ("low", 31.38)])
 def test_board_at_full_duty_reports_top_speed_in_tm(gear: str, top: float) -> None:
     # A reference beyond reach saturates the loop at full duty: TM shows the top speed.
-    host = Host.make(gear=gear)
+    host = Cable.make(gear=gear)
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     host.start_enabled()
     host.references(200.0, -200.0)
@@ -281,7 +281,7 @@ def test_stalled_wheel_reads_speed_0_and_draws_the_stall_current() -> None:
 
 
 def test_board_with_a_stalled_wheel_winds_up_to_full_duty_and_stall_current() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     host.start_enabled()
     host.references(45.0, 45.0)
@@ -305,7 +305,7 @@ def test_load_torque_reduces_speed_in_proportion(fraction: float) -> None:
 
 
 def test_board_loop_rejects_a_load_torque_with_more_duty() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     host.start_enabled()
     host.references(45.0, 45.0)
@@ -390,9 +390,9 @@ def test_a_wheel_swinging_through_zero_speed_is_not_caught_by_the_dead_band() ->
 
 def test_a_board_that_was_driven_becomes_quiescent_again() -> None:
     # The board idles after use as it does fresh: disabled, telemetry off, wheels at rest.
-    from tests.support.host import Host
+    from tests.support.emulated import Cable
 
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, 1, 1), ParamAck)
     host.start_enabled()
     host.references(60.0, -40.0)

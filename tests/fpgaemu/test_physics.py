@@ -178,7 +178,7 @@ def test_the_physics_step_is_a_whole_number_of_board_periods() -> None:
 def test_go_to_arrives_on_the_physics_body(surface: str) -> None:
     """Algorithm 1 (fpgalink.robot.goto) on odometry, the body slipping under it: the
     controller arrives, and the body is really there, within what odometry lost."""
-    from tests.support.robotsim import RobotSim
+    from tests.support.emulated import RobotSim
 
     sim = RobotSim.make(surface, body="mujoco")
     controller = sim.go_to(1.0, 0.5, limit_s=40.0)

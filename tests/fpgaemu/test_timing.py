@@ -24,12 +24,12 @@ from fpgalink.protocol.wire import (
     plan,
     wire_bytes,
 )
-from tests.support.host import MS, Host
+from tests.support.emulated import MS, Cable
 
 
 @dataclass
 class Scenario:
-    host: Host
+    host: Cable
     periods: int
     tm_wire: list[int]  #: exact wire bytes of every TM the host received
     other_wire: int  #: wire bytes of every other frame the host received
@@ -38,7 +38,7 @@ class Scenario:
 def run_scenario(*, baud: int, period_ms: int, seconds: float, rv_every_ms: int | None = 1,
                  refs: tuple[float, float] = (45.0, -30.0)) -> Scenario:
     """The host's traffic is put on the line ahead of time, at exact cycles, in batches."""
-    host = Host.make(baud=baud, settings={"TsTimerPeriod": period_ms, "GetDataPeriodical": 1})
+    host = Cable.make(baud=baud, settings={"TsTimerPeriod": period_ms, "GetDataPeriodical": 1})
     decoder = FrameDecoder()
     scenario = Scenario(host, 0, [], 0)
 

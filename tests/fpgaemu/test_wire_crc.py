@@ -25,14 +25,14 @@ from fpgalink.protocol import (
     lookup,
 )
 from fpgalink.protocol.crc import WIRE_CRC_PARAM, CrcMismatch, append_crc, strip_crc
-from tests.support.host import MS, Host
+from tests.support.emulated import MS, Cable
 
 #: every test but the older board's runs against the Python firmware model and the C core
 both_firmwares = pytest.mark.usefixtures("each_firmware")
 INT = 1
 
 
-def crc_on(host: Host) -> None:
+def crc_on(host: Cable) -> None:
     reply = host.set(WIRE_CRC_PARAM, 0, INT, 1)
     assert isinstance(reply, ParamAck) and reply.value == 1
     assert host.conn.wire_crc.on and host.firmware.wire_crc.on
@@ -40,7 +40,7 @@ def crc_on(host: Host) -> None:
 
 @both_firmwares
 def test_off_at_power_up_the_seeds_wire_unchanged() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert host.get(WIRE_CRC_PARAM, 0) == ParamAck(WIRE_CRC_PARAM, 0, INT, 0, 0)
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     host.run(0.01)
@@ -52,7 +52,7 @@ def test_off_at_power_up_the_seeds_wire_unchanged() -> None:
 
 @both_firmwares
 def test_switched_on_every_counted_message_carries_it_and_nothing_fails() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     crc_on(host)
     host.start_enabled()
@@ -72,7 +72,7 @@ def test_switched_on_every_counted_message_carries_it_and_nothing_fails() -> Non
 
 @both_firmwares
 def test_a_damaged_telemetry_frame_is_counted_and_never_delivered() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     crc_on(host)
     host.drain()
@@ -97,7 +97,7 @@ def test_a_damaged_telemetry_frame_is_counted_and_never_delivered() -> None:
 
 @both_firmwares
 def test_a_damaged_reference_is_dropped_by_the_board_and_counted() -> None:
-    host = Host.make()
+    host = Cable.make()
     assert isinstance(host.set(2, 0, INT, 1), ParamAck)
     crc_on(host)
     host.start_enabled()
@@ -134,7 +134,7 @@ def _exchange(board: Board, conn: Connection, until: int, lose: bool = False) ->
 
 @both_firmwares
 def test_a_lost_confirmation_is_recovered_by_the_resend() -> None:
-    host = Host.make()
+    host = Cable.make()
     board, conn = host.board, Connection(baud=None, request_timeout=0.01)
     param = lookup("WireCrc")
     request = conn.set_param(param, 0, 1, 0.0)
@@ -151,7 +151,7 @@ def test_a_lost_confirmation_is_recovered_by_the_resend() -> None:
 
 @both_firmwares
 def test_a_new_host_session_finds_the_board_switched_on_and_off_again() -> None:
-    host = Host.make()
+    host = Cable.make()
     crc_on(host)
     fresh = Connection(baud=None)
     param = lookup("WireCrc")
@@ -173,7 +173,7 @@ def test_an_older_board_refuses_with_pn_1_and_the_host_stays_plain() -> None:
     board = Board()
     firmware = attach_firmware(board, wire_crc=False)  # a board from before the extension
     board.add_peripheral("motors", Motors())
-    host = Host(board, firmware)
+    host = Cable(board, firmware)
     conn = host.conn
     param = lookup("WireCrc")
     conn.set_param(param, 0, 1, 0.0)

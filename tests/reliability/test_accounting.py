@@ -20,9 +20,10 @@ from typing import Any
 
 import pytest
 
+from fpgaemu.firmware import Firmware
 from fpgalink import Telemetry
 from fpgalink.events import CounterDuplicate, CounterGap, CounterLate
-from tests.support.rig import STREAMING, body_of, content_of, make_rig, scale
+from tests.support.emulated import STREAMING, Cable, body_of, content_of, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -57,7 +58,7 @@ class Accounting:
 
 
 def run_accounting(faults: list[str], seconds: float, seed: int) -> Accounting:
-    rig = make_rig(seed=seed, faults=faults, settings=STREAMING, record_tm=True)
+    rig = Cable.linked(seed=seed, faults=faults, settings=STREAMING, record_tm=True)
     delivered: list[Telemetry] = []
     first: list[int] = []
 
@@ -70,15 +71,17 @@ def run_accounting(faults: list[str], seconds: float, seed: int) -> Accounting:
         ):
             first.append(counter)
 
-    rig.conn.enable(rig.now)
+    rig.conn.enable(rig.now_s)
     rig.write(rig.conn.data_to_send())
-    rig.run(seconds, on_event)
+    rig.serve(seconds, on_event)
 
     sent = rig.sent_tm
     # Nothing but TMs carries a counter here (no parameter traffic), so the board's own
     # counter and the firmware's TM count must both match what the hook recorded.
-    assert rig.firmware.stats.telemetry_sent == len(sent)
-    assert rig.firmware._counter.value == len(sent) % MODULUS
+    firmware = rig.firmware
+    assert isinstance(firmware, Firmware)  # Cable.linked builds the Python model
+    assert firmware.stats.telemetry_sent == len(sent)
+    assert firmware._counter.value == len(sent) % MODULUS
     tracker = rig.conn.counter_tracker
     assert tracker.expected is not None
     trailing = (max(sent) + 1 - tracker.expected) % MODULUS

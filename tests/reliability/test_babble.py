@@ -10,7 +10,7 @@ import pytest
 
 from fpgaemu.faults import Babbler
 from fpgalink import Connection
-from tests.support.rig import STREAMING, make_rig, scale
+from tests.support.emulated import STREAMING, Cable, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -18,15 +18,15 @@ pytestmark = pytest.mark.timeout(120)
 def test_babbling_host_never_breaks_the_board() -> None:
     seconds = scale(30, 60)
     # Babble over the whole run, at full line rate, with the host's heartbeat mixed in.
-    rig = make_rig(seed=3, faults=[f"babble=0:{seconds}"], settings=STREAMING)
+    rig = Cable.linked(seed=3, faults=[f"babble=0:{seconds}"], settings=STREAMING)
     babbler = rig.board.peripherals["faults"].babbler  # type: ignore[attr-defined]
     assert isinstance(babbler, Babbler)
-    rig.conn.enable(rig.now)
+    rig.conn.enable(rig.now_s)
     rig.write(rig.conn.data_to_send())
     tracemalloc.start()
-    rig.run(seconds / 6)
+    rig.serve(seconds / 6)
     early = tracemalloc.get_traced_memory()[0]
-    rig.run(seconds * 5 / 6)
+    rig.serve(seconds * 5 / 6)
     late, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     line = rig.board.uartread.stats

@@ -16,7 +16,7 @@ from fpgalink.events import RequestDone, RequestFailed, WatchdogLapsed
 from fpgalink.protocol import References
 from fpgalink.protocol.catalogue import Telemetry
 from fpgalink.protocol.params import PARAMETERS, ParamType, Scope, float32
-from tests.support.rig import make_rig, scale
+from tests.support.emulated import Cable, scale
 
 pytestmark = pytest.mark.timeout(120)
 
@@ -33,7 +33,7 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
     resumed_ok = 0
     for trial in range(trials):
         # A host step that is not a divisor of the heartbeat puts the stall at every phase.
-        rig = make_rig(seed=trial, heartbeat_interval=0.1)
+        rig = Cable.linked(seed=trial, heartbeat_interval=0.1)
         rig.step_s = rnd.uniform(0.0005, 0.003)
         falls: list[EnableChange] = []
         duties: list[tuple[int, int]] = []
@@ -47,10 +47,10 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
                              board.channels[2].pwm.applied_duty))
 
         rig.board.axi.on_global_enable(on_enable)
-        rig.conn.enable(rig.now)
+        rig.conn.enable(rig.now_s)
         rig.write(rig.conn.data_to_send())
         rig.send(References(60.0, -60.0))
-        rig.run(rnd.uniform(0.8, 1.6))
+        rig.serve(rnd.uniform(0.8, 1.6))
         assert rig.board.global_enable and not falls
         speed_before = abs(rig.wheel(1).speed_dps)
         assert speed_before > 30.0
@@ -58,7 +58,7 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
         rig.host_alive = False
         last_re = max(end for end, data in rig.writes if data.endswith(b"SREP"))
         if stall_s == float("inf") or stall_s > WATCHDOG_S:
-            rig.run(min(stall_s, 2.0))
+            rig.serve(min(stall_s, 2.0))
             assert len(falls) == 1, f"trial {trial}: enable did not fall once"
             gap = (falls[0].cycle - last_re) / CLOCK_HZ
             gaps.append(gap)
@@ -71,7 +71,7 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
             seen: list[object] = []
             writes_before = len(rig.writes)
             rig.host_alive = True
-            rig.run(0.3, seen.append)
+            rig.serve(0.3, seen.append)
             resumed = [data for _, data in rig.writes[writes_before:]]
             assert resumed and resumed[0].startswith(b"SRDP"), resumed[:2]
             assert not any(b"SREP" in data for data in resumed)
@@ -82,9 +82,9 @@ def test_host_stall_or_death_stops_the_motors_within_300_ms() -> None:
         else:
             # Shorter than the host's give-up (the watchdog less a margin) minus a heartbeat:
             # the board never notices.
-            rig.run(stall_s)
+            rig.serve(stall_s)
             rig.host_alive = True
-            rig.run(0.5)
+            rig.serve(0.5)
             assert not falls and rig.board.global_enable
             resumed_ok += 1
     print(f"\nfailsafe: {len(gaps)} stops, last RE → enable low {min(gaps) * 1e3:.3f}.."
@@ -111,7 +111,7 @@ def _random_value(param: Any, rnd: random.Random) -> int | float:
 def sync_trial(seed: int, tries: int) -> tuple[int, int, int]:
     """Set every parameter address once, in order, through 1 % byte loss both ways.
     Returns (confirmed, timed out, wrong confirmations)."""
-    rig = make_rig(seed=seed, faults=["rx-drop=0.01", "tx-drop=0.01"],
+    rig = Cable.linked(seed=seed, faults=["rx-drop=0.01", "tx-drop=0.01"],
                    request_timeout=0.02, request_tries=tries)
     rnd = random.Random(seed)
     confirmed = failed = wrong = 0
@@ -124,7 +124,7 @@ def sync_trial(seed: int, tries: int) -> tuple[int, int, int]:
     for param in PARAMETERS:
         for channel in ((0,) if param.scope is Scope.BOARD else (1, 2)):
             value = _random_value(param, rnd)
-            rig.conn.set_param(param, channel, value, rig.now)
+            rig.conn.set_param(param, channel, value, rig.now_s)
             rig.write(rig.conn.data_to_send())
             outcome.clear()
             while not outcome:
@@ -163,13 +163,13 @@ def test_param_sync_converges_through_one_percent_byte_loss(tries: int) -> None:
 def test_telemetry_flag_tracks_enable() -> None:
     """The TM enable flag the host sees falls with the board's enable (a cheap cross-check
     that the host can observe the failsafe, not only the emulator)."""
-    rig = make_rig(settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
+    rig = Cable.linked(settings={"TsTimerPeriod": 1, "GetDataPeriodical": 1})
     flags: list[int] = []
-    rig.conn.enable(rig.now)
+    rig.conn.enable(rig.now_s)
     rig.write(rig.conn.data_to_send())
-    rig.run(0.2, lambda e: flags.append(e.a.flags) if type(e) is Telemetry else None)
+    rig.serve(0.2, lambda e: flags.append(e.a.flags) if type(e) is Telemetry else None)
     assert flags[-1] & 1
     rig.host_alive = False
-    rig.run(0.4, lambda e: flags.append(e.a.flags) if type(e) is Telemetry else None)
+    rig.serve(0.4, lambda e: flags.append(e.a.flags) if type(e) is Telemetry else None)
     assert not flags[-1] & 1
     assert rig.board.now >= seconds_to_cycles(0.6)

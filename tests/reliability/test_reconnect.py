@@ -13,7 +13,7 @@ from fpgaemu.build import build_board
 from fpgaemu.serve import PacedBoard, TcpEndpoint
 from fpgalink import open_link
 from fpgalink.events import PortLost, PortRestored, StatusEvent
-from tests.support.rig import scale
+from tests.support.emulated import scale
 
 pytestmark = pytest.mark.timeout(60)
 

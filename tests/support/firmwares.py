@@ -12,7 +12,7 @@ from collections.abc import Iterator
 
 import pytest
 
-import tests.support.host as host_module
+import tests.support.emulated as emulated
 
 FIRMWARES = ("python", "c")
 
@@ -50,10 +50,10 @@ def firmware_kind(request: pytest.FixtureRequest) -> str:
 
 @pytest.fixture
 def each_firmware(firmware_kind: str) -> Iterator[str]:
-    """Every ``Host.make()`` in the test builds a board with this firmware."""
-    before = host_module.DEFAULT_FIRMWARE
-    host_module.DEFAULT_FIRMWARE = firmware_kind
+    """Every ``Cable.make()`` in the test builds a board with this firmware."""
+    before = emulated.DEFAULT_FIRMWARE
+    emulated.DEFAULT_FIRMWARE = firmware_kind
     try:
         yield firmware_kind
     finally:
-        host_module.DEFAULT_FIRMWARE = before
+        emulated.DEFAULT_FIRMWARE = before

@@ -217,7 +217,7 @@ def odometry_against_truth(surface: str, left: float, right: float, body: str,
     """The host's odometry (1 kHz telemetry, the robot file's χ for the surface, or its
     default surface's where it has none) against the body's truth after ``seconds`` with
     the wheels held."""
-    from tests.support.robotsim import RobotSim
+    from tests.support.emulated import RobotSim
 
     sim = RobotSim.make(surface, body=body, seed=seed)
     sim.hold_wheels(left, right)

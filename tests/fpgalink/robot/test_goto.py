@@ -9,7 +9,7 @@ import pytest
 
 from fpgalink.protocol.robot import Pose, integrate_arc
 from fpgalink.robot.goto import GoTo, GoToSettings, Phase
-from tests.support.robotsim import RobotSim
+from tests.support.emulated import RobotSim
 
 SETTINGS = GoToSettings()
 

@@ -10,7 +10,7 @@ import pytest
 from fpgalink.protocol import ChannelTelemetry, Telemetry
 from fpgalink.protocol.robot import Pose, seed_robot
 from fpgalink.robot.odometry import Odometry, count_delta
-from tests.support.robotsim import RobotSim
+from tests.support.emulated import RobotSim
 
 ROBOT = seed_robot().on_surface("ideal")
 COUNTS_PER_TURN = 5000  # IncSenzRes 500
