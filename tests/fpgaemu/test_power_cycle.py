@@ -26,29 +26,28 @@ from fpgalink.events import (
 )
 from fpgalink.protocol import Alive, ParamAck, References, Telemetry, encode_frame, lookup
 from tests.fpgaemu.test_golden_trace import ps
+from tests.support.emulated import Cable
 
 
 class Host:
-    """The host's side of one board's link, run 1 ms at a time with its heartbeat."""
+    """The host's side of one board's link, run 1 ms at a time with its heartbeat: what it
+    queued written, the board run, what arrived read and the timer fired."""
 
     def __init__(self, board: Board) -> None:
         self.board = board
-        self.link = Connection()
+        self.cable = Cable(board, Connection())
+        self.link = self.cable.conn
         self.events: list[tuple[float, Any]] = []
 
     def run_to(self, seconds: float) -> None:
-        board, link = self.board, self.link
+        board, cable = self.board, self.cable
         step = round(board.now / ms(1))
         while board.now < round(seconds * CLOCK_HZ):
             step += 1
-            board.host_write(link.data_to_send())
+            cable.flush()
             board.run_until(ms(step))
             now = step / 1000
-            link.receive_data(board.read_host_bytes(), now)
-            timer = link.get_timer()
-            if timer is not None and timer <= now:
-                link.handle_timer(now)
-            self.events += [(now, event) for event in link.events()]
+            self.events += [(now, event) for event in cable.receive() + cable.fire_timer()]
 
     def telemetry(self, since: float = 0.0) -> list[Telemetry]:
         return [e for t, e in self.events if isinstance(e, Telemetry) and t >= since]

@@ -171,9 +171,9 @@ def test_a_new_host_session_finds_the_board_switched_on_and_off_again() -> None:
 
 def test_an_older_board_refuses_with_pn_1_and_the_host_stays_plain() -> None:
     board = Board()
-    firmware = attach_firmware(board, wire_crc=False)  # a board from before the extension
+    attach_firmware(board, wire_crc=False)  # a board from before the extension
     board.add_peripheral("motors", Motors())
-    host = Cable(board, firmware)
+    host = Cable(board)
     conn = host.conn
     param = lookup("WireCrc")
     conn.set_param(param, 0, 1, 0.0)

@@ -77,7 +77,6 @@ class Cable:
     """One board and the host's side of its link, on the board's timeline."""
 
     board: Board
-    firmware: Firmware | CFirmware
     #: the test writes what it sends itself, the board's UART paces it: no pacing here
     conn: Connection = field(default_factory=lambda: Connection(baud=None))
     #: the host link loop's period (:meth:`step`, :meth:`serve`)
@@ -110,9 +109,7 @@ class Cable:
         """A board with the test as its host (:meth:`run`, :meth:`request`, ...)."""
         board = build_board(baud=baud, gear=gear, settings=settings,
                             firmware=firmware_kind or DEFAULT_FIRMWARE)
-        firmware = board.peripherals["firmware"]
-        assert isinstance(firmware, Firmware | CFirmware)
-        return Cable(board, firmware)
+        return Cable(board)
 
     @staticmethod
     def linked(*, seed: int = 0, faults: list[str] | None = None,
@@ -121,9 +118,7 @@ class Cable:
         """A board with a host whose link loop runs (:meth:`serve`), as an asyncio ``Link``
         does: a paced Connection made with ``conn_options``, its writes recorded."""
         board = build_board(seed=seed, settings=settings or {}, faults=faults or [])
-        firmware = board.peripherals["firmware"]
-        assert isinstance(firmware, Firmware)
-        cable = Cable(board, firmware, Connection(**conn_options), record_writes=True)
+        cable = Cable(board, Connection(**conn_options), record_writes=True)
         if record_tm:
             board.uartsend.on_frame(cable._sent_frame)
         return cable
@@ -133,6 +128,13 @@ class Cable:
             self.sent_tm[int(content[2:7])] = content
 
     # --- the board's parts ----------------------------------------------------------------
+
+    @property
+    def firmware(self) -> Firmware | CFirmware:
+        """The board's software (a new one after a power cycle)."""
+        firmware = self.board.peripherals["firmware"]
+        assert isinstance(firmware, Firmware | CFirmware)
+        return firmware
 
     def io(self, code: int) -> ChannelIo:
         """Channel ``code``'s PWM stage, encoder and current sensor."""
@@ -362,11 +364,9 @@ class RobotSim:
         if arrival_jitter_seed is not None:
             sim.arrival_jitter = random.Random(arrival_jitter_seed)
         for name, board in robot.boards.items():
-            firmware = board.peripherals["firmware"]
-            assert isinstance(firmware, Firmware)
             conn = Connection()
             conn.start(0.0)
-            sim.cables[name] = Cable(board, firmware, conn)
+            sim.cables[name] = Cable(board, conn)
         sim._configure()
         return sim
 
