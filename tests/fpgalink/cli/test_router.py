@@ -209,8 +209,14 @@ def test_the_board_is_disabled_when_its_controller_goes(tmp_path: Path) -> None:
     assert board["disables_sent"] == 2  # one per controller that left: killed, then watcher
 
 
+def _whole_lines(text: str) -> list[str]:
+    """The lines of a file a live process is writing: whole lines only (it may be writing
+    the last one)."""
+    return text[:text.rfind("\n") + 1].splitlines()
+
+
 def _counters(text: str) -> list[int]:
-    return [json.loads(line)["counter"] for line in text.splitlines()
+    return [json.loads(line)["counter"] for line in _whole_lines(text)
             if line.startswith("{") and '"counter"' in line]
 
 
@@ -547,7 +553,7 @@ def _host_bytes_the_board_got(serve: Served) -> int:
 
 
 def _samples(path: Path) -> list[dict[str, Any]]:
-    return [json.loads(line) for line in path.read_text().splitlines()
+    return [json.loads(line) for line in _whole_lines(path.read_text())
             if line.startswith("{") and '"t_us"' in line]
 
 
