@@ -318,7 +318,9 @@ class WatchdogLapsed(BoardFault):
     meant it enabled, so the connection stopped its heartbeat and sent ``RD``: enable again
     to go on. Either the host's own heartbeat was overdue (``host_silent_for``: seconds
     since its last ``RE``, e.g. a stalled process), or the board's telemetry showed it
-    disabled after it had shown it enabled (``host_silent_for`` is ``None``)."""
+    disabled after it had shown it enabled: then ``host_silent_for`` is the longest gap
+    between this host's ``RE`` in the last second when that was twice the heartbeat interval
+    or more (the host late, though not past giving up), else ``None``."""
 
     name: ClassVar[str] = "watchdog_lapsed"
 

@@ -342,6 +342,41 @@ def test_telemetry_showing_the_board_disabled_after_enabled_is_a_lapse() -> None
     assert not host.enabled and host.data_to_send() == b"SRDP"
 
 
+def test_a_lapse_after_this_hosts_own_late_heartbeat_says_the_host_was_late() -> None:
+    # Seen on a loaded machine: the host's RE went out 250 ms apart (under its 280 ms
+    # give-up, so it still sent it), the line added the rest of the 300 ms, and the board's
+    # watchdog lapsed: said as "the RE came more than 300 ms apart at the board, or an RD
+    # came from elsewhere", it read as the line's fault or another sender's.
+    host, board, _ = configured()
+    now = 0.02
+    for at in (0.1, 0.35):  # a beat on time, then one 250 ms after it
+        while now < at:
+            now += 0.01
+            host.receive_data(board.tm(enabled=True), now)
+        host.handle_timer(at)
+        assert host.data_to_send().endswith(b"SREP")
+    list(host.events())
+    host.receive_data(board.tm(enabled=False), 0.36)
+    (lapse,) = [e for e in host.events() if isinstance(e, WatchdogLapsed)]
+    assert lapse.host_silent_for == pytest.approx(0.25)
+    assert "watchdog: host silent 250 ms" in lapse.describe()
+    assert not host.enabled and host.data_to_send() == b"SRDP"
+
+
+def test_gaps_before_an_enable_are_not_counted_against_it() -> None:
+    host, board, _ = configured()
+    host.disable(0.05)
+    host.data_to_send()
+    host.enable(0.9)  # 0.9 s after the last RE of the enable before: not a late heartbeat
+    host.data_to_send()
+    for k in range(400):  # seen disabled, then enabled for the watchdog's time and more
+        host.receive_data(board.tm(enabled=k > 0), 0.901 + 0.001 * k)
+    list(host.events())
+    host.receive_data(board.tm(enabled=False), 1.31)
+    (lapse,) = [e for e in host.events() if isinstance(e, WatchdogLapsed)]
+    assert lapse.host_silent_for is None and "telemetry shows it disabled" in lapse.detail
+
+
 def test_samples_from_before_the_enable_took_effect_are_no_lapse() -> None:
     host, board = Connection(baud=None), Board()
     host.start(0.0)

@@ -37,6 +37,9 @@ _PERIOD = lookup("TsTimerPeriod")
 #: Before the telemetry period is known (confirmed or seen), a stream may wait this long for
 #: its first samples: the longest period the board allows.
 _LONGEST_PERIOD_S = 1.0
+#: A gap between two of this host's ``RE`` is remembered this long: the board's samples
+#: showing the lapse it caused arrive well within it, even on a loaded host.
+_RECENT_GAP_S = 1.0
 
 
 class Liveness(Enum):
@@ -58,6 +61,9 @@ class Heartbeat:
         self.enabled = False  #: this host sends ``RE`` every heartbeat interval
         self.next_at: float | None = None
         self._last_at: float | None = None  #: when the last RE was queued
+        #: the longest gap between two RE queued within :data:`_RECENT_GAP_S`, and when
+        self._recent_gap = 0.0
+        self._recent_gap_at = -math.inf
         self._enable_seen = False  #: the board's telemetry showed it enabled by this host
         self._saw_disabled = False  #: since enable(), a sample showed the board disabled
         self._enabled_since_us: int | None = None  #: since enable(), enabled from this t_us
@@ -70,6 +76,8 @@ class Heartbeat:
         if not self.enabled:
             self._enable_seen = self._saw_disabled = False
             self._enabled_since_us = None
+            self._last_at = None  # gaps count between this enable's RE only
+            self._recent_gap, self._recent_gap_at = 0.0, -math.inf
         self.enabled = True
         self._beat(now)
 
@@ -121,10 +129,7 @@ class Heartbeat:
         if self._enable_seen:
             for sample in samples:
                 if not sample.a.flags & 1:
-                    self.lapse(now, None, "its telemetry shows it disabled after it was "
-                               "enabled, while this host kept sending RE: the RE came more "
-                               "than 300 ms apart at the board, or an RD came from "
-                               "elsewhere")
+                    self._disabled_itself(now)
                     return
             return
         for index, sample in enumerate(samples):
@@ -141,10 +146,29 @@ class Heartbeat:
                 self.watch(samples[index + 1:], now)
                 return
 
+    def _disabled_itself(self, now: float) -> None:
+        """The board's telemetry shows it disabled while this host kept sending ``RE``. When
+        two of them went out twice the interval apart or more, this host's own lateness
+        (its process not scheduled in time) used most of the watchdog's 300 ms, and is
+        said as such: a host that was on time leaves the line or another sender's ``RD``."""
+        late = self._recent_gap if now - self._recent_gap_at <= _RECENT_GAP_S else 0.0
+        if late >= 2 * self.settings.heartbeat_interval:
+            self.lapse(now, late, f"this host's RE went out {late:.3f} s apart, and its "
+                       "telemetry shows it disabled")
+        else:
+            self.lapse(now, None, "its telemetry shows it disabled after it was enabled, "
+                       "while this host kept sending RE: the RE came more than 300 ms "
+                       "apart at the board, or an RD came from elsewhere")
+
     def _beat(self, now: float) -> None:
         if self._port_up():
             self._send(_ENABLE, now)
             self._stats.heartbeats_sent += 1
+            last = self._last_at
+            if last is not None and self.enabled:
+                gap = now - last
+                if gap >= self._recent_gap or now - self._recent_gap_at > _RECENT_GAP_S:
+                    self._recent_gap, self._recent_gap_at = gap, now
             self._last_at = now
         self.next_at = now + self.settings.heartbeat_interval
 
