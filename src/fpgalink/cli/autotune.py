@@ -209,9 +209,12 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
         record = await identify_on(link, board, channel, options, stop, recorder)
         if stop.is_set():
             return None
-        fit = fit_record(record, options, f"board {board} channel {channel}")
+        # The computations run beside the loop, never in it: the links go on being served
+        # (a blocked loop is a host that stopped answering its boards).
+        fit = await asyncio.to_thread(fit_record, record, options,
+                                      f"board {board} channel {channel}")
         try:
-            model = fit.continuous
+            model = await asyncio.to_thread(lambda: fit.continuous)
         except FitError as exc:
             raise CliError(f"board {board} channel {channel}: {exc}", ExitCode.FAILURE) from None
     else:
@@ -223,13 +226,15 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
     counts = 10 * int(await link.get_param(f"IncSenzRes{channel}")) or None
     step_to = _step_target(target, model, limit)
     try:
-        design = design_pi(model, period=period, target=step_to, limit=limit,
-                           max_overshoot=max_overshoot, counts_per_turn=counts)
+        design = await asyncio.to_thread(
+            lambda: design_pi(model, period=period, target=step_to, limit=limit,
+                              max_overshoot=max_overshoot, counts_per_turn=counts))
     except DesignError as exc:
         raise CliError(f"board {board} channel {channel}: {exc}", ExitCode.FAILURE) from None
     horizon = max(3.0, 12.0 * model.time_constant)
-    t, y, _ = predict_step(model, before, period=period, target=step_to, limit=limit,
-                           duration=horizon, counts_per_turn=counts)
+    t, y, _ = await asyncio.to_thread(
+        lambda: predict_step(model, before, period=period, target=step_to, limit=limit,
+                             duration=horizon, counts_per_turn=counts))
     before_prediction = step_metrics(list(t), list(y), 0.0, step_to)
     settling = design.prediction.settling_time or 1.0
     note(f"board {board} channel {channel}: stepping 0 → {step_to:g} deg/s with Kp "
