@@ -209,12 +209,12 @@ async def _tune(link: Link, board: str, channel: str, options: Identification,
         record = await identify_on(link, board, channel, options, stop, recorder)
         if stop.is_set():
             return None
-        # The computations run beside the loop, never in it: the links go on being served
-        # (a blocked loop is a host that stopped answering its boards).
+        # The fit, the design and the predicted step run beside the loop, never in it: the
+        # links go on being served (a blocked loop is a host that stopped answering).
         fit = await asyncio.to_thread(fit_record, record, options,
                                       f"board {board} channel {channel}")
         try:
-            model = await asyncio.to_thread(lambda: fit.continuous)
+            model = fit.continuous  # a low-order model's poles: microseconds
         except FitError as exc:
             raise CliError(f"board {board} channel {channel}: {exc}", ExitCode.FAILURE) from None
     else:
