@@ -9,7 +9,8 @@ send)."""
 
 from __future__ import annotations
 
-from typing import Any, Generic, TypeVar
+from types import UnionType
+from typing import Generic, TypeVar
 
 from fpgalink.protocol.catalogue import (
     IdentityQuery,
@@ -81,7 +82,7 @@ def identity_query(content: bytes) -> bool:
     return _message(content, IdentityQuery)[0] is not None
 
 
-def _message(content: bytes, wanted: Any) -> tuple[object | None, bool]:
+def _message(content: bytes, wanted: type | UnionType) -> tuple[object | None, bool]:
     """The message of type ``wanted`` in ``content`` as it is, or with a good wire CRC
     stripped (and whether it had one); ``None`` when it is neither."""
     message = parse_content(content)
