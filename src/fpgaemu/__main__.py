@@ -571,6 +571,10 @@ def _report(name: str, endpoint: PtyEndpoint | TcpEndpoint) -> None:
     if paced.lag.lag_events:
         notes.append(f"fell behind real time {paced.lag.lag_events} times, worst "
                      f"{paced.lag.worst_lag_s * 1000:.1f} ms (caught up, no bytes lost)")
+    if paced.heartbeat.watchdog_lapses:
+        notes.append(f"watchdog lapsed {paced.heartbeat.watchdog_lapses} times; the host "
+                     "wrote nothing for up to "
+                     f"{paced.heartbeat.longest_silence_s * 1000:.1f} ms while it was enabled")
     if endpoint.unplugs:
         lost = (f": {endpoint.unplugged_tx:,} TX bytes sent while unplugged, gone"
                 if isinstance(endpoint, PtyEndpoint) and endpoint.unplugged_tx else "")

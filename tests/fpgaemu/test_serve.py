@@ -263,3 +263,36 @@ async def test_an_unplugged_ptys_link_goes_with_it_and_comes_back_to_the_new_pty
         assert os.readlink(link) == endpoint.path
     finally:
         await endpoint.close()
+
+
+def test_serve_measures_how_late_the_hosts_heartbeat_reached_it() -> None:
+    # The host's RE 100 ms apart keep the board enabled and show no silence; one that comes
+    # 350 ms after the last lets the watchdog lapse, and serve says both: the lapse, and the
+    # 350 ms it read nothing from the host while the board was enabled.
+    now = [50.0]
+    paced = PacedBoard(build_board(), clock=lambda: now[0])
+    host = Connection(baud=None)
+
+    def run_for(seconds: float) -> None:
+        end = now[0] + seconds
+        while now[0] < end - 1e-9:
+            paced.next_wake()
+            now[0] = min(end, now[0] + 0.001)
+            paced.advance()
+
+    for _ in range(5):
+        paced.host_write(sent(Enable(), host))
+        run_for(0.1)
+    assert paced.board.uartcommand.global_enable
+    assert paced.heartbeat.watchdog_lapses == 0
+    assert paced.heartbeat.longest_silence_s == pytest.approx(0.1)
+    run_for(0.25)  # 350 ms since the last RE
+    paced.host_write(sent(Enable(), host))
+    assert paced.heartbeat.watchdog_lapses == 1
+    assert paced.heartbeat.longest_silence_s == pytest.approx(0.35)
+    # A host that leaves is not silent: the next one's first bytes count from nothing.
+    run_for(0.1)
+    paced.host_gone()
+    run_for(2.0)
+    paced.host_write(sent(Enable(), host))
+    assert paced.heartbeat.longest_silence_s == pytest.approx(0.35)

@@ -107,6 +107,12 @@ def run_cli(*args: str, env: dict[str, str] | None = None, input: str | None = N
 #: reported worst of 17.8 ms came with a 50 ms gap in a board's telemetry (seen under load):
 #: the report is a lower bound once past a slice.
 LAG_EXPLAINS_S = 0.010
+#: A serve that read nothing from the host for this long while its board was enabled got the
+#: host's heartbeat (an ``RE`` every 100 ms) late: twice its interval, as the host says of
+#: its own lateness (``host silent``). Seen under load with the host's own ``RE`` under 200 ms
+#: apart and serve keeping up: the time went between them (the host's write after its
+#: clock was read, the system's pty).
+SILENCE_EXPLAINS_S = 0.200
 #: What a command stopped by a fault says: exit 7 (``the robot was stopped: …``, ``the step
 #: was stopped: …``, ``…: stopped: …``) or exit 4 (a board not answering).
 _STOPPED = (7, 4)
@@ -122,16 +128,22 @@ def stopped_by_load(done: subprocess.CompletedProcess[str], *serves: Served) -> 
     it stops as it must. Taken for that only when measured: the command says its own
     process was not scheduled (``host silent N ms``: its heartbeat overdue on its own
     clock), or a serve it talked to says it fell behind real time by more than
-    :data:`LAG_EXPLAINS_S`. An in-process board (``emu://``) keeps its link on the board's
-    own time, so a command on one is never stopped so: pass no serve for it."""
+    :data:`LAG_EXPLAINS_S`, or that its board's watchdog lapsed after it read nothing from
+    the host for :data:`SILENCE_EXPLAINS_S`. An in-process board (``emu://``) keeps its
+    link on the board's own time, so a command on one is never stopped so: pass no serve
+    for it."""
     if done.returncode not in _STOPPED:
         return None
     if "host silent" in done.stderr:
         return "its host was not scheduled: " + done.stderr.strip().splitlines()[-1]
-    lags = {server.describe(): server.worst_lag_s() for server in serves}
-    if lags and max(lags.values()) > LAG_EXPLAINS_S:
-        where, lag = max(lags.items(), key=lambda item: item[1])
-        return f"{where} fell behind real time by {lag * 1000:.0f} ms"
+    measured = [(server.describe(), server.report(), server) for server in serves]
+    lags = [(served.worst_lag_s(report), where) for where, report, served in measured]
+    if lags and (worst := max(lags))[0] > LAG_EXPLAINS_S:
+        return f"{worst[1]} fell behind real time by {worst[0] * 1000:.0f} ms"
+    silences = [(served.host_silence_s(report), where) for where, report, served in measured]
+    if silences and (longest := max(silences))[0] >= SILENCE_EXPLAINS_S:
+        return (f"{longest[1]}: its board's watchdog lapsed after it read nothing from the "
+                f"host for {longest[0] * 1000:.0f} ms")
     return None
 
 

@@ -59,6 +59,8 @@ PYTHON_M_FPGAEMU = (sys.executable, "-m", "fpgaemu")
 #: The first words of each board's line in serve's report (on exit and on SIGUSR1).
 _REPORT = ": host → board "
 _LAG = re.compile(r"^(\S+): fell behind real time (\d+) times, worst ([\d.,]+) ms", re.M)
+_SILENT = re.compile(r"^(\S+): watchdog lapsed (\d+) times; the host wrote nothing for up to "
+                     r"([\d.,]+) ms", re.M)
 
 #: Every serve started in this process, in order (tests/conftest.py reads the logs of those
 #: a failed test started, and stops any a test left running).
@@ -162,12 +164,9 @@ class Served:
         except OSError as exc:
             return f"(serve's log {self.log} unreadable: {exc})"
 
-    def worst_lag_s(self) -> float:
-        """How far behind real time serve's boards fell at worst so far (0 when they never
-        did), as serve itself reports it (on SIGUSR1 while it runs, and when it stops): on
-        a loaded machine a starved emulator hands its boards' telemetry out late, and puts
-        what the host wrote on their lines late, and a host rightly takes a long enough gap
-        for a board that stopped."""
+    def report(self) -> str:
+        """Serve's log with its report as of now (asked for with SIGUSR1 while it runs;
+        printed when it stops)."""
         if self.running:
             reports = self.log_text().count(_REPORT)
             self.proc.send_signal(signal.SIGUSR1)
@@ -176,8 +175,24 @@ class Served:
                 if time.monotonic() > deadline:
                     raise AssertionError(f"{self.describe()}: no report on SIGUSR1")
                 time.sleep(0.01)
-        worst = [float(ms.replace(",", "")) / 1000 for *_, ms in _LAG.findall(self.log_text())]
+        return self.log_text()
+
+    def worst_lag_s(self, report: str | None = None) -> float:
+        """How far behind real time serve's boards fell at worst so far (0 when they never
+        did), as serve itself reports it (:meth:`report`): on a loaded machine a starved
+        emulator hands its boards' telemetry out late, and puts what the host wrote on their
+        lines late, and a host rightly takes a long enough gap for a board that stopped."""
+        text = self.report() if report is None else report
+        worst = [float(ms.replace(",", "")) / 1000 for *_, ms in _LAG.findall(text)]
         return max(worst, default=0.0)
+
+    def host_silence_s(self, report: str | None = None) -> float:
+        """Of the boards whose watchdog lapsed, the longest serve read nothing from the host
+        while one was enabled (0 when none lapsed): the host's heartbeat reaching serve late,
+        its process or the system between them not scheduled in time."""
+        text = self.report() if report is None else report
+        silent = [float(ms.replace(",", "")) / 1000 for *_, ms in _SILENT.findall(text)]
+        return max(silent, default=0.0)
 
     def describe(self) -> str:
         return f"fpgaemu serve {' '.join(self.args)}"

@@ -26,6 +26,7 @@ from fpgaemu.board import Board
 from fpgaemu.robot import EmulatedRobot
 from fpgaemu.serving.record import board_record
 from fpgaemu.timeline import CLOCK_HZ
+from fpgaemu.uartcommand import EnableCause, EnableChange
 
 __all__ = [
     "CATCH_UP_SLICE_S",
@@ -33,6 +34,7 @@ __all__ = [
     "RX_BACKLOG_BYTES",
     "RX_RESUME_BYTES",
     "TX_BACKLOG_S",
+    "HostHeartbeat",
     "LagReport",
     "PacedBoard",
     "PacedRobot",
@@ -87,6 +89,28 @@ class LagReport:
             self._lagging = False
 
 
+@dataclass(slots=True)
+class HostHeartbeat:
+    """The host's heartbeat as serve saw it arrive: how many times the board's watchdog ran
+    out, and the longest the host wrote nothing while the board was enabled (its ``RE``
+    every 100 ms keep the watchdog's 300 ms from running out). When a watchdog lapse comes
+    with a long silence here and serve itself kept up (:class:`LagReport`), the host's bytes
+    reached serve late: its process or the system between them, not the board."""
+
+    watchdog_lapses: int = 0
+    longest_silence_s: float = 0.0
+    _last_write: float | None = None  #: the last host write while the board was enabled
+
+    def wrote(self, now: float, enabled: bool) -> None:
+        if self._last_write is not None:
+            self.longest_silence_s = max(self.longest_silence_s, now - self._last_write)
+        self._last_write = now if enabled else None
+
+    def enable_changed(self, change: EnableChange) -> None:
+        if change.cause is EnableCause.WATCHDOG:
+            self.watchdog_lapses += 1
+
+
 @dataclass
 class PacedBoard:
     """A board whose emulated time follows a monotonic clock."""
@@ -94,9 +118,11 @@ class PacedBoard:
     board: Board
     clock: Callable[[], float] = time.monotonic
     lag: LagReport = field(default_factory=LagReport)
+    heartbeat: HostHeartbeat = field(default_factory=HostHeartbeat)
 
     def __post_init__(self) -> None:
         self._origin = self.clock() - self.board.now / CLOCK_HZ
+        self.board.uartcommand.on_enable_change(self.heartbeat.enable_changed)
         self._due: int | None = None  #: the deadline the last wake-up was for
         #: host bytes discarded because their host left before the line carried them
         self.discarded_rx = 0
@@ -134,12 +160,15 @@ class PacedBoard:
         behind what the line has not carried yet. All of them: the endpoints bound the
         backlog by reading no more than :meth:`rx_room`. Returns ``len(data)``."""
         if data:
+            self.heartbeat.wrote(self.clock() if now is None else now,
+                                 self.board.uartcommand.global_enable)
             self.board.host_write(data, self._host_cycle(now))
         return len(data)
 
     def host_gone(self, now: float | None = None) -> int:
         """The host went away: what it wrote that the line had not begun to carry is
         discarded, as it would be with the cable. Returns how many bytes."""
+        self.heartbeat.wrote(self.clock() if now is None else now, enabled=False)
         lost = self.board.host_unplugged(self._host_cycle(now))
         self.discarded_rx += lost
         return lost
