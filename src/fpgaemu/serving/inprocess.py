@@ -13,15 +13,23 @@ from fpgaemu.robot import robot_from_options, robot_from_url
 from fpgaemu.serving.loop import Pacer
 from fpgaemu.serving.pacing import PacedBoard, PacedRobot, RobotSide
 
-__all__ = ["FAR_END_LAG_EXTRA", "TRUTH_EXTRA", "WRITE_BUFFER_HIGH", "EmulatedTransport",
-           "FarEnd", "open_emulated_transport"]
+__all__ = ["FAR_END_LAG_EXTRA", "HOST_DUE_EXTRA", "TRUTH_EXTRA", "WRITE_BUFFER_HIGH",
+           "EmulatedTransport", "FarEnd", "open_emulated_transport"]
 
 #: ``transport.get_extra_info(FAR_END_LAG_EXTRA)`` on an in-process emulated board: a
-#: function giving how far, in seconds, the board's time trails the host's clock
-#: (:meth:`PacedBoard.behind`). fpgalink's link keeps its time that much behind, so a host
-#: process starved together with its board does not take the board's unmade samples for a
-#: board that stopped (the name is fpgalink's, which never imports the emulator).
+#: function giving how far, in seconds, the board's time trails the host's clock at the
+#: loop time it is given (:meth:`PacedBoard.behind`). fpgalink's link keeps its time that
+#: much behind, so a host process starved together with its board does not take the
+#: board's unmade samples for a board that stopped (the name is fpgalink's, which never
+#: imports the emulator).
 FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
+
+#: ``transport.get_extra_info(HOST_DUE_EXTRA)`` on an in-process emulated board: a function
+#: the host calls once with its own ``due()`` (when its next timer falls, on the board's
+#: time, or ``None``). The board is not run past a deadline of its host that has come and
+#: not been met (:mod:`fpgaemu.serving.hosts`), so host and board catch up together after
+#: the process was not scheduled.
+HOST_DUE_EXTRA = "fpgalink.host_due"
 
 #: ``transport.get_extra_info(TRUTH_EXTRA)`` on an emulated robot's board: a function that
 #: returns the body's true state as a JSON-ready dict (fpgalink reads it without importing
@@ -182,6 +190,7 @@ class EmulatedTransport(asyncio.Transport):
             return
         self._feed(everything=True)
         self._closing = True
+        self.paced.hosts.forget(self)
         self._far_end.leave(self)
         asyncio.get_running_loop().call_soon(self._protocol.connection_lost, None)
         if isinstance(self.paced, RobotSide):
@@ -191,11 +200,17 @@ class EmulatedTransport(asyncio.Transport):
         self._buffer.clear()
         self.close()
 
+    def _follow_host(self, due: Callable[[], float | None]) -> None:
+        if not self._closing:
+            self.paced.hosts.follow(self, due)
+
     def get_extra_info(self, name: str, default: Any = None) -> Any:
         if name == "board":
             return self.paced.board
         if name == FAR_END_LAG_EXTRA:
             return self.paced.behind
+        if name == HOST_DUE_EXTRA:
+            return self._follow_host
         if name == TRUTH_EXTRA and isinstance(self.paced, RobotSide):
             return self.paced.robot.truth_record
         return default

@@ -24,6 +24,7 @@ from typing import Any
 
 from fpgaemu.board import Board
 from fpgaemu.robot import EmulatedRobot
+from fpgaemu.serving.hosts import HOST_TURN_S, HostDeadlines
 from fpgaemu.serving.record import board_record
 from fpgaemu.timeline import CLOCK_HZ
 from fpgaemu.uartcommand import EnableCause, EnableChange
@@ -123,6 +124,8 @@ class PacedBoard:
     def __post_init__(self) -> None:
         self._origin = self.clock() - self.board.now / CLOCK_HZ
         self.board.uartcommand.on_enable_change(self.heartbeat.enable_changed)
+        #: the deadlines of hosts in this process, which the board's time does not pass
+        self.hosts = HostDeadlines(self.clock)
         self._due: int | None = None  #: the deadline the last wake-up was for
         #: host bytes discarded because their host left before the line carried them
         self.discarded_rx = 0
@@ -189,6 +192,7 @@ class PacedBoard:
         if self._due is not None and target >= self._due:
             self.lag.observe((target - self._due) / CLOCK_HZ)
             self._due = None
+        target = self._hosts_allow(target)
         step_to = target
         deadline = self.board.next_deadline()
         if deadline is not None and deadline <= target:
@@ -203,22 +207,40 @@ class PacedBoard:
         """When :meth:`advance` next has something to do (monotonic seconds): the board's
         next deadline (now, if it is already past: catching up) or the end of the frame now
         on its TX pin; ``None`` when nothing is scheduled at all."""
-        return self._wake_at(self.board.next_deadline(), self.board.uartwrite.next_completion)
+        return self._hosts_wake(self._wake_at(self.board.next_deadline(),
+                                              self.board.uartwrite.next_completion))
 
     def pending_cycle(self) -> int | None:
         """The earliest cycle at which the board has work to do that the host could see
         (its next deadline, the end of the frame on its TX pin)."""
         return earliest(self.board.next_deadline(), self.board.uartwrite.next_completion)
 
-    def behind(self) -> float:
-        """How far this board's emulated time trails the clock it follows, in seconds: 0
+    def behind(self, now: float | None = None) -> float:
+        """How far this board's emulated time trails the clock it follows (read now, or
+        ``now`` if given: a reading of that clock), in seconds: 0
         while it keeps up (a board with nothing due is never behind), else the time since
         its earliest work still undone came due — a process starved as a whole, the board
         with it. An in-process host keeps its own time by this
         (:data:`FAR_END_LAG_EXTRA`): what the board has not yet had the time to do is not
-        what it failed to do."""
+        what it failed to do. Nor does it run past the earliest deadline its in-process
+        host has not met yet (:class:`~fpgaemu.serving.hosts.HostDeadlines`): then it
+        trails by at least the time since that came."""
+        now = self.clock() if now is None else now
         pending = self.pending_cycle()
-        return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
+        lag = 0.0 if pending is None else max(0.0, now - self.time_of(pending))
+        held = self.hosts.overdue(now)
+        return lag if held is None else max(lag, now - held)
+
+    def _hosts_allow(self, target: int) -> int:
+        """``target``, or the cycle of the earliest host deadline not met yet if sooner."""
+        held = self.hosts.overdue()
+        return target if held is None else min(target, self.target_cycle(held))
+
+    def _hosts_wake(self, wake: float | None) -> float | None:
+        """While a host's deadline is overdue, the board waits for the host's turn."""
+        if wake is not None and self.hosts.overdue() is not None:
+            return max(wake, self.clock() + HOST_TURN_S)
+        return wake
 
     def _wake_at(self, *cycles: int | None) -> float | None:
         due = min((c for c in cycles if c is not None), default=None)
@@ -257,6 +279,7 @@ class PacedRobot:
         self._origin = clock() - robot.now / CLOCK_HZ
         self._due: int | None = None
         self._catching_up = False  #: the last advance stopped short of the clock
+        self.hosts = HostDeadlines(clock)  #: shared by the sides (PacedBoard.hosts)
         self._sides: dict[str, RobotSide] = {}
         self._open: set[str] = set()
         self.on_release: Callable[[], None] | None = None
@@ -291,6 +314,8 @@ class PacedRobot:
         if self._due is not None and target >= self._due:
             self.lag.observe((target - self._due) / CLOCK_HZ)
             self._due = None
+        if (held := self.hosts.overdue()) is not None:
+            target = min(target, self.target_cycle(held))
         # The body moves with the wheels in 1 ms steps: always sliced.
         step_to = min(target, self.robot.now + int(CATCH_UP_SLICE_S * CLOCK_HZ))
         if step_to > self.robot.now:
@@ -302,6 +327,10 @@ class PacedRobot:
         with them and needs no wake-up of its own): each board's next deadline, and the end
         of the frame on the TX pin of each board in ``read`` (default: every board; a board
         whose host is not reading now has nothing to hand out)."""
+        held = self.hosts.overdue()
+        if held is not None:
+            # Waiting for a host in this process to meet its deadline: its turn first.
+            return self.clock() + HOST_TURN_S
         if self.robot.now < self.target_cycle() - int(CATCH_UP_SLICE_S * CLOCK_HZ):
             return self.clock()
         boards = self.robot.boards.values()
@@ -316,14 +345,18 @@ class PacedRobot:
         return earliest(*(c for board in self.robot.boards.values()
                           for c in (board.next_deadline(), board.uartwrite.next_completion)))
 
-    def behind(self) -> float:
+    def behind(self, now: float | None = None) -> float:
         """:meth:`PacedBoard.behind` for the robot: while it catches up in slices its body
         has work at every step (a physics body's is not free), so it trails by all the time
         since its present; otherwise by how late its boards' earliest work is."""
+        now = self.clock() if now is None else now
         if self._catching_up:
-            return max(0.0, self.clock() - self.time_of(self.robot.now))
-        pending = self.pending_cycle()
-        return 0.0 if pending is None else max(0.0, self.clock() - self.time_of(pending))
+            lag = max(0.0, now - self.time_of(self.robot.now))
+        else:
+            pending = self.pending_cycle()
+            lag = 0.0 if pending is None else max(0.0, now - self.time_of(pending))
+        held = self.hosts.overdue(now)
+        return lag if held is None else max(lag, now - held)
 
     def truth_record(self) -> dict[str, Any]:
         """The body's true state, and each board as the emulator sees it (for tests and
@@ -339,6 +372,7 @@ class RobotSide(PacedBoard):
     def __init__(self, robot: PacedRobot, name: str) -> None:
         super().__init__(robot.robot.boards[name], robot.clock, robot.lag)
         self.robot = robot
+        self.hosts = robot.hosts
         self.name = name
         self._handed_out_to = robot.robot.now  #: the robot's cycle when this side last read
 
@@ -361,12 +395,13 @@ class RobotSide(PacedBoard):
     def pending_cycle(self) -> int | None:
         return self.robot.pending_cycle()
 
-    def behind(self) -> float:
-        lag = self.robot.behind()
+    def behind(self, now: float | None = None) -> float:
+        now = self.clock() if now is None else now
+        lag = self.robot.behind(now)
         if self.robot.robot.now > self._handed_out_to:
             # The robot ran on for the other board: what this board sent meanwhile waits for
             # this side's turn, so its host's time stays where this side last handed out.
-            lag = max(lag, self.clock() - self.time_of(self._handed_out_to))
+            lag = max(lag, now - self.time_of(self._handed_out_to))
         return lag
 
     def release(self) -> None:

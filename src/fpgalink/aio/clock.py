@@ -6,7 +6,10 @@ board) and says how far its time trails the loop's through its transport's
 ``get_extra_info(FAR_END_LAG_EXTRA)`` (:data:`~fpgalink.aio.transport.FAR_END_LAG_EXTRA`,
 the transport contract): then the link's time is the far end's, so a process starved as a
 whole, its board with it, sees neither stopped telemetry nor a lapsed heartbeat that the
-board itself never saw. It never goes back.
+board itself never saw. Such a far end may also ask when the link's own next deadline falls
+(:data:`~fpgalink.aio.transport.HOST_DUE_EXTRA`): it then waits for the link to meet it, so
+after a stall the link's heartbeat goes out at the time it was due, before the board's
+watchdog. It never goes back.
 """
 
 from __future__ import annotations
@@ -15,7 +18,7 @@ import asyncio
 import math
 from collections.abc import Callable
 
-from fpgalink.aio.transport import FAR_END_LAG_EXTRA
+from fpgalink.aio.transport import FAR_END_LAG_EXTRA, HOST_DUE_EXTRA
 
 __all__ = ["LinkClock"]
 
@@ -31,16 +34,21 @@ class LinkClock:
 
     def __init__(self) -> None:
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._lag: Callable[[], float] | None = None
+        self._lag: Callable[[float], float] | None = None
         self._last = -math.inf
 
     def start(self, loop: asyncio.AbstractEventLoop) -> None:
         self._loop = loop
 
-    def follow(self, transport: asyncio.BaseTransport) -> None:
-        """Keep the time of ``transport``'s far end, if it offers it."""
+    def follow(self, transport: asyncio.BaseTransport,
+               due: Callable[[], float | None]) -> None:
+        """Keep the time of ``transport``'s far end, if it offers it; and tell the far end
+        when this link's next deadline (``due()``, on this clock) falls, if it asks."""
         lag = transport.get_extra_info(FAR_END_LAG_EXTRA)
         self._lag = lag if callable(lag) else None
+        follow_host = transport.get_extra_info(HOST_DUE_EXTRA)
+        if self._lag is not None and callable(follow_host):
+            follow_host(due)
 
     @property
     def far_end_time(self) -> bool:
@@ -51,7 +59,9 @@ class LinkClock:
         assert self._loop is not None
         now = self._loop.time()
         if self._lag is not None:
-            now -= self._lag()
+            # One reading of the clock for both: a deadline the far end waits for is met at
+            # exactly its time, not a few microseconds short of it.
+            now -= self._lag(now)
         if now < self._last:
             return self._last
         self._last = now

@@ -157,7 +157,7 @@ class Link:
 
     def _set_transport(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
-        self._clock.follow(transport)
+        self._clock.follow(transport, self.connection.get_timer)
         self.connection.boards_time = self._clock.far_end_time
 
     async def open(self) -> Link:

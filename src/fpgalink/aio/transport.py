@@ -34,6 +34,7 @@ from fpgalink.protocol.wire import MAX_BAUD, MIN_BAUD
 __all__ = [
     "ENTRY_POINT_GROUP",
     "FAR_END_LAG_EXTRA",
+    "HOST_DUE_EXTRA",
     "READ_CHUNK",
     "Opener",
     "ProtocolFactory",
@@ -47,10 +48,17 @@ ENTRY_POINT_GROUP = "fpgalink.transports"
 
 #: An opener whose far end runs in this process (an emulated board) offers, under this
 #: ``get_extra_info`` name, a function giving how many seconds that far end's time trails
-#: the loop's clock. The link keeps its time that much behind: a process starved as a whole
-#: starves its board too, and the samples the board had no time to make are not a board
-#: that stopped, nor is a heartbeat the board had no time to miss a lapse.
+#: the loop's clock at the loop time it is given. The link keeps its time that much behind:
+#: a process starved as a whole starves its board too, and the samples the board had no
+#: time to make are not a board that stopped, nor is a heartbeat the board had no time to
+#: miss a lapse.
 FAR_END_LAG_EXTRA = "fpgalink.far_end_lag"
+#: Such an opener may also offer, under this name, a function the link calls once with its
+#: own ``due()`` (when its connection next has work, on the far end's time, or ``None``):
+#: the far end then does not run past a deadline of the link's that has come and not been
+#: met, so after the process was not scheduled the link meets its deadlines (its heartbeat
+#: first) at the time they fell, and the far end takes what it wrote then.
+HOST_DUE_EXTRA = "fpgalink.host_due"
 
 ProtocolFactory = Callable[[], asyncio.Protocol]
 #: ``await opener(url, baud, protocol_factory)`` → the transport and its protocol.

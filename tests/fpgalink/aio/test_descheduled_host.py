@@ -3,7 +3,11 @@ process waited for the CPU are the board's, and the link reads what its port hol
 any timer judges a silence. On a loaded machine a process can lose the CPU after its event
 loop looked at the port and before that loop turn's timers run; the board's sample, in the
 port meanwhile, must not be judged missing (seen under load: "telemetry stopped: none for
-51 ms" with a full pty buffer waiting, issue 38)."""
+51 ms" with a full pty buffer waiting, issue 38).
+
+A board in the host's own process (``emu://``) is not scheduled either while its host is
+not: host and board catch up together, the host's overdue heartbeat first, so the board
+never sees the host late (fpgaemu.serving.hosts)."""
 
 from __future__ import annotations
 
@@ -17,7 +21,7 @@ from collections.abc import AsyncIterator
 import pytest
 
 from fpgalink.aio import Link, open_link
-from fpgalink.events import TelemetryStale
+from fpgalink.events import TelemetryStale, WatchdogLapsed
 from fpgalink.protocol import Event, Telemetry
 from tests.support.fakeboard import ScriptedBoard
 from tests.support.waiting import wait_until
@@ -93,3 +97,49 @@ async def test_a_sample_that_came_while_the_host_was_descheduled_is_read_before_
                      "the sample or a stale judgement")
     # The sample that waited came first: 52 ms after the last ones arrived, but not missed.
     assert order[:4] == ["sample 0", "sample 1000", "sample 2000", "sample 3000"], order
+
+
+def _lapses(link: Link, into: list[Event]) -> None:
+    link.add_listener(lambda e: into.append(e) if isinstance(e, WatchdogLapsed) else None)
+
+
+@pytest.mark.parametrize("block_s", [0.25, 0.35, 0.6])
+async def test_an_in_process_board_at_rest_stalled_with_its_host_stays_enabled(
+        block_s: float) -> None:
+    # Seen beside four busy loops (autotune on two emu:// boards): a board enabled and at
+    # rest (telemetry off: nothing due but its watchdog) and its host, in one process, not
+    # scheduled for a while. The board's earliest work was its watchdog, 300 ms after the
+    # last RE, so the host's time jumped to it at once, found its own heartbeat 300 ms
+    # overdue and gave up ("host silent 300 ms"), though the board had stalled with it.
+    lapses: list[Event] = []
+    async with open_link("emu://", reconnect=False) as link:
+        _lapses(link, lapses)
+        assert await link.set_param("GetDataPeriodical", 0) == 0
+        link.enable()
+        await asyncio.sleep(0.15)  # a few heartbeats: the board enabled, at rest
+        time.sleep(block_s)  # the whole process not scheduled
+        await asyncio.sleep(0.5)
+        assert lapses == [] and link.enabled
+        assert await link.set_param("GetDataPeriodical", 1) == 1
+        sample = await asyncio.wait_for(link.telemetry().__anext__(), 5)
+        assert sample.a.flags & 1, "the board's enable fell"
+
+
+async def test_an_in_process_robot_stalled_with_its_host_keeps_both_boards_enabled() -> None:
+    # The robot's two boards share one far end, each with its link: the body and both boards
+    # wait for the earlier of the two hosts' deadlines.
+    lapses: list[Event] = []
+    url = "emu://robot/{}?body=kinematic"
+    async with open_link(url.format("L"), reconnect=False) as left, \
+            open_link(url.format("R"), reconnect=False) as right:
+        for link in (left, right):
+            _lapses(link, lapses)
+            link.enable()
+        await asyncio.sleep(0.15)
+        time.sleep(0.4)
+        await asyncio.sleep(0.5)
+        assert lapses == [] and left.enabled and right.enabled
+        for link in (left, right):
+            assert await link.set_param("GetDataPeriodical", 1) == 1
+            sample = await asyncio.wait_for(link.telemetry().__anext__(), 5)
+            assert sample.a.flags & 1, "the board's enable fell"
