@@ -919,3 +919,28 @@ def test_a_lost_scenario_names_only_a_recording_begun_in_this_run(tmp_path: Path
     begun = _lost(scenario, str(path), "its worker process died", began - 1)
     assert begun.mcap == str(partial) and str(partial) in (begun.mcap_error or "")
     assert _lost(scenario, str(tmp_path / "none.mcap"), "died", began).mcap is None
+
+
+def test_a_sigterm_in_a_scenarios_loop_ends_it_between_two_callbacks() -> None:
+    # Raised wherever the signal landed, SIGTERM once broke into the loop's own bookkeeping
+    # (a future set, its task's wakeup not yet scheduled): that task slept for ever and the
+    # scenario ran on (1 SIGTERM in about 40, seen beside two busy loops). While a loop runs
+    # the handler only asks the loop to raise it, from a callback of its own.
+    import asyncio
+    import signal
+
+    from fpgalink.cli.campaign import _Terminated, _terminated
+
+    ran: list[str] = []
+
+    async def scenario() -> None:
+        _terminated(signal.SIGTERM, None)  # as if the signal came now: nothing raised here
+        ran.append("went on to the next await")
+        await asyncio.sleep(3600)
+        ran.append("never")
+
+    with pytest.raises(_Terminated):
+        asyncio.run(scenario())
+    assert ran == ["went on to the next await"]
+    with pytest.raises(_Terminated):  # no loop running: raised at once
+        _terminated(signal.SIGTERM, None)
