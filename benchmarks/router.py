@@ -149,8 +149,11 @@ async def _row(observers: int | None, duration: float) -> dict[str, Any]:
         for _ in range(observers or 0):
             _, observer = await loop.create_connection(Observer, host, int(port))
             watching.append(observer)
-        # As patient as the robot: a loaded machine answers late (docs/robot.md, Faults).
-        async with open_link(url, unanswered_rounds=4) as link:
+        # As patient as the robot: a loaded machine answers late (docs/robot.md, Faults); and
+        # slower to call a board lost than a robot is (beside two busy loops the smoke run
+        # heard nothing for 0.7 s once, host, router and serve all waiting for the CPU): a
+        # round trip measured late is a figure, a board given up is no row at all.
+        async with open_link(url, unanswered_rounds=4, liveness_timeout=5.0) as link:
             await link.set_param("GetDataPeriodical", 1)
             samples = link.telemetry(maxsize=1 << 16)
             await samples.__anext__()  # streaming

@@ -111,12 +111,15 @@ def test_every_channel_decodes_while_the_robot_drives() -> None:
 
 def test_a_fault_reaches_the_log_channels() -> None:
     """A board restart: its link's event and supervision's stop, as foxglove.Log."""
-    fault = "fault=L:restart=3"
-    proc = _drive("--for", "8", "--port", f"L=emu://robot/L?{fault}",
+    # 6 s into the boards' time: a client sees only what comes after it subscribed, and
+    # beside two busy loops one subscribed after a restart at 3 s (nothing on either log
+    # channel, the command stopped as it should).
+    fault = "fault=L:restart=6"
+    proc = _drive("--for", "10", "--port", f"L=emu://robot/L?{fault}",
                   "--port", f"R=emu://robot/R?{fault}")
     try:
-        # Watched until the command ends (its view closes): the restart comes 3 s into the
-        # boards' own time, which a loaded machine stretches well past 6 s of this one's.
+        # Watched until the command ends (its view closes): the restart comes 6 s into the
+        # boards' own time, which a loaded machine stretches well past that of this one's.
         got = asyncio.run(watch(_live_url(proc), 120.0))
     finally:
         _, err = proc.communicate(timeout=60)
