@@ -7,7 +7,7 @@ import pytest
 
 from fpgaemu.build import build_board
 from fpgaemu.serve import PacedBoard
-from fpgaemu.serving.hosts import HOST_TURN_S, HOST_WAIT_MAX_S, HostDeadlines
+from fpgaemu.serving.hosts import HOST_LATE_S, HOST_TURN_S, HOST_WAIT_MAX_S, HostDeadlines
 
 
 def test_the_earliest_deadline_that_came_is_waited_for_and_only_for_so_long() -> None:
@@ -23,7 +23,8 @@ def test_the_earliest_deadline_that_came_is_waited_for_and_only_for_so_long() ->
     assert hosts.overdue() == 10.5  # the earliest of those that came
     dues["L"] = 10.6  # L met it: the next
     assert hosts.overdue() == 10.6
-    assert hosts.overdue(10.55) is None  # at a reading of the clock given: not come
+    assert hosts.overdue(10.6) is None  # at a reading of the clock given: not come
+    assert hosts.overdue(10.6 + HOST_LATE_S / 2) is None  # a loop turn late: not waited for
     # One never met is not waited for beyond HOST_WAIT_MAX_S of the clock.
     now[0] += HOST_WAIT_MAX_S / 2
     assert hosts.overdue() == 10.6

@@ -19,7 +19,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Hashable
 
-__all__ = ["HOST_TURN_S", "HOST_WAIT_MAX_S", "HostDeadlines"]
+__all__ = ["HOST_LATE_S", "HOST_TURN_S", "HOST_WAIT_MAX_S", "HostDeadlines"]
+
+#: A host deadline is waited for once it is this far past: a timer a loop turn late (an
+#: event loop arms none closer than half a millisecond) is not a process that stalled, and
+#: the board's time is not held back for it (a campaign's figures do not move).
+HOST_LATE_S = 0.005
 
 #: While the board waits for its host's overdue deadline, the far end looks again this
 #: soon (the host meets it in its own timer, a loop turn or two away).
@@ -48,16 +53,17 @@ class HostDeadlines:
         self._dues.pop(host, None)
 
     def overdue(self, now: float | None = None) -> float | None:
-        """The earliest deadline of a host that has come (by ``now``, default the clock's
-        present) and not been met: the far end's time goes no further until it is (or until
-        it has waited ``HOST_WAIT_MAX_S``)."""
+        """The earliest deadline of a host that has passed by more than ``HOST_LATE_S`` (at
+        ``now``, default the clock's present) and not been met: the far end's time goes no
+        further until it is (or until it has waited ``HOST_WAIT_MAX_S``)."""
         if not self._dues:
             return None
         now = self._clock() if now is None else now
         earliest: float | None = None
         for due in self._dues.values():
             at = due()
-            if at is not None and at < now and (earliest is None or at < earliest):
+            if at is not None and at < now - HOST_LATE_S and (earliest is None
+                                                              or at < earliest):
                 earliest = at
         if earliest is None:
             self._waited = None

@@ -157,7 +157,7 @@ class Link:
 
     def _set_transport(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
-        self._clock.follow(transport, self.connection.get_timer)
+        self._clock.follow(transport, self._due)
         self.connection.boards_time = self._clock.far_end_time
 
     async def open(self) -> Link:
@@ -193,7 +193,7 @@ class Link:
         await self.identification.close()
         if self._timer is not None:
             self._timer.cancel()
-            self._timer = None
+        self._timer = self._timer_at = None
         self._batches.cancel()
         self._process()
         self._end_waiters()
@@ -464,6 +464,8 @@ class Link:
             return
         deadline = self.connection.get_timer()
         if deadline is None:
+            if self._timer is None:
+                self._timer_at = None
             return
         # Every message heard pushes the liveness deadline later; re-arming on each read
         # would churn the loop's timer heap at 1 kHz. A timer already due no later than the
@@ -476,8 +478,16 @@ class Link:
         self._timer_at = deadline
         self._timer = self._loop.call_at(self._clock.loop_time(deadline), self._on_timer)
 
+    def _due(self) -> float | None:
+        """The deadline this link acts on next (its armed timer's, on its time), for a far
+        end in this process that waits for it (:class:`~fpgalink.aio.clock.LinkClock`)."""
+        return self._timer_at
+
     def _on_timer(self) -> None:
-        self._timer = self._timer_at = None
+        # _timer_at stays until the timer is armed again, after what the connection wrote
+        # went out: a far end waiting for this deadline keeps the link's time at it, and
+        # takes those bytes at it.
+        self._timer = None
         self._batches.read_now()  # what waits is the board's: read before any judgement
         self.connection.handle_timer(self._now())
         self._process()
@@ -529,7 +539,7 @@ class Link:
             self.state = LinkState.CLOSED
             if self._timer is not None:
                 self._timer.cancel()
-                self._timer = None
+            self._timer = self._timer_at = None
             self.connection.close(self._now(), reason)
             self._process()
             self._end_waiters()
