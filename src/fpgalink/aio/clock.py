@@ -20,7 +20,7 @@ from collections.abc import Callable
 
 from fpgalink.aio.transport import FAR_END_LAG_EXTRA, HOST_DUE_EXTRA
 
-__all__ = ["LinkClock"]
+__all__ = ["LinkClock", "LinkTimer"]
 
 #: A timer armed against a far end that has fallen behind comes no sooner than this: the far
 #: end runs on this loop and needs the turn to catch up.
@@ -80,3 +80,48 @@ class LinkClock:
         if lag > _MIN_REARM_S:
             at = min(at, now + _LAGGING_RECHECK_S)
         return at
+
+
+class LinkTimer:
+    """The link's one timer, on its clock: armed for the connection's next deadline
+    (:meth:`arm`), calling ``on_timer`` then. The deadline it is for (:meth:`due`) stays
+    until it is armed again, after what the connection wrote on it went out: a far end in
+    this process that waits for it keeps the link's time at it, and takes those bytes at
+    it (:data:`~fpgalink.aio.transport.HOST_DUE_EXTRA`)."""
+
+    __slots__ = ("_at", "_clock", "_handle", "_on_timer")
+
+    def __init__(self, clock: LinkClock, on_timer: Callable[[], None]) -> None:
+        self._clock = clock
+        self._on_timer = on_timer
+        self._handle: asyncio.TimerHandle | None = None
+        self._at: float | None = None  #: on the link's clock
+
+    def arm(self, loop: asyncio.AbstractEventLoop, deadline: float | None) -> None:
+        if deadline is None:
+            if self._handle is None:
+                self._at = None
+            return
+        # Every message heard pushes the liveness deadline later; re-arming on each read
+        # would churn the loop's timer heap at 1 kHz. A timer already due no later than the
+        # new deadline stays: when it fires early, handle_timer finds nothing to do and it
+        # is armed again for the real deadline.
+        if self._handle is not None and self._at is not None and self._at <= deadline:
+            return
+        if self._handle is not None:
+            self._handle.cancel()
+        self._at = deadline
+        self._handle = loop.call_at(self._clock.loop_time(deadline), self._fire)
+
+    def due(self) -> float | None:
+        """The deadline the link acts on next, on its clock (``None``: none)."""
+        return self._at
+
+    def cancel(self) -> None:
+        if self._handle is not None:
+            self._handle.cancel()
+        self._handle = self._at = None
+
+    def _fire(self) -> None:
+        self._handle = None
+        self._on_timer()

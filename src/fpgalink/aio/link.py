@@ -25,7 +25,7 @@ from typing import Any, Unpack
 
 from fpgalink.aio.backlog import MAX_LINE_BACKLOG_S, check_line
 from fpgalink.aio.batching import ReadBatcher
-from fpgalink.aio.clock import LinkClock
+from fpgalink.aio.clock import LinkClock, LinkTimer
 from fpgalink.aio.fanout import Stamped, Subscribers
 from fpgalink.aio.identity import Identification
 from fpgalink.aio.subscription import Subscription
@@ -122,9 +122,8 @@ class Link:
         self._transport: asyncio.BaseTransport | None = None
         self._protocol: _PortProtocol | None = None
         self._loop: asyncio.AbstractEventLoop | None = None
-        self._timer: asyncio.TimerHandle | None = None
-        self._timer_at: float | None = None  #: on the link's time (:meth:`_now`)
         self._clock = LinkClock()
+        self._timer = LinkTimer(self._clock, self._on_timer)
         self._futures: dict[int, asyncio.Future[int | float]] = {}
         self._subscribers: Subscribers[StatusEvent] = Subscribers(connection.stats)
         self._reconnect_task: asyncio.Task[None] | None = None
@@ -157,7 +156,7 @@ class Link:
 
     def _set_transport(self, transport: asyncio.BaseTransport) -> None:
         self._transport = transport
-        self._clock.follow(transport, self._due)
+        self._clock.follow(transport, self._timer.due)
         self.connection.boards_time = self._clock.far_end_time
 
     async def open(self) -> Link:
@@ -191,9 +190,7 @@ class Link:
             with contextlib.suppress(asyncio.CancelledError, Exception):
                 await self._reconnect_task
         await self.identification.close()
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer = self._timer_at = None
+        self._timer.cancel()
         self._batches.cancel()
         self._process()
         self._end_waiters()
@@ -460,34 +457,10 @@ class Link:
         self._arm_timer()
 
     def _arm_timer(self) -> None:
-        if self._loop is None or self.state is LinkState.CLOSED:
-            return
-        deadline = self.connection.get_timer()
-        if deadline is None:
-            if self._timer is None:
-                self._timer_at = None
-            return
-        # Every message heard pushes the liveness deadline later; re-arming on each read
-        # would churn the loop's timer heap at 1 kHz. A timer already due no later than the
-        # new deadline stays: when it fires early, handle_timer finds nothing to do and we
-        # arm again for the real deadline.
-        if self._timer is not None and self._timer_at is not None and self._timer_at <= deadline:
-            return
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer_at = deadline
-        self._timer = self._loop.call_at(self._clock.loop_time(deadline), self._on_timer)
-
-    def _due(self) -> float | None:
-        """The deadline this link acts on next (its armed timer's, on its time), for a far
-        end in this process that waits for it (:class:`~fpgalink.aio.clock.LinkClock`)."""
-        return self._timer_at
+        if self._loop is not None and self.state is not LinkState.CLOSED:
+            self._timer.arm(self._loop, self.connection.get_timer())
 
     def _on_timer(self) -> None:
-        # _timer_at stays until the timer is armed again, after what the connection wrote
-        # went out: a far end waiting for this deadline keeps the link's time at it, and
-        # takes those bytes at it.
-        self._timer = None
         self._batches.read_now()  # what waits is the board's: read before any judgement
         self.connection.handle_timer(self._now())
         self._process()
@@ -537,9 +510,7 @@ class Link:
             self._reconnect_task = asyncio.ensure_future(self._reconnect_loop())
         else:
             self.state = LinkState.CLOSED
-            if self._timer is not None:
-                self._timer.cancel()
-            self._timer = self._timer_at = None
+            self._timer.cancel()
             self.connection.close(self._now(), reason)
             self._process()
             self._end_waiters()

@@ -23,12 +23,22 @@ import asyncio, json, re, select, subprocess, sys, time
 from tests.support.foxglove import watch
 node = subprocess.Popen([sys.argv[1], *json.loads(sys.argv[2])], stderr=subprocess.PIPE,
                         text=True)
-url, deadline = None, time.monotonic() + 60
+# A ROS 2 node starts slowly on a loaded machine (rclpy, DDS, the robot): beside two busy
+# loops one did not say where its live view was within 60 s. Waited for longer, and what it
+# said meanwhile is passed on, so a node that never says is seen.
+url, deadline, started = None, time.monotonic() + 120, time.monotonic()
 while url is None and time.monotonic() < deadline:
     if select.select([node.stderr], [], [], 0.5)[0]:
         line = node.stderr.readline()
+        if not line:
+            break  # the node ended
+        sys.stderr.write(line)
         found = re.search(r"live view for Foxglove on (ws://\\S+)", line)
         url = found.group(1) if found else url
+if url is None:
+    print(f"no live view line after {time.monotonic() - started:.0f} s; the node "
+          f"{'ended: ' + str(node.poll()) if node.poll() is not None else 'still runs'}",
+          file=sys.stderr)
 got = asyncio.run(watch(url, 4.0)) if url else None
 node.terminate()
 node.communicate(timeout=30)
@@ -39,6 +49,7 @@ print(json.dumps(None if got is None else {
 """
 
 
+@pytest.mark.timeout(240)
 @pytest.mark.parametrize("route", [["--foxglove", "0"], ["--ros-args", "-p", "foxglove:=0"]],
                          ids=["option", "node-parameter"])
 def test_the_node_serves_the_live_view_without_ros(route: list[str]) -> None:
@@ -53,7 +64,7 @@ def test_the_node_serves_the_live_view_without_ros(route: list[str]) -> None:
                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
     done = subprocess.run([str(NETNS), sys.executable, "-c", INSIDE,
                            str(BIN / "fpgalink-ros2"), json.dumps(route)], cwd=ROOT, env=env,
-                          capture_output=True, text=True, timeout=150, check=False)
+                          capture_output=True, text=True, timeout=220, check=False)
     assert done.returncode == 0, done.stderr[-2000:]
     facts = json.loads(done.stdout.strip().splitlines()[-1])
     assert facts is not None, done.stderr[-2000:]
