@@ -230,7 +230,11 @@ def main(argv: list[str] | None = None) -> None:
     ports = _ports(startup, description)
     live = _live_address(options)
     bag = _open_bag(options, ports, description)
-    rclpy.init(args=argv)
+    from rclpy.signals import SignalHandlerOptions
+
+    # SIGINT and SIGTERM are the node's own (the event loop's handlers end it cleanly);
+    # rclpy's would shut its context down under a node still being made.
+    rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
     code = 0
     try:
         opening = {"baud": startup.baud, "wire_crc": startup.wire_crc,
