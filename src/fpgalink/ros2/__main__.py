@@ -411,13 +411,15 @@ async def _run(description: object, ports: dict[str, str], opening: dict[str, An
             if error is not None:
                 print(f"{PROG}: error: {error[0]}", file=sys.stderr, flush=True)
                 return error[1]
+        # Before ROS's executor thread: twice beside two busy loops a node said "up" and then
+        # not its live view line for 120 s, the view started beside that thread (not pinned).
+        view = await _live_view(live, robot)
         executor, thread = spin_in_thread(node)
         bridge.executor = executor
         node.get_logger().info(
             f"up: boards {', '.join(f'{b}={u}' for b, u in ports.items())}"
             + (" (emulated robot)" if robot.truth() is not None else "")
             + (f" (ports from {source})" if source not in ("command line", "default") else ""))
-        view = await _live_view(live, robot)
         running = asyncio.ensure_future(bridge.run())
         waiting = asyncio.ensure_future(stop.wait())
         await asyncio.wait({running, waiting}, return_when=asyncio.FIRST_COMPLETED)
