@@ -74,3 +74,14 @@ class HostDeadlines:
         elif now - waited[1] > HOST_WAIT_MAX_S:
             return None
         return earliest
+
+    def trailing(self, now: float) -> float:
+        """How far the far end's time trails ``now`` for a host deadline it waits for (0:
+        none)."""
+        held = self.overdue(now)
+        return 0.0 if held is None else now - held
+
+    def allow(self, target: int, cycle_of: Callable[[float], int]) -> int:
+        """``target`` (a cycle), or the cycle of the deadline waited for if sooner."""
+        held = self.overdue()
+        return target if held is None else min(target, cycle_of(held))

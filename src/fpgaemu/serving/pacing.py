@@ -192,7 +192,7 @@ class PacedBoard:
         if self._due is not None and target >= self._due:
             self.lag.observe((target - self._due) / CLOCK_HZ)
             self._due = None
-        target = self._hosts_allow(target)
+        target = self.hosts.allow(target, self.target_cycle)
         step_to = target
         deadline = self.board.next_deadline()
         if deadline is not None and deadline <= target:
@@ -228,13 +228,7 @@ class PacedBoard:
         now = self.clock() if now is None else now
         pending = self.pending_cycle()
         lag = 0.0 if pending is None else max(0.0, now - self.time_of(pending))
-        held = self.hosts.overdue(now)
-        return lag if held is None else max(lag, now - held)
-
-    def _hosts_allow(self, target: int) -> int:
-        """``target``, or the cycle of the earliest host deadline not met yet if sooner."""
-        held = self.hosts.overdue()
-        return target if held is None else min(target, self.target_cycle(held))
+        return max(lag, self.hosts.trailing(now))
 
     def _hosts_wake(self, wake: float | None) -> float | None:
         """While a host's deadline is overdue, the board waits for the host's turn."""
@@ -314,8 +308,7 @@ class PacedRobot:
         if self._due is not None and target >= self._due:
             self.lag.observe((target - self._due) / CLOCK_HZ)
             self._due = None
-        if (held := self.hosts.overdue()) is not None:
-            target = min(target, self.target_cycle(held))
+        target = self.hosts.allow(target, self.target_cycle)
         # The body moves with the wheels in 1 ms steps: always sliced.
         step_to = min(target, self.robot.now + int(CATCH_UP_SLICE_S * CLOCK_HZ))
         if step_to > self.robot.now:
@@ -355,8 +348,7 @@ class PacedRobot:
         else:
             pending = self.pending_cycle()
             lag = 0.0 if pending is None else max(0.0, now - self.time_of(pending))
-        held = self.hosts.overdue(now)
-        return lag if held is None else max(lag, now - held)
+        return max(lag, self.hosts.trailing(now))
 
     def truth_record(self) -> dict[str, Any]:
         """The body's true state, and each board as the emulator sees it (for tests and
