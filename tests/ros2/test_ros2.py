@@ -179,9 +179,10 @@ def test_joint_states_carry_each_boards_telemetry_in_rad_s_on_its_clock(
     assert facts["equal_right"] >= 1, facts
     # Stamped on the board's clock, not at arrival: over the lines found by their angles
     # alone, the offset (stamp − board time) holds still from line to line, to within
-    # 0.1 ms, at least half the time (it falls when a smaller delay is found, by at most
-    # MAX_SLEW of the time passed, and steps when its estimate is refitted; a neighbour's
-    # message is a whole tick off); an arrival time moves with every delivery.
+    # 0.1 ms of a whole number of ticks, at least half the time (it falls when a smaller
+    # delay is found, by at most MAX_SLEW of the time passed, and steps when its estimate
+    # is refitted; a neighbour's message is a whole tick off); an arrival time moves with
+    # every delivery, anywhere within a tick.
     assert facts["offset_step_median_ns"] is not None, facts
     assert facts["offset_step_median_ns"] <= 100_000, facts
     # 1 kHz configured: never two messages for one sample, never faster than the ticks.
