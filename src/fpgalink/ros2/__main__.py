@@ -45,7 +45,7 @@ def _fail(message: str, code: int = ExitCode.BAD_INPUT) -> NoReturn:
 #: by SIGINT or SIGTERM, the robot stopped and the boards disabled; docs/ros2.md).
 EXIT_CODES_TABLE = exit_codes_help((
     ExitCode.OK, ExitCode.FAILURE, ExitCode.BAD_INPUT, ExitCode.NO_ANSWER, ExitCode.PORT,
-    ExitCode.NOT_INSTALLED, ExitCode.MISMATCH))
+    ExitCode.NOT_INSTALLED, ExitCode.MISMATCH, ExitCode.INTERRUPTED))
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -219,6 +219,17 @@ def _say(text: str) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    try:
+        _main(argv)
+    except KeyboardInterrupt:
+        # Ctrl-C before the event loop's own handler is in place (rclpy and the robot take a
+        # few seconds to load): asyncio.run has closed what it opened. One line, not a
+        # traceback, as fpgalink-cli says it.
+        print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
+        sys.exit(ExitCode.INTERRUPTED)
+
+
+def _main(argv: list[str] | None) -> None:
     argv = list(sys.argv if argv is None else argv)
     _answer_without_ros(argv)
     if not available():

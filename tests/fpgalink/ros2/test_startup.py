@@ -7,8 +7,10 @@ from __future__ import annotations
 
 import importlib.util
 import os
+import signal
 import subprocess
 import sys
+import textwrap
 from pathlib import Path
 
 import pytest
@@ -134,3 +136,45 @@ def test_the_node_opens_the_config_files_ports(nowhere: Path) -> None:
     # Those ports, not the emulated robot: they do not exist, so exit 5 (port missing).
     assert done.returncode == 5, done
     assert "/dev/fpgalink-test-no-such-L" in done.stderr, done.stderr
+
+
+def test_a_ctrl_c_while_the_node_loads_is_one_line_not_a_traceback(nowhere: Path) -> None:
+    """SIGINT before the event loop's handler is in place (rclpy, the robot and DDS load for
+    seconds): ``interrupted``, exit 130; or, where it landed after, the clean stop (0). The
+    signal is sent as main begins, so it lands at some point of the loading; never a
+    traceback."""
+    missing = _why_no_console_run()
+    if missing is not None:
+        pytest.skip(missing)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    # As the console script's entry point: its module imported (light: the heavy imports are
+    # main's), then main. The line is said as main's body begins (a profile hook), so the
+    # signal lands in what main guards, at some point of the loading.
+    code = textwrap.dedent("""
+        import sys
+        from fpgalink.ros2.__main__ import main
+        def said(frame, event, arg):
+            if event == "call" and frame.f_code.co_name == "_main":
+                sys.setprofile(None)
+                print("python up", file=sys.stderr, flush=True)
+        sys.argv[0] = "fpgalink-ros2"
+        sys.setprofile(said)
+        main()
+    """)
+    node = subprocess.Popen([str(NETNS), sys.executable, "-c", code], cwd=nowhere, env=env,
+                            stderr=subprocess.PIPE, text=True)
+    assert node.stderr is not None
+    first = node.stderr.readline()
+    assert first == "python up\n", first
+    node.send_signal(signal.SIGINT)
+    try:
+        _, said = node.communicate(timeout=120)
+    except subprocess.TimeoutExpired:
+        node.kill()
+        _, said = node.communicate()
+        raise AssertionError(f"the node did not end on SIGINT: {said[-3000:]}") from None
+    assert "Traceback" not in said, said[-3000:]
+    assert node.returncode in (0, 130), (node.returncode, said[-3000:])
+    if node.returncode == 130:
+        assert said.strip().splitlines()[-1] == "fpgalink-ros2: interrupted", said[-3000:]
