@@ -3,7 +3,6 @@ cluster), into one table (docs/campaigns.md)."""
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import itertools
 import math
@@ -53,6 +52,7 @@ from fpgalink.cli.output import (
     console,
     note,
 )
+from fpgalink.cli.termination import Terminated, on_sigterm
 from fpgalink.protocol.robot import seed_robot
 
 __all__ = ["campaign", "tune"]
@@ -71,10 +71,10 @@ def _check_jobs(jobs: int | None) -> None:
 def _run(spec: Campaign, jobs: int | None, dask: str | None, quiet: bool,
          mcap_dir: Path | None = None) -> list[Result]:
     # First: a SIGTERM from here on ends the campaign and its workers (exit 143).
-    previous = signal.signal(signal.SIGTERM, _terminated)
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
     try:
         return _run_campaign(spec, jobs, dask, quiet, mcap_dir)
-    except _Terminated:
+    except Terminated:
         note("terminated: the campaign and its workers were stopped")
         sys.exit(128 + signal.SIGTERM)
     finally:
@@ -119,32 +119,6 @@ def _run_campaign(spec: Campaign, jobs: int | None, dask: str | None, quiet: boo
                                 mcap_dir=mcap_dir)
         except CampaignError as exc:
             raise CliError(str(exc), ExitCode.BAD_INPUT) from None
-
-
-class _Terminated(SystemExit):
-    """SIGTERM, raised where the campaign waits, so its workers are ended with it. Not an
-    Exception: a scenario running in this process (``--jobs 1``) reports the exceptions it
-    meets as its failure, and this must end the campaign instead, as Ctrl-C does. A
-    SystemExit, because a scenario here spends most of its time in the event loop's
-    callbacks (the emulator's, the link's), and asyncio lets only SystemExit and
-    KeyboardInterrupt out of a callback: any other exception is logged and the loop runs on
-    (a SIGTERM was taken for a callback's error and the campaign went on)."""
-
-
-def _terminated(signum: int, frame: object) -> None:
-    try:
-        loop = asyncio.get_running_loop()
-    except RuntimeError:
-        raise _Terminated from None
-    # A scenario's event loop runs here: raised from one of its callbacks, between two, not
-    # wherever the signal landed. Landing inside the loop's own bookkeeping (a future set,
-    # the wakeup of the task awaiting it not yet scheduled) it left that task asleep for
-    # ever, and the loop ran the scenario on instead of ending (1 SIGTERM in about 40).
-    loop.call_soon_threadsafe(_raise_terminated)
-
-
-def _raise_terminated() -> None:
-    raise _Terminated
 
 
 #: What ``--out`` holds besides the recordings.

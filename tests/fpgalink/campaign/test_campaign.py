@@ -929,18 +929,18 @@ def test_a_sigterm_in_a_scenarios_loop_ends_it_between_two_callbacks() -> None:
     import asyncio
     import signal
 
-    from fpgalink.cli.campaign import _Terminated, _terminated
+    from fpgalink.cli.termination import Terminated, on_sigterm
 
     ran: list[str] = []
 
     async def scenario() -> None:
-        _terminated(signal.SIGTERM, None)  # as if the signal came now: nothing raised here
+        on_sigterm(signal.SIGTERM, None)  # as if the signal came now: nothing raised here
         ran.append("went on to the next await")
         await asyncio.sleep(3600)
         ran.append("never")
 
-    with pytest.raises(_Terminated):
+    with pytest.raises(Terminated):
         asyncio.run(scenario())
     assert ran == ["went on to the next await"]
-    with pytest.raises(_Terminated):  # no loop running: raised at once
-        _terminated(signal.SIGTERM, None)
+    with pytest.raises(Terminated):  # no loop running: raised at once
+        on_sigterm(signal.SIGTERM, None)
