@@ -460,6 +460,12 @@ class Link:
         if self._loop is not None and self.state is not LinkState.CLOSED:
             self._timer.arm(self._loop, self.connection.get_timer())
 
+    @property
+    def timer_due(self) -> float | None:
+        """When the link's timer fires next, on its clock (``None``: none): no later than
+        ``connection.get_timer()``; sooner, it finds nothing due and is armed again."""
+        return self._timer.due()
+
     def _on_timer(self) -> None:
         self._batches.read_now()  # what waits is the board's: read before any judgement
         self.connection.handle_timer(self._now())
