@@ -66,8 +66,6 @@ from tests.support.serving import Served
 
 PATIENCE = 30.0
 NODE = "fpgalink"
-#: The boards' timer tick in the main scenario (1 kHz telemetry), in ns.
-TICK_NS = 1_000_000
 
 
 #: Where the checks go (the REPORT argument), and serve's logs beside it.
@@ -462,11 +460,13 @@ def _match_joint_states(peer: Peer, lines: list[dict[str, Any]]) -> dict[str, An
             continue
         keyed.append((line, *messages[0]))
     offsets = [stamp - line["boards"]["L"]["t_us"] * 1000 for line, stamp, _ in keyed]
-    # A step's distance from a whole number of ticks: a line keyed to a neighbour's message
-    # steps the offset by a tick (found beside two busy loops and a second ROS graph: of 3
-    # and 4 lines found, most were neighbours, the median step exactly 1 ms), which is still
-    # the board's clock; an arrival time would land anywhere between.
-    steps_ns = sorted(abs(d - round(d / TICK_NS) * TICK_NS)
+    # A step's distance from a whole number of ticks (the board's timer period, as its truth
+    # line says): a line keyed to a neighbour's message steps the offset by a tick (found
+    # beside two busy loops and a second ROS graph: of 3 and 4 lines found, most were
+    # neighbours, the median step exactly 1 ms), which is still the board's clock; an
+    # arrival time would land anywhere between.
+    tick_ns = keyed[0][0]["boards"]["L"]["params"]["TsTimerPeriod"] * 1_000_000 if keyed else 1
+    steps_ns = sorted(abs(d - round(d / tick_ns) * tick_ns)
                       for d in (b - a for a, b in itertools.pairwise(offsets)))
     bins: dict[int, list[int]] = {}
     for offset in offsets:
