@@ -36,7 +36,7 @@ from benchmarks._common import (
 )
 from benchmarks.emulator import scenario
 from fpgalink.protocol import ChannelTelemetry
-from fpgalink.protocol.catalogue import encode_telemetry
+from fpgalink.protocol.codec import encode_telemetry
 from fpgalink.protocol.framing import encode_frame
 
 NAME = "ceiling"

@@ -13,7 +13,7 @@ import pytest
 from fpgalink.aio import Link, open_link
 from fpgalink.events import WatchdogLapsed
 from fpgalink.protocol import ChannelTelemetry, encode_frame
-from fpgalink.protocol.catalogue import encode_telemetry
+from fpgalink.protocol.codec import encode_telemetry
 from fpgalink.protocol.params import ParamType, float32, iter_addresses
 from tests.support.served import (
     PATIENCE,

@@ -26,13 +26,13 @@ from fpgalink.protocol import (
     DirectCommand,
     Event,
     FrameDecoder,
+    FrameEncoder,
     Framing,
     FramingError,
     Message,
     MessageId,
     SendCounter,
     content_length,
-    encode_frame,
     encode_message,
 )
 from fpgalink.protocol.crc import (
@@ -70,7 +70,8 @@ class FrameLayer:
     """The decoder, the encoder (with this side's message counter) and the wire CRC of one
     link."""
 
-    __slots__ = ("_counter", "_decoder", "_emit", "_stats", "framing", "mismatch", "wire_crc")
+    __slots__ = ("_counter", "_decoder", "_emit", "_encoder", "_stats", "framing", "mismatch",
+                 "wire_crc")
 
     def __init__(self, framing: Framing, stats: LinkStats, emit: Callable[[Event], None],
                  crc_on: bool = False) -> None:
@@ -80,6 +81,7 @@ class FrameLayer:
         #: the board's frames came in the other mode: with the CRC (True) or without (False)
         self.mismatch: bool | None = None
         self._decoder = FrameDecoder(framing)
+        self._encoder = FrameEncoder(framing)
         self._counter = SendCounter()
         self._stats = stats
         self._emit = emit
@@ -128,7 +130,7 @@ class FrameLayer:
         else:
             self.wire_crc.sent(message)
             content = self.wire_crc.outgoing(encode_message(message, self._counter.take()))
-        wire = encode_frame(content, self.framing)
+        wire = self._encoder.encode(content)
         self._stats.frames_sent += 1
         self._stats.bytes_sent += len(wire)
         return wire

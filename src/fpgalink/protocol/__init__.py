@@ -4,9 +4,11 @@ This package is the single home of the protocol. The host's :class:`~fpgalink.Co
 stands on it, and so does the board emulator (``fpgaemu``): it is the only part of
 ``fpgalink`` that the emulator imports.
 
-* :mod:`.framing` — ``S``/``P``/``\\`` framing: :func:`encode_frame`, :class:`FrameDecoder`;
+* :mod:`.framing` — ``S``/``P``/``\\`` framing: :func:`encode_frame` (:class:`FrameEncoder`),
+  :class:`FrameDecoder`;
 * :mod:`.messages` — wire IDs (:class:`MessageId`), direct commands, counted messages;
-* :mod:`.catalogue` — the typed messages ``PS PG PA PN RV TM IQ IA``, :func:`parse_content`,
+* :mod:`.catalogue` — the typed messages ``PS PG PA PN RV TM IQ IA`` and their layouts;
+* :mod:`.codec` — contents to messages and back: :func:`parse_content`,
   :func:`encode_message` (:func:`encode_telemetry` for a ``TM`` from its fields);
 * :mod:`.params` — the parameter table (ranges, types, power-up defaults);
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
@@ -47,6 +49,7 @@ _HOMES = {
     "FLOAT32_MAX": "fpgalink.protocol.params",
     "FrameAborted": "fpgalink.protocol.framing",
     "FrameDecoder": "fpgalink.protocol.framing",
+    "FrameEncoder": "fpgalink.protocol.framing",
     "FrameTooLong": "fpgalink.protocol.framing",
     "Framing": "fpgalink.protocol.framing",
     "FramingError": "fpgalink.protocol.framing",
@@ -78,14 +81,14 @@ _HOMES = {
     "UnknownParameter": "fpgalink.protocol.errors",
     "content_length": "fpgalink.protocol.catalogue",
     "encode_frame": "fpgalink.protocol.framing",
-    "encode_message": "fpgalink.protocol.catalogue",
-    "encode_telemetry": "fpgalink.protocol.catalogue",
+    "encode_message": "fpgalink.protocol.codec",
+    "encode_telemetry": "fpgalink.protocol.codec",
     "float32": "fpgalink.protocol.params",
     "lookup": "fpgalink.protocol.params",
-    "parse_content": "fpgalink.protocol.catalogue",
-    "parse_contents": "fpgalink.protocol.catalogue",
-    "parse_telemetry_run": "fpgalink.protocol.catalogue",
-    "TELEMETRY_RUN_MIN": "fpgalink.protocol.catalogue",
+    "parse_content": "fpgalink.protocol.codec",
+    "parse_contents": "fpgalink.protocol.codec",
+    "parse_telemetry_run": "fpgalink.protocol.codec",
+    "TELEMETRY_RUN_MIN": "fpgalink.protocol.codec",
     "resolve": "fpgalink.protocol.params",
     "BoardIdentity": "fpgalink.protocol.identity",
     "IdentityMatch": "fpgalink.protocol.identity",
@@ -107,7 +110,6 @@ _HOMES = {
 if TYPE_CHECKING:
     from fpgalink.protocol.catalogue import (
         MESSAGE_TYPES,
-        TELEMETRY_RUN_MIN,
         ChannelTelemetry,
         IdentityAnswer,
         IdentityQuery,
@@ -122,6 +124,9 @@ if TYPE_CHECKING:
         Telemetry,
         TelemetryFlags,
         content_length,
+    )
+    from fpgalink.protocol.codec import (
+        TELEMETRY_RUN_MIN,
         encode_message,
         encode_telemetry,
         parse_content,
@@ -142,6 +147,7 @@ if TYPE_CHECKING:
         AbortReason,
         FrameAborted,
         FrameDecoder,
+        FrameEncoder,
         FrameTooLong,
         Framing,
         FramingError,
@@ -218,6 +224,7 @@ __all__ = [
     "FpgalinkError",
     "FrameAborted",
     "FrameDecoder",
+    "FrameEncoder",
     "FrameTooLong",
     "Framing",
     "FramingError",

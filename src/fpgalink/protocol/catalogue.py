@@ -1,42 +1,26 @@
 """The typed message catalogue of SPEC §4: ``PS PG PA PN RV TM``, and the optional board
-identity pair ``IQ IA`` (docs/protocol.md).
+identity pair ``IQ IA`` (docs/protocol.md): what each message is, not how it is read or
+written (:mod:`.codec` does that).
 
-Each body layout is declared once, as data, in :data:`BODIES`. The hot path (1 kHz
-telemetry from every board) uses :mod:`struct` formats derived from it at import;
-:func:`layout` derives a :mod:`construct` description of the same layout on first use, for
-readers and tools (and a test checks both agree on every message), so importing the
-protocol does not pay for construct.
+Each body layout is declared once, as data, in :data:`BODIES`. The codec's :mod:`struct`
+formats derive from it (:func:`body_format`); :func:`layout` derives a :mod:`construct`
+description of the same layout on first use, for readers and tools (and a test checks both
+agree on every message), so importing the protocol does not pay for construct.
 """
 
 from __future__ import annotations
 
-import math
-import re
 import struct
-from collections import deque
-from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from enum import IntEnum
-from itertools import repeat
 from typing import Any, ClassVar, NamedTuple
 
-from fpgalink.protocol.errors import LocalProtocolError
 from fpgalink.protocol.event import Event
 from fpgalink.protocol.messages import (
-    COUNTER_MODULUS,
-    DIRECT_BY_CONTENT,
-    SECTION_OPEN,
-    Binary,
     CountedMessage,
     DirectCommand,
     Malformed,
-    MalformedReason,
     MessageId,
-    encode_body,
-    encode_counted,
-    parse_body,
-    parse_header,
-    validate_id,
 )
 from fpgalink.protocol.params import ParamType
 
@@ -56,11 +40,12 @@ __all__ = [
     "References",
     "Telemetry",
     "TelemetryFlags",
+    "body_format",
     "content_length",
-    "encode_message",
-    "encode_telemetry",
     "layout",
-    "parse_content",
+    "pack_value",
+    "struct_codes",
+    "unpack_value",
 ]
 
 
@@ -140,12 +125,10 @@ def _nested(entry: Field | tuple[str, Layout]) -> Layout | None:
     return entry[1] if len(entry) == 2 else None
 
 
-def _codes(fields: Layout) -> str:
-    return "".join(_codes(inner) if (inner := _nested(f)) is not None else str(f[1])
+def struct_codes(fields: Layout) -> str:
+    """The :mod:`struct` codes of ``fields`` in order, nested layouts flattened."""
+    return "".join(struct_codes(inner) if (inner := _nested(f)) is not None else str(f[1])
                    for f in fields)
-
-
-_STRUCTS = {msg_id: struct.Struct("<" + _codes(fields)) for msg_id, fields in BODIES.items()}
 
 
 def layout(msg_id: MessageId) -> Any:
@@ -166,9 +149,14 @@ def layout(msg_id: MessageId) -> Any:
     return build(BODIES[msg_id])
 
 
+def body_format(msg_id: MessageId) -> str:
+    """The body of ``msg_id`` as a little-endian :mod:`struct` format (the codec's)."""
+    return "<" + struct_codes(BODIES[msg_id])
+
+
 def content_length(msg_id: MessageId) -> int:
     """Frame content bytes of a catalogued message: ID, counter, ``{`` LEN body ``}``."""
-    return 2 + 5 + 3 + _STRUCTS[msg_id].size
+    return 2 + 5 + 3 + struct.calcsize(body_format(msg_id))
 
 
 _VALUE_INT = struct.Struct("<i")
@@ -176,7 +164,8 @@ _VALUE_FLOAT = struct.Struct("<f")
 _VALUE_RAW = struct.Struct("<I")
 
 
-def _pack_value(value_type: int, value: int | float) -> bytes:
+def pack_value(value_type: int, value: int | float) -> bytes:
+    """A parameter value's four wire bytes, as its type code says."""
     if value_type == ParamType.INT:
         return _VALUE_INT.pack(int(value))
     if value_type == ParamType.FLOAT:
@@ -184,13 +173,15 @@ def _pack_value(value_type: int, value: int | float) -> bytes:
     return _VALUE_RAW.pack(int(value) & 0xFFFFFFFF)
 
 
-def _unpack_value(value_type: int, raw: bytes) -> int | float:
+def unpack_value(value_type: int, raw: bytes) -> int | float:
+    """A parameter value from its four wire bytes, as its type code says."""
     if value_type == ParamType.INT:
         return int(_VALUE_INT.unpack(raw)[0])
     if value_type == ParamType.FLOAT:
         return float(_VALUE_FLOAT.unpack(raw)[0])
     # An unknown type code still decodes, so the board can answer it with PN 4.
     return int(_VALUE_RAW.unpack(raw)[0])
+
 
 
 # --- the messages -----------------------------------------------------------------------------
@@ -217,7 +208,7 @@ class _ParamValue(_Catalogued):
 
     def body_values(self) -> tuple[Any, ...]:
         return (self.param_id, self.channel, self.value_type,
-                _pack_value(self.value_type, self.value))
+                pack_value(self.value_type, self.value))
 
 
 @dataclass(frozen=True, slots=True)
@@ -354,247 +345,9 @@ class IdentityAnswer(_Catalogued):
 Message = (ParamSet | ParamAck | ParamGet | ParamNack | References | Telemetry | IdentityQuery
            | IdentityAnswer)
 #: Every typed message, once: what a sender may send as itself (each class's ``msg_id``
-#: says who sends it), and what :func:`encode_message` encodes.
+#: says who sends it), and what :func:`.codec.encode_message` encodes.
 MESSAGE_TYPES: tuple[type[Message], ...] = (
     ParamSet, ParamAck, ParamGet, ParamNack, References, Telemetry, IdentityQuery,
     IdentityAnswer)
 
-
-# --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
-
-_new = object.__new__
-
-
-def _setter(cls: type, field: str) -> Callable[[object, object], None]:
-    descriptor = cls.__dict__[field]
-    return descriptor.__set__  # type: ignore[no-any-return]
-
-
-_tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", "counter"))
-_rv_a, _rv_b, _rv_c = (_setter(References, f) for f in ("ref_a", "ref_b", "counter"))
-_new_tuple = tuple.__new__
-
-
-# Builders take the unpacked whole-message tuple: (counter digits, "{"+LEN, *fields, "}").
-
-
-def _build_tm(v: tuple[Any, ...]) -> Telemetry:
-    tm = _new(Telemetry)
-    _tm_t(tm, v[2])
-    _tm_a(tm, _new_tuple(ChannelTelemetry, v[3:9]))
-    _tm_b(tm, _new_tuple(ChannelTelemetry, v[9:15]))
-    _tm_c(tm, int(v[0]))
-    return tm
-
-
-def _build_rv(v: tuple[Any, ...]) -> References:
-    # An emulated board takes one every millisecond in the SPEC §7 scenario.
-    rv = _new(References)
-    _rv_a(rv, v[2])
-    _rv_b(rv, v[3])
-    _rv_c(rv, int(v[0]))
-    return rv
-
-
-def _build_param(cls: type[ParamSet] | type[ParamAck]) -> Callable[[tuple[Any, ...]], Any]:
-    def build(v: tuple[Any, ...]) -> ParamSet | ParamAck:
-        return cls(v[2], v[3], v[4], _unpack_value(v[4], v[5]), int(v[0]))
-
-    return build
-
-
-class _Entry(NamedTuple):
-    whole: struct.Struct  #: the entire content after the ID: counter, "{" LEN, body, "}"
-    size: int  #: the body section's LEN
-    opener: bytes
-    build: Callable[[tuple[Any, ...]], Any]
-
-
-def _entry(msg_id: MessageId, build: Callable[[tuple[Any, ...]], Any]) -> _Entry:
-    body = _STRUCTS[msg_id]
-    whole = struct.Struct("<2x5s2s" + body.format[1:] + "c")
-    return _Entry(whole, body.size, bytes((SECTION_OPEN, body.size)), build)
-
-
-_BUILDERS: dict[bytes, _Entry] = {
-    MessageId.TM: _entry(MessageId.TM, _build_tm),
-    MessageId.PS: _entry(MessageId.PS, _build_param(ParamSet)),
-    MessageId.PA: _entry(MessageId.PA, _build_param(ParamAck)),
-    MessageId.PG: _entry(MessageId.PG, lambda v: ParamGet(v[2], v[3], int(v[0]))),
-    MessageId.PN: _entry(MessageId.PN, lambda v: ParamNack(v[2], v[3], v[4], int(v[0]))),
-    MessageId.RV: _entry(MessageId.RV, _build_rv),
-    MessageId.IQ: _entry(MessageId.IQ, lambda v: IdentityQuery(v[2], int(v[0]))),
-    MessageId.IA: _entry(MessageId.IA, lambda v: IdentityAnswer(
-        v[2], v[3], v[4], v[5], v[6], v[7], v[8], int(v[0]))),
-}
-_CLOSE = b"}"
-
 Parsed = Message | CountedMessage | DirectCommand | Malformed
-
-
-def parse_content(content: bytes) -> Parsed:
-    """One frame's content as a typed message, a generic counted message, a direct command,
-    or a :class:`Malformed` event. Never raises."""
-    entry = _BUILDERS.get(content[:2])
-    if entry is not None and len(content) == entry.whole.size:
-        v = entry.whole.unpack(content)
-        if v[1] == entry.opener and v[-1] == _CLOSE and v[0].isdigit():
-            return entry.build(v)  # type: ignore[no-any-return]
-    direct = DIRECT_BY_CONTENT.get(content)
-    if direct is not None:
-        return direct
-    header = parse_header(content)
-    if isinstance(header, Malformed):
-        return header
-    raw_id, counter = header
-    items = parse_body(content)
-    if isinstance(items, Malformed):
-        return items
-    if entry is not None:
-        lengths = [len(i.data) if isinstance(i, Binary) else f"text {len(i.data)}" for i in items]
-        return Malformed(
-            MalformedReason.BAD_LAYOUT,
-            content,
-            f"{raw_id.decode()} needs one {entry.size}-byte binary section, got {lengths}",
-        )
-    return CountedMessage(raw_id.decode(), items, counter)
-
-
-# --- telemetry a run at a time -----------------------------------------------------------------
-#
-# At 1 kHz nearly every frame is a TM. A run of them is checked with one regular expression
-# over the contents joined, and unpacked column by column with ``struct.iter_unpack``; the
-# events are built without a Python call per message (C-level ``map`` over the fast
-# builders' ``object.__new__`` and slot setters). What the check accepts is exactly what
-# parse_content turns into a Telemetry, so a run gives the same events either way.
-
-
-def _tm_columns() -> tuple[Callable[[bytes], Any], struct.Struct, struct.Struct, struct.Struct]:
-    """From the single layout declaration: the check of a run of TM contents, and the
-    (counter digits, t_us), channel A and channel B structs, each spanning one whole content
-    so ``iter_unpack`` steps a message at a time."""
-    fields = BODIES[MessageId.TM]
-    if [f[0] for f in fields] != ["t_us", "a", "b"]:  # the order Telemetry takes them in
-        raise AssertionError(f"TM layout changed: {[f[0] for f in fields]}")
-    size = content_length(MessageId.TM)
-    body = _STRUCTS[MessageId.TM].size
-    head = size - body - 1  # ID, counter digits, "{", LEN
-    codes = [_codes((f,)) for f in fields]
-    offsets = [head]
-    for code in codes:
-        offsets.append(offsets[-1] + struct.calcsize("<" + code))
-
-    def column(offset: int, code: str) -> struct.Struct:
-        return struct.Struct(f"<{offset}x{code}{size - offset - struct.calcsize('<' + code)}x")
-
-    first = struct.Struct(f"<2x5s{head - 7}x{codes[0]}{size - offsets[1]}x")
-    # What parse_content accepts as a TM: the ID, five ASCII digits, the section opener and
-    # LEN, any body bytes, the closer; nothing before, between or after.
-    check = re.compile(
-        b"(?:" + re.escape(bytes(MessageId.TM)) + b"[0-9]{5}"
-        + re.escape(bytes((SECTION_OPEN, body))) + b".{" + str(body).encode() + b"}"
-        + re.escape(_CLOSE) + b")*+", re.DOTALL
-    ).fullmatch
-    return check, first, column(offsets[1], codes[1]), column(offsets[2], codes[2])
-
-
-_TM_SIZE = content_length(MessageId.TM)
-_tm_run, _TM_FIRST, _TM_A, _TM_B = _tm_columns()
-#: Below this many frames a run costs more to set up than it saves (break-even about 5).
-TELEMETRY_RUN_MIN = 6
-
-
-def parse_telemetry_run(contents: Sequence[bytes]) -> list[Telemetry] | None:
-    """``contents`` (frame contents, in order) as their TM events when every one is a
-    well-formed ``TM`` — exactly what :func:`parse_content` returns for each — else ``None``
-    (then parse them one by one). Worth it from about :data:`TELEMETRY_RUN_MIN` frames."""
-    n = len(contents)
-    if not n or min(map(len, contents)) != _TM_SIZE or max(map(len, contents)) != _TM_SIZE:
-        return None
-    joined = b"".join(contents)
-    if _tm_run(joined) is None:
-        return None
-    events: list[Telemetry] = list(map(_new, repeat(Telemetry, n)))
-    digits, t_us = zip(*_TM_FIRST.iter_unpack(joined), strict=True)
-    # deque(…, 0) runs an iterator to its end in C, keeping nothing.
-    deque(map(_tm_t, events, t_us), 0)
-    deque(map(_tm_a, events, map(_new_tuple, repeat(ChannelTelemetry),
-                                 _TM_A.iter_unpack(joined))), 0)
-    deque(map(_tm_b, events, map(_new_tuple, repeat(ChannelTelemetry),
-                                 _TM_B.iter_unpack(joined))), 0)
-    deque(map(_tm_c, events, map(int, digits)), 0)
-    return events
-
-
-def parse_contents(contents: Sequence[bytes]) -> list[Parsed]:
-    """:func:`parse_content` of each content, in order; runs of telemetry a run at a time
-    (:func:`parse_telemetry_run`). Never raises."""
-    out: list[Parsed] = []
-    size, n = _TM_SIZE, len(contents)
-    start = 0
-    while start < n:
-        end = start
-        while end < n and len(contents[end]) == size:
-            end += 1
-        if end - start >= TELEMETRY_RUN_MIN:
-            run = parse_telemetry_run(contents[start:end])
-            if run is not None:
-                out += run
-                start = end
-                continue
-        stop = max(end, start + 1)
-        out += map(parse_content, contents[start:stop])
-        start = stop
-    return out
-
-
-def _whole(msg_id: MessageId) -> struct.Struct:
-    """The entire content as one struct: ID, five counter digits, ``{`` LEN, body, ``}``."""
-    return struct.Struct("<2s5s2s" + _STRUCTS[msg_id].format[1:] + "c")
-
-
-#: message type → (the whole-content struct, its ID, the section opener), for encoding in
-#: one pack call.
-_ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
-    cls: (_whole(cls.msg_id), bytes(cls.msg_id),
-          bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
-    for cls in MESSAGE_TYPES
-}
-
-
-_TM_WHOLE, _TM_ID, _TM_OPENER = _ENCODERS[Telemetry]
-
-
-def encode_telemetry(counter: int, t_us: int, a: ChannelTelemetry, b: ChannelTelemetry
-                     ) -> bytes:
-    """``encode_message(Telemetry(t_us, a, b), counter)`` without building the event: the
-    board's 1 kHz sender has the fields at hand. ``LocalProtocolError`` for a value that does
-    not fit its field."""
-    try:
-        return _TM_WHOLE.pack(_TM_ID, b"%05d" % (counter % COUNTER_MODULUS), _TM_OPENER,
-                              t_us, *a, *b, _CLOSE)
-    except (struct.error, OverflowError) as exc:
-        raise LocalProtocolError(f"Telemetry: {exc}") from None
-
-
-def encode_message(message: Message | CountedMessage, counter: int) -> bytes:
-    """Frame content for ``message`` with the given counter value."""
-    encoder = _ENCODERS.get(type(message))
-    if encoder is None or isinstance(message, CountedMessage):
-        if isinstance(message, CountedMessage):
-            return encode_counted(validate_id(message.msg_id), counter,
-                                  encode_body(message.items))
-        raise LocalProtocolError(f"{type(message).__name__} is not a catalogued message")
-    if type(message) is References and not (
-        math.isfinite(message.ref_a) and math.isfinite(message.ref_b)
-    ):
-        # A non-finite reference would poison a controller that trusts its host: never send one.
-        raise LocalProtocolError(
-            f"references must be finite numbers, got ({message.ref_a!r}, {message.ref_b!r})"
-        )
-    whole, msg_id, opener = encoder
-    try:
-        return whole.pack(msg_id, b"%05d" % (counter % COUNTER_MODULUS), opener,
-                          *message.body_values(), _CLOSE)
-    except (struct.error, OverflowError) as exc:
-        raise LocalProtocolError(f"{type(message).__name__}: {exc}") from None

@@ -29,7 +29,8 @@ import struct
 from dataclasses import dataclass
 from typing import Any
 
-from fpgalink.protocol.catalogue import ParamGet, ParamSet, parse_content
+from fpgalink.protocol.catalogue import ParamGet, ParamSet
+from fpgalink.protocol.codec import parse_content
 from fpgalink.protocol.framing import FramingError
 from fpgalink.protocol.messages import DIRECT_BY_CONTENT, DirectCommand, Malformed
 from fpgalink.protocol.params import lookup
@@ -200,6 +201,11 @@ class BoardWireCrc:
         return append_crc(content) if self.on else content
 
 
+#: The requests that ask a parameter's value (a tuple, not a union a call would build anew:
+#: :meth:`HostWireCrc.sent` runs for every counted message sent).
+_ASKS_PARAM = (ParamSet, ParamGet)
+
+
 class HostWireCrc:
     """The host's side (used by :class:`fpgalink.Connection`): the mode follows the board's
     ``PA`` for ``WireCrc``; while a ``PS``/``PG`` for it is unanswered, frames are taken in
@@ -221,7 +227,7 @@ class HostWireCrc:
 
     def sent(self, message: Any) -> None:
         """Told of every counted message sent."""
-        if isinstance(message, ParamSet | ParamGet) and message.param_id == WIRE_CRC_PARAM:
+        if isinstance(message, _ASKS_PARAM) and message.param_id == WIRE_CRC_PARAM:
             self.asking = True
 
     def answered(self, param_id: int, value: int | float | None) -> None:

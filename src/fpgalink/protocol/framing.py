@@ -34,6 +34,7 @@ __all__ = [
     "AbortReason",
     "FrameAborted",
     "FrameDecoder",
+    "FrameEncoder",
     "FrameTooLong",
     "Framing",
     "FramingError",
@@ -80,11 +81,15 @@ class Framing:
 DEFAULT_FRAMING = Framing()
 
 
-class _Encoder:
-    __slots__ = ("_escapes", "_framing", "_head", "_tail")
+class FrameEncoder:
+    """``uartsend``'s framing for one :class:`Framing`: what :func:`encode_frame` does, with
+    the framing's bytes looked up once (a link keeps one for its frames)."""
 
-    def __init__(self, framing: Framing) -> None:
-        self._framing = framing
+    __slots__ = ("_escapes", "_head", "_max_content", "_tail", "framing")
+
+    def __init__(self, framing: Framing = DEFAULT_FRAMING) -> None:
+        self.framing = framing
+        self._max_content = framing.max_content
         self._head = bytes((framing.start,))
         self._tail = bytes((framing.stop,))
         skip = bytes((framing.skip,))
@@ -93,17 +98,20 @@ class _Encoder:
             (bytes((b,)), skip + bytes((b,))) for b in (framing.skip, framing.start, framing.stop)
         )
 
-    def encode(self, content: bytes) -> bytes:
-        if len(content) > self._framing.max_content:
+    def encode(self, content: bytes | bytearray | memoryview) -> bytes:
+        """Wrap ``content`` in START/STOP, putting SKIP before every special byte;
+        :class:`FrameTooLong` for content the receiver would drop as an overflow."""
+        if len(content) > self._max_content:
             raise FrameTooLong(
                 f"frame content is {len(content)} bytes; the receiver drops anything over "
-                f"{self._framing.max_content}"
+                f"{self._max_content}"
             )
         (k, kk), (s, ks), (p, kp) = self._escapes
-        return self._head + content.replace(k, kk).replace(s, ks).replace(p, kp) + self._tail
+        body = content if type(content) is bytes else bytes(content)
+        return self._head + body.replace(k, kk).replace(s, ks).replace(p, kp) + self._tail
 
 
-_encoders: dict[Framing, _Encoder] = {}
+_encoders: dict[Framing, FrameEncoder] = {}
 
 
 def encode_frame(
@@ -112,8 +120,8 @@ def encode_frame(
     """Wrap ``content`` in START/STOP, putting SKIP before every special byte (``uartsend``)."""
     encoder = _encoders.get(framing)
     if encoder is None:
-        encoder = _encoders[framing] = _Encoder(framing)
-    return encoder.encode(bytes(content))
+        encoder = _encoders[framing] = FrameEncoder(framing)
+    return encoder.encode(content)
 
 
 # --- decoder events -------------------------------------------------------------------------

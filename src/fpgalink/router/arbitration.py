@@ -18,9 +18,8 @@ from fpgalink.protocol.catalogue import (
     ParamGet,
     ParamNack,
     ParamSet,
-    encode_message,
-    parse_content,
 )
+from fpgalink.protocol.codec import encode_message, parse_content
 from fpgalink.protocol.counter import SendCounter
 from fpgalink.protocol.crc import append_crc, strip_crc
 from fpgalink.router.stats import Client

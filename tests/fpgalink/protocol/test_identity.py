@@ -21,8 +21,8 @@ from fpgalink.protocol.catalogue import (
     IdentityQuery,
     content_length,
     layout,
-    parse_content,
 )
+from fpgalink.protocol.codec import parse_content
 from fpgalink.protocol.identity import BoardIdentity, declarations_digest, declarations_hash
 from fpgalink.protocol.messages import Role
 
