@@ -44,7 +44,6 @@ __all__ = [
     "content_length",
     "layout",
     "pack_value",
-    "struct_codes",
     "unpack_value",
 ]
 
@@ -125,9 +124,8 @@ def _nested(entry: Field | tuple[str, Layout]) -> Layout | None:
     return entry[1] if len(entry) == 2 else None
 
 
-def struct_codes(fields: Layout) -> str:
-    """The :mod:`struct` codes of ``fields`` in order, nested layouts flattened."""
-    return "".join(struct_codes(inner) if (inner := _nested(f)) is not None else str(f[1])
+def _codes(fields: Layout) -> str:
+    return "".join(_codes(inner) if (inner := _nested(f)) is not None else str(f[1])
                    for f in fields)
 
 
@@ -151,7 +149,7 @@ def layout(msg_id: MessageId) -> Any:
 
 def body_format(msg_id: MessageId) -> str:
     """The body of ``msg_id`` as a little-endian :mod:`struct` format (the codec's)."""
-    return "<" + struct_codes(BODIES[msg_id])
+    return "<" + _codes(BODIES[msg_id])
 
 
 def content_length(msg_id: MessageId) -> int:

@@ -12,9 +12,7 @@ from __future__ import annotations
 import math
 import re
 import struct
-from collections import deque
 from collections.abc import Callable, Sequence
-from itertools import repeat
 from typing import Any, NamedTuple
 
 from fpgalink.protocol.catalogue import (
@@ -33,7 +31,6 @@ from fpgalink.protocol.catalogue import (
     Telemetry,
     body_format,
     content_length,
-    struct_codes,
     unpack_value,
 )
 from fpgalink.protocol.errors import LocalProtocolError
@@ -167,43 +164,28 @@ def parse_content(content: bytes) -> Parsed:
 # --- telemetry a run at a time -----------------------------------------------------------------
 #
 # At 1 kHz nearly every frame is a TM. A run of them is checked with one regular expression
-# over the contents joined, and unpacked column by column with ``struct.iter_unpack``; the
-# events are built without a Python call per message (C-level ``map`` over the fast
-# builders' ``object.__new__`` and slot setters). What the check accepts is exactly what
-# parse_content turns into a Telemetry, so a run gives the same events either way.
+# over the contents joined and unpacked with one ``struct.iter_unpack``, each message built
+# by parse_content's own builder: what the check accepts is exactly what parse_content turns
+# into a Telemetry, so a run gives the same events either way. (Building them column by
+# column with C-level ``map`` over the slot setters, as this did before, was measured: 9 %
+# more instructions compiled, 3 % fewer pure.)
 
 
-def _tm_columns() -> tuple[Callable[[bytes], Any], struct.Struct, struct.Struct, struct.Struct]:
-    """From the single layout declaration: the check of a run of TM contents, and the
-    (counter digits, t_us), channel A and channel B structs, each spanning one whole content
-    so ``iter_unpack`` steps a message at a time."""
-    fields = BODIES[MessageId.TM]
-    if [f[0] for f in fields] != ["t_us", "a", "b"]:  # the order Telemetry takes them in
-        raise AssertionError(f"TM layout changed: {[f[0] for f in fields]}")
-    size = content_length(MessageId.TM)
+def _tm_check() -> Callable[[bytes], Any]:
+    """From the single layout declaration: the check of a run of TM contents joined."""
     body = _STRUCTS[MessageId.TM].size
-    head = size - body - 1  # ID, counter digits, "{", LEN
-    codes = [struct_codes((f,)) for f in fields]
-    offsets = [head]
-    for code in codes:
-        offsets.append(offsets[-1] + struct.calcsize("<" + code))
-
-    def column(offset: int, code: str) -> struct.Struct:
-        return struct.Struct(f"<{offset}x{code}{size - offset - struct.calcsize('<' + code)}x")
-
-    first = struct.Struct(f"<2x5s{head - 7}x{codes[0]}{size - offsets[1]}x")
     # What parse_content accepts as a TM: the ID, five ASCII digits, the section opener and
     # LEN, any body bytes, the closer; nothing before, between or after.
-    check = re.compile(
+    return re.compile(
         b"(?:" + re.escape(bytes(MessageId.TM)) + b"[0-9]{5}"
         + re.escape(bytes((SECTION_OPEN, body))) + b".{" + str(body).encode() + b"}"
         + re.escape(_CLOSE) + b")*+", re.DOTALL
     ).fullmatch
-    return check, first, column(offsets[1], codes[1]), column(offsets[2], codes[2])
 
 
 _TM_SIZE = content_length(MessageId.TM)
-_tm_run, _TM_FIRST, _TM_A, _TM_B = _tm_columns()
+_TM_WHOLE_IN = _BUILDERS[MessageId.TM].whole
+_tm_run = _tm_check()
 #: Below this many frames a run costs more to set up than it saves (break-even about 5).
 TELEMETRY_RUN_MIN = 6
 
@@ -218,16 +200,7 @@ def parse_telemetry_run(contents: Sequence[bytes]) -> list[Telemetry] | None:
     joined = b"".join(contents)
     if _tm_run(joined) is None:
         return None
-    events: list[Telemetry] = list(map(_new, repeat(Telemetry, n)))
-    digits, t_us = zip(*_TM_FIRST.iter_unpack(joined), strict=True)
-    # deque(…, 0) runs an iterator to its end in C, keeping nothing.
-    deque(map(_tm_t, events, t_us), 0)
-    deque(map(_tm_a, events, map(_new_tuple, repeat(ChannelTelemetry),
-                                 _TM_A.iter_unpack(joined))), 0)
-    deque(map(_tm_b, events, map(_new_tuple, repeat(ChannelTelemetry),
-                                 _TM_B.iter_unpack(joined))), 0)
-    deque(map(_tm_c, events, map(int, digits)), 0)
-    return events
+    return [_build_tm(v) for v in _TM_WHOLE_IN.iter_unpack(joined)]
 
 
 def parse_contents(contents: Sequence[bytes]) -> list[Parsed]:
