@@ -22,7 +22,12 @@ class Subscription(Generic[T]):
         if maxsize < 1:
             raise ValueError("maxsize must be at least 1")
         self._items: deque[T] = deque(maxlen=maxsize)
-        self._ready = asyncio.Event()
+        #: consumers waiting for an item, each on a future of its own (one cancelled
+        #: consumer leaves the others waiting), made on the loop the first one ran on:
+        #: asyncio.Event asks for the running loop at every wait, a system call (getpid) for
+        #: every sample a follower waits for
+        self._waiters: list[asyncio.Future[None]] = []
+        self._loop: asyncio.AbstractEventLoop | None = None
         self._closed = False
         self._on_close = on_close
         self.dropped = 0
@@ -35,13 +40,20 @@ class Subscription(Generic[T]):
         if dropped:
             self.dropped += 1
         self._items.append(item)
-        self._ready.set()
+        if self._waiters:
+            self._wake()
         return dropped
 
     def finish(self) -> None:
         """No more items: iteration ends once the queued ones are read."""
         self._closed = True
-        self._ready.set()
+        self._wake()
+
+    def _wake(self) -> None:
+        waiters, self._waiters = self._waiters, []
+        for waiter in waiters:
+            if not waiter.done():
+                waiter.set_result(None)
 
     # --- the consumer's side --------------------------------------------------------------
 
@@ -56,9 +68,23 @@ class Subscription(Generic[T]):
         while not self._items:
             if self._closed:
                 raise StopAsyncIteration
-            self._ready.clear()
-            await self._ready.wait()
+            loop = self._loop
+            if loop is None:
+                loop = self._loop = asyncio.get_running_loop()
+            waiter: asyncio.Future[None] = loop.create_future()
+            self._waiters.append(waiter)
+            try:
+                await waiter
+            finally:
+                # Woken, it is gone from the list (put took the list); cancelled, it leaves.
+                if self._waiters and waiter in self._waiters:
+                    self._waiters.remove(waiter)
         return self._items.popleft()
+
+    @property
+    def waiting(self) -> int:
+        """Consumers waiting for an item now."""
+        return len(self._waiters)
 
     def __len__(self) -> int:
         return len(self._items)
