@@ -13,7 +13,7 @@ import math
 import re
 import struct
 from collections.abc import Callable, Sequence
-from typing import Any, NamedTuple
+from typing import Any, Final, NamedTuple
 
 from fpgalink.protocol.catalogue import (
     BODIES,
@@ -59,12 +59,12 @@ __all__ = [
     "parse_telemetry_run",
 ]
 
-_STRUCTS = {msg_id: struct.Struct(body_format(msg_id)) for msg_id in BODIES}
+_STRUCTS: Final = {msg_id: struct.Struct(body_format(msg_id)) for msg_id in BODIES}
 
 
 # --- fast builders: frozen dataclasses built without their (slow, frozen) __init__ -------------
 
-_new = object.__new__
+_new: Final = object.__new__
 
 
 def _setter(cls: type, field: str) -> Callable[[object, object], None]:
@@ -72,9 +72,14 @@ def _setter(cls: type, field: str) -> Callable[[object, object], None]:
     return descriptor.__set__  # type: ignore[no-any-return]
 
 
-_tm_t, _tm_a, _tm_b, _tm_c = (_setter(Telemetry, f) for f in ("t_us", "a", "b", "counter"))
-_rv_a, _rv_b, _rv_c = (_setter(References, f) for f in ("ref_a", "ref_b", "counter"))
-_new_tuple = tuple.__new__
+_tm_t: Final = _setter(Telemetry, "t_us")
+_tm_a: Final = _setter(Telemetry, "a")
+_tm_b: Final = _setter(Telemetry, "b")
+_tm_c: Final = _setter(Telemetry, "counter")
+_rv_a: Final = _setter(References, "ref_a")
+_rv_b: Final = _setter(References, "ref_b")
+_rv_c: Final = _setter(References, "counter")
+_new_tuple: Final = tuple.__new__
 
 
 # Builders take the unpacked whole-message tuple: (counter digits, "{"+LEN, *fields, "}").
@@ -118,7 +123,7 @@ def _entry(msg_id: MessageId, build: Callable[[tuple[Any, ...]], Any]) -> _Entry
     return _Entry(whole, body.size, bytes((SECTION_OPEN, body.size)), build)
 
 
-_BUILDERS: dict[bytes, _Entry] = {
+_BUILDERS: Final[dict[bytes, _Entry]] = {
     MessageId.TM: _entry(MessageId.TM, _build_tm),
     MessageId.PS: _entry(MessageId.PS, _build_param(ParamSet)),
     MessageId.PA: _entry(MessageId.PA, _build_param(ParamAck)),
@@ -129,7 +134,7 @@ _BUILDERS: dict[bytes, _Entry] = {
     MessageId.IA: _entry(MessageId.IA, lambda v: IdentityAnswer(
         v[2], v[3], v[4], v[5], v[6], v[7], v[8], int(v[0]))),
 }
-_CLOSE = b"}"
+_CLOSE: Final = b"}"
 
 
 
@@ -183,11 +188,11 @@ def _tm_check() -> Callable[[bytes], Any]:
     ).fullmatch
 
 
-_TM_SIZE = content_length(MessageId.TM)
-_TM_WHOLE_IN = _BUILDERS[MessageId.TM].whole
-_tm_run = _tm_check()
+_TM_SIZE: Final = content_length(MessageId.TM)
+_TM_WHOLE_IN: Final = _BUILDERS[MessageId.TM].whole
+_tm_run: Final = _tm_check()
 #: Below this many frames a run costs more to set up than it saves (break-even about 5).
-TELEMETRY_RUN_MIN = 6
+TELEMETRY_RUN_MIN: Final = 6
 
 
 def parse_telemetry_run(contents: Sequence[bytes]) -> list[Telemetry] | None:
@@ -232,14 +237,17 @@ def _whole(msg_id: MessageId) -> struct.Struct:
 
 #: message type → (the whole-content struct, its ID, the section opener), for encoding in
 #: one pack call.
-_ENCODERS: dict[type, tuple[struct.Struct, bytes, bytes]] = {
+_ENCODERS: Final[dict[type, tuple[struct.Struct, bytes, bytes]]] = {
     cls: (_whole(cls.msg_id), bytes(cls.msg_id),
           bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
     for cls in MESSAGE_TYPES
 }
 
 
-_TM_WHOLE, _TM_ID, _TM_OPENER = _ENCODERS[Telemetry]
+#: the whole TM content packed in one call (a bound method kept: no attribute lookup per TM)
+_TM_PACK: Final = _ENCODERS[Telemetry][0].pack
+_TM_ID: Final = _ENCODERS[Telemetry][1]
+_TM_OPENER: Final = _ENCODERS[Telemetry][2]
 
 
 def encode_telemetry(counter: int, t_us: int, a: ChannelTelemetry, b: ChannelTelemetry
@@ -248,8 +256,8 @@ def encode_telemetry(counter: int, t_us: int, a: ChannelTelemetry, b: ChannelTel
     board's 1 kHz sender has the fields at hand. ``LocalProtocolError`` for a value that does
     not fit its field."""
     try:
-        return _TM_WHOLE.pack(_TM_ID, b"%05d" % (counter % COUNTER_MODULUS), _TM_OPENER,
-                              t_us, *a, *b, _CLOSE)
+        return _TM_PACK(_TM_ID, b"%05d" % (counter % COUNTER_MODULUS), _TM_OPENER,
+                        t_us, *a, *b, _CLOSE)
     except (struct.error, OverflowError) as exc:
         raise LocalProtocolError(f"Telemetry: {exc}") from None
 
