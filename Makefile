@@ -108,7 +108,8 @@ pure:
 # the C core's co-simulation, which build runs) run again on pure Python, which is a
 # first-class build (tests/fpgaemu/test_compiled.py compares the two state by state).
 EXACTNESS_TESTS := tests/fpgaemu/test_golden_trace.py tests/fpgaemu/test_cfirmware.py \
-	tests/test_build.py tests/fpgalink/protocol/test_telemetry_runs.py
+	tests/test_build.py tests/fpgalink/protocol/test_telemetry_runs.py \
+	tests/fpgalink/protocol/test_framing.py
 PURE_RUN = echo "make test: the exactness tests on pure Python (FPGALINK_PURE=1)"; \
 	FPGALINK_PURE=1 FPGALINK_REQUIRE_CC=1 $(PY) -m pytest -n $(PYTEST_WORKERS) \
 	  --dist loadfile $(EXACTNESS_TESTS)

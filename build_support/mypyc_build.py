@@ -27,14 +27,15 @@ from pathlib import Path
 from typing import Any
 
 #: The modules compiled: what runs every emulated millisecond (the board's blocks, its
-#: firmware, the wheels, the robot's lockstep), the protocol's counters and codec, and the
-#: host's per-message work: the sans-I/O connection's parts, the boards' clock, and the
-#: robot's per-sample modules (odometry, tracking, stamping, joints). Not serving/ (the
-#: event loop's code, which waits on I/O), __main__, the C co-simulation, the faults'
-#: parser or the physics body (MuJoCo's stepping is numpy calls); not the protocol's
-#: events and the modules declaring them (catalogue, framing, messages, crc, event,
-#: events.py: frozen dataclasses, which a compiled class cannot derive from and whose
-#: constructors mypyc leaves to Python; docs/emulator.md says more), nor the asyncio layer.
+#: firmware, the wheels, the robot's lockstep), the protocol's counters, codec, framing and
+#: wire CRC, and the host's per-message work: the sans-I/O connection's parts and counts,
+#: the boards' clock, and the robot's per-sample modules (odometry, tracking, stamping,
+#: joints). Not serving/ (the event loop's code, which waits on I/O), __main__, the C
+#: co-simulation, the faults' parser or the physics body (MuJoCo's stepping is numpy
+#: calls); not the protocol's events and the modules declaring them (catalogue,
+#: framingerrors, messages, event, events.py: frozen dataclasses, which a compiled class
+#: cannot derive from and whose constructors mypyc leaves to Python; docs/emulator.md says
+#: more), nor the asyncio layer.
 COMPILED = (
     "fpgaemu.timeline",
     "fpgaemu.bram",
@@ -55,6 +56,9 @@ COMPILED = (
     "fpgaemu.robot",
     "fpgalink.protocol.counter",
     "fpgalink.protocol.codec",
+    "fpgalink.protocol.framing",
+    "fpgalink.protocol.crc",
+    "fpgalink.connection.stats",
     "fpgalink.connection.queue",
     "fpgalink.connection.counting",
     "fpgalink.connection.frames",

@@ -14,6 +14,7 @@ stands on it, and so does the board emulator (``fpgaemu``): it is the only part 
 * :mod:`.counter` — the sender's counter and the receiver's gap/duplicate tracker;
 * :mod:`.wire` — 8N1 wire-time arithmetic and budgets;
 * :mod:`.crc` — the optional wire CRC (CRC-16/CCITT-FALSE) and its handshake;
+* :mod:`.framingerrors` — the counted framing errors a decoder reports (events);
 * :mod:`.identity` — board identity (``IQ``/``IA``): the declaration hash, what a board
   says of itself, and the match, mismatch or seed-protocol judgement.
 
@@ -29,7 +30,7 @@ from fpgalink.protocol.exports import lazy_exports
 
 #: public name → the submodule that defines it
 _HOMES = {
-    "AbortReason": "fpgalink.protocol.framing",
+    "AbortReason": "fpgalink.protocol.framingerrors",
     "Alive": "fpgalink.protocol.messages",
     "Binary": "fpgalink.protocol.messages",
     "COUNTER_MODULUS": "fpgalink.protocol.messages",
@@ -38,7 +39,7 @@ _HOMES = {
     "CounterTracker": "fpgalink.protocol.counter",
     "CRC16": "fpgalink.protocol.crc",
     "CRC_BYTES": "fpgalink.protocol.crc",
-    "CrcMismatch": "fpgalink.protocol.crc",
+    "CrcMismatch": "fpgalink.protocol.framingerrors",
     "WIRE_CRC_PARAM": "fpgalink.protocol.crc",
     "DEFAULT_FRAMING": "fpgalink.protocol.framing",
     "DirectCommand": "fpgalink.protocol.messages",
@@ -47,12 +48,12 @@ _HOMES = {
     "Event": "fpgalink.protocol.event",
     "FpgalinkError": "fpgalink.protocol.errors",
     "FLOAT32_MAX": "fpgalink.protocol.params",
-    "FrameAborted": "fpgalink.protocol.framing",
+    "FrameAborted": "fpgalink.protocol.framingerrors",
     "FrameDecoder": "fpgalink.protocol.framing",
     "FrameEncoder": "fpgalink.protocol.framing",
     "FrameTooLong": "fpgalink.protocol.framing",
     "Framing": "fpgalink.protocol.framing",
-    "FramingError": "fpgalink.protocol.framing",
+    "FramingError": "fpgalink.protocol.framingerrors",
     "FramingStats": "fpgalink.protocol.framing",
     "LocalProtocolError": "fpgalink.protocol.errors",
     "Malformed": "fpgalink.protocol.messages",
@@ -60,7 +61,7 @@ _HOMES = {
     "Message": "fpgalink.protocol.catalogue",
     "MessageId": "fpgalink.protocol.messages",
     "NackReason": "fpgalink.protocol.catalogue",
-    "NoiseDropped": "fpgalink.protocol.framing",
+    "NoiseDropped": "fpgalink.protocol.framingerrors",
     "Observation": "fpgalink.protocol.counter",
     "PARAMETERS": "fpgalink.protocol.params",
     "Param": "fpgalink.protocol.params",
@@ -134,7 +135,7 @@ if TYPE_CHECKING:
         parse_telemetry_run,
     )
     from fpgalink.protocol.counter import CounterTracker, Observation, SendCounter
-    from fpgalink.protocol.crc import CRC16, CRC_BYTES, WIRE_CRC_PARAM, CrcMismatch
+    from fpgalink.protocol.crc import CRC16, CRC_BYTES, WIRE_CRC_PARAM
     from fpgalink.protocol.errors import (
         FpgalinkError,
         LocalProtocolError,
@@ -144,16 +145,19 @@ if TYPE_CHECKING:
     from fpgalink.protocol.event import Event
     from fpgalink.protocol.framing import (
         DEFAULT_FRAMING,
-        AbortReason,
-        FrameAborted,
         FrameDecoder,
         FrameEncoder,
         FrameTooLong,
         Framing,
-        FramingError,
         FramingStats,
-        NoiseDropped,
         encode_frame,
+    )
+    from fpgalink.protocol.framingerrors import (
+        AbortReason,
+        CrcMismatch,
+        FrameAborted,
+        FramingError,
+        NoiseDropped,
     )
     from fpgalink.protocol.identity import (
         NOT_ASKED,

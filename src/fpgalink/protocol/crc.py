@@ -31,7 +31,7 @@ from typing import Any
 
 from fpgalink.protocol.catalogue import ParamGet, ParamSet
 from fpgalink.protocol.codec import parse_content
-from fpgalink.protocol.framing import FramingError
+from fpgalink.protocol.framingerrors import CrcMismatch
 from fpgalink.protocol.messages import DIRECT_BY_CONTENT, DirectCommand, Malformed
 from fpgalink.protocol.params import lookup
 
@@ -162,13 +162,6 @@ def handshake_request(content: bytes) -> bool:
     return (msg_id is not None and content[:2] == msg_id and content[2:7].isdigit()
             and content[7] == 0x7B and content[8] == len(content) - 10
             and content[-1] == 0x7D and content[9] == WIRE_CRC_PARAM)
-
-
-@dataclass(frozen=True, slots=True)
-class CrcMismatch(FramingError):
-    """A frame whose CRC did not match, dropped (``dropped``: its content bytes)."""
-
-    content: bytes = b""
 
 
 class BoardWireCrc:

@@ -24,10 +24,9 @@ from __future__ import annotations
 
 import re
 from dataclasses import dataclass
-from enum import Enum
 
 from fpgalink.protocol.errors import LocalProtocolError
-from fpgalink.protocol.event import Event
+from fpgalink.protocol.framingerrors import AbortReason, FrameAborted, FramingError, NoiseDropped
 
 __all__ = [
     "DEFAULT_FRAMING",
@@ -122,35 +121,6 @@ def encode_frame(
     if encoder is None:
         encoder = _encoders[framing] = FrameEncoder(framing)
     return encoder.encode(content)
-
-
-# --- decoder events -------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class FramingError(Event):
-    """Base of the counted framing errors; ``dropped`` is how many wire bytes were discarded."""
-
-    dropped: int
-
-
-@dataclass(frozen=True, slots=True)
-class NoiseDropped(FramingError):
-    """Bytes outside any frame (the decoder was hunting for START)."""
-
-
-class AbortReason(Enum):
-    RESTART = "restart"  #: an unescaped START arrived inside a frame
-    OVERFLOW = "overflow"  #: content passed the limit
-
-
-@dataclass(frozen=True, slots=True)
-class FrameAborted(FramingError):
-    """Frames that were started and never delivered: ``count`` of them in a row (a run of
-    restarts is one event), ``dropped`` wire bytes in all."""
-
-    reason: AbortReason
-    count: int = 1
 
 
 @dataclass(slots=True)
