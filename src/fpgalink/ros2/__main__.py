@@ -218,7 +218,33 @@ def _say(text: str) -> None:
     sys.exit(0)
 
 
+class _LoadingInterrupts:
+    """Ctrl-C while the node loads, noted as well as raised: an import it cuts short fails as
+    an ``ImportError`` (a C extension's initialisation interrupted: rclpy's, measured), which
+    must read as the interrupt, not as ROS 2 missing."""
+
+    def __init__(self) -> None:
+        self.seen = False
+
+    def __call__(self, signum: int, frame: Any) -> None:
+        self.seen = True
+        signal.default_int_handler(signum, frame)
+
+    def watch(self) -> None:
+        if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
+            signal.signal(signal.SIGINT, self)
+
+    def done(self) -> None:
+        """Loaded: Ctrl-C is asyncio's and then the node's own again."""
+        if signal.getsignal(signal.SIGINT) is self:
+            signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+_loading = _LoadingInterrupts()
+
+
 def main(argv: list[str] | None = None) -> None:
+    _loading.watch()
     try:
         _main(argv)
     except KeyboardInterrupt:
@@ -233,6 +259,8 @@ def _main(argv: list[str] | None) -> None:
     argv = list(sys.argv if argv is None else argv)
     _answer_without_ros(argv)
     if not available():
+        if _loading.seen:
+            raise KeyboardInterrupt
         _fail(ROS2_INSTALL_HINT, EXIT_NO_ROS2)
     import rclpy
 
@@ -246,6 +274,7 @@ def _main(argv: list[str] | None) -> None:
     # SIGINT and SIGTERM are the node's own (the event loop's handlers end it cleanly);
     # rclpy's would shut its context down under a node still being made.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
+    _loading.done()
     code = 0
     try:
         opening = {"baud": startup.baud, "wire_crc": startup.wire_crc,
