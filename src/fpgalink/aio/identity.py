@@ -15,11 +15,11 @@ the link keeps it as ``link.identification``."""
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import random
 from collections.abc import Callable
 from typing import Protocol
 
+from fpgalink.aio.tasks import cancel_and_wait
 from fpgalink.connection.identity import KnownIdentity
 from fpgalink.errors import (
     BoardLost,
@@ -176,6 +176,4 @@ class Identification:
 
     async def close(self) -> None:
         if self._again is not None:
-            self._again.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._again
+            await cancel_and_wait(self._again)  # its failure: nothing more is asked anyway

@@ -17,7 +17,6 @@ of another protocol declaration refused, asked again after each restart).
 from __future__ import annotations
 
 import asyncio
-import contextlib
 from collections.abc import AsyncIterator, Awaitable, Callable, Iterable, Mapping
 from dataclasses import dataclass
 from enum import Enum
@@ -29,6 +28,7 @@ from fpgalink.aio.clock import LinkClock, LinkTimer
 from fpgalink.aio.fanout import Stamped, Subscribers
 from fpgalink.aio.identity import Identification
 from fpgalink.aio.subscription import Subscription
+from fpgalink.aio.tasks import cancel_and_wait
 from fpgalink.aio.transport import ProtocolFactory, open_transport
 from fpgalink.connection import Connection, LinkOptions, LinkStats, Liveness
 from fpgalink.errors import BoardLost, FpgalinkError, LinkClosed, PortError
@@ -186,9 +186,7 @@ class Link:
         if connected:
             self._write(self.connection.data_to_send())
         if self._reconnect_task is not None:
-            self._reconnect_task.cancel()
-            with contextlib.suppress(asyncio.CancelledError, Exception):
-                await self._reconnect_task
+            await cancel_and_wait(self._reconnect_task)  # its failure: the link closes anyway
         await self.identification.close()
         self._timer.cancel()
         self._batches.cancel()

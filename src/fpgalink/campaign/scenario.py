@@ -24,6 +24,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from fpgalink.aio.tasks import cancel_and_wait
 from fpgalink.aio.virtualtime import run_virtual
 from fpgalink.campaign.recording import ScenarioRecording
 from fpgalink.campaign.spec import Action, ParamSetting, Scenario
@@ -138,12 +139,10 @@ class _Run:
                     with contextlib.suppress(FpgalinkError):
                         robot.stop()
             finally:
-                keeper.cancel()
-                watcher.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await keeper
-                with contextlib.suppress(asyncio.CancelledError):
-                    await watcher
+                for helper in (keeper, watcher):
+                    failed = await cancel_and_wait(helper)
+                    if failed is not None:
+                        raise failed
             self._totals(loop.time() - started)
             if robot.state is State.ENABLED:
                 robot.disable()

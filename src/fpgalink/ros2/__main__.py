@@ -219,9 +219,13 @@ def _say(text: str) -> None:
 
 
 class _LoadingInterrupts:
-    """Ctrl-C while the node loads, noted as well as raised: an import it cuts short fails as
-    an ``ImportError`` (a C extension's initialisation interrupted: rclpy's, measured), which
-    must read as the interrupt, not as ROS 2 missing."""
+    """Ctrl-C while the node loads, until the node's own handler takes SIGINT over (the first
+    thing its event loop does): raised as KeyboardInterrupt where it lands, and noted, for an
+    import it cuts short fails as an ``ImportError`` (a C extension's initialisation
+    interrupted: rclpy's, measured), which must read as the interrupt, not as ROS 2 missing
+    nor as a traceback. Being SIGINT's handler, it also keeps asyncio.run's own from being
+    put in place, which would only cancel the node's task: a cancellation the robot's start
+    could take for its own, leaving a node that never ends."""
 
     def __init__(self) -> None:
         self.seen = False
@@ -230,23 +234,24 @@ class _LoadingInterrupts:
         self.seen = True
         signal.default_int_handler(signum, frame)
 
-    def watch(self) -> None:
+    def install(self) -> None:
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             signal.signal(signal.SIGINT, self)
-
-    def done(self) -> None:
-        """Loaded: Ctrl-C is asyncio's and then the node's own again."""
-        if signal.getsignal(signal.SIGINT) is self:
-            signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 _loading = _LoadingInterrupts()
 
 
 def main(argv: list[str] | None = None) -> None:
-    _loading.watch()
+    _loading.install()
     try:
         _main(argv)
+    except Exception:
+        if not _loading.seen:
+            raise
+        # What a Ctrl-C cut short failed after it (an interrupted import): the interrupt's.
+        print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
+        sys.exit(ExitCode.INTERRUPTED)
     except KeyboardInterrupt:
         # Ctrl-C before the event loop's own handler is in place (rclpy and the robot take a
         # few seconds to load): asyncio.run has closed what it opened. One line, not a
@@ -274,7 +279,6 @@ def _main(argv: list[str] | None) -> None:
     # SIGINT and SIGTERM are the node's own (the event loop's handlers end it cleanly);
     # rclpy's would shut its context down under a node still being made.
     rclpy.init(args=argv, signal_handler_options=SignalHandlerOptions.NO)
-    _loading.done()
     code = 0
     try:
         opening = {"baud": startup.baud, "wire_crc": startup.wire_crc,

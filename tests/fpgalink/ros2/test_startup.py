@@ -212,3 +212,36 @@ def test_an_import_a_ctrl_c_cut_short_reads_as_the_interrupt_not_as_ros2_missing
                           text=True, timeout=60, check=False)
     assert done.returncode == 130, done
     assert done.stderr.strip().splitlines() == ["fpgalink-ros2: interrupted"], done.stderr
+
+
+def test_a_ctrl_c_as_the_nodes_event_loop_begins_ends_it_whatever_takes_the_cancel(
+        nowhere: Path) -> None:
+    """SIGINT after ROS 2 is loaded but before the node's own handler is in place (its event
+    loop's first step): the node ends, ``interrupted``, 130. It is not left to asyncio.run's
+    handler, which only cancels the node's task: here the task takes each cancellation for
+    its own and goes on, as a start that swallowed it would, and the node would run until
+    the end of its work (0) instead of stopping."""
+    missing = _why_no_console_run()
+    if missing is not None:
+        pytest.skip(missing)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    code = textwrap.dedent("""
+        import asyncio, os, signal, sys
+        import fpgalink.ros2.__main__ as node
+        async def takes_the_cancel(*args, **kwargs):
+            os.kill(os.getpid(), signal.SIGINT)
+            for _ in range(30):
+                try:
+                    await asyncio.sleep(0.1)
+                except asyncio.CancelledError:
+                    pass
+            return 0
+        node._run = takes_the_cancel
+        sys.argv[0] = "fpgalink-ros2"
+        node.main()
+    """)
+    done = subprocess.run([str(NETNS), sys.executable, "-c", code], cwd=nowhere, env=env,
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 130, done
+    assert done.stderr.strip().splitlines()[-1] == "fpgalink-ros2: interrupted", done.stderr
