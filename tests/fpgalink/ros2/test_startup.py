@@ -116,6 +116,12 @@ def test_a_config_file_that_cannot_be_used_says_why(nowhere: Path, text: str,
         startup()
 
 
+def _node_env() -> dict[str, str]:
+    """A node started from this checkout, finding its peers on this host only."""
+    return dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
+                ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+
+
 def _why_no_console_run() -> str | None:
     if importlib.util.find_spec("rclpy") is None:
         return "rclpy is not installed"
@@ -130,7 +136,7 @@ def test_the_node_opens_the_config_files_ports(nowhere: Path) -> None:
     (nowhere / "fpgalink.toml").write_text(
         '[ports]\nL = "/dev/fpgalink-test-no-such-L"\nR = "/dev/fpgalink-test-no-such-R"\n',
         encoding="utf-8")
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]))
+    env = _node_env()
     done = subprocess.run([str(NETNS), sys.executable, "-m", "fpgalink.ros2"], cwd=nowhere,
                           env=env, capture_output=True, text=True, timeout=120, check=False)
     # Those ports, not the emulated robot: they do not exist, so exit 5 (port missing).
@@ -147,8 +153,7 @@ def test_a_ctrl_c_while_the_node_loads_is_one_line_not_a_traceback(nowhere: Path
     missing = _why_no_console_run()
     if missing is not None:
         pytest.skip(missing)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = _node_env()
     # As the console script's entry point: its module imported (light: the heavy imports are
     # main's), then main. The line is said as main's body begins (a profile hook), so the
     # signal lands in what main guards, at some point of the loading.
@@ -193,7 +198,7 @@ def test_an_import_a_ctrl_c_cut_short_reads_as_the_interrupt_not_as_ros2_missing
     KeyboardInterrupt in its chain: the node must say ``interrupted`` (exit 130), not that
     ROS 2 is missing (exit 8, the install hint). Here the import is stood in for: the
     signal arrives, and the check of ROS 2's packages answers what such an import gives."""
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]))
+    env = _node_env()
     code = textwrap.dedent("""
         import os, signal, sys, time
         import fpgalink.ros2.__main__ as node
@@ -224,8 +229,7 @@ def test_a_ctrl_c_as_the_nodes_event_loop_begins_ends_it_whatever_takes_the_canc
     missing = _why_no_console_run()
     if missing is not None:
         pytest.skip(missing)
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT / "src"), str(ROOT)]),
-               ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
+    env = _node_env()
     code = textwrap.dedent("""
         import asyncio, os, signal, sys
         import fpgalink.ros2.__main__ as node
