@@ -235,6 +235,11 @@ class _LoadingInterrupts:
         signal.default_int_handler(signum, frame)
 
     def install(self) -> None:
+        # The node stops on SIGINT and SIGTERM: neither may stay blocked in the mask it was
+        # started with (inherited across fork and exec from whatever started it, a thread
+        # of a process that blocked them for a while among them), or it would never stop.
+        if hasattr(signal, "pthread_sigmask"):
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT, signal.SIGTERM})
         if signal.getsignal(signal.SIGINT) is signal.default_int_handler:
             signal.signal(signal.SIGINT, self)
 

@@ -11,6 +11,7 @@ import signal
 import subprocess
 import sys
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
 
 import pytest
@@ -122,6 +123,13 @@ def _node_env() -> dict[str, str]:
                 ROS_AUTOMATIC_DISCOVERY_RANGE="LOCALHOST")
 
 
+def _foreground() -> None:
+    """A child as a shell starts it in the foreground: SIGINT neither ignored nor blocked,
+    whatever this test process inherited or was left with by the tests before it."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
 def _why_no_console_run() -> str | None:
     if importlib.util.find_spec("rclpy") is None:
         return "rclpy is not installed"
@@ -171,7 +179,7 @@ def test_a_ctrl_c_while_the_node_loads_is_one_line_not_a_traceback(nowhere: Path
         main()
     """)
     node = subprocess.Popen([str(NETNS), sys.executable, "-c", code], cwd=nowhere, env=env,
-                            stderr=subprocess.PIPE, text=True)
+                            stderr=subprocess.PIPE, text=True, preexec_fn=_foreground)
     assert node.stderr is not None
     first = node.stderr.readline()
     assert first == "python up\n", first
@@ -185,14 +193,26 @@ def test_a_ctrl_c_while_the_node_loads_is_one_line_not_a_traceback(nowhere: Path
         except subprocess.TimeoutExpired:
             node.kill()
             _, said = node.communicate()
-        raise AssertionError(f"the node did not end on SIGINT: {said[-6000:]}") from None
+        mine = (signal.getsignal(signal.SIGINT),
+                signal.SIGINT in signal.pthread_sigmask(signal.SIG_BLOCK, set()))
+        raise AssertionError(f"the node did not end on SIGINT (this test's process: SIGINT "
+                             f"{mine[0]!r}, blocked {mine[1]}): {said[-6000:]}") from None
     assert "Traceback" not in said, said[-3000:]
     assert node.returncode in (0, 130), (node.returncode, said[-3000:])
     if node.returncode == 130:
         assert said.strip().splitlines()[-1] == "fpgalink-ros2: interrupted", said[-3000:]
 
 
-def test_an_import_a_ctrl_c_cut_short_reads_as_the_interrupt_not_as_ros2_missing() -> None:
+def _blocked() -> None:
+    """A child started with SIGINT blocked, as a thread that blocked it for a while (a
+    campaign starting its pool's workers does) would start it."""
+    _foreground()
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+
+
+@pytest.mark.parametrize("started", [_foreground, _blocked], ids=["foreground", "blocked"])
+def test_an_import_a_ctrl_c_cut_short_reads_as_the_interrupt_not_as_ros2_missing(
+        started: Callable[[], None]) -> None:
     """A SIGINT inside rclpy's C extension's initialisation comes out of the import as an
     ``ImportError`` (seen 2 times in 60 imports interrupted at random points), with no
     KeyboardInterrupt in its chain: the node must say ``interrupted`` (exit 130), not that
@@ -214,7 +234,7 @@ def test_an_import_a_ctrl_c_cut_short_reads_as_the_interrupt_not_as_ros2_missing
         node.main()
     """)
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                          text=True, timeout=60, check=False)
+                          text=True, timeout=60, check=False, preexec_fn=started)
     assert done.returncode == 130, done
     assert done.stderr.strip().splitlines() == ["fpgalink-ros2: interrupted"], done.stderr
 
@@ -246,6 +266,7 @@ def test_a_ctrl_c_as_the_nodes_event_loop_begins_ends_it_whatever_takes_the_canc
         node.main()
     """)
     done = subprocess.run([str(NETNS), sys.executable, "-c", code], cwd=nowhere, env=env,
-                          capture_output=True, text=True, timeout=120, check=False)
+                          capture_output=True, text=True, timeout=120, check=False,
+                          preexec_fn=_foreground)
     assert done.returncode == 130, done
     assert done.stderr.strip().splitlines()[-1] == "fpgalink-ros2: interrupted", done.stderr
