@@ -139,8 +139,9 @@ class _Run:
                     with contextlib.suppress(FpgalinkError):
                         robot.stop()
             finally:
-                for helper in (keeper, watcher):
-                    failed = await cancel_and_wait(helper)
+                # Both ended before either's failure is raised: none left running.
+                failures = [await cancel_and_wait(helper) for helper in (keeper, watcher)]
+                for failed in failures:
                     if failed is not None:
                         raise failed
             self._totals(loop.time() - started)
