@@ -117,10 +117,15 @@ class _Entry(NamedTuple):
     build: Callable[[tuple[Any, ...]], Any]
 
 
+def _whole(msg_id: MessageId, id_code: str) -> struct.Struct:
+    """The entire content as one struct: the ID (``id_code``: ``2s`` packs it, ``2x`` skips
+    it), five counter digits, ``{`` LEN, body, ``}``."""
+    return struct.Struct("<" + id_code + "5s2s" + _STRUCTS[msg_id].format[1:] + "c")
+
+
 def _entry(msg_id: MessageId, build: Callable[[tuple[Any, ...]], Any]) -> _Entry:
-    body = _STRUCTS[msg_id]
-    whole = struct.Struct("<2x5s2s" + body.format[1:] + "c")
-    return _Entry(whole, body.size, bytes((SECTION_OPEN, body.size)), build)
+    size = _STRUCTS[msg_id].size
+    return _Entry(_whole(msg_id, "2x"), size, bytes((SECTION_OPEN, size)), build)
 
 
 _BUILDERS: Final[dict[bytes, _Entry]] = {
@@ -135,7 +140,6 @@ _BUILDERS: Final[dict[bytes, _Entry]] = {
         v[2], v[3], v[4], v[5], v[6], v[7], v[8], int(v[0]))),
 }
 _CLOSE: Final = b"}"
-
 
 
 def parse_content(content: bytes) -> Parsed:
@@ -230,15 +234,10 @@ def parse_contents(contents: Sequence[bytes]) -> list[Parsed]:
     return out
 
 
-def _whole(msg_id: MessageId) -> struct.Struct:
-    """The entire content as one struct: ID, five counter digits, ``{`` LEN, body, ``}``."""
-    return struct.Struct("<2s5s2s" + _STRUCTS[msg_id].format[1:] + "c")
-
-
 #: message type → (the whole-content struct, its ID, the section opener), for encoding in
 #: one pack call.
 _ENCODERS: Final[dict[type, tuple[struct.Struct, bytes, bytes]]] = {
-    cls: (_whole(cls.msg_id), bytes(cls.msg_id),
+    cls: (_whole(cls.msg_id, "2s"), bytes(cls.msg_id),
           bytes((SECTION_OPEN, _STRUCTS[cls.msg_id].size)))
     for cls in MESSAGE_TYPES
 }
