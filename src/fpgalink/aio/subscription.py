@@ -77,7 +77,7 @@ class Subscription(Generic[T]):
                 await waiter
             finally:
                 # Woken, it is gone from the list (put took the list); cancelled, it leaves.
-                if self._waiters and waiter in self._waiters:
+                if waiter in self._waiters:
                     self._waiters.remove(waiter)
         return self._items.popleft()
 

@@ -251,16 +251,13 @@ def main(argv: list[str] | None = None) -> None:
     _loading.install()
     try:
         _main(argv)
-    except Exception:
-        if not _loading.seen:
-            raise
-        # What a Ctrl-C cut short failed after it (an interrupted import): the interrupt's.
-        print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
-        sys.exit(ExitCode.INTERRUPTED)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, Exception) as exc:
         # Ctrl-C before the event loop's own handler is in place (rclpy and the robot take a
-        # few seconds to load): asyncio.run has closed what it opened. One line, not a
-        # traceback, as fpgalink-cli says it.
+        # few seconds to load), or what it cut short failed after it (an interrupted
+        # import): asyncio.run has closed what it opened. One line, not a traceback, as
+        # fpgalink-cli says it.
+        if not (isinstance(exc, KeyboardInterrupt) or _loading.seen):
+            raise
         print(f"{PROG}: interrupted", file=sys.stderr, flush=True)
         sys.exit(ExitCode.INTERRUPTED)
 
