@@ -42,6 +42,7 @@ __all__ = [
     "RobotSide",
     "RxFlow",
     "earliest",
+    "earliest_time",
     "schedule_unplugs",
 ]
 
@@ -210,6 +211,10 @@ class PacedBoard:
         return self._hosts_wake(self._wake_at(self.board.next_deadline(),
                                               self.board.uartwrite.next_completion))
 
+    def tx_busy(self) -> bool:
+        """A frame is on the board's TX pin (some of it may have ended already)."""
+        return self.board.uartwrite.next_completion is not None
+
     def pending_cycle(self) -> int | None:
         """The earliest cycle at which the board has work to do that the host could see
         (its next deadline, the end of the frame on its TX pin)."""
@@ -258,6 +263,11 @@ def schedule_unplugs(paced: PacedBoard, unplug: Callable[[], None],
 def earliest(*cycles: int | None) -> int | None:
     """The earliest of the cycles given, ``None`` for none."""
     return min((c for c in cycles if c is not None), default=None)
+
+
+def earliest_time(*times: float | None) -> float | None:
+    """The earliest of the times given, ``None`` for none."""
+    return min((t for t in times if t is not None), default=None)
 
 
 class PacedRobot:

@@ -8,8 +8,9 @@ import contextlib
 import os
 from pathlib import Path
 
+from fpgaemu.serving.bridge import TxBridge
 from fpgaemu.serving.loop import Pacer, say
-from fpgaemu.serving.pacing import TX_BACKLOG_S, PacedBoard, RxFlow, schedule_unplugs
+from fpgaemu.serving.pacing import TX_BACKLOG_S, PacedBoard, RxFlow, earliest_time, schedule_unplugs
 from fpgalink.ports import LinkError, LinkTaken, PtyOutput, make_link, open_raw_pty, pty_where
 from fpgalink.ports import remove_own_link as remove_link
 
@@ -21,13 +22,16 @@ class PtyEndpoint:
     that closes and reopens the path finds the same board still running. Host bytes are read
     only as fast as the line carries them: while
     :data:`~fpgaemu.serving.pacing.RX_BACKLOG_BYTES` wait, the pty is not read and the
-    host's ``write`` waits in the kernel's tty buffer."""
+    host's ``write`` waits in the kernel's tty buffer. The board's bytes reach the pty as a
+    USB-UART bridge hands them over (:class:`~fpgaemu.serving.bridge.TxBridge`): a frame
+    whole, as it ends."""
 
     def __init__(self, paced: PacedBoard) -> None:
         self.paced = paced
         self._open_pty()
         self.flow = RxFlow(paced, self._pause, self._resume)
-        self.pacer = Pacer(self._tick, self.flow.next_wake)
+        self.bridge = TxBridge(paced)
+        self.pacer = Pacer(self._tick, self._next_wake)
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         #: TX bytes lost because nobody read the pty for longer than the backlog holds
         self.dropped_tx = 0
@@ -68,7 +72,7 @@ class PtyEndpoint:
         loop = asyncio.get_running_loop()
         with contextlib.suppress(Exception):
             loop.remove_reader(self._master)
-        self.unplugged_tx += self._output.discard()
+        self.unplugged_tx += self._output.discard() + self.bridge.discard()
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)
@@ -118,9 +122,13 @@ class PtyEndpoint:
         self.flow.took()
         self.pacer.poke()
 
+    def _next_wake(self) -> float | None:
+        return earliest_time(self.flow.next_wake(), self.bridge.next_wake())
+
     def _tick(self) -> None:
-        out = self.paced.advance()
+        self.paced.run()
         self.flow.check()
+        out = self.bridge.take()
         if self.unplugged:
             self.unplugged_tx += len(out)
             return

@@ -7,6 +7,7 @@ import asyncio
 import contextlib
 import socket
 
+from fpgaemu.serving.bridge import TxBridge
 from fpgaemu.serving.listening import ListeningEndpoint, turn_away
 from fpgaemu.serving.loop import Pacer, say
 from fpgaemu.serving.pacing import (
@@ -14,6 +15,7 @@ from fpgaemu.serving.pacing import (
     TX_BACKLOG_S,
     PacedBoard,
     RxFlow,
+    earliest_time,
     schedule_unplugs,
 )
 
@@ -76,7 +78,8 @@ class TcpEndpoint(ListeningEndpoint):
     line carries them (the host's writes wait in its socket meanwhile); TX bytes a host does
     not read pile up to the same backlog a pty keeps, then the newest are dropped and
     counted. A host that sends nothing for ``idle_timeout`` seconds after connecting is
-    told so and disconnected."""
+    told so and disconnected. The board's bytes are sent as a USB-UART bridge hands them
+    over (:class:`~fpgaemu.serving.bridge.TxBridge`): a frame whole, as it ends."""
 
     def __init__(self, paced: PacedBoard, host: str, port: int, *,
                  idle_timeout: float = IDLE_TIMEOUT_S) -> None:
@@ -84,7 +87,8 @@ class TcpEndpoint(ListeningEndpoint):
         self.paced = paced
         self.idle_timeout = idle_timeout
         self.flow = RxFlow(paced, self._pause, self._resume)
-        self.pacer = Pacer(self._tick, self.flow.next_wake)
+        self.bridge = TxBridge(paced)
+        self.pacer = Pacer(self._tick, self._next_wake)
         self._backlog = int(TX_BACKLOG_S * paced.board.config.baud / 10)
         self._connection: _HostConnection | None = None
         self._busy = False  #: a host is being connected or is connected
@@ -212,6 +216,7 @@ class TcpEndpoint(ListeningEndpoint):
             self._idle.cancel()
             self._idle = None
         self.paced.host_gone()
+        self.bridge.discard()  # half a frame for nobody
         self.flow.reset()
         self._release()
 
@@ -230,9 +235,13 @@ class TcpEndpoint(ListeningEndpoint):
     def host_connected(self) -> bool:
         return self._connection is not None
 
+    def _next_wake(self) -> float | None:
+        return earliest_time(self.flow.next_wake(), self.bridge.next_wake())
+
     def _tick(self) -> None:
-        out = self.paced.advance()
+        self.paced.run()
         self.flow.check()
+        out = self.bridge.take()
         connection = self._connection
         if out and connection is not None and connection.transport is not None and \
                 not connection.transport.is_closing():
