@@ -152,7 +152,10 @@ async def test_a_host_on_a_served_pty_reads_a_frame_once_not_in_parts() -> None:
             except BlockingIOError:
                 return
             for item in decoder.feed(data):
-                (frames if isinstance(item, bytes) else broken).append(item)
+                if isinstance(item, bytes):
+                    frames.append(item)
+                else:
+                    broken.append(item)
 
     def readable() -> None:
         drain()
