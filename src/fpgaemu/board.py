@@ -259,6 +259,14 @@ class Board:
             return bytes(b for b, _ in self._take_carried()) + self.uartwrite.read_completed()
         return self.uartwrite.read_completed()
 
+    def read_host_runs(self) -> bytes:
+        """As :meth:`read_host_bytes`, a run of bytes (a frame) only once it has ended
+        whole: :meth:`UartWrite.read_completed_runs`."""
+        if self._carried_tx:
+            return bytes(b for b, _ in self._take_carried()) + \
+                self.uartwrite.read_completed_runs()
+        return self.uartwrite.read_completed_runs()
+
     def read_host_bytes_timed(self) -> list[tuple[int, int]]:
         """As :meth:`read_host_bytes`, as ``(byte, completion cycle)`` pairs."""
         if self._carried_tx:

@@ -761,6 +761,28 @@ class UartWrite(_Line):
             out += run.data[taken:done]
         return bytes(out)
 
+    def read_completed_runs(self, cycle: int | None = None) -> bytes:
+        """As :meth:`read_completed`, a run (a frame, or the part of one between two of a
+        fault's gaps) only once its last stop bit has ended by ``cycle`` (default now):
+        what has ended of the run still on the wire waits, whole, for its end."""
+        at = self._timeline.now if cycle is None else cycle
+        pending = self._pending
+        out = bytearray()
+        while pending and pending[0].last <= at:
+            run = pending.popleft()
+            out += run.data[self._head_taken:] if self._head_taken else run.data
+            self._head_taken = 0
+        return bytes(out)
+
+    @property
+    def oldest_unread(self) -> int | None:
+        """The cycle the oldest byte not read yet ends (or ended), ``None`` for none."""
+        pending = self._pending
+        if not pending:
+            return None
+        run = pending[0]
+        return run.first + self._head_taken * run.step
+
     def read_completed_timed(self, cycle: int | None = None) -> list[tuple[int, int]]:
         """As :meth:`read_completed`, as ``(byte, completion cycle)`` pairs."""
         out: list[tuple[int, int]] = []

@@ -9,11 +9,11 @@ import asyncio
 import os
 
 from fpgaemu.build import build_board
-from fpgaemu.serve import PacedBoard, PtyEndpoint
+from fpgaemu.serve import PacedBoard, PtyEndpoint, TcpEndpoint
 from fpgaemu.serving.bridge import BRIDGE_LATENCY_S, TxBridge
 from fpgaemu.timeline import CLOCK_HZ
 from fpgalink import Connection
-from fpgalink.protocol import Enable, FrameDecoder, ParamSet
+from fpgalink.protocol import DEFAULT_FRAMING, Enable, FrameDecoder, ParamSet
 from tests.support.wire import sent
 
 STEP_S = 50e-6  #: how often the fake serving loop wakes: finer than a byte's 10 µs × 5
@@ -37,28 +37,26 @@ def whole_frames(chunk: bytes) -> int:
     return len(items)
 
 
-def bursts(timed: list[tuple[int, int]], byte_cycles: int) -> list[tuple[bytes, int]]:
-    """The reference: bytes with their stop bits' ends, cut where the line idled (the next
-    byte ended more than a byte time after the one before), each burst with its end."""
-    out: list[tuple[bytes, int]] = []
-    group: list[tuple[int, int]] = []
-    for byte, done in timed:
-        if group and done - group[-1][1] > byte_cycles:
-            out.append((bytes(b for b, _ in group), group[-1][1]))
-            group = []
-        group.append((byte, done))
-    if group:
-        out.append((bytes(b for b, _ in group), group[-1][1]))
-    return out
+def frame_ends(chunk: bytes) -> list[int]:
+    """The index of each frame's last byte in ``chunk`` (its STOP, not an escaped one)."""
+    ends, escaped = [], False
+    for i, byte in enumerate(chunk):
+        if escaped:
+            escaped = False
+        elif byte == DEFAULT_FRAMING.skip:
+            escaped = True
+        elif byte == DEFAULT_FRAMING.stop:
+            ends.append(i)
+    return ends
 
 
-def test_each_burst_is_handed_on_whole_as_its_last_stop_bit_ends() -> None:
+def test_each_frame_is_handed_on_whole_at_the_first_wake_up_after_it_ends() -> None:
     now, ref_now = [100.0], [100.0]
     paced, reference = streaming_board(now), streaming_board(ref_now)
     bridge = TxBridge(paced)
     chunks: list[tuple[bytes, int]] = []  # what the host got, and the board's cycle then
-    timed: list[tuple[int, int]] = []
-    for _ in range(int(0.02 / STEP_S)):  # 20 ms: ~20 TM and the echoes
+    timed: list[tuple[int, int]] = []  # the line itself: each byte and when it ended
+    for _ in range(int(0.03 / STEP_S)):  # 30 ms: ~30 TM and the echoes
         now[0] += STEP_S
         ref_now[0] += STEP_S
         paced.run()
@@ -67,67 +65,48 @@ def test_each_burst_is_handed_on_whole_as_its_last_stop_bit_ends() -> None:
             chunks.append((out, paced.board.now))
         reference.run()
         timed += reference.board.read_host_bytes_timed()
-    expected = bursts(timed, paced.board.uartwrite.cycles_per_byte)
-    if bridge.held:  # a frame still on the pin when the run stopped
-        expected = expected[:-1]
-    assert len(expected) >= 18
-    assert [c for c, _ in chunks] == [b for b, _ in expected]
+    wire = b"".join(c for c, _ in chunks)
+    assert len(wire) >= 28 * 54
+    assert wire == bytes(b for b, _ in timed[:len(wire)])  # every byte, in order
     step = round(STEP_S * CLOCK_HZ)
-    for (_, handed_at), (_, ended_at) in zip(chunks, expected, strict=True):
-        # At the first wake-up after the burst's last stop bit: never before, never later.
-        assert ended_at <= handed_at < ended_at + step + 1
-    assert sum(whole_frames(c) for c, _ in chunks) == len(chunks)  # each TM alone
+    at = 0
+    for chunk, handed_at in chunks:
+        assert whole_frames(chunk) == len(frame_ends(chunk))
+        ends = [timed[at + i][1] for i in frame_ends(chunk)]
+        # Never before its last stop bit; at the first wake-up after the first frame in it
+        # ended (a frame that had ended by a wake-up was handed on then, not held).
+        assert ends[-1] <= handed_at < ends[0] + step + 1
+        at += len(chunk)
     assert bridge.handovers == len(chunks)
 
 
-def test_a_burst_longer_than_the_latency_timer_goes_out_within_it() -> None:
+def test_a_frame_longer_than_the_latency_timer_goes_out_within_it() -> None:
     now = [5.0]
     paced = PacedBoard(build_board(), clock=lambda: now[0])
+    line = paced.board.uartwrite
     bridge = TxBridge(paced)
-    burst = bytes(range(256)) + bytes(44)  # 300 bytes back to back: 3 ms of line
-    paced.board.uartwrite.transmit(burst)
+    long_frame = bytes(range(256)) + bytes(44)  # 300 bytes back to back: 3 ms of line
+    line.transmit(long_frame)
     got = bytearray()
-    handed: list[tuple[int, int]] = []  # (the oldest byte's hold, the hand-on) in cycles
-    held_since: int | None = None
-    while len(got) < len(burst):
+    parts = 0
+    step = round(STEP_S * CLOCK_HZ)
+    while len(got) < len(long_frame):
         now[0] += STEP_S
         paced.run()
-        wake = bridge.next_wake()
+        oldest = line.oldest_unread
+        assert oldest is not None
+        # The serving loop is asked to wake when the latency timer runs out.
+        assert bridge.next_wake() == paced.time_of(oldest + LATENCY + 1)
         out = bridge.take()
-        if out:
-            assert held_since is not None
-            handed.append((held_since, paced.board.now))
-            got += out
-            held_since = None
-        elif bridge.held and held_since is None:
-            held_since = paced.board.now
-            wake = bridge.next_wake()
-            # The serving loop is asked to wake when the latency timer runs out.
-            assert wake == paced.time_of(held_since + LATENCY + 1)
-        if bridge.held == 0 and not out:
-            assert wake is None
-    assert bytes(got) == burst
-    assert len(handed) >= 3
-    step = round(STEP_S * CLOCK_HZ)
-    for since, at in handed[:-1]:  # the line still busy: the latency timer's doing
-        assert LATENCY <= at - since < LATENCY + step + 1
-    assert not paced.tx_busy()
-
-
-def test_what_the_bridge_held_goes_with_an_unplugged_port() -> None:
-    now = [5.0]
-    paced = PacedBoard(build_board(), clock=lambda: now[0])
-    bridge = TxBridge(paced)
-    paced.board.uartwrite.transmit(b"x" * 50)
-    now[0] += 0.0002  # 20 bytes ended
-    paced.run()
-    assert bridge.take() == b""
-    held = bridge.held
-    assert 19 <= held <= 20
-    assert bridge.discard() == held and bridge.held == 0 and bridge.next_wake() is None
-    now[0] += 0.001
-    paced.run()
-    assert bridge.take() == b"x" * (50 - held)  # the rest of the frame, as it ended
+        if out and len(got) + len(out) < len(long_frame):  # the frame not ended yet
+            parts += 1
+            assert oldest + LATENCY <= paced.board.now < oldest + LATENCY + step
+        elif not out:
+            assert paced.board.now < oldest + LATENCY
+        got += out
+    assert bytes(got) == long_frame
+    assert parts >= 2
+    assert line.oldest_unread is None and bridge.next_wake() is None
 
 
 async def test_a_host_on_a_served_pty_reads_a_frame_once_not_in_parts() -> None:
@@ -175,4 +154,30 @@ async def test_a_host_on_a_served_pty_reads_a_frame_once_not_in_parts() -> None:
         assert endpoint.bridge.handovers >= 100  # it did hand frames on, one by one mostly
     finally:
         os.close(fd)
+        await endpoint.close()
+
+
+async def test_a_tcp_host_gets_a_frame_in_one_segment_not_in_parts() -> None:
+    # The same bridge in front of a TCP host: a frame is one write, whole (the host may
+    # read several at once; a part never).
+    endpoint = TcpEndpoint(PacedBoard(build_board()), "127.0.0.1", 0)
+    await endpoint.start()
+    try:
+        reader, writer = await asyncio.open_connection("127.0.0.1", endpoint.port)
+        host = Connection(baud=None)
+        writer.write(sent(Enable(), host) + sent(ParamSet(2, 0, 1, 1), host))
+        decoder = FrameDecoder()
+        frames = 0
+        while frames < 200:
+            data = await asyncio.wait_for(reader.read(65536), 10.0)
+            assert data, "serve closed the connection"
+            items = decoder.feed(data)
+            assert all(isinstance(item, bytes) for item in items), items
+            # On loopback a write is one segment, and a read returns whole segments.
+            assert decoder.pending == 0, f"a frame cut after {decoder.pending} bytes"
+            frames += len(items)
+        writer.close()
+        assert endpoint.bridge.handovers >= 100
+        assert decoder.stats.dropped_bytes == 0
+    finally:
         await endpoint.close()

@@ -7,12 +7,14 @@ as it ends. Serve used to hand out whatever had ended by each of its wake-ups, a
 for the board's own deadlines too, so a host read most frames in two parts: two wake-ups
 and two reads for one message that can be used only whole.
 
-:class:`TxBridge` hands bytes on when the TX line idles (the end of a frame, or of a burst
-of frames sent back to back), and while the line stays busy, no later than
-:data:`BRIDGE_LATENCY_S` after the first byte held: the FTDI latency timer at the setting
-docs/hardware.md asks for, counted in the board's time (a starved serve catching up hands a
-frame on whole all the same). A byte is never handed on before its stop bit has ended, and
-none is dropped here (a host that does not read is the endpoint's backlog's to judge).
+:class:`TxBridge` hands a frame on whole once its last stop bit has ended (with every other
+frame that ended since: a serve woken late hands on several at once), and a frame still on
+the line no later than :data:`BRIDGE_LATENCY_S` after its oldest byte ended: the FTDI
+latency timer at the setting docs/hardware.md asks for, which only a frame longer than 1 ms
+of line ever meets. Counted in the board's time, so a starved serve catching up hands
+frames on whole all the same. A byte is never handed on before its stop bit has ended, and
+none is dropped here: what has ended waits on the board's TX line, as in the bridge's
+buffer (a host that does not read is the endpoint's backlog's to judge).
 """
 
 from __future__ import annotations
@@ -22,59 +24,33 @@ from fpgaemu.timeline import CLOCK_HZ
 
 __all__ = ["BRIDGE_LATENCY_S", "TxBridge"]
 
-#: The longest a byte waits in the bridge while the line stays busy (the FT2232H's latency
-#: timer at 1 ms, as docs/hardware.md asks of a real board's port).
+#: The longest a byte waits in the bridge while its frame is still on the line (the
+#: FT2232H's latency timer at 1 ms, as docs/hardware.md asks of a real board's port).
 BRIDGE_LATENCY_S = 0.001
 
 
 class TxBridge:
-    """The board's TX bytes, handed on whole frames (or bursts) at a time."""
+    """The board's TX bytes, handed on a frame whole at a time."""
 
     def __init__(self, paced: PacedBoard, latency_s: float = BRIDGE_LATENCY_S) -> None:
         self.paced = paced
         self.latency_cycles = round(latency_s * CLOCK_HZ)
-        self._held = bytearray()
-        self._held_since: int | None = None  #: the board's cycle when the oldest was held
         self.handovers = 0  #: times bytes were handed on (a host's reads, at most)
 
     def take(self) -> bytes:
-        """The bytes to hand on now (``b""``: none): what ended on the line since the last
-        call, held while a frame is still on the pin, unless held for the latency bound."""
-        out = self.paced.take_bytes()
-        now = self.paced.board.now
+        """The bytes to hand on now (``b""``: none): every frame that has ended whole since
+        the last call; and what has ended of the frame still on the pin once its oldest
+        byte has waited the latency bound (a frame longer than that, or a slow line)."""
+        out = self.paced.take_runs()
+        oldest = self.paced.board.uartwrite.oldest_unread
+        if oldest is not None and self.paced.board.now >= oldest + self.latency_cycles:
+            out += self.paced.take_bytes()
         if out:
-            if not self._held:
-                self._held_since = now
-            self._held += out
-        if not self._held:
-            return b""
-        since = self._held_since
-        if self.paced.tx_busy() and since is not None and now < since + self.latency_cycles:
-            return b""
-        return self._hand_on()
-
-    def discard(self) -> int:
-        """The port went (unplugged): what the bridge held is gone. Returns how many bytes."""
-        lost = len(self._held)
-        self._held.clear()
-        self._held_since = None
-        return lost
-
-    @property
-    def held(self) -> int:
-        """Bytes ended on the line and not yet handed on."""
-        return len(self._held)
+            self.handovers += 1
+        return out
 
     def next_wake(self) -> float | None:
-        """When held bytes must go even though the line is still busy (``None``: none
-        held). The end of the frame on the pin is the board's own wake-up already."""
-        since = self._held_since
-        return None if not self._held or since is None \
-            else self.paced.time_of(since + self.latency_cycles + 1)
-
-    def _hand_on(self) -> bytes:
-        out = bytes(self._held)
-        self._held.clear()
-        self._held_since = None
-        self.handovers += 1
-        return out
+        """When the latency bound runs out for the frame on the pin (``None``: nothing
+        sent and unread). Its end, usually sooner, is the board's own wake-up already."""
+        oldest = self.paced.board.uartwrite.oldest_unread
+        return None if oldest is None else self.paced.time_of(oldest + self.latency_cycles + 1)

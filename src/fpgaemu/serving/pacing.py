@@ -187,6 +187,10 @@ class PacedBoard:
         """The TX bytes whose stop bit has ended by the board's present, not taken before."""
         return self.board.read_host_bytes()
 
+    def take_runs(self) -> bytes:
+        """As :meth:`take_bytes`, a run (a frame) only once its last stop bit has ended."""
+        return self.board.read_host_runs()
+
     def run(self, now: float | None = None) -> None:
         """Run the board up to ``now``, in slices while catching up."""
         target = self.target_cycle(now)
@@ -210,10 +214,6 @@ class PacedBoard:
         on its TX pin; ``None`` when nothing is scheduled at all."""
         return self._hosts_wake(self._wake_at(self.board.next_deadline(),
                                               self.board.uartwrite.next_completion))
-
-    def tx_busy(self) -> bool:
-        """A frame is on the board's TX pin (some of it may have ended already)."""
-        return self.board.uartwrite.next_completion is not None
 
     def pending_cycle(self) -> int | None:
         """The earliest cycle at which the board has work to do that the host could see
@@ -390,6 +390,10 @@ class RobotSide(PacedBoard):
     def take_bytes(self) -> bytes:
         self._handed_out_to = self.robot.robot.now
         return self.board.read_host_bytes()
+
+    def take_runs(self) -> bytes:
+        self._handed_out_to = self.robot.robot.now
+        return self.board.read_host_runs()
 
     def next_wake(self) -> float | None:
         return self.robot.next_wake()

@@ -72,7 +72,7 @@ class PtyEndpoint:
         loop = asyncio.get_running_loop()
         with contextlib.suppress(Exception):
             loop.remove_reader(self._master)
-        self.unplugged_tx += self._output.discard() + self.bridge.discard()
+        self.unplugged_tx += self._output.discard()
         for fd in (self._master, self._slave):
             with contextlib.suppress(OSError):
                 os.close(fd)

@@ -216,7 +216,6 @@ class TcpEndpoint(ListeningEndpoint):
             self._idle.cancel()
             self._idle = None
         self.paced.host_gone()
-        self.bridge.discard()  # half a frame for nobody
         self.flow.reset()
         self._release()
 
