@@ -102,8 +102,8 @@ class BoardTap:
 class BoardFeed:
     """One board's link on the live view: ``/board/NAME/telemetry`` (every sample),
     ``/params`` (every PA/PN), ``/parameters`` (the table: what this host set and the board
-    confirmed, and every value the board confirmed since), ``/events`` (foxglove.Log),
-    ``/stats``."""
+    confirmed, and every value the board confirmed since), ``/events`` (foxglove.Log,
+    latched: its last messages go to a client that subscribes later), ``/stats``."""
 
     def __init__(self, server: LiveServer, name: str, tap: BoardTap) -> None:
         self.server = server
@@ -120,7 +120,8 @@ class BoardFeed:
         server.channel(f"{prefix}/telemetry", telemetry_schema())
         server.channel(f"{prefix}/params", PARAM_SCHEMA)
         server.channel(f"{prefix}/parameters", PARAMETERS_SCHEMA)
-        server.channel(f"{prefix}/events", EVENT_SCHEMA)
+        # A restart is logged once: a client that subscribes after it is still told of it.
+        server.channel(f"{prefix}/events", EVENT_SCHEMA, latched=True)
         server.channel(f"{prefix}/stats", STATS_SCHEMA)
         self._removers += [self.tap.add_listener(self._on_message),
                            self.tap.on_event(self._on_link_event)]
@@ -228,8 +229,8 @@ class RobotFeed:
     ``/robot/path``, ``/robot/truth_path`` (foxglove.PosesInFrame), ``/tf``
     (foxglove.FrameTransforms: odom → base_link, base_link → each wheel, turning),
     ``/robot_description`` (the URDF), ``/robot/command``, ``/robot/supervision``
-    (foxglove.Log), ``/robot/health``. ``truth`` gives the emulated body's pose in that
-    frame (``None`` on hardware)."""
+    (foxglove.Log, latched), ``/robot/health``. ``truth`` gives the emulated body's pose in
+    that frame (``None`` on hardware)."""
 
     def __init__(self, server: LiveServer, robot: Robot,
                  truth: Callable[[], dict[str, Any] | None] | None = None) -> None:
@@ -250,8 +251,10 @@ class RobotFeed:
                 ("/robot/path", POSES_IN_FRAME_SCHEMA),
                 ("/robot/truth_path", POSES_IN_FRAME_SCHEMA), ("/tf", FRAME_TRANSFORMS_SCHEMA),
                 ("/robot_description", STRING_SCHEMA), ("/robot/command", COMMAND_SCHEMA),
-                ("/robot/supervision", EVENT_SCHEMA), ("/robot/health", STATUS_SCHEMA)):
+                ("/robot/health", STATUS_SCHEMA)):
             server.channel(topic, schema)
+        # A stop is logged once: a client that subscribes after it is still told of it.
+        server.channel("/robot/supervision", EVENT_SCHEMA, latched=True)
         self._urdf = robot_urdf(self.robot.description)
         self._tasks += [asyncio.ensure_future(self._poses()),
                         asyncio.ensure_future(self._slow()),
