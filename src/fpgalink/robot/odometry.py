@@ -7,9 +7,22 @@ wrap; differences are taken modulo 2³². Each step moves the body along an arc 
 skid-steer model (:meth:`~fpgalink.protocol.robot.SkidSteer.displacement`), and the pose
 covariance grows by a standard odometry motion model (:class:`OdometryNoise`).
 
+A step pairs the boards' samples by the telemetry periods they close, not by the order
+they are handled in: each board's motion waits in a queue of its own, one entry per sample
+with the periods it closes (1, or ``n`` after ``n - 1`` lost ones, as its message counter
+shows), and a step takes the same number of periods from every board's oldest entry, a
+share of an entry that spans more. So reads in batches (ten of L's samples, then ten of
+R's) step the body exactly as samples handled one at a time do, a host that handles two of
+one board's samples before the other's pairs them as they were sent, and a lost sample
+shifts no pairing after it. A board that falls silent leaves the others' motion queued, at
+most :data:`QUEUED_PERIODS` entries each (the oldest two then merge: memory stays bounded,
+and no motion is lost), until it reports again (its next sample closes the whole silence)
+or restarts.
+
 The running totals (distance travelled, angle turned) and the covariance's growth are
 driven by the motion the encoders resolve, not by each step's jitter: a step pairs the
-two boards' latest samples, taken up to a period apart, and counts come in whole counts, so
+two boards' samples of the same period, taken up to a period apart (their timers are not
+in phase), and counts come in whole counts, so
 a straight line's steps alternate small turns left and right (and a turn in place small
 steps forward and back) that cancel in the pose but would add up in absolute totals. The
 totals follow the cumulative distance and heading through a play (backlash) operator whose
@@ -25,9 +38,11 @@ did not see while it was away is not invented.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
+from typing import Final
 
-from fpgalink.protocol import Telemetry
+from fpgalink.protocol import COUNTER_MODULUS, Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
 from fpgalink.protocol.robot import (
     LEFT_WHEELS,
@@ -38,7 +53,21 @@ from fpgalink.protocol.robot import (
     integrate_arc,
 )
 
-__all__ = ["Odometry", "OdometryState", "Play", "count_delta"]
+__all__ = ["QUEUED_PERIODS", "Odometry", "OdometryState", "Play", "count_delta"]
+
+#: The most samples of one board's motion queued for the other boards' (1 s at 1 kHz): a
+#: board silent longer leaves the others' oldest two merged, none dropped.
+QUEUED_PERIODS: Final = 1000
+
+
+class _Motion:
+    """One board's motion over ``periods`` telemetry periods: metres by wheel name."""
+
+    __slots__ = ("metres", "periods")
+
+    def __init__(self, periods: int, metres: dict[str, float]) -> None:
+        self.periods = periods
+        self.metres = metres
 
 _WRAP = 1 << 32
 _HALF = 1 << 31
@@ -124,8 +153,12 @@ class Odometry:
         self._last_counts: dict[str, int] = {}
         self._unintegrated: dict[str, float] = {w.name: 0.0 for w in description.wheels}
         self._speeds: dict[str, float] = {w.name: 0.0 for w in description.wheels}
-        self._boards = frozenset(description.boards)
-        self._fresh: set[str] = set()
+        #: the boards with wheels: a step waits for each of them
+        self._boards = tuple(b for b in description.boards
+                             if any(w.board == b for w in description.wheels))
+        #: each board's motion not yet stepped, one entry per sample
+        self._queued: dict[str, deque[_Motion]] = {b: deque() for b in self._boards}
+        self._last_counter: dict[str, int] = {}
         self._path = 0.0  #: m, the cumulative signed distance along the path
         self._heading = 0.0  #: rad, the cumulative (unwrapped) turn
         self._play_path = Play(0.0)
@@ -183,6 +216,7 @@ class Odometry:
         would read as a turn), so the pose neither jumps nor invents a turn."""
         self._reanchor.add(board)
         self._last_t_us.pop(board, None)
+        self._last_counter.pop(board, None)
         for wheel in self.description.wheels:
             if wheel.board == board:
                 self._last_counts.pop(wheel.name, None)
@@ -192,7 +226,8 @@ class Odometry:
     def _drop_unintegrated(self) -> None:
         for name in self._unintegrated:
             self._unintegrated[name] = 0.0
-        self._fresh.clear()
+        for queue in self._queued.values():
+            queue.clear()
 
     def update(self, board: str, sample: Telemetry) -> None:
         """One ``TM`` of ``board``: its wheels' positions and speeds."""
@@ -208,11 +243,13 @@ class Odometry:
             if 0 < apart <= 1.0 and apart != self._period:
                 self._period = apart
                 self._set_bands()
+        periods = self._periods(board, sample.counter)
         reference = board in self._reanchor
         if reference:
             self._reanchor.discard(board)
             self.reanchors += 1
             self._drop_unintegrated()
+        moved: dict[str, float] = {}
         for channel, data in ((CHANNEL_A, sample.a), (CHANNEL_B, sample.b)):
             wheel = self._wheels.get((board, channel))
             if wheel is None:
@@ -228,17 +265,58 @@ class Odometry:
             if last is None:
                 continue  # the first sample only sets the reference
             turns = count_delta(data.position, last) / per_turn
-            self._unintegrated[wheel.name] += (
+            moved[wheel.name] = (
                 turns * math.tau * self.kinematics.side_radius(wheel.left) * wheel.forward)
-        # Integrate once every board has reported since the last step: a step then moves
-        # both sides together (one board at a time would zig-zag the heading, and a turn in
-        # place would add path length).
-        if not reference:  # a reference moves nothing: the others pair with what follows
-            self._fresh.add(board)
-        if self._fresh >= self._boards:
-            self._fresh.clear()
-            self._integrate()
+        # A reference moves nothing: the others pair with what follows. A step moves every
+        # side together (one board at a time would zig-zag the heading, and a turn in place
+        # would add path length), each board's motion of the same period.
+        if moved:
+            self._queue(board, moved, periods)
+            self._step_paired()
         self._update_twist()
+
+    def _periods(self, board: str, counter: int | None) -> int:
+        """How many telemetry periods this sample of ``board`` closes: 1, or more after
+        lost samples (its message counter's gap); 1 without a counter."""
+        if counter is None:
+            return 1
+        last = self._last_counter.get(board)
+        self._last_counter[board] = counter
+        if last is None:
+            return 1
+        return (counter - last) % COUNTER_MODULUS or 1
+
+    def _queue(self, board: str, moved: dict[str, float], periods: int) -> None:
+        queue = self._queued[board]
+        queue.append(_Motion(periods, moved))
+        if len(queue) > QUEUED_PERIODS:
+            oldest = queue.popleft()
+            merged = queue[0]
+            merged.periods += oldest.periods
+            for name, metres in oldest.metres.items():
+                merged.metres[name] = merged.metres.get(name, 0.0) + metres
+
+    def _step_paired(self) -> None:
+        """A step for each stretch of periods every board has queued motion for."""
+        queues = [self._queued[b] for b in self._boards]
+        unintegrated = self._unintegrated
+        while all(queues):
+            periods = min(queue[0].periods for queue in queues)
+            for queue in queues:
+                head = queue[0]
+                if head.periods == periods:
+                    queue.popleft()
+                    for name, metres in head.metres.items():
+                        unintegrated[name] += metres
+                    continue
+                # The step takes its share of an entry spanning more (a lost sample's
+                # successor, a silence, merged entries): the rest stays for the next.
+                share = periods / head.periods
+                for name, metres in head.metres.items():
+                    unintegrated[name] += metres * share
+                    head.metres[name] = metres * (1.0 - share)
+                head.periods -= periods
+            self._integrate()
 
     def _integrate(self) -> None:
         left, right = LEFT_WHEELS, RIGHT_WHEELS
@@ -283,6 +361,11 @@ class Odometry:
         left = (speeds["FL"] + speeds["BL"]) / 2.0
         right = (speeds["FR"] + speeds["BR"]) / 2.0
         self.v, self.omega = self.kinematics.body_twist(left, right)
+
+    @property
+    def queued(self) -> dict[str, int]:
+        """Periods of each board's motion waiting for the other boards' of the same period."""
+        return {board: len(queue) for board, queue in self._queued.items()}
 
     @property
     def distance(self) -> float:

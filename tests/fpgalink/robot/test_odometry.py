@@ -9,7 +9,7 @@ import pytest
 
 from fpgalink.protocol import ChannelTelemetry, Telemetry
 from fpgalink.protocol.robot import Pose, seed_robot
-from fpgalink.robot.odometry import Odometry, count_delta
+from fpgalink.robot.odometry import QUEUED_PERIODS, Odometry, count_delta
 from tests.support.emulated import RobotSim
 
 ROBOT = seed_robot().on_surface("ideal")
@@ -244,3 +244,86 @@ def test_a_sides_radius_multiplier_scales_that_sides_distance_only() -> None:
     drive_counts(odo, round(turns * COUNTS_PER_TURN), round(turns * COUNTS_PER_TURN), 400)
     assert odo.distance == pytest.approx(2.0 * 1.01, abs=2e-4)
     assert odo.pose.theta == pytest.approx(-2.0 * 0.02 / model.effective_track, abs=1e-4)
+
+
+# --- samples paired by their period, not by the order they are handled in ------------------
+
+
+def counted(t_us: int, a: int, b: int, counter: int) -> Telemetry:
+    return Telemetry(t_us, ChannelTelemetry(a, 0.0, 0.0, 0, 0.0, 1),
+                     ChannelTelemetry(b, 0.0, 0.0, 0, 0.0, 1), counter)
+
+
+def arc_samples(periods: int, lost: frozenset[int] = frozenset()
+                ) -> dict[str, list[Telemetry]]:
+    """An arc: L 12 counts a period, R 20, from period 1 (0 is the reference), each board's
+    message counter from 99,990 so that it wraps; the periods in ``lost`` missing from L."""
+    out: dict[str, list[Telemetry]] = {"L": [], "R": []}
+    for board, per in (("L", 12), ("R", 20)):
+        for k in range(periods + 1):
+            if board == "L" and k in lost:
+                continue
+            out[board].append(counted(k * 1000, per * k, per * k, (99_990 + k) % 100_000))
+    return out
+
+
+def fresh() -> Odometry:
+    odo = Odometry(ROBOT)
+    for board in ("L", "R"):
+        for channel in (1, 2):
+            odo.set_resolution(board, channel, 500)
+    return odo
+
+
+def handled_in_turn(samples: dict[str, list[Telemetry]], batch: int) -> Odometry:
+    """Each board's samples ``batch`` at a time, the boards in turn (1: as they come)."""
+    odo = fresh()
+    left, right = samples["L"], samples["R"]
+    for start in range(0, max(len(left), len(right)), batch):
+        for s in left[start:start + batch]:
+            odo.update("L", s)
+        for s in right[start:start + batch]:
+            odo.update("R", s)
+    return odo
+
+
+def test_reads_in_batches_step_the_body_as_samples_one_at_a_time_do() -> None:
+    samples = arc_samples(600)
+    one = handled_in_turn(samples, 1)
+    assert one.steps == 600 and one.pose.theta > 0.05
+    for batch in (2, 10, 37):
+        odo = handled_in_turn(samples, batch)
+        assert odo.pose == one.pose  # the same steps, to the last bit
+        assert odo.steps == one.steps and odo.queued == {"L": 0, "R": 0}
+        assert odo.covariance == one.covariance
+
+
+def test_a_lost_sample_is_its_successors_periods_shared_not_a_shifted_pairing() -> None:
+    # L's samples of periods 100 and 101 are lost: its next one closes three periods, and
+    # R's three steps take a third of it each, so every later step still pairs the same
+    # period. The arc's motion is even, so the pose is the one with nothing lost.
+    whole = handled_in_turn(arc_samples(600), 1)
+    odo = handled_in_turn(arc_samples(600, frozenset({100, 101})), 1)
+    assert odo.steps == whole.steps
+    assert odo.pose.x == pytest.approx(whole.pose.x, abs=1e-12)
+    assert odo.pose.y == pytest.approx(whole.pose.y, abs=1e-12)
+    assert odo.pose.theta == pytest.approx(whole.pose.theta, abs=1e-12)
+
+
+def test_a_silent_board_leaves_the_others_motion_queued_and_bounded_none_lost() -> None:
+    # R goes silent for 3 s while L's samples go on, a straight line: L's motion waits,
+    # bounded, and R's next sample closes the whole silence, so the line stays straight and
+    # no motion is lost.
+    odo = fresh()
+    per = 10
+    for k in range(0, 5001):
+        odo.update("L", counted(k * 1000, per * k, per * k, k))
+        if k <= 1000 or k >= 4000:
+            odo.update("R", counted(k * 1000, per * k, per * k, k))
+        if 1000 < k < 4000:
+            assert odo.queued["L"] <= QUEUED_PERIODS and odo.queued["R"] == 0
+    assert odo.queued == {"L": 0, "R": 0}
+    metres = 5000 * per / COUNTS_PER_TURN * math.tau * 0.2
+    assert odo.pose.x == pytest.approx(metres, abs=1e-9)
+    assert odo.pose.theta == pytest.approx(0.0, abs=1e-12)
+    assert odo.pose.y == pytest.approx(0.0, abs=1e-9)
