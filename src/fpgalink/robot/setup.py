@@ -7,7 +7,8 @@ on (:meth:`fpgalink.robot.Robot.start`)."""
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 
 from fpgalink.aio.link import Link
 from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
@@ -15,8 +16,8 @@ from fpgalink.protocol.identity import require_identity
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot.errors import RobotError
 
-__all__ = ["QUIET_TIMEOUT_S", "START_TIMEOUT_S", "configure", "identify", "quiet", "set_up",
-           "wait_for_boards"]
+__all__ = ["QUIET_TIMEOUT_S", "START_TIMEOUT_S", "answering", "configure", "identify", "quiet",
+           "set_up", "wait_for_boards"]
 
 #: How long :meth:`Robot.start` waits for every board to be heard.
 START_TIMEOUT_S = 5.0
@@ -39,6 +40,17 @@ async def wait_for_boards(links: Mapping[str, Link]) -> None:
         await asyncio.sleep(0.01)
 
 
+@contextmanager
+def answering(name: str, doing: str) -> Iterator[None]:
+    """A board that stops answering during a step of the start is named with the step (a
+    link's own errors say only what went unanswered): :class:`RobotError` "board NAME not
+    answering: DOING: …", which the CLI and the node both exit 4 for."""
+    try:
+        yield
+    except (RequestTimeout, BoardLost) as exc:
+        raise RobotError(f"board {name} not answering: {doing}: {exc}") from exc
+
+
 async def quiet(name: str, link: Link) -> int | float:
     """A board found streaming is turned quiet before it is set up; returns whether it
     streamed (``GetDataPeriodical``, set again at close).
@@ -52,7 +64,8 @@ async def quiet(name: str, link: Link) -> int | float:
     A board found sending telemetry counts as streaming: a start that fails after this
     leaves it quiet."""
     if not link.stats.telemetry_received:
-        return await link.get_param("GetDataPeriodical")
+        with answering(name, "asking whether it streams"):
+            return await link.get_param("GetDataPeriodical")
     loop = asyncio.get_running_loop()
     deadline = loop.time() + QUIET_TIMEOUT_S
     while True:
@@ -70,7 +83,8 @@ async def identify(name: str, link: Link, allow_mismatch: bool) -> None:
     """Ask board ``name`` who it is; :class:`~fpgalink.protocol.IdentityMismatch` naming the
     board and both hashes when its firmware was built from another protocol declaration
     (unless ``allow_mismatch``). Its link asks again after each restart."""
-    identity = await link.identification.identify(allow_mismatch=True)
+    with answering(name, "asking who it is"):
+        identity = await link.identification.identify(allow_mismatch=True)
     if not allow_mismatch:
         require_identity(identity, f"board {name} ({link.url})")
 
@@ -108,11 +122,25 @@ async def configure(name: str, link: Link, description: RobotDescription
     wheels' encoder resolution (pulses a turn) and torque coefficient (N·m/A), by channel;
     telemetry on last."""
     for param, channel, value in description.settings_for(name):
+        loading = f"loading {param.full_name(channel)} = {value}"
         try:
-            await link.set_param(param.id, value, channel or None)
+            with answering(name, loading):
+                await link.set_param(param.id, value, channel or None)
+        except RobotError:
+            raise
         except FpgalinkError as exc:
-            raise RobotError(f"board {name}: loading {param.full_name(channel)} = "
-                             f"{value}: {exc}") from exc
+            raise RobotError(f"board {name}: {loading}: {exc}") from exc
+    with answering(name, "reading back its wheels and period"):
+        readings = await _read_back(name, link, description)
+        # The link then knows the period its telemetry must keep (TelemetryStale).
+        await link.get_param("TsTimerPeriod")
+    with answering(name, "turning its telemetry on"):
+        await link.set_param("GetDataPeriodical", 1)
+    return readings
+
+
+async def _read_back(name: str, link: Link, description: RobotDescription
+                     ) -> dict[int, tuple[int, float]]:
     readings: dict[int, tuple[int, float]] = {}
     for wheel in description.wheels:
         if wheel.board == name:
@@ -123,7 +151,4 @@ async def configure(name: str, link: Link, description: RobotDescription
                                  "resolution")
             readings[wheel.channel] = (
                 pulses, float(await link.get_param("TorqueCoef", wheel.channel)))
-    # The link then knows the period its telemetry must keep (TelemetryStale).
-    await link.get_param("TsTimerPeriod")
-    await link.set_param("GetDataPeriodical", 1)
     return readings

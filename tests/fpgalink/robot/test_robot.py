@@ -437,6 +437,27 @@ async def test_a_board_found_streaming_that_then_falls_silent_fails_the_start_sa
         await robot.close()
 
 
+async def test_a_board_that_falls_silent_while_it_is_set_up_is_named_with_the_step() -> None:
+    # Heard, not streaming, then nothing it sends reaches this host: the start fails naming
+    # the board and the step, as "not answering" (exit 4 in the CLI and the node), where the
+    # link's own error named neither ("board silent for 0.702 s").
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    wait_for_boards = robot._wait_for_boards
+
+    async def heard_then_silent() -> None:
+        await wait_for_boards()
+        interpose(robot.links["L"], HeldReads).held = True
+
+    robot._wait_for_boards = heard_then_silent  # type: ignore[method-assign]
+    try:
+        with pytest.raises(RobotError, match="board L not answering: asking whether it "
+                                             "streams: "):
+            await robot.start()
+    finally:
+        await robot.close()
+
+
 @pytest.mark.parametrize("held_from", [BoardRestarted,
                                        BoardResynced])
 async def test_a_restarted_board_heard_late_past_its_silence_is_still_reconfigured(
