@@ -2,22 +2,27 @@
 
 Pose comes from the wheels' encoder *positions* — the exact integral of their rotation —
 never from integrating reported speeds, so it does not drift with sample timing or lost
-telemetry: a lost ``TM`` only makes the next step longer. Counts are i32 on the wire and
+telemetry: a lost ``TM``'s motion comes with the next sample, shared over the steps it
+spans. Counts are i32 on the wire and
 wrap; differences are taken modulo 2³². Each step moves the body along an arc through the
 skid-steer model (:meth:`~fpgalink.protocol.robot.SkidSteer.displacement`), and the pose
 covariance grows by a standard odometry motion model (:class:`OdometryNoise`).
 
-A step pairs the boards' samples by the telemetry periods they close, not by the order
+A step pairs the boards' samples by the stretch of board time they close, not by the order
 they are handled in: each board's motion waits in a queue of its own, one entry per sample
-with the periods it closes (1, or ``n`` after ``n - 1`` lost ones, as its message counter
-shows), and a step takes the same number of periods from every board's oldest entry, a
+with the whole milliseconds of its own clock since the one before (``TsTimerPeriod`` is
+whole milliseconds, so rounding takes out the clocks' jitter and a crystal's drift, which
+would add up), and a step takes the same milliseconds from every board's oldest entry, a
 share of an entry that spans more. So reads in batches (ten of L's samples, then ten of
 R's) step the body exactly as samples handled one at a time do, a host that handles two of
 one board's samples before the other's pairs them as they were sent, and a lost sample
-shifts no pairing after it. A board that falls silent leaves the others' motion queued, at
-most :data:`QUEUED_PERIODS` entries each (the oldest two then merge: memory stays bounded,
-and no motion is lost), until it reports again (its next sample closes the whole silence)
-or restarts.
+shifts no pairing after it. (The message counter is no measure of periods: a board's
+replies take counter values too.) A board that falls silent leaves the others' motion
+queued, at most :data:`QUEUED_SAMPLES` entries each (the oldest two then merge: memory
+stays bounded, and no motion is lost), until it reports again (its next sample closes the
+whole silence) or restarts. After a restart the boards pair again from the restarted
+board's first sample as it is handled: with reads in batches, the other board's samples of
+that batch may then pair up to a batch apart, as every sample did before this pairing.
 
 The running totals (distance travelled, angle turned) and the covariance's growth are
 driven by the motion the encoders resolve, not by each step's jitter: a step pairs the
@@ -42,7 +47,7 @@ from collections import deque
 from dataclasses import dataclass
 from typing import Final
 
-from fpgalink.protocol import COUNTER_MODULUS, Telemetry
+from fpgalink.protocol import Telemetry
 from fpgalink.protocol.params import CHANNEL_A, CHANNEL_B
 from fpgalink.protocol.robot import (
     LEFT_WHEELS,
@@ -53,20 +58,20 @@ from fpgalink.protocol.robot import (
     integrate_arc,
 )
 
-__all__ = ["QUEUED_PERIODS", "Odometry", "OdometryState", "Play", "count_delta"]
+__all__ = ["QUEUED_SAMPLES", "Odometry", "OdometryState", "Play", "count_delta"]
 
 #: The most samples of one board's motion queued for the other boards' (1 s at 1 kHz): a
 #: board silent longer leaves the others' oldest two merged, none dropped.
-QUEUED_PERIODS: Final = 1000
+QUEUED_SAMPLES: Final = 1000
 
 
 class _Motion:
-    """One board's motion over ``periods`` telemetry periods: metres by wheel name."""
+    """One board's motion over ``ms`` whole milliseconds of its clock: metres by wheel."""
 
-    __slots__ = ("metres", "periods")
+    __slots__ = ("metres", "ms")
 
-    def __init__(self, periods: int, metres: dict[str, float]) -> None:
-        self.periods = periods
+    def __init__(self, ms: int, metres: dict[str, float]) -> None:
+        self.ms = ms
         self.metres = metres
 
 _WRAP = 1 << 32
@@ -131,8 +136,8 @@ class OdometryState:
 
 class Odometry:
     """Feed it each board's telemetry (:meth:`update`); read :attr:`pose`, :attr:`state`.
-    The body moves one step each time every board has reported (once a period at 1 kHz
-    telemetry); a board whose samples are lost only makes the next step longer.
+    The body moves one step for each stretch of board time every board has reported (once
+    a period at 1 kHz telemetry); a lost sample's motion comes with the next, shared.
 
     The encoder resolution of every wheel must be given first (:meth:`set_resolution`,
     from the boards' ``IncSenzRes``): it is read from the boards, never assumed."""
@@ -158,7 +163,6 @@ class Odometry:
                              if any(w.board == b for w in description.wheels))
         #: each board's motion not yet stepped, one entry per sample
         self._queued: dict[str, deque[_Motion]] = {b: deque() for b in self._boards}
-        self._last_counter: dict[str, int] = {}
         self._path = 0.0  #: m, the cumulative signed distance along the path
         self._heading = 0.0  #: rad, the cumulative (unwrapped) turn
         self._play_path = Play(0.0)
@@ -216,7 +220,6 @@ class Odometry:
         would read as a turn), so the pose neither jumps nor invents a turn."""
         self._reanchor.add(board)
         self._last_t_us.pop(board, None)
-        self._last_counter.pop(board, None)
         for wheel in self.description.wheels:
             if wheel.board == board:
                 self._last_counts.pop(wheel.name, None)
@@ -238,12 +241,14 @@ class Odometry:
             self.restart(board)
             last_t_us = None
         self._last_t_us[board] = sample.t_us
+        ms = 1  # the first sample is a reference: it closes nothing
         if last_t_us is not None:
-            apart = (sample.t_us - last_t_us) % (1 << 32) / 1e6
+            apart_us = (sample.t_us - last_t_us) % _WRAP
+            ms = round(apart_us / 1000)
+            apart = apart_us / 1e6
             if 0 < apart <= 1.0 and apart != self._period:
                 self._period = apart
                 self._set_bands()
-        periods = self._periods(board, sample.counter)
         reference = board in self._reanchor
         if reference:
             self._reanchor.discard(board)
@@ -271,51 +276,49 @@ class Odometry:
         # side together (one board at a time would zig-zag the heading, and a turn in place
         # would add path length), each board's motion of the same period.
         if moved:
-            self._queue(board, moved, periods)
+            self._queue(board, moved, ms)
             self._step_paired()
         self._update_twist()
 
-    def _periods(self, board: str, counter: int | None) -> int:
-        """How many telemetry periods this sample of ``board`` closes: 1, or more after
-        lost samples (its message counter's gap); 1 without a counter."""
-        if counter is None:
-            return 1
-        last = self._last_counter.get(board)
-        self._last_counter[board] = counter
-        if last is None:
-            return 1
-        return (counter - last) % COUNTER_MODULUS or 1
-
-    def _queue(self, board: str, moved: dict[str, float], periods: int) -> None:
+    def _queue(self, board: str, moved: dict[str, float], ms: int) -> None:
         queue = self._queued[board]
-        queue.append(_Motion(periods, moved))
-        if len(queue) > QUEUED_PERIODS:
+        if ms <= 0:
+            # The same stretch again (a repeated sample): its motion, if any, goes with the
+            # last (or the next step, the last already taken); it is no new stretch, which
+            # would shift every later pairing.
+            into = queue[-1].metres if queue else self._unintegrated
+            for name, metres in moved.items():
+                into[name] = into.get(name, 0.0) + metres
+            return
+        queue.append(_Motion(ms, moved))
+        if len(queue) > QUEUED_SAMPLES:
             oldest = queue.popleft()
             merged = queue[0]
-            merged.periods += oldest.periods
+            merged.ms += oldest.ms
             for name, metres in oldest.metres.items():
                 merged.metres[name] = merged.metres.get(name, 0.0) + metres
 
     def _step_paired(self) -> None:
-        """A step for each stretch of periods every board has queued motion for."""
+        """A step for each stretch of board time every board has queued motion for."""
         queues = [self._queued[b] for b in self._boards]
         unintegrated = self._unintegrated
         while all(queues):
-            periods = min(queue[0].periods for queue in queues)
+            ms = min(queue[0].ms for queue in queues)
             for queue in queues:
                 head = queue[0]
-                if head.periods == periods:
+                if head.ms == ms:
                     queue.popleft()
                     for name, metres in head.metres.items():
                         unintegrated[name] += metres
                     continue
                 # The step takes its share of an entry spanning more (a lost sample's
                 # successor, a silence, merged entries): the rest stays for the next.
-                share = periods / head.periods
+                share = ms / head.ms
                 for name, metres in head.metres.items():
-                    unintegrated[name] += metres * share
-                    head.metres[name] = metres * (1.0 - share)
-                head.periods -= periods
+                    part = metres * share
+                    unintegrated[name] += part
+                    head.metres[name] = metres - part
+                head.ms -= ms
             self._integrate()
 
     def _integrate(self) -> None:
@@ -364,7 +367,7 @@ class Odometry:
 
     @property
     def queued(self) -> dict[str, int]:
-        """Periods of each board's motion waiting for the other boards' of the same period."""
+        """Samples of each board's motion waiting for the other boards' of the same time."""
         return {board: len(queue) for board, queue in self._queued.items()}
 
     @property

@@ -9,7 +9,7 @@ import pytest
 
 from fpgalink.protocol import ChannelTelemetry, Telemetry
 from fpgalink.protocol.robot import Pose, seed_robot
-from fpgalink.robot.odometry import QUEUED_PERIODS, Odometry, count_delta
+from fpgalink.robot.odometry import QUEUED_SAMPLES, Odometry, count_delta
 from tests.support.emulated import RobotSim
 
 ROBOT = seed_robot().on_surface("ideal")
@@ -246,7 +246,7 @@ def test_a_sides_radius_multiplier_scales_that_sides_distance_only() -> None:
     assert odo.pose.theta == pytest.approx(-2.0 * 0.02 / model.effective_track, abs=1e-4)
 
 
-# --- samples paired by their period, not by the order they are handled in ------------------
+# --- samples paired by the board time they close, not by the order they are handled in -----
 
 
 def counted(t_us: int, a: int, b: int, counter: int) -> Telemetry:
@@ -254,16 +254,20 @@ def counted(t_us: int, a: int, b: int, counter: int) -> Telemetry:
                      ChannelTelemetry(b, 0.0, 0.0, 0, 0.0, 1), counter)
 
 
-def arc_samples(periods: int, lost: frozenset[int] = frozenset()
+def arc_samples(periods: int, lost: frozenset[int] = frozenset(), replies: int = 0
                 ) -> dict[str, list[Telemetry]]:
     """An arc: L 12 counts a period, R 20, from period 1 (0 is the reference), each board's
-    message counter from 99,990 so that it wraps; the periods in ``lost`` missing from L."""
+    message counter from 99,990 so that it wraps; the periods in ``lost`` missing from L;
+    ``replies``: L answered that many requests between each two samples (its counter goes
+    on by one more each), which changes nothing of its periods."""
     out: dict[str, list[Telemetry]] = {"L": [], "R": []}
     for board, per in (("L", 12), ("R", 20)):
+        step = 1 + (replies if board == "L" else 0)
         for k in range(periods + 1):
             if board == "L" and k in lost:
                 continue
-            out[board].append(counted(k * 1000, per * k, per * k, (99_990 + k) % 100_000))
+            out[board].append(counted(k * 1000, per * k, per * k,
+                                      (99_990 + step * k) % 100_000))
     return out
 
 
@@ -299,15 +303,28 @@ def test_reads_in_batches_step_the_body_as_samples_one_at_a_time_do() -> None:
 
 
 def test_a_lost_sample_is_its_successors_periods_shared_not_a_shifted_pairing() -> None:
-    # L's samples of periods 100 and 101 are lost: its next one closes three periods, and
-    # R's three steps take a third of it each, so every later step still pairs the same
-    # period. The arc's motion is even, so the pose is the one with nothing lost.
+    # L's samples of periods 100 and 101 are lost: its next one closes three milliseconds of
+    # its clock, and R's three steps take a third of it each, so every later step still
+    # pairs the same period. The arc's motion is even, so the pose is the one with nothing
+    # lost.
     whole = handled_in_turn(arc_samples(600), 1)
     odo = handled_in_turn(arc_samples(600, frozenset({100, 101})), 1)
     assert odo.steps == whole.steps
     assert odo.pose.x == pytest.approx(whole.pose.x, abs=1e-12)
     assert odo.pose.y == pytest.approx(whole.pose.y, abs=1e-12)
     assert odo.pose.theta == pytest.approx(whole.pose.theta, abs=1e-12)
+
+
+def test_replies_between_samples_and_a_repeated_sample_shift_no_pairing() -> None:
+    # A board's replies take message counter values too, so its counter is no count of
+    # periods: L answering a request between every two samples changes nothing. Nor does a
+    # sample handed over twice (the same board time: no new stretch).
+    whole = handled_in_turn(arc_samples(600), 1)
+    assert handled_in_turn(arc_samples(600, replies=1), 10).pose == whole.pose
+    samples = arc_samples(600)
+    samples["L"].insert(300, samples["L"][299])
+    odo = handled_in_turn(samples, 1)
+    assert odo.pose == whole.pose and odo.queued == {"L": 0, "R": 0}
 
 
 def test_a_silent_board_leaves_the_others_motion_queued_and_bounded_none_lost() -> None:
@@ -321,7 +338,7 @@ def test_a_silent_board_leaves_the_others_motion_queued_and_bounded_none_lost() 
         if k <= 1000 or k >= 4000:
             odo.update("R", counted(k * 1000, per * k, per * k, k))
         if 1000 < k < 4000:
-            assert odo.queued["L"] <= QUEUED_PERIODS and odo.queued["R"] == 0
+            assert odo.queued["L"] <= QUEUED_SAMPLES and odo.queued["R"] == 0
     assert odo.queued == {"L": 0, "R": 0}
     metres = 5000 * per / COUNTS_PER_TURN * math.tau * 0.2
     assert odo.pose.x == pytest.approx(metres, abs=1e-9)
