@@ -11,7 +11,7 @@ from collections.abc import Iterator, Mapping
 from contextlib import contextmanager
 
 from fpgalink.aio.link import Link
-from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout
+from fpgalink.errors import BoardLost, FpgalinkError, RequestTimeout, WireCrcMismatchError
 from fpgalink.protocol.identity import require_identity
 from fpgalink.protocol.robot import RobotDescription
 from fpgalink.robot.errors import RobotError
@@ -47,6 +47,8 @@ def answering(name: str, doing: str) -> Iterator[None]:
     answering: DOING: …", which the CLI and the node both exit 4 for."""
     try:
         yield
+    except WireCrcMismatchError:
+        raise  # it answers, in the other wire-CRC mode: the caller's advice says how to connect
     except (RequestTimeout, BoardLost) as exc:
         raise RobotError(f"board {name} not answering: {doing}: {exc}") from exc
 
