@@ -19,6 +19,7 @@ import asyncio
 import functools
 import json
 import math
+import threading
 import time
 from collections.abc import Callable
 from typing import Any
@@ -92,12 +93,16 @@ def _listener(clients: set[int], latches: dict[str, Latch], stats: LiveStats) ->
     unsubscription for each channel it held: a latch forgets the clients gone."""
     from foxglove.websocket import ServerListener
 
+    counting = threading.Lock()  # the SDK's threads may call at once: no count lost
+
     class Listener(ServerListener):
         def on_subscribe(self, client: Any, channel: Any) -> None:
             clients.add(int(client.id))
             latch = latches.get(str(channel.topic))
             if latch is not None:
-                stats.replayed += latch.subscribe(sink_id(client))
+                replayed = latch.subscribe(sink_id(client))
+                with counting:
+                    stats.replayed += replayed
 
         def on_unsubscribe(self, client: Any, channel: Any) -> None:
             latch = latches.get(str(channel.topic))
