@@ -253,19 +253,15 @@ class Board:
         line.line_free_at = max(at, last) if last is not None else at
         return lost
 
-    def read_host_bytes(self) -> bytes:
-        """TX bytes whose stop bit has ended by now, not returned before."""
+    def read_host_bytes(self, whole_runs: bool = False) -> bytes:
+        """TX bytes whose stop bit has ended by now, not returned before; with
+        ``whole_runs``, a run of bytes (a frame) only once it has ended whole
+        (:meth:`UartWrite.read_completed_runs`)."""
+        line = self.uartwrite
+        fresh = line.read_completed_runs() if whole_runs else line.read_completed()
         if self._carried_tx:
-            return bytes(b for b, _ in self._take_carried()) + self.uartwrite.read_completed()
-        return self.uartwrite.read_completed()
-
-    def read_host_runs(self) -> bytes:
-        """As :meth:`read_host_bytes`, a run of bytes (a frame) only once it has ended
-        whole: :meth:`UartWrite.read_completed_runs`."""
-        if self._carried_tx:
-            return bytes(b for b, _ in self._take_carried()) + \
-                self.uartwrite.read_completed_runs()
-        return self.uartwrite.read_completed_runs()
+            return bytes(b for b, _ in self._take_carried()) + fresh
+        return fresh
 
     def read_host_bytes_timed(self) -> list[tuple[int, int]]:
         """As :meth:`read_host_bytes`, as ``(byte, completion cycle)`` pairs."""

@@ -41,7 +41,7 @@ class TxBridge:
         """The bytes to hand on now (``b""``: none): every frame that has ended whole since
         the last call; and what has ended of the frame still on the pin once its oldest
         byte has waited the latency bound (a frame longer than that, or a slow line)."""
-        out = self.paced.take_runs()
+        out = self.paced.take_bytes(whole_runs=True)
         oldest = self.paced.board.uartwrite.oldest_unread
         if oldest is not None and self.paced.board.now >= oldest + self.latency_cycles:
             out += self.paced.take_bytes()

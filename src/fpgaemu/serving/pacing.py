@@ -20,7 +20,7 @@ import asyncio
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from fpgaemu.board import Board
 from fpgaemu.robot import EmulatedRobot
@@ -42,7 +42,6 @@ __all__ = [
     "RobotSide",
     "RxFlow",
     "earliest",
-    "earliest_time",
     "schedule_unplugs",
 ]
 
@@ -183,13 +182,10 @@ class PacedBoard:
         self.run(now)
         return self.take_bytes()
 
-    def take_bytes(self) -> bytes:
-        """The TX bytes whose stop bit has ended by the board's present, not taken before."""
-        return self.board.read_host_bytes()
-
-    def take_runs(self) -> bytes:
-        """As :meth:`take_bytes`, a run (a frame) only once its last stop bit has ended."""
-        return self.board.read_host_runs()
+    def take_bytes(self, whole_runs: bool = False) -> bytes:
+        """The TX bytes whose stop bit has ended by the board's present, not taken before;
+        with ``whole_runs``, a run (a frame) only once its last stop bit has ended."""
+        return self.board.read_host_bytes(whole_runs)
 
     def run(self, now: float | None = None) -> None:
         """Run the board up to ``now``, in slices while catching up."""
@@ -260,14 +256,12 @@ def schedule_unplugs(paced: PacedBoard, unplug: Callable[[], None],
         loop.call_at(paced.time_of(end) + offset, replug)
 
 
-def earliest(*cycles: int | None) -> int | None:
-    """The earliest of the cycles given, ``None`` for none."""
-    return min((c for c in cycles if c is not None), default=None)
+Moment = TypeVar("Moment", int, float)
 
 
-def earliest_time(*times: float | None) -> float | None:
-    """The earliest of the times given, ``None`` for none."""
-    return min((t for t in times if t is not None), default=None)
+def earliest(*moments: Moment | None) -> Moment | None:
+    """The earliest of the cycles (or times) given, ``None`` for none."""
+    return min((m for m in moments if m is not None), default=None)
 
 
 class PacedRobot:
@@ -387,13 +381,9 @@ class RobotSide(PacedBoard):
     def run(self, now: float | None = None) -> None:
         self.robot.advance(now)
 
-    def take_bytes(self) -> bytes:
+    def take_bytes(self, whole_runs: bool = False) -> bytes:
         self._handed_out_to = self.robot.robot.now
-        return self.board.read_host_bytes()
-
-    def take_runs(self) -> bytes:
-        self._handed_out_to = self.robot.robot.now
-        return self.board.read_host_runs()
+        return self.board.read_host_bytes(whole_runs)
 
     def next_wake(self) -> float | None:
         return self.robot.next_wake()

@@ -10,7 +10,7 @@ from pathlib import Path
 
 from fpgaemu.serving.bridge import TxBridge
 from fpgaemu.serving.loop import Pacer, say
-from fpgaemu.serving.pacing import TX_BACKLOG_S, PacedBoard, RxFlow, earliest_time, schedule_unplugs
+from fpgaemu.serving.pacing import TX_BACKLOG_S, PacedBoard, RxFlow, earliest, schedule_unplugs
 from fpgalink.ports import LinkError, LinkTaken, PtyOutput, make_link, open_raw_pty, pty_where
 from fpgalink.ports import remove_own_link as remove_link
 
@@ -123,7 +123,7 @@ class PtyEndpoint:
         self.pacer.poke()
 
     def _next_wake(self) -> float | None:
-        return earliest_time(self.flow.next_wake(), self.bridge.next_wake())
+        return earliest(self.flow.next_wake(), self.bridge.next_wake())
 
     def _tick(self) -> None:
         self.paced.run()

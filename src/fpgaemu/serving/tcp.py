@@ -15,7 +15,7 @@ from fpgaemu.serving.pacing import (
     TX_BACKLOG_S,
     PacedBoard,
     RxFlow,
-    earliest_time,
+    earliest,
     schedule_unplugs,
 )
 
@@ -235,7 +235,7 @@ class TcpEndpoint(ListeningEndpoint):
         return self._connection is not None
 
     def _next_wake(self) -> float | None:
-        return earliest_time(self.flow.next_wake(), self.bridge.next_wake())
+        return earliest(self.flow.next_wake(), self.bridge.next_wake())
 
     def _tick(self) -> None:
         self.paced.run()

@@ -163,6 +163,7 @@ class Odometry:
                              if any(w.board == b for w in description.wheels))
         #: each board's motion not yet stepped, one entry per sample
         self._queued: dict[str, deque[_Motion]] = {b: deque() for b in self._boards}
+        self._queues = tuple(self._queued.values())  #: the same, in a step's order
         self._path = 0.0  #: m, the cumulative signed distance along the path
         self._heading = 0.0  #: rad, the cumulative (unwrapped) turn
         self._play_path = Play(0.0)
@@ -229,7 +230,7 @@ class Odometry:
     def _drop_unintegrated(self) -> None:
         for name in self._unintegrated:
             self._unintegrated[name] = 0.0
-        for queue in self._queued.values():
+        for queue in self._queues:
             queue.clear()
 
     def update(self, board: str, sample: Telemetry) -> None:
@@ -300,7 +301,7 @@ class Odometry:
 
     def _step_paired(self) -> None:
         """A step for each stretch of board time every board has queued motion for."""
-        queues = [self._queued[b] for b in self._boards]
+        queues = self._queues
         unintegrated = self._unintegrated
         while all(queues):
             ms = min(queue[0].ms for queue in queues)
