@@ -10,7 +10,7 @@ import asyncio
 import itertools
 import math
 import time
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Awaitable, Callable
 from contextlib import asynccontextmanager
 from typing import Any
 
@@ -64,17 +64,37 @@ async def emulated(query: str = "surface=gravel", **options: Any) -> AsyncIterat
         yield robot
 
 
+def heard_then(then: Callable[[Robot], Awaitable[None]]) -> Robot:
+    """A robot (not started) on emulated boards whose start, once every board is heard,
+    does ``then(robot)`` before it sets them up."""
+    description = seed_robot()
+    robot = Robot.open(description, _ports(description, "surface=ideal"))
+    wait_for_boards = robot._wait_for_boards
+
+    async def heard() -> None:
+        await wait_for_boards()
+        await then(robot)
+
+    robot._wait_for_boards = heard  # type: ignore[method-assign]
+    return robot
+
+
+async def start_fails(robot: Robot, match: str) -> None:
+    """The robot's start raises :class:`RobotError` matching ``match``; closed either way."""
+    try:
+        with pytest.raises(RobotError, match=match):
+            await robot.start()
+    finally:
+        await robot.close()
+
+
 def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object],
                     until: Callable[[], bool] = lambda: True) -> Robot:
     """A robot (not started) on emulated boards whose start finds ``boards`` sending a TM
     every 1 ms (a host before left them on): once heard, they are made to stream, then
     ``then(link)`` for each, and once ``until()`` holds the robot sets them up."""
-    description = seed_robot()
-    robot = Robot.open(description, _ports(description, "surface=ideal"))
-    wait_for_boards = robot._wait_for_boards
 
-    async def streaming() -> None:
-        await wait_for_boards()
+    async def streaming(robot: Robot) -> None:
         links = [robot.links[name] for name in boards]
         for link in links:
             await link.set_param("GetDataPeriodical", 1)
@@ -84,8 +104,7 @@ def found_streaming(boards: tuple[str, ...], then: Callable[[Link], object],
             then(link)
         await wait_until(until, PATIENCE, "the boards found as asked")
 
-    robot._wait_for_boards = streaming  # type: ignore[method-assign]
-    return robot
+    return heard_then(streaming)
 
 
 def board(robot: Robot, name: str) -> Board:
@@ -428,34 +447,19 @@ async def test_a_board_found_streaming_that_then_falls_silent_fails_the_start_sa
     def silent(link: Link) -> None:
         interpose(link, HeldReads).held = True
 
-    robot = found_streaming(("L",), silent)
-    try:
-        with pytest.raises(RobotError, match="board L not answering: turning its telemetry "
-                                             "off to set it up: board silent for"):
-            await robot.start()
-    finally:
-        await robot.close()
+    await start_fails(found_streaming(("L",), silent),
+                      "board L not answering: turning its telemetry off to set it up: "
+                      "board silent for")
 
 
 async def test_a_board_that_falls_silent_while_it_is_set_up_is_named_with_the_step() -> None:
     # Heard, not streaming, then nothing it sends reaches this host: the start fails naming
     # the board and the step, as "not answering" (exit 4 in the CLI and the node), where the
     # link's own error named neither ("board silent for 0.702 s").
-    description = seed_robot()
-    robot = Robot.open(description, _ports(description, "surface=ideal"))
-    wait_for_boards = robot._wait_for_boards
-
-    async def heard_then_silent() -> None:
-        await wait_for_boards()
+    async def silent(robot: Robot) -> None:
         interpose(robot.links["L"], HeldReads).held = True
 
-    robot._wait_for_boards = heard_then_silent  # type: ignore[method-assign]
-    try:
-        with pytest.raises(RobotError, match="board L not answering: asking whether it "
-                                             "streams: "):
-            await robot.start()
-    finally:
-        await robot.close()
+    await start_fails(heard_then(silent), "board L not answering: asking whether it streams: ")
 
 
 @pytest.mark.parametrize("held_from", [BoardRestarted,
